@@ -1,0 +1,29 @@
+# The README's commands. Everything runs inside .venv, created on first use.
+PYTHON ?= python3
+VENV   ?= .venv
+PY     := $(VENV)/bin/python
+# CPU machines get the CPU build of torch; a torch already importable in the venv (e.g. CUDA) is kept.
+TORCH_SPEC ?= torch==2.13.0
+
+.PHONY: install demo test bench clean
+
+$(VENV)/.installed: pyproject.toml
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -c "import torch" 2>/dev/null || $(PY) -m pip install --quiet "$(TORCH_SPEC)"
+	$(PY) -m pip install --quiet -e ".[dev]"
+	touch $@
+
+install: $(VENV)/.installed
+
+demo: install  ## the main job: a complete paper experiment with its defaults
+	$(PY) tools/demo.py
+
+test: install  ## the fast test suite
+	$(PY) -m pytest
+
+bench: install
+	$(PY) tools/bench.py
+
+clean:
+	rm -rf $(VENV) .pytest_cache

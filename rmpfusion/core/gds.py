@@ -1,0 +1,76 @@
+"""Leaf RMPs as geometric dynamical systems (G, B, Φ) with M, f, L, V derived per DESIGN.md §1.
+
+    Ξ_G = ½ Σ_i ẏ_i ∂_ẏ g_i          (the ½ is part of the definition)
+    ξ_G = Ġ_y ẏ − ½ ∇_y(ẏᵀ G ẏ),   Ġ_y = [∂_y g_i ẏ]_i
+    M = G + Ξ_G,   f = −∇Φ − B ẏ − ξ_G,   L = ½ ẏᵀGẏ − Φ,   V = ½ ẏᵀGẏ + Φ
+"""
+from __future__ import annotations
+
+import torch
+from torch import Tensor, nn
+
+from . import autodiff
+from .algebra import NodeRMP
+
+
+class LeafRMP(nn.Module):
+    """A leaf of the tree: anything that returns a NodeRMP for a batch of (y, ẏ)."""
+
+    dim: int | None = None  # None: any dimension
+
+    def __init__(self, dim: int):
+        super().__init__()
+        if self.dim is not None and dim != self.dim:
+            raise ValueError(f"{type(self).__name__} is {self.dim}-dimensional but its space has dimension {dim}")
+        self.dim = int(dim)
+
+    def forward(self, y: Tensor, yd: Tensor) -> NodeRMP:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+
+def quad(v: Tensor, A: Tensor) -> Tensor:
+    """vᵀ A v per sample."""
+    return torch.einsum("bi,bij,bj->b", v, A, v)
+
+
+class GDS(LeafRMP):
+    """A leaf defined by metric G(y, ẏ), damping B(y, ẏ) and potential Φ(y).
+
+    Subclasses implement ``metric``, ``damping`` and ``potential``; ``potential_grad`` and ``curvature``
+    default to autodiff and may be overridden analytically (tests compare both to finite differences).
+    """
+
+    def metric(self, y: Tensor, yd: Tensor) -> Tensor:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def damping(self, y: Tensor, yd: Tensor) -> Tensor:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def potential(self, y: Tensor) -> Tensor:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def potential_grad(self, y: Tensor) -> Tensor:
+        return autodiff.gradient(self.potential, y)
+
+    def curvature(self, y: Tensor, yd: Tensor) -> tuple[Tensor, Tensor]:
+        """(Ξ_G, ξ_G) by autodiff of the metric."""
+        v = yd  # the vector G multiplies: a constant for the derivatives of G below
+
+        def Gv_of_yd(z: Tensor) -> Tensor:
+            return (self.metric(y, z) @ v.unsqueeze(-1)).squeeze(-1)
+
+        Xi = 0.5 * autodiff.jacobian(Gv_of_yd, yd)
+        Gdot_yd = autodiff.directional(lambda z: (self.metric(z, yd) @ v.unsqueeze(-1)).squeeze(-1), y, yd)
+        grad_quad = autodiff.gradient(lambda z: quad(v, self.metric(z, yd)), y)
+        xi = Gdot_yd - 0.5 * grad_quad
+        return Xi, xi
+
+    def forward(self, y: Tensor, yd: Tensor) -> NodeRMP:
+        G = self.metric(y, yd)
+        Bm = self.damping(y, yd)
+        Phi = self.potential(y)
+        Xi, xi = self.curvature(y, yd)
+        M = G + Xi
+        f = -self.potential_grad(y) - (Bm @ yd.unsqueeze(-1)).squeeze(-1) - xi
+        K = 0.5 * quad(yd, G)
+        return NodeRMP(f=f, M=M, G=G, B=Bm, Phi=Phi, L=K - Phi, V=K + Phi)

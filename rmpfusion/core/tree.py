@@ -1,0 +1,241 @@
+"""RMPTree: a tree spec made into a torch module that evaluates RMPfusion's policy.
+
+Forward pass: pushforward from the root to the leaves. Backward pass: pullback* from the leaves to the
+root. Then resolve. Gradients reach every weight-function parameter, including through the h_i terms.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Mapping
+
+import torch
+from torch import Tensor, nn
+
+from ..config.errors import ConfigError, Issue
+from ..config.tree_spec import TreeSpec, validate_tree_spec
+from ..registry import LEAF_RMPS, TASK_MAPS, WEIGHTS
+from .algebra import Edge, NodeRMP, pullback_star, resolve
+from .auxstate import AuxDict
+
+
+@dataclass
+class TreeOutput:
+    """The root's RMP and monitoring quantities for a batch of states."""
+
+    qdd: Tensor
+    f: Tensor
+    M: Tensor
+    G: Tensor
+    B: Tensor
+    Phi: Tensor
+    V: Tensor
+    L: Tensor
+    nodes: dict[str, Any] | None = None  # per-node states and RMPs when asked for
+
+
+class BoundWeight(nn.Module):
+    """A (possibly shared) weight function as seen from one edge: aux inputs renamed by ``bind``."""
+
+    def __init__(self, fn: nn.Module, bind: Mapping[str, str] | None = None):
+        super().__init__()
+        self.fn = fn
+        self.bind = dict(bind or {})
+
+    @property
+    def is_constant(self) -> bool:
+        return bool(getattr(self.fn, "is_constant", False))
+
+    def forward(self, x: Tensor, aux: AuxDict | None):
+        if self.bind and aux is not None:
+            aux = {**aux, **{k: aux[v] for k, v in self.bind.items()}}
+        return self.fn(x, aux)
+
+
+class RMPTree(nn.Module):
+    """An RMP-tree*: ``tree(q, qd, aux)`` returns the root's qdd, f, M, G, B, Phi, V (and L)."""
+
+    def __init__(self, spec: TreeSpec, maps, weights, rmps, shared, resolve_method: str = "solve"):
+        super().__init__()
+        self.spec = spec
+        self.root_name = spec.root.name
+        self.dim = spec.root.dim
+        self.aux_dims = dict(spec.aux)
+        self.maps = nn.ModuleDict(maps)
+        self.weights = nn.ModuleDict(weights)
+        self.rmps = nn.ModuleDict(rmps)
+        self.shared = nn.ModuleDict(shared)
+        self.resolve_method = resolve_method
+        self.children_of: dict[str, list[str]] = {self.root_name: []}
+        for n in spec.nodes:
+            self.children_of[n] = []
+        for n, node in spec.nodes.items():
+            self.children_of[node.parent].append(n)
+        order, frontier = [], [self.root_name]
+        while frontier:  # breadth-first: every parent before its children
+            nxt = []
+            for p in frontier:
+                order.extend(self.children_of[p])
+                nxt.extend(self.children_of[p])
+            frontier = nxt
+        self.order = order
+        self.parent_of = {n: node.parent for n, node in spec.nodes.items()}
+        self.node_dims = {self.root_name: self.dim, **{n: maps[n].out_dim for n in spec.nodes}}
+
+    def _normalise_aux(self, aux: AuxDict | None, batch: int) -> dict[str, Tensor] | None:
+        if aux is None:
+            return None
+        out = dict(aux)
+        for name, d in self.aux_dims.items():
+            if name not in out:
+                continue
+            t = torch.as_tensor(out[name])
+            if t.dim() == 1 and d == 1 and t.shape[0] == batch:
+                t = t.unsqueeze(-1)
+            elif t.dim() == 1:
+                t = t.unsqueeze(0)
+            if t.shape[-1] != d:
+                raise ValueError(f"aux '{name}' has trailing dimension {t.shape[-1]}, the tree declares {d}")
+            out[name] = t.expand(batch, d) if t.shape[0] == 1 else t
+        return out
+
+    def forward(self, q: Tensor, qd: Tensor, aux: AuxDict | None = None, return_nodes: bool = False) -> TreeOutput:
+        if q.dim() != 2 or q.shape[-1] != self.dim or qd.shape != q.shape:
+            raise ValueError(f"q and qd must both be (B, {self.dim}); got {tuple(q.shape)} and {tuple(qd.shape)}")
+        aux = self._normalise_aux(aux, q.shape[0])
+        state = {self.root_name: (q, qd)}
+        edges: dict[str, Edge] = {}
+        for n in self.order:  # pushforward
+            x, xd = state[self.parent_of[n]]
+            y, yd, J, c = self.maps[n](x, xd, aux)
+            w = gw = None
+            if n in self.weights:
+                w, gw = self.weights[n](x, aux)
+            state[n] = (y, yd)
+            edges[n] = Edge(J=J, c=c, yd=yd, w=w, grad_w=gw)
+        rmp: dict[str, NodeRMP] = {}
+        for n in reversed(self.order):  # pullback*
+            kids = self.children_of[n]
+            if kids:
+                rmp[n] = pullback_star(state[n][1], ((edges[k], rmp[k]) for k in kids))
+            else:
+                rmp[n] = self.rmps[n](*state[n])
+        r = pullback_star(qd, ((edges[k], rmp[k]) for k in self.children_of[self.root_name]))
+        qdd = resolve(r.f, r.M, self.resolve_method)
+        nodes = None
+        if return_nodes:
+            nodes = {"state": state, "edge": edges, "rmp": {**rmp, self.root_name: r}}
+        return TreeOutput(qdd=qdd, f=r.f, M=r.M, G=r.G, B=r.B, Phi=r.Phi, V=r.V, L=r.L, nodes=nodes)
+
+    def policy(self, q: Tensor, qd: Tensor, aux: AuxDict | None = None) -> Tensor:
+        """Just the acceleration: the closed loop q̈ = π(q, q̇)."""
+        return self.forward(q, qd, aux).qdd
+
+    def describe(self) -> str:
+        """The tree drawn as text: node, dimension, map, weight, rmp."""
+        lines = [f"{self.root_name} (dim {self.dim})"]
+
+        def label(n: str) -> str:
+            node = self.spec.nodes[n]
+            parts = [f"{n} (dim {self.node_dims[n]})", f"map={node.map.get('type')}"]
+            if node.weight is not None:
+                wt = node.weight if isinstance(node.weight, str) else node.weight.get("type") or f"shared:{node.weight.get('shared')}"
+                parts.append(f"weight={wt}")
+            if node.rmp is not None:
+                parts.append(f"rmp={node.rmp.get('type')}")
+            return "  ".join(parts)
+
+        def walk(p: str, prefix: str) -> None:
+            kids = self.children_of[p]
+            for i, k in enumerate(kids):
+                last = i == len(kids) - 1
+                lines.append(f"{prefix}{'└── ' if last else '├── '}{label(k)}")
+                walk(k, prefix + ("    " if last else "│   "))
+
+        walk(self.root_name, "")
+        return "\n".join(lines)
+
+
+def _build(entry, spec: Mapping[str, Any], *args):
+    params = entry.validate({k: v for k, v in spec.items() if k != "type"})
+    return entry.obj(params, *args)
+
+
+def build_tree(
+    spec: Mapping[str, Any] | TreeSpec,
+    aux_dims: Mapping[str, int] | None = None,
+    dtype: torch.dtype | None = torch.float64,
+    where: str = "tree",
+    resolve_method: str = "solve",
+) -> RMPTree:
+    """Validate a tree spec (DESIGN.md §3) and assemble its modules through the registries.
+
+    ``aux_dims`` adds to (or overrides) the spec's ``aux`` declarations, e.g. from the environment.
+    All problems are reported together in one ConfigError whose lines name YAML paths.
+    """
+    ts = validate_tree_spec(spec, where)
+    if aux_dims:
+        ts = ts.model_copy(update={"aux": {**ts.aux, **dict(aux_dims)}})
+    aux = dict(ts.aux)
+    issues: list[Issue] = []
+    dims = {ts.root.name: ts.root.dim}
+    maps, weights, rmps, shared = {}, {}, {}, {}
+    for name, wspec in ts.shared_weights.items():
+        # a shared weight's parent dimension is that of the first edge using it
+        users = [n for n, nd in ts.nodes.items() if (nd.weight == name or (isinstance(nd.weight, Mapping) and nd.weight.get("shared") == name))]
+        if not users:
+            issues.append(Issue(f"{where}.shared_weights.{name}", "declared but used by no edge; remove it"))
+            continue
+        shared[name] = (wspec, users)
+    order = []
+    children: dict[str, list[str]] = {}
+    for n, nd in ts.nodes.items():
+        children.setdefault(nd.parent, []).append(n)
+    frontier = [ts.root.name]
+    while frontier:
+        nxt = [c for p in frontier for c in children.get(p, [])]
+        order += nxt
+        frontier = nxt
+    built_shared: dict[str, tuple[nn.Module, int]] = {}
+    for n in order:
+        nd, p = ts.nodes[n], f"{where}.nodes.{n}"
+        in_dim = dims[nd.parent]
+        try:
+            maps[n] = _build(TASK_MAPS.get(nd.map["type"]), nd.map, in_dim, aux)
+            dims[n] = maps[n].out_dim
+        except Exception as e:  # noqa: BLE001 - reported with its path
+            issues.append(Issue(f"{p}.map", str(e)))
+            continue
+        if nd.weight is not None:
+            try:
+                if isinstance(nd.weight, str) or "shared" in nd.weight:
+                    ref = nd.weight if isinstance(nd.weight, str) else nd.weight["shared"]
+                    bind = {} if isinstance(nd.weight, str) else dict(nd.weight.get("bind", {}))
+                    bad = [v for v in bind.values() if v not in aux]
+                    if bad:
+                        raise ValueError(f"bind refers to undeclared aux {bad} (declared: {sorted(aux)})")
+                    if ref not in built_shared:
+                        built_shared[ref] = (_build(WEIGHTS.get(shared[ref][0]["type"]), shared[ref][0], in_dim, aux), in_dim)
+                    fn, d = built_shared[ref]
+                    if d != in_dim:
+                        raise ValueError(f"shared weight '{ref}' is used on parents of dimension {d} and {in_dim}")
+                    weights[n] = BoundWeight(fn, bind)
+                else:
+                    weights[n] = BoundWeight(_build(WEIGHTS.get(nd.weight["type"]), nd.weight, in_dim, aux))
+            except Exception as e:  # noqa: BLE001
+                issues.append(Issue(f"{p}.weight", str(e)))
+        if nd.rmp is not None:
+            entry = LEAF_RMPS.get(nd.rmp["type"])
+            fixed = getattr(entry.obj, "dim", None)
+            if fixed is not None and fixed != dims[n]:
+                issues.append(Issue(f"{p}.rmp", f"'{nd.rmp['type']}' is {fixed}-dimensional but the map gives dimension {dims[n]}; change the map or the rmp"))
+                continue
+            try:
+                rmps[n] = _build(entry, nd.rmp, dims[n])
+            except Exception as e:  # noqa: BLE001
+                issues.append(Issue(f"{p}.rmp", str(e)))
+    if issues:
+        raise ConfigError(issues)
+    tree = RMPTree(ts, maps, weights, rmps, {k: v[0] for k, v in built_shared.items()}, resolve_method)
+    if dtype is not None:
+        tree = tree.to(dtype)
+    return tree

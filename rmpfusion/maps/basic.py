@@ -1,0 +1,187 @@
+"""Affine task maps and composition. All have analytic J and J̇ẋ."""
+from __future__ import annotations
+
+from typing import Any, Literal, Mapping, Sequence
+
+import torch
+from pydantic import Field, field_validator
+from torch import Tensor
+
+from ..core.auxstate import AuxOrValue, AuxParam
+from ..core.taskmap import TaskMap
+from ..registry import TASK_MAPS, Params
+
+
+def _eye(n: int, x: Tensor) -> Tensor:
+    return torch.eye(n, dtype=x.dtype, device=x.device).expand(x.shape[0], n, n)
+
+
+@TASK_MAPS.register("identity")
+class Identity(TaskMap):
+    """y = x: attach several RMPs to the same space, or weight a whole subtree."""
+
+    class Params(Params):
+        pass
+
+    def __init__(self, params: Params, in_dim: int, aux_dims: Mapping[str, int] | None = None):
+        super().__init__(in_dim, aux_dims)
+        self.out_dim = self.in_dim
+
+    def forward(self, x, xd, aux=None):
+        return x, xd, _eye(self.in_dim, x), torch.zeros_like(x)
+
+    def psi(self, x, aux):
+        return x
+
+
+@TASK_MAPS.register("offset")
+class Offset(TaskMap):
+    """y = x − origin: an attractor space with the goal at 0 (origin may be aux state)."""
+
+    class Params(Params):
+        origin: AuxOrValue
+
+    def __init__(self, params: Params, in_dim: int, aux_dims: Mapping[str, int] | None = None):
+        super().__init__(in_dim, aux_dims)
+        self.origin = AuxParam(params.origin, self.aux_dims, "offset.origin")
+        if self.origin.dim != self.in_dim:
+            raise ValueError(f"offset.origin has dimension {self.origin.dim} but the parent space has {self.in_dim}")
+        self.out_dim = self.in_dim
+
+    def psi(self, x, aux):
+        return x - self.origin(aux)
+
+    def forward(self, x, xd, aux=None):
+        return self.psi(x, aux), xd, _eye(self.in_dim, x), torch.zeros_like(x)
+
+
+@TASK_MAPS.register("linear")
+class Linear(TaskMap):
+    """y = A x + b."""
+
+    class Params(Params):
+        matrix: list[list[float]]
+        bias: list[float] | None = None
+
+    def __init__(self, params: Params, in_dim: int, aux_dims: Mapping[str, int] | None = None):
+        super().__init__(in_dim, aux_dims)
+        A = torch.as_tensor(params.matrix, dtype=torch.get_default_dtype())
+        if A.dim() != 2 or A.shape[1] != self.in_dim:
+            raise ValueError(f"linear.matrix must be (n, {self.in_dim}) for this parent, got {tuple(A.shape)}")
+        self.out_dim = A.shape[0]
+        self.register_buffer("A", A)
+        b = torch.zeros(self.out_dim) if params.bias is None else torch.as_tensor(params.bias)
+        if b.numel() != self.out_dim:
+            raise ValueError(f"linear.bias must have {self.out_dim} entries, got {b.numel()}")
+        self.register_buffer("b", b.to(A.dtype))
+
+    def psi(self, x, aux):
+        return x @ self.A.T + self.b
+
+    def forward(self, x, xd, aux=None):
+        J = self.A.expand(x.shape[0], *self.A.shape)
+        return self.psi(x, aux), xd @ self.A.T, J, x.new_zeros(x.shape[0], self.out_dim)
+
+
+@TASK_MAPS.register("select")
+class Select(Linear):
+    """y = x[indices]: a joint, or a sub-vector of the configuration."""
+
+    class Params(Params):
+        indices: list[int] = Field(min_length=1)
+
+    def __init__(self, params: Params, in_dim: int, aux_dims: Mapping[str, int] | None = None):
+        bad = [i for i in params.indices if not 0 <= i < in_dim]
+        if bad:
+            raise ValueError(f"select.indices {bad} out of range for a {in_dim}-dimensional parent")
+        A = torch.zeros(len(params.indices), in_dim)
+        A[torch.arange(len(params.indices)), torch.tensor(params.indices)] = 1.0
+        super().__init__(Linear.Params(matrix=A.tolist()), in_dim, aux_dims)
+
+
+@TASK_MAPS.register("joint_limit")
+class JointLimit(TaskMap):
+    """Distance to a joint limit: ``upper − q`` (side=upper) or ``q − lower`` (side=lower), per joint.
+
+    ``limit`` holds one value per selected joint; ``joints`` selects them (default: all).
+    """
+
+    class Params(Params):
+        side: Literal["upper", "lower"]
+        limit: float | list[float]
+        joints: int | list[int] | None = None
+
+    def __init__(self, params: Params, in_dim: int, aux_dims: Mapping[str, int] | None = None):
+        super().__init__(in_dim, aux_dims)
+        joints = params.joints
+        idx = list(range(in_dim)) if joints is None else ([joints] if isinstance(joints, int) else list(joints))
+        bad = [i for i in idx if not 0 <= i < in_dim]
+        if bad:
+            raise ValueError(f"joint_limit.joints {bad} out of range for a {in_dim}-dimensional parent")
+        lim = torch.as_tensor(params.limit, dtype=torch.get_default_dtype()).reshape(-1)
+        if lim.numel() == 1:
+            lim = lim.expand(len(idx)).clone()
+        if lim.numel() != len(idx):
+            raise ValueError(f"joint_limit.limit has {lim.numel()} values for {len(idx)} joints")
+        self.sign = -1.0 if params.side == "upper" else 1.0
+        self.out_dim = len(idx)
+        self.register_buffer("idx", torch.tensor(idx))
+        self.register_buffer("limit", lim)
+        S = torch.zeros(len(idx), in_dim)
+        S[torch.arange(len(idx)), torch.tensor(idx)] = self.sign
+        self.register_buffer("S", S)
+
+    def psi(self, x, aux):
+        return self.sign * (x[:, self.idx] - self.limit)
+
+    def forward(self, x, xd, aux=None):
+        J = self.S.to(x.dtype).expand(x.shape[0], *self.S.shape)
+        return self.psi(x, aux), self.sign * xd[:, self.idx], J, x.new_zeros(x.shape[0], self.out_dim)
+
+
+class MapSpec(Params):
+    """One stage of a composition: a registered map type and its parameters."""
+
+    model_config = Params.model_config | {"extra": "allow"}
+    type: str
+
+
+@TASK_MAPS.register("compose")
+class Compose(TaskMap):
+    """ψ = ψ_k ∘ … ∘ ψ_1 with J = J_k⋯J_1 and J̇ẋ accumulated by the chain rule."""
+
+    class Params(Params):
+        maps: list[MapSpec] = Field(min_length=1)
+
+    def __init__(self, params: Params, in_dim: int, aux_dims: Mapping[str, int] | None = None):
+        super().__init__(in_dim, aux_dims)
+        stages, dim = [], self.in_dim
+        for k, spec in enumerate(params.maps):
+            m = build_map(spec.model_dump(), dim, self.aux_dims, where=f"compose.maps[{k}]")
+            stages.append(m)
+            dim = m.out_dim
+        self.stages = torch.nn.ModuleList(stages)
+        self.out_dim = dim
+
+    def psi(self, x, aux):
+        for m in self.stages:
+            x = m.psi(x, aux)
+        return x
+
+    def forward(self, x, xd, aux=None):
+        J = c = None
+        for m in self.stages:
+            x, xd, Jk, ck = m(x, xd, aux)
+            if J is None:
+                J, c = Jk, ck
+            else:
+                c = (Jk @ c.unsqueeze(-1)).squeeze(-1) + ck
+                J = Jk @ J
+        return x, xd, J, c
+
+
+def build_map(spec: Mapping[str, Any], in_dim: int, aux_dims: Mapping[str, int], where: str = "map") -> TaskMap:
+    """Instantiate a map from ``{type: ..., **params}`` (validated by the entry's own model)."""
+    spec = dict(spec)
+    entry = TASK_MAPS.get(spec.pop("type"))
+    return entry.obj(entry.validate(spec), in_dim, aux_dims)

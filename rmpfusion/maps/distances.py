@@ -1,0 +1,110 @@
+"""Distance task maps to obstacles: 1-D coordinates for barrier RMPs."""
+from __future__ import annotations
+
+from typing import Mapping, Sequence
+
+import torch
+from pydantic import Field
+from torch import Tensor
+
+from ..core.auxstate import AuxOrValue, AuxParam
+from ..core.taskmap import TaskMap
+from ..registry import TASK_MAPS, Params
+
+
+def _radial(d: Tensor, dd: Tensor, scale: Tensor | float):
+    """For r = |d|: (r, ∂r/∂d, d²r[ḋ, ḋ]) with d the (projected) offset and ḋ its velocity."""
+    r = d.norm(dim=-1, keepdim=True)
+    u = d / r
+    ud = (u * dd).sum(-1, keepdim=True)
+    c = ((dd * dd).sum(-1, keepdim=True) - ud**2) / r
+    return r, u / scale, c / scale
+
+
+@TASK_MAPS.register("sphere_distance")
+class SphereDistance(TaskMap):
+    """Distance to a sphere (circle in 2D): ``|y−c| − R``, or ``|y−c|/R − 1`` when ``normalized``."""
+
+    class Params(Params):
+        center: AuxOrValue
+        radius: AuxOrValue = 1.0
+        normalized: bool = False
+
+    def __init__(self, params: Params, in_dim: int, aux_dims: Mapping[str, int] | None = None):
+        super().__init__(in_dim, aux_dims)
+        self.center = AuxParam(params.center, self.aux_dims, "sphere_distance.center")
+        self.radius = AuxParam(params.radius, self.aux_dims, "sphere_distance.radius")
+        if self.center.dim != in_dim:
+            raise ValueError(f"sphere_distance.center has dimension {self.center.dim}, parent space has {in_dim}")
+        if self.radius.dim != 1:
+            raise ValueError(f"sphere_distance.radius must be a scalar, got dimension {self.radius.dim}")
+        self.normalized = params.normalized
+        self.out_dim = 1
+
+    def psi(self, x, aux):
+        r = (x - self.center(aux)).norm(dim=-1, keepdim=True)
+        R = self.radius(aux)
+        return r / R - 1.0 if self.normalized else r - R
+
+    def forward(self, x, xd, aux=None):
+        R = self.radius(aux)
+        scale = R if self.normalized else 1.0
+        r, j, c = _radial(x - self.center(aux), xd, scale)
+        y = r / R - 1.0 if self.normalized else r - R
+        J = j.unsqueeze(1)
+        return y, (j * xd).sum(-1, keepdim=True), J, c
+
+
+@TASK_MAPS.register("cylinder_distance")
+class CylinderDistance(TaskMap):
+    """Distance to an infinite cylinder with a given axis through ``center``: ``|P(y−c)| − R``."""
+
+    class Params(Params):
+        center: AuxOrValue
+        radius: AuxOrValue = 1.0
+        axis: Sequence[float] = (0.0, 0.0, 1.0)
+
+    def __init__(self, params: Params, in_dim: int, aux_dims: Mapping[str, int] | None = None):
+        super().__init__(in_dim, aux_dims)
+        self.center = AuxParam(params.center, self.aux_dims, "cylinder_distance.center")
+        self.radius = AuxParam(params.radius, self.aux_dims, "cylinder_distance.radius")
+        a = torch.as_tensor(list(params.axis), dtype=torch.get_default_dtype())
+        if a.numel() != in_dim or self.center.dim != in_dim:
+            raise ValueError(f"cylinder_distance.axis and center need dimension {in_dim}")
+        if float(a.norm()) == 0.0:
+            raise ValueError("cylinder_distance.axis must be non-zero")
+        a = a / a.norm()
+        self.register_buffer("P", torch.eye(in_dim) - torch.outer(a, a))
+        self.out_dim = 1
+
+    def psi(self, x, aux):
+        return ((x - self.center(aux)) @ self.P).norm(dim=-1, keepdim=True) - self.radius(aux)
+
+    def forward(self, x, xd, aux=None):
+        P = self.P.to(x.dtype)
+        r, j, c = _radial((x - self.center(aux)) @ P, xd @ P, 1.0)
+        j = j @ P  # chain through the projection
+        return r - self.radius(aux), (j * xd).sum(-1, keepdim=True), j.unsqueeze(1), c
+
+
+@TASK_MAPS.register("box_distance")
+class BoxDistance(TaskMap):
+    """Signed distance to an axis-aligned box (``center``, ``half_extents``); derivatives by autodiff."""
+
+    class Params(Params):
+        center: AuxOrValue
+        half_extents: AuxOrValue
+
+    def __init__(self, params: Params, in_dim: int, aux_dims: Mapping[str, int] | None = None):
+        super().__init__(in_dim, aux_dims)
+        self.center = AuxParam(params.center, self.aux_dims, "box_distance.center")
+        self.half = AuxParam(params.half_extents, self.aux_dims, "box_distance.half_extents")
+        if self.center.dim != in_dim or self.half.dim != in_dim:
+            raise ValueError(f"box_distance.center and half_extents need dimension {in_dim}")
+        self.out_dim = 1
+
+    def psi(self, x, aux):
+        q = (x - self.center(aux)).abs() - self.half(aux)
+        outside = q.clamp(min=0).norm(dim=-1, keepdim=True)
+        inside = q.max(dim=-1, keepdim=True).values.clamp(max=0)
+        return outside + inside

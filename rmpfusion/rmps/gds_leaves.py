@@ -1,0 +1,188 @@
+"""GDS leaves: (G, B, Φ) given, M, f, L, V derived by the GDS base (analytic curvature where cheap).
+
+Every leaf here is a true GDS, so Theorem 2 holds exactly for trees built from them with positive
+weights; the autodiff curvature of the base class is the reference the tests compare against.
+"""
+from __future__ import annotations
+
+import torch
+from pydantic import Field
+from torch import Tensor
+
+from ..core.gds import GDS
+from ..registry import LEAF_RMPS, Params
+from .potentials import logcosh
+
+
+def _eye_like(y: Tensor) -> Tensor:
+    return torch.eye(y.shape[-1], dtype=y.dtype, device=y.device).expand(y.shape[0], -1, -1)
+
+
+@LEAF_RMPS.register("goal_attractor")
+class GoalAttractor(GDS):
+    """Soft-normalised attractor to the origin of its space (use an ``offset`` map to place the goal).
+
+    Φ = gain·log cosh(α|y|)/α (its gradient has norm gain·tanh(α|y|): linear near the goal, constant
+    far away). Metric G = w(|y|)·I with w = (w_u − w_l)·exp(−|y|²/2σ²) + w_l (constant when w_u = w_l);
+    damping B = η·w·I.
+    """
+
+    class Params(Params):
+        gain: float = Field(1.0, gt=0)
+        alpha: float = Field(1.0, gt=0, description="softness: 1/alpha is the distance where Φ turns linear")
+        eta: float = Field(2.0, ge=0, description="damping relative to the metric")
+        w_u: float = Field(1.0, gt=0, description="metric scale at the goal")
+        w_l: float = Field(1.0, gt=0, description="metric scale far from the goal")
+        sigma: float = Field(1.0, gt=0)
+
+    def __init__(self, params: Params, dim: int):
+        super().__init__(dim)
+        p = params
+        self.gain, self.alpha, self.eta, self.w_u, self.w_l, self.sigma = p.gain, p.alpha, p.eta, p.w_u, p.w_l, p.sigma
+
+    def _w(self, y: Tensor) -> tuple[Tensor, Tensor]:
+        beta = torch.exp(-(y * y).sum(-1) / (2 * self.sigma**2))
+        w = (self.w_u - self.w_l) * beta + self.w_l
+        grad_w = -((self.w_u - self.w_l) * beta / self.sigma**2)[:, None] * y
+        return w, grad_w
+
+    def metric(self, y, yd):
+        return self._w(y)[0][:, None, None] * _eye_like(y)
+
+    def damping(self, y, yd):
+        return self.eta * self.metric(y, yd)
+
+    def potential(self, y):
+        return self.gain * logcosh(self.alpha * y.norm(dim=-1)) / self.alpha
+
+    def potential_grad(self, y):
+        r = y.norm(dim=-1, keepdim=True)
+        # tanh(αr)/r → α as r → 0; the series keeps the goal itself finite and smooth
+        small = r < 1e-8
+        ratio = torch.where(small, torch.full_like(r, self.alpha), torch.tanh(self.alpha * r) / torch.where(small, torch.ones_like(r), r))
+        return self.gain * ratio * y
+
+    def curvature(self, y, yd):
+        _, grad_w = self._w(y)
+        xi = yd * (yd * grad_w).sum(-1, keepdim=True) - 0.5 * (yd * yd).sum(-1, keepdim=True) * grad_w
+        return torch.zeros_like(_eye_like(y)), xi
+
+
+class Barrier1D(GDS):
+    """1-D barrier GDS on a distance coordinate x ≥ 0 (RMPflow paper, §obstacle avoidance).
+
+    g(x, ẋ) = w(x)·u(ẋ) with w(x) = max(r_w − x, 0)²/x (zero beyond the support r_w) and velocity
+    gating u(ẋ) = ε + (1 − exp(−ẋ²/2σ²)) for ẋ < 0 (approaching), ε otherwise.
+    Φ = ½·α·w(x)², B = η·g. Inside (x < min_distance) the barrier is evaluated at min_distance, so it
+    stays finite and keeps pushing outward.
+    """
+
+    dim = 1
+
+    class Params(Params):
+        r_w: float = Field(1.0, gt=0, description="support radius: no effect beyond this distance")
+        sigma: float = Field(0.5, gt=0, description="velocity gating scale")
+        epsilon: float = Field(0.2, ge=0, description="metric floor (always-on part of the gating)")
+        alpha: float = Field(1e-5, ge=0, description="potential gain")
+        eta: float = Field(0.0, ge=0, description="damping gain")
+        min_distance: float = Field(1e-3, gt=0)
+
+    def __init__(self, params: Params, dim: int = 1):
+        super().__init__(dim)
+        p = params
+        self.r_w, self.sigma, self.epsilon = p.r_w, p.sigma, p.epsilon
+        self.alpha, self.eta, self.min_distance = p.alpha, p.eta, p.min_distance
+
+    def _w(self, x: Tensor) -> tuple[Tensor, Tensor]:
+        x = x.clamp(min=self.min_distance)
+        d = (self.r_w - x).clamp(min=0.0)
+        w = d**2 / x
+        grad_w = (-2.0 * d * x - d**2) / x**2
+        return w, grad_w
+
+    def _u(self, xd: Tensor) -> tuple[Tensor, Tensor]:
+        approaching = xd < 0
+        e = torch.exp(-(xd**2) / (2 * self.sigma**2))
+        u = self.epsilon + torch.where(approaching, 1.0 - e, torch.zeros_like(xd))
+        du = torch.where(approaching, xd / self.sigma**2 * e, torch.zeros_like(xd))
+        return u, du
+
+    def metric(self, y, yd):
+        w, _ = self._w(y[:, 0])
+        u, _ = self._u(yd[:, 0])
+        return (w * u)[:, None, None]
+
+    def damping(self, y, yd):
+        return self.eta * self.metric(y, yd)
+
+    def potential(self, y):
+        w, _ = self._w(y[:, 0])
+        return 0.5 * self.alpha * w**2
+
+    def potential_grad(self, y):
+        w, gw = self._w(y[:, 0])
+        return (self.alpha * w * gw)[:, None]
+
+    def curvature(self, y, yd):
+        _, gw = self._w(y[:, 0])
+        w, _ = self._w(y[:, 0])
+        xd = yd[:, 0]
+        u, du = self._u(xd)
+        Xi = 0.5 * xd * w * du
+        xi = 0.5 * xd**2 * u * gw
+        return Xi[:, None, None], xi[:, None]
+
+
+@LEAF_RMPS.register("collision_avoidance")
+class CollisionAvoidance(Barrier1D):
+    """Obstacle barrier on a distance space (velocity-gated, as in RMPflow)."""
+
+
+@LEAF_RMPS.register("joint_limit")
+class JointLimitBarrier(Barrier1D):
+    """Barrier on a 1-D joint-limit space (``upper − q`` or ``q − lower``), with joint-scale defaults."""
+
+    class Params(Barrier1D.Params):
+        r_w: float = Field(0.3, gt=0, description="support (rad or m): no effect further from the limit")
+        sigma: float = Field(0.3, gt=0)
+        epsilon: float = Field(0.1, ge=0)
+        alpha: float = Field(1e-3, ge=0)
+
+
+@LEAF_RMPS.register("damper")
+class Damper(GDS):
+    """G = w·I, B = η·w·I, Φ = 0: damps motion in its space."""
+
+    class Params(Params):
+        w: float = Field(1.0, gt=0)
+        eta: float = Field(1.0, ge=0)
+
+    def __init__(self, params: Params, dim: int):
+        super().__init__(dim)
+        self.w, self.eta = params.w, params.eta
+
+    def metric(self, y, yd):
+        return self.w * _eye_like(y)
+
+    def damping(self, y, yd):
+        return self.eta * self.w * _eye_like(y)
+
+    def potential(self, y):
+        return y.new_zeros(y.shape[0])
+
+    def potential_grad(self, y):
+        return torch.zeros_like(y)
+
+    def curvature(self, y, yd):
+        return torch.zeros_like(_eye_like(y)), torch.zeros_like(yd)
+
+
+@LEAF_RMPS.register("identity_metric")
+class IdentityMetric(Damper):
+    """G = scale·I, no force: keeps the root inertia well conditioned so resolve is numerically stable."""
+
+    class Params(Params):
+        scale: float = Field(1e-2, gt=0)
+
+    def __init__(self, params: Params, dim: int):
+        super().__init__(Damper.Params(w=params.scale, eta=0.0), dim)

@@ -1,0 +1,33 @@
+"""Scalar helpers shared by leaves: a stable log-cosh and radial integrals by Gauss–Legendre quadrature."""
+from __future__ import annotations
+
+import math
+from typing import Callable
+
+import numpy as np
+import torch
+from torch import Tensor
+
+_GL_NODES, _GL_WEIGHTS = np.polynomial.legendre.leggauss(16)
+
+
+def logcosh(z: Tensor) -> Tensor:
+    """log(cosh z) without overflow: |z| + log1p(e^{−2|z|}) − log 2."""
+    a = z.abs()
+    return a + torch.log1p(torch.exp(-2.0 * a)) - math.log(2.0)
+
+
+def radial_integral(integrand: Callable[[Tensor], Tensor], lo: Tensor, hi: Tensor, panels: int = 8) -> Tensor:
+    """∫_lo^hi integrand(s) ds per sample (lo, hi of shape (B,)), composite 16-point Gauss–Legendre.
+
+    Accurate to rounding for the smooth, Gaussian-decaying integrands the attractors use.
+    """
+    t = torch.as_tensor(_GL_NODES, dtype=lo.dtype, device=lo.device)
+    wq = torch.as_tensor(_GL_WEIGHTS, dtype=lo.dtype, device=lo.device)
+    k = torch.arange(panels, dtype=lo.dtype, device=lo.device)
+    width = (hi - lo) / panels  # (B,)
+    # panel p spans [lo + p·width, lo + (p+1)·width]; node = panel centre + ½ width · t
+    centers = lo[:, None] + (k[None, :] + 0.5) * width[:, None]  # (B, P)
+    s = centers[:, :, None] + 0.5 * width[:, None, None] * t  # (B, P, 16)
+    vals = integrand(s)
+    return 0.5 * width * (vals * wq).sum(dim=(-1, -2))

@@ -1,0 +1,131 @@
+"""Exact ports of the three leaves of RMPflow's reference implementation.
+
+An RMPflow user can move a tree here and get identical accelerations. Beyond RMPflow's (f, M), each
+leaf also reports G, B, Φ so L and V exist for pullback* and for the Lyapunov monitor.
+"""
+from __future__ import annotations
+
+from typing import Mapping
+
+import torch
+from pydantic import Field
+from torch import Tensor
+
+from ..core.algebra import NodeRMP
+from ..core.gds import LeafRMP, quad
+from ..registry import LEAF_RMPS, Params
+from .potentials import logcosh, radial_integral
+
+
+@LEAF_RMPS.register("rmpflow_collision_avoidance")
+class RMPflowCollisionAvoidance(LeafRMP):
+    """RMPflow's CollisionAvoidance on a distance coordinate x.
+
+    w = 1/x⁴ (w = 1e10, ∇w = 0 if x < 0), u = ε + min(0, ẋ)ẋ, G = w·u, M = G + ½ẋ·w·∂u/∂ẋ clipped to
+    ±1e5, Φ = ½αw², ξ = ½ẋ²·u·∇w, f = −∇Φ − ξ − η·G·ẋ clipped to ±1e10.
+    """
+
+    dim = 1
+
+    class Params(Params):
+        epsilon: float = Field(0.2, gt=0)
+        alpha: float = Field(1e-5, ge=0)
+        eta: float = Field(0.0, ge=0)
+
+    def __init__(self, params: Params, dim: int = 1):
+        super().__init__(dim)
+        self.epsilon, self.alpha, self.eta = params.epsilon, params.alpha, params.eta
+
+    def forward(self, y: Tensor, yd: Tensor) -> NodeRMP:
+        x, xd = y[:, 0], yd[:, 0]
+        inside = x < 0
+        xs = torch.where(inside, torch.ones_like(x), x)  # keeps the unused branch finite
+        w = torch.where(inside, torch.full_like(x, 1e10), xs**-4)
+        grad_w = torch.where(inside, torch.zeros_like(x), -4.0 * xs**-5)
+        neg = torch.clamp(xd, max=0.0)
+        u = self.epsilon + neg * xd
+        g = w * u
+        grad_u = 2.0 * neg
+        grad_Phi = self.alpha * w * grad_w
+        xi = 0.5 * xd**2 * u * grad_w
+        M = (g + 0.5 * xd * w * grad_u).clamp(-1e5, 1e5)
+        Bx = self.eta * g * xd
+        f = (-grad_Phi - xi - Bx).clamp(-1e10, 1e10)
+        Phi = 0.5 * self.alpha * w**2
+        K = 0.5 * xd**2 * g
+        as_mat = lambda s: s[:, None, None]  # noqa: E731
+        return NodeRMP(f=f[:, None], M=as_mat(M), G=as_mat(g), B=as_mat(self.eta * g), Phi=Phi, L=K - Phi, V=K + Phi)
+
+
+@LEAF_RMPS.register("rmpflow_goal_attractor")
+class RMPflowGoalAttractor(LeafRMP):
+    """RMPflow's GoalAttractorUni on x = y − goal.
+
+    β = exp(−|x|²/2σ²), w = (w_u − w_l)β + w_l, G = M = wI, ∇Φ = gain·w·tanh(α|x|)·x/|x| (0 when
+    |x| ≤ tol), f = −∇Φ − η·w·ẋ − ξ_G. Φ is the radial integral of |∇Φ| from tol, by quadrature.
+    """
+
+    class Params(Params):
+        w_u: float = Field(10.0, gt=0)
+        w_l: float = Field(1.0, gt=0)
+        sigma: float = Field(1.0, gt=0)
+        alpha: float = Field(1.0, gt=0)
+        eta: float = Field(2.0, ge=0)
+        gain: float = Field(1.0, ge=0)
+        tol: float = Field(0.005, ge=0)
+
+    def __init__(self, params: Params, dim: int):
+        super().__init__(dim)
+        p = params
+        self.w_u, self.w_l, self.sigma, self.alpha = p.w_u, p.w_l, p.sigma, p.alpha
+        self.eta, self.gain, self.tol = p.eta, p.gain, p.tol
+
+    def potential(self, r: Tensor) -> Tensor:
+        """Φ(r) = ∫_tol^r gain·w(s)·tanh(αs) ds for r > tol, else 0."""
+        a, s2 = self.alpha, self.sigma**2
+        lo = torch.full_like(r, self.tol)
+        hi = torch.maximum(r, lo)
+        base = self.w_l / a * (logcosh(a * hi) - logcosh(a * lo))
+        # the Gaussian part is negligible beyond 12σ: integrate it only there, so panels stay fine
+        hi_g = torch.minimum(hi, lo + 12.0 * self.sigma)
+        bump = radial_integral(lambda s: torch.exp(-(s**2) / (2 * s2)) * torch.tanh(a * s), lo, hi_g)
+        return self.gain * (base + (self.w_u - self.w_l) * bump)
+
+    def forward(self, y: Tensor, yd: Tensor) -> NodeRMP:
+        n = y.shape[-1]
+        r = y.norm(dim=-1)
+        beta = torch.exp(-(r**2) / (2 * self.sigma**2))
+        w = (self.w_u - self.w_l) * beta + self.w_l
+        far = r > self.tol
+        r_safe = torch.where(far, r, torch.ones_like(r))
+        s = torch.tanh(self.alpha * r)
+        grad_Phi = torch.where(far[:, None], (self.gain * w * s / r_safe)[:, None] * y, torch.zeros_like(y))
+        grad_w = -(beta * (self.w_u - self.w_l) / self.sigma**2)[:, None] * y
+        yd2 = (yd * yd).sum(-1)
+        xi = yd * (yd * grad_w).sum(-1, keepdim=True) - 0.5 * yd2[:, None] * grad_w
+        f = -grad_Phi - self.eta * w[:, None] * yd - xi
+        eye = torch.eye(n, dtype=y.dtype, device=y.device)
+        G = w[:, None, None] * eye
+        Phi = self.potential(r)
+        K = 0.5 * w * yd2
+        return NodeRMP(f=f, M=G, G=G, B=self.eta * G, Phi=Phi, L=K - Phi, V=K + Phi)
+
+
+@LEAF_RMPS.register("rmpflow_damper")
+class RMPflowDamper(LeafRMP):
+    """RMPflow's Damper: G = M = wI, f = −η·w·ẋ, in any dimension."""
+
+    class Params(Params):
+        w: float = Field(1.0, gt=0)
+        eta: float = Field(1.0, ge=0)
+
+    def __init__(self, params: Params, dim: int):
+        super().__init__(dim)
+        self.w, self.eta = params.w, params.eta
+
+    def forward(self, y: Tensor, yd: Tensor) -> NodeRMP:
+        eye = torch.eye(y.shape[-1], dtype=y.dtype, device=y.device)
+        G = (self.w * eye).expand(y.shape[0], -1, -1)
+        K = 0.5 * self.w * (yd * yd).sum(-1)
+        Phi = torch.zeros_like(K)
+        return NodeRMP(f=-self.eta * self.w * yd, M=G, G=G, B=self.eta * G, Phi=Phi, L=K, V=K)

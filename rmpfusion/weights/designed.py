@@ -1,0 +1,112 @@
+"""Hand-designed weight functions with analytic gradients: the fixed weights of expert policies."""
+from __future__ import annotations
+
+from typing import Mapping
+
+import torch
+from pydantic import Field, model_validator
+from torch import Tensor
+
+from ..core.auxstate import AuxOrValue, AuxParam
+from ..core.weight import WeightFunction
+from ..registry import WEIGHTS, Params
+
+
+@WEIGHTS.register("constant")
+class Constant(WeightFunction):
+    """w = value > 0 everywhere; ∇w = 0, so pullback* skips h_i."""
+
+    is_constant = True
+
+    class Params(Params):
+        value: float = Field(1.0, gt=0)
+
+    def __init__(self, params: Params, in_dim: int, aux_dims: Mapping[str, int] | None = None):
+        super().__init__(in_dim, aux_dims)
+        self.c = params.value
+
+    def value(self, x, aux):
+        return x.new_full((x.shape[0],), self.c)
+
+    def forward(self, x, aux=None):
+        return self.value(x, aux), None
+
+
+class _Range(Params):
+    low: float = Field(gt=0, description="weight far from the feature's switching point")
+    high: float = Field(gt=0)
+
+
+class _DistanceWeight(WeightFunction):
+    """Base for weights of the distance d = |x − center| − radius (center/radius constant or aux)."""
+
+    def __init__(self, params, in_dim: int, aux_dims: Mapping[str, int] | None = None):
+        super().__init__(in_dim, aux_dims)
+        self.center = AuxParam(params.center, self.aux_dims, f"{type(self).__name__}.center")
+        self.radius = AuxParam(params.radius, self.aux_dims, f"{type(self).__name__}.radius")
+        if self.center.dim != in_dim:
+            raise ValueError(f"weight center has dimension {self.center.dim}, parent space has {in_dim}")
+        self.low, self.high = params.low, params.high
+
+    def _distance(self, x, aux) -> tuple[Tensor, Tensor]:
+        diff = x - self.center(aux)
+        r = diff.norm(dim=-1).clamp(min=1e-12)
+        return r - self.radius(aux).reshape(-1), diff / r[:, None]
+
+    def shape(self, d: Tensor) -> tuple[Tensor, Tensor]:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def value(self, x, aux):
+        return self.forward(x, aux)[0]
+
+    def forward(self, x, aux=None):
+        d, dd_dx = self._distance(x, aux)
+        s, ds = self.shape(d)
+        w = self.low + (self.high - self.low) * s
+        return w, ((self.high - self.low) * ds)[:, None] * dd_dx
+
+
+@WEIGHTS.register("rbf")
+class RBF(_DistanceWeight):
+    """w = low + (high − low)·exp(−d²/2σ²), d = |x − center| − radius: high near a point or surface."""
+
+    class Params(_Range):
+        center: AuxOrValue
+        radius: AuxOrValue = 0.0
+        sigma: float = Field(1.0, gt=0)
+
+    def __init__(self, params: Params, in_dim: int, aux_dims: Mapping[str, int] | None = None):
+        super().__init__(params, in_dim, aux_dims)
+        self.sigma = params.sigma
+
+    def shape(self, d):
+        e = torch.exp(-(d**2) / (2 * self.sigma**2))
+        return e, -d / self.sigma**2 * e
+
+
+@WEIGHTS.register("logistic")
+class Logistic(_DistanceWeight):
+    """w = low + (high − low)·σ(k·(d − d0)), d = |x − center| − radius: a smooth switch at distance d0.
+
+    k > 0 turns the edge on far away; k < 0 turns it on near the center.
+    """
+
+    class Params(_Range):
+        center: AuxOrValue
+        radius: AuxOrValue = 0.0
+        steepness: float = Field(4.0, description="k; its sign picks which side is 'high'")
+        switch_distance: float = 0.0
+
+        @model_validator(mode="after")
+        def _nonzero(self):
+            if self.steepness == 0:
+                raise ValueError("steepness must be non-zero (use a constant weight instead)")
+            return self
+
+    def __init__(self, params: Params, in_dim: int, aux_dims: Mapping[str, int] | None = None):
+        super().__init__(params, in_dim, aux_dims)
+        self.k, self.d0 = params.steepness, params.switch_distance
+
+    def shape(self, d):
+        s = torch.sigmoid(self.k * (d - self.d0))
+        return s, self.k * s * (1 - s)

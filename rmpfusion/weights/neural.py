@@ -1,0 +1,111 @@
+"""Neural weight functions: an MLP of the parent configuration and chosen aux features, positive by construction.
+
+∇_x w is computed by forward-mode propagation through the layers alongside the value (the input
+dimension is small), so it needs no double backward and stays differentiable in the parameters.
+"""
+from __future__ import annotations
+
+import math
+from typing import Literal, Mapping
+
+import torch
+import torch.nn.functional as F
+from pydantic import Field
+from torch import Tensor, nn
+
+from ..core.auxstate import AuxDict
+from ..core.weight import WeightFunction, aux_features
+from ..registry import WEIGHTS, Params
+
+
+def _act(name: str):
+    """(σ(z), σ'(z)) for the supported smooth activations."""
+    if name == "tanh":
+        def f(z):
+            t = torch.tanh(z)
+            return t, 1 - t * t
+    elif name == "softplus":
+        def f(z):
+            return F.softplus(z), torch.sigmoid(z)
+    elif name == "sigmoid":
+        def f(z):
+            s = torch.sigmoid(z)
+            return s, s * (1 - s)
+    elif name == "elu":
+        def f(z):
+            return F.elu(z), torch.where(z > 0, torch.ones_like(z), torch.exp(z.clamp(max=0)))
+    elif name == "silu":
+        def f(z):
+            s = torch.sigmoid(z)
+            return z * s, s * (1 + z * (1 - s))
+    else:  # pragma: no cover - the Params model rejects other names
+        raise ValueError(name)
+    return f
+
+
+@WEIGHTS.register("mlp")
+class MLPWeight(WeightFunction):
+    """w = floor + pos(MLP([x, aux features])) with pos = softplus or exp.
+
+    ``aux`` lists aux names whose values join the input (held fixed in ∇_x w). ``init_bias`` sets the
+    output bias so an untrained network starts near a chosen weight.
+    """
+
+    class Params(Params):
+        hidden: list[int] = Field(default_factory=lambda: [64, 64])
+        activation: Literal["tanh", "softplus", "sigmoid", "elu", "silu"] = "tanh"
+        positivity: Literal["softplus", "exp"] = "softplus"
+        floor: float = Field(1e-3, gt=0, description="lower bound of w: keeps every edge strictly positive")
+        aux: list[str] = Field(default_factory=list)
+        use_config: bool = Field(True, description="feed the parent configuration to the network")
+        init_bias: float | None = Field(None, description="initial w before training (default: random)")
+
+    def __init__(self, params: Params, in_dim: int, aux_dims: Mapping[str, int] | None = None):
+        super().__init__(in_dim, aux_dims)
+        p = params
+        missing = [a for a in p.aux if a not in self.aux_dims]
+        if missing:
+            raise ValueError(f"mlp.aux names {missing} are not declared (declared aux: {sorted(self.aux_dims)})")
+        self.aux_names = list(p.aux)
+        self.use_config = p.use_config
+        n_in = (in_dim if p.use_config else 0) + sum(self.aux_dims[a] for a in p.aux)
+        if n_in == 0:
+            raise ValueError("mlp weight has no inputs: set use_config or list aux features")
+        sizes = [n_in, *p.hidden, 1]
+        self.layers = nn.ModuleList(nn.Linear(a, b) for a, b in zip(sizes[:-1], sizes[1:]))
+        self.act = _act(p.activation)
+        self.activation = p.activation
+        self.positivity, self.floor = p.positivity, p.floor
+        if p.init_bias is not None:
+            target = max(p.init_bias - p.floor, 1e-6)
+            b = math.log(target) if p.positivity == "exp" else math.log(math.expm1(target))
+            nn.init.zeros_(self.layers[-1].weight)
+            nn.init.constant_(self.layers[-1].bias, b)
+
+    def forward(self, x: Tensor, aux: AuxDict | None = None):
+        B = x.shape[0]
+        feats = aux_features(self.aux_names, aux, B)
+        parts = ([x] if self.use_config else []) + ([feats] if feats is not None else [])
+        h = torch.cat(parts, dim=-1) if len(parts) > 1 else parts[0]
+        # tangent dh/dx, (B, width, in_dim): seeded only on the configuration inputs
+        W0 = self.layers[0].weight
+        z = F.linear(h, W0, self.layers[0].bias)
+        dz = W0[:, : self.in_dim].expand(B, -1, -1) if self.use_config else None
+        for layer in self.layers[1:]:
+            a, da = self.act(z)
+            dh = da.unsqueeze(-1) * dz if dz is not None else None
+            z = layer(a)
+            dz = layer.weight @ dh if dh is not None else None
+        out = z[:, 0]
+        if self.positivity == "exp":
+            pos = torch.exp(out)
+            dpos = pos
+        else:
+            pos = F.softplus(out)
+            dpos = torch.sigmoid(out)
+        w = self.floor + pos
+        grad = dpos[:, None] * dz[:, 0, :] if dz is not None else None  # no config input: ∇_x w = 0
+        return w, grad
+
+    def value(self, x, aux):
+        return self.forward(x, aux)[0]
