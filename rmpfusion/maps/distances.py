@@ -98,13 +98,13 @@ class BoxDistance(TaskMap):
     def __init__(self, params: Params, in_dim: int, aux_dims: Mapping[str, int] | None = None):
         super().__init__(in_dim, aux_dims)
         self.center = AuxParam(params.center, self.aux_dims, "box_distance.center")
-        self.half = AuxParam(params.half_extents, self.aux_dims, "box_distance.half_extents")
-        if self.center.dim != in_dim or self.half.dim != in_dim:
+        self.half_extents = AuxParam(params.half_extents, self.aux_dims, "box_distance.half_extents")
+        if self.center.dim != in_dim or self.half_extents.dim != in_dim:
             raise ValueError(f"box_distance.center and half_extents need dimension {in_dim}")
         self.out_dim = 1
 
     def psi(self, x, aux):
-        q = (x - self.center(aux)).abs() - self.half(aux)
+        q = (x - self.center(aux)).abs() - self.half_extents(aux)
         outside = q.clamp(min=0).norm(dim=-1, keepdim=True)
         inside = q.max(dim=-1, keepdim=True).values.clamp(max=0)
         return outside + inside

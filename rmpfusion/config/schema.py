@@ -1,0 +1,85 @@
+"""The run configuration: what a composed Hydra config must be once resolved.
+
+Hydra composes YAML; this model is the contract every entry point validates against (frozen,
+unknown keys rejected). Registry-typed blocks (env, learners, weights) are checked again by their
+entry's own model in ``validate_run_config``, so errors name paths like ``learners.rmp.weights.hidden``.
+"""
+from __future__ import annotations
+
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+
+class _Frozen(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class DataConfig(_Frozen):
+    """Demonstrations (paper §4.1 "Data"): environments × trajectories × equidistant points."""
+
+    train_envs: int = Field(20, gt=0)
+    train_trajectories: int = Field(50, gt=0, description="per environment, from unique initial states")
+    test_envs: int = Field(5, gt=0)
+    test_trajectories: int = Field(10, gt=0)
+    points: int = Field(60, gt=1, description="recorded points per trajectory")
+    interval: float = Field(1.0, gt=0, description="seconds between recorded points")
+    cache_dir: str | None = Field(None, description="shared, checksummed dataset cache; default: the run directory")
+
+
+class TrainConfig(_Frozen):
+    optimizer: Literal["rmsprop", "adam", "sgd"] = "rmsprop"
+    lr: float = Field(1e-3, gt=0)
+    batch_size: int = Field(200, gt=0)
+    iterations: int = Field(20000, ge=0)
+    snapshots: list[int] = Field(default_factory=lambda: [0, 1000, 5000, 20000],
+                                 description="iterations at which the learner is kept and evaluated")
+    checkpoint_every: int = Field(1000, gt=0)
+    log_every: int = Field(100, gt=0)
+    dtype: Literal["float32", "float64"] = "float64"
+    grad_clip: float | None = Field(None, gt=0)
+
+
+class EvalConfig(_Frozen):
+    horizon: float | None = Field(None, gt=0, description="rollout length in seconds; default points × interval")
+    lyapunov_rtol: float = Field(1e-6, ge=0)
+    lyapunov_atol: float = Field(1e-9, ge=0)
+    figures: bool = True
+
+
+class LoggerConfig(_Frozen):
+    mode: Literal["offline", "online", "disabled"] = "offline"
+    project: str = "rmpfusion"
+    entity: str | None = None
+    tags: list[str] = Field(default_factory=list)
+    group: str | None = None
+
+
+class TypedBlock(BaseModel):
+    """``{type: name, **params}``: params are validated by the named registry entry."""
+
+    model_config = ConfigDict(extra="allow", frozen=True)
+    type: str
+
+
+class RunConfig(_Frozen):
+    """A whole experiment: environment, tree, expert weights, learners, data, training, evaluation."""
+
+    name: str = "experiment"
+    seed: int = 0
+    device: str = "cpu"
+    env: TypedBlock
+    tree: dict[str, Any] = Field(description="the tree spec (DESIGN.md §3) without learned weights")
+    expert: dict[str, Any] = Field(default_factory=dict, description="node name -> weight spec of the expert")
+    learners: dict[str, TypedBlock] = Field(default_factory=dict, description="learner name -> {type: rmp|unstructured, ...}")
+    data: DataConfig = DataConfig()
+    train: TrainConfig = TrainConfig()
+    eval: EvalConfig = EvalConfig()
+    logger: LoggerConfig = LoggerConfig()
+
+    @model_validator(mode="after")
+    def _snapshots_in_range(self):
+        bad = [s for s in self.train.snapshots if s < 0 or s > self.train.iterations]
+        if bad:
+            raise ValueError(f"train.snapshots {bad} lie outside 0..train.iterations={self.train.iterations}")
+        return self

@@ -1,0 +1,2 @@
+"""Metrics on rollouts: Lyapunov monitoring (Theorem 2), success and collision rates."""
+from .lyapunov import energy_rate_residual, lyapunov_monotone, max_relative_increase  # noqa: F401

@@ -1,0 +1,194 @@
+"""A minimal URDF reader: only the kinematic tree, so forward kinematics needs no robotics dependency.
+
+Visuals, collisions and inertias other than the inertial frame are ignored; the inertial frame is kept
+because simulators such as pybullet report some quantities relative to it.
+"""
+from __future__ import annotations
+
+import functools
+import math
+import os
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass
+
+Vec3 = tuple[float, float, float]
+
+JOINT_TYPES = ("revolute", "continuous", "prismatic", "fixed")
+PANDA_ARM_JOINTS: tuple[str, ...] = tuple(f"panda_joint{i}" for i in range(1, 8))
+
+
+@dataclass(frozen=True)
+class Joint:
+    name: str
+    type: str  # one of JOINT_TYPES
+    parent: str
+    child: str
+    xyz: Vec3 = (0.0, 0.0, 0.0)
+    rpy: Vec3 = (0.0, 0.0, 0.0)
+    axis: Vec3 = (1.0, 0.0, 0.0)  # unit vector in the joint frame (URDF default is x)
+    lower: float = -math.inf
+    upper: float = math.inf
+    velocity: float = math.inf
+    effort: float = math.inf
+
+    @property
+    def movable(self) -> bool:
+        return self.type != "fixed"
+
+
+@dataclass(frozen=True)
+class Link:
+    name: str
+    inertial_xyz: Vec3 = (0.0, 0.0, 0.0)
+    inertial_rpy: Vec3 = (0.0, 0.0, 0.0)
+
+
+@dataclass(frozen=True)
+class URDFModel:
+    """A kinematic tree; joints are kept in topological order (parents before children)."""
+
+    name: str
+    links: tuple[Link, ...]
+    joints: tuple[Joint, ...]
+    root: str
+
+    def link(self, name: str) -> Link:
+        for l in self.links:
+            if l.name == name:
+                return l
+        raise KeyError(f"URDF '{self.name}' has no link '{name}'; links: {', '.join(self.link_names())}")
+
+    def joint(self, name: str) -> Joint:
+        for j in self.joints:
+            if j.name == name:
+                return j
+        raise KeyError(f"URDF '{self.name}' has no joint '{name}'; joints: {', '.join(j.name for j in self.joints)}")
+
+    def link_names(self) -> list[str]:
+        return [l.name for l in self.links]
+
+    def movable_joint_names(self) -> list[str]:
+        return [j.name for j in self.joints if j.movable]
+
+    def parent_joint(self, link: str) -> Joint | None:
+        for j in self.joints:
+            if j.child == link:
+                return j
+        return None
+
+    def path_to(self, link: str) -> list[Joint]:
+        """Joints from the root down to ``link``."""
+        self.link(link)
+        path = []
+        j = self.parent_joint(link)
+        while j is not None:
+            path.append(j)
+            j = self.parent_joint(j.parent)
+        return path[::-1]
+
+
+def _vec(text: str | None, default: Vec3, what: str) -> Vec3:
+    if text is None:
+        return default
+    vals = [float(v) for v in text.split()]
+    if len(vals) != 3:
+        raise ValueError(f"URDF {what}: expected 3 numbers, got '{text}'")
+    return (vals[0], vals[1], vals[2])
+
+
+def _origin(el: ET.Element | None) -> tuple[Vec3, Vec3]:
+    o = None if el is None else el.find("origin")
+    if o is None:
+        return (0.0, 0.0, 0.0), (0.0, 0.0, 0.0)
+    return _vec(o.get("xyz"), (0.0, 0.0, 0.0), "origin xyz"), _vec(o.get("rpy"), (0.0, 0.0, 0.0), "origin rpy")
+
+
+def _parse_joint(el: ET.Element) -> Joint:
+    name, jtype = el.get("name"), el.get("type")
+    if jtype not in JOINT_TYPES:
+        raise ValueError(f"URDF joint '{name}': type '{jtype}' is not supported (supported: {', '.join(JOINT_TYPES)})")
+    parent, child = el.find("parent"), el.find("child")
+    if parent is None or child is None:
+        raise ValueError(f"URDF joint '{name}' needs <parent> and <child>")
+    xyz, rpy = _origin(el)
+    axis_el = el.find("axis")
+    axis = _vec(None if axis_el is None else axis_el.get("xyz"), (1.0, 0.0, 0.0), f"joint '{name}' axis")
+    n = math.sqrt(sum(a * a for a in axis))
+    if jtype != "fixed":
+        if n == 0.0:
+            raise ValueError(f"URDF joint '{name}' has a zero axis")
+        axis = (axis[0] / n, axis[1] / n, axis[2] / n)
+    lim = el.find("limit")
+    get = (lambda k, d: d if lim is None or lim.get(k) is None else float(lim.get(k)))
+    lower, upper = -math.inf, math.inf
+    if jtype in ("revolute", "prismatic"):
+        lower, upper = get("lower", -math.inf), get("upper", math.inf)
+    return Joint(
+        name=name, type=jtype, parent=parent.get("link"), child=child.get("link"), xyz=xyz, rpy=rpy, axis=axis,
+        lower=lower, upper=upper, velocity=get("velocity", math.inf), effort=get("effort", math.inf),
+    )
+
+
+def parse_urdf_string(text: str) -> URDFModel:
+    """Parse URDF XML text into a kinematic tree (checked: one root, every link with at most one parent)."""
+    root_el = ET.fromstring(text)
+    if root_el.tag != "robot":
+        raise ValueError(f"URDF root element must be <robot>, got <{root_el.tag}>")
+    links = {}
+    for el in root_el.findall("link"):
+        xyz, rpy = _origin(el.find("inertial"))
+        links[el.get("name")] = Link(el.get("name"), xyz, rpy)
+    joints = [_parse_joint(el) for el in root_el.findall("joint")]
+    by_child: dict[str, Joint] = {}
+    for j in joints:
+        for l in (j.parent, j.child):
+            if l not in links:
+                raise ValueError(f"URDF joint '{j.name}' refers to unknown link '{l}'")
+        if j.child in by_child:
+            raise ValueError(f"URDF link '{j.child}' has two parent joints ('{by_child[j.child].name}', '{j.name}')")
+        by_child[j.child] = j
+    roots = [l for l in links if l not in by_child]
+    if len(roots) != 1:
+        raise ValueError(f"URDF must have exactly one root link, found {roots or 'none (a cycle)'}")
+    # breadth-first from the root, children in document order
+    ordered_links, ordered_joints, frontier = [roots[0]], [], [roots[0]]
+    while frontier:
+        nxt = []
+        for parent in frontier:
+            for j in joints:
+                if j.parent == parent:
+                    ordered_joints.append(j)
+                    ordered_links.append(j.child)
+                    nxt.append(j.child)
+        frontier = nxt
+    if len(ordered_links) != len(links):
+        raise ValueError("URDF link graph is not a tree (unreachable links or a cycle)")
+    return URDFModel(
+        name=root_el.get("name", "robot"),
+        links=tuple(links[l] for l in ordered_links),
+        joints=tuple(ordered_joints),
+        root=roots[0],
+    )
+
+
+@functools.lru_cache(maxsize=16)
+def _parse_cached(path: str, mtime: float) -> URDFModel:
+    with open(path, encoding="utf-8") as f:
+        return parse_urdf_string(f.read())
+
+
+def parse_urdf(path: str | os.PathLike) -> URDFModel:
+    """Parse a URDF file; cached per path and modification time since every task map on a robot reads it."""
+    path = os.path.abspath(os.fspath(path))
+    if not os.path.isfile(path):
+        raise FileNotFoundError(f"URDF file not found: {path}")
+    return _parse_cached(path, os.path.getmtime(path))
+
+
+def load_panda_urdf_path() -> str:
+    """The Franka Panda URDF shipped with pybullet_data, so tests compare against the very same model."""
+    try:
+        import pybullet_data
+    except ImportError as e:  # pragma: no cover - pybullet is a dependency
+        raise ImportError("the panda URDF comes from pybullet_data; install pybullet") from e
+    return os.path.join(pybullet_data.getDataPath(), "franka_panda", "panda.urdf")
