@@ -203,3 +203,19 @@ def test_describe_draws_the_tree():
     text = rmpfusion.build_tree(TWO_LEVEL).describe()
     assert "└── o2 (dim 1)  map=sphere_distance  weight=rbf  rmp=collision_avoidance" in text
     assert "├── obstacles (dim 2)" in text
+
+
+def test_non_finite_values_raise_an_error_naming_where():
+    from rmpfusion.core.tree import NumericalError
+    tree = rmpfusion.build_tree(TWO_LEVEL)
+    q, qd, aux = two_level_inputs(3, torch.Generator().manual_seed(0))
+    bad_q = q.clone(); bad_q[1, 0] = float("nan")
+    with pytest.raises(NumericalError, match=r"non-finite input q"):
+        tree(bad_q, qd, aux)
+    bad_aux = dict(aux); bad_aux["obstacle2_radius"] = torch.full_like(aux["obstacle2_radius"], float("inf"))
+    with pytest.raises(NumericalError, match=r"non-finite input aux\['obstacle2_radius'\]"):
+        tree(q, qd, bad_aux)
+    with torch.no_grad():
+        tree.weights["o1"].fn.layers[0].weight[0, 0] = float("nan")
+    with pytest.raises(NumericalError, match=r"non-finite weight at node 'o1'"):
+        tree(q, qd, aux)

@@ -115,5 +115,10 @@ def resolve(f: Tensor, M: Tensor, method: str = "solve") -> Tensor:
     a = a.squeeze(-1)
     bad = (info != 0) | ~torch.isfinite(a).all(-1)
     if bool(bad.any()):
-        a = torch.where(bad[:, None], (torch.linalg.pinv(M) @ f.unsqueeze(-1)).squeeze(-1), a)
+        # pseudo-inverse only where it is defined; a non-finite M stays non-finite for the caller to report
+        fix = bad & torch.isfinite(M).flatten(1).all(-1) & torch.isfinite(f).all(-1)
+        a = a.clone()
+        a[bad] = float("nan")
+        if bool(fix.any()):
+            a[fix] = (torch.linalg.pinv(M[fix]) @ f[fix].unsqueeze(-1)).squeeze(-1)
     return a

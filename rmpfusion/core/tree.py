@@ -33,6 +33,17 @@ class TreeOutput:
     nodes: dict[str, Any] | None = None  # per-node states and RMPs when asked for
 
 
+class NumericalError(FloatingPointError):
+    """A non-finite value in a tree evaluation; the message names where it first appeared."""
+
+
+def _first_nonfinite(named) -> str | None:
+    for name, t in named:
+        if t is not None and not bool(torch.isfinite(t).all()):
+            return name
+    return None
+
+
 class BoundWeight(nn.Module):
     """A (possibly shared) weight function as seen from one edge: aux inputs renamed by ``bind``."""
 
@@ -54,7 +65,7 @@ class BoundWeight(nn.Module):
 class RMPTree(nn.Module):
     """An RMP-tree*: ``tree(q, qd, aux)`` returns the root's qdd, f, M, G, B, Phi, V (and L)."""
 
-    def __init__(self, spec: TreeSpec, maps, weights, rmps, shared, resolve_method: str = "solve"):
+    def __init__(self, spec: TreeSpec, maps, weights, rmps, shared, resolve_method: str = "solve", check_finite: bool = True):
         super().__init__()
         self.spec = spec
         self.root_name = spec.root.name
@@ -65,6 +76,7 @@ class RMPTree(nn.Module):
         self.rmps = nn.ModuleDict(rmps)
         self.shared = nn.ModuleDict(shared)
         self.resolve_method = resolve_method
+        self.check_finite = check_finite  # a NaN must never become a command silently
         self.children_of: dict[str, list[str]] = {self.root_name: []}
         for n in spec.nodes:
             self.children_of[n] = []
@@ -121,10 +133,39 @@ class RMPTree(nn.Module):
                 rmp[n] = self.rmps[n](*state[n])
         r = pullback_star(qd, ((edges[k], rmp[k]) for k in self.children_of[self.root_name]))
         qdd = resolve(r.f, r.M, self.resolve_method)
+        if self.check_finite and not bool(torch.isfinite(qdd).all()):
+            raise NumericalError(self._diagnose(q, qd, aux))
         nodes = None
         if return_nodes:
             nodes = {"state": state, "edge": edges, "rmp": {**rmp, self.root_name: r}}
         return TreeOutput(qdd=qdd, f=r.f, M=r.M, G=r.G, B=r.B, Phi=r.Phi, V=r.V, L=r.L, nodes=nodes)
+
+    def _diagnose(self, q: Tensor, qd: Tensor, aux: AuxDict | None) -> str:
+        """Where the first non-finite value came from: inputs, then nodes in pushforward order, then the root."""
+        bad = _first_nonfinite([("q", q), ("qd", qd), *((f"aux['{k}']", v) for k, v in (aux or {}).items())])
+        if bad:
+            return f"non-finite input {bad}; check the state or aux state passed to the tree"
+        was, self.check_finite = self.check_finite, False
+        try:
+            with torch.no_grad():
+                out = self.forward(q, qd, aux, return_nodes=True)
+        finally:
+            self.check_finite = was
+        n = out.nodes
+        for name in self.order:
+            e = n["edge"][name]
+            where = _first_nonfinite([("y", n["state"][name][0]), ("ydot", n["state"][name][1]), ("J", e.J), ("Jdot_xdot", e.c),
+                                      ("weight", e.w), ("weight gradient", e.grad_w)])
+            if where:
+                return f"non-finite {where} at node '{name}' (map {self.spec.nodes[name].map.get('type')})"
+        for name in reversed(self.order):
+            where = _first_nonfinite(n["rmp"][name].items())
+            if where:
+                return f"non-finite {where} in the RMP of node '{name}'"
+        where = _first_nonfinite(n["rmp"][self.root_name].items())
+        if where:
+            return f"non-finite root {where} after pullback*"
+        return "non-finite acceleration from resolve: the root inertia M is singular or badly conditioned; add an identity_metric leaf on the root"
 
     def policy(self, q: Tensor, qd: Tensor, aux: AuxDict | None = None) -> Tensor:
         """Just the acceleration: the closed loop q̈ = π(q, q̇)."""
@@ -166,6 +207,7 @@ def build_tree(
     dtype: torch.dtype | None = torch.float64,
     where: str = "tree",
     resolve_method: str = "solve",
+    check_finite: bool = True,
 ) -> RMPTree:
     """Validate a tree spec (DESIGN.md §3) and assemble its modules through the registries.
 
@@ -235,7 +277,7 @@ def build_tree(
                 issues.append(Issue(f"{p}.rmp", str(e)))
     if issues:
         raise ConfigError(issues)
-    tree = RMPTree(ts, maps, weights, rmps, {k: v[0] for k, v in built_shared.items()}, resolve_method)
+    tree = RMPTree(ts, maps, weights, rmps, {k: v[0] for k, v in built_shared.items()}, resolve_method, check_finite)
     if dtype is not None:
         tree = tree.to(dtype)
     return tree
