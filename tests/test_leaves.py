@@ -47,8 +47,9 @@ GDS_LEAVES = [
 @pytest.mark.parametrize("name,dim,params", GDS_LEAVES)
 def test_gds_leaf_matches_finite_difference_definitions(name, dim, params, gen):
     leaf = make(name, dim, **params)
-    if dim == 1:  # barrier: distances inside the support, both approaching and receding
-        y = 0.05 + 0.25 * torch.rand(8, 1, generator=gen)
+    if dim == 1:  # barrier: inside the support, inside the obstacle too; approaching and receding
+        y = -0.3 + 0.6 * torch.rand(8, 1, generator=gen)
+        y[0, 0] = 0.25
     else:
         y = torch.randn(8, dim, generator=gen)
     yd = torch.randn(8, dim, generator=gen)

@@ -129,3 +129,28 @@ def test_energy_identity_fails_without_h_terms():
         tree_mod.pullback_star = original
     expect = -torch.einsum("bi,bij,bj->b", qd, o.B, qd)
     assert (dVdt - expect).abs().max() > 1e-3
+
+
+def test_energy_identity_on_the_franka_tree_even_with_penetrating_control_points():
+    """The paper's Franka tree with the expert's weights, at states where control spheres overlap the obstacle."""
+    import yaml
+    from pathlib import Path
+
+    from rmpfusion.envs.franka_tree import franka_tree_spec, with_weights
+
+    expert = yaml.safe_load((Path(__file__).parents[1] / "conf" / "expert" / "franka.yaml").read_text())
+    tree = rmpfusion.build_tree(with_weights(franka_tree_spec(), expert))
+    g = torch.Generator().manual_seed(0)
+    B = 8
+    q = torch.tensor([0.0, -0.3, 0.0, -2.2, 0.0, 2.0, 0.8]) + 0.3 * torch.randn(B, 7, generator=g)
+    qd = 0.5 * torch.randn(B, 7, generator=g)
+    aux = {"goal": torch.tensor([[0.5, -0.3, 0.4]]).expand(B, 3), "obstacle1_center": torch.tensor([[0.5, 0.0, 0.25]]).expand(B, 3),
+           "obstacle1_radius": torch.tensor([[0.05]]).expand(B, 1)}
+    with torch.no_grad():
+        o = tree(q, qd, aux, return_nodes=True)
+        dists = torch.cat([o.nodes["state"][n][0] for n in o.nodes["state"] if n.endswith("_obstacle1")], dim=1)
+        assert (dists < 0).any()  # the scenario really has penetration
+        eps = 1e-5
+        dVdt = (tree(q + eps * qd, qd + eps * o.qdd, aux).V - tree(q - eps * qd, qd - eps * o.qdd, aux).V) / (2 * eps)
+    expect = -torch.einsum("bi,bij,bj->b", qd, o.B, qd)
+    torch.testing.assert_close(dVdt, expect, rtol=1e-6, atol=1e-6)

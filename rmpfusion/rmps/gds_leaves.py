@@ -73,8 +73,8 @@ class Barrier1D(GDS):
 
     g(x, ẋ) = w(x)·u(ẋ) with w(x) = max(r_w − x, 0)²/x (zero beyond the support r_w) and velocity
     gating u(ẋ) = ε + (1 − exp(−ẋ²/2σ²)) for ẋ < 0 (approaching), ε otherwise.
-    Φ = ½·α·w(x)², B = η·g. Inside (x < min_distance) the barrier is evaluated at min_distance, so it
-    stays finite and keeps pushing outward.
+    Φ = ½·α·w(x)², B = η·g. Below min_distance (inside an obstacle) w continues along its tangent line:
+    finite, growing, still pushing outward, and still an exact GDS so Theorem 2 keeps holding.
     """
 
     dim = 1
@@ -94,10 +94,14 @@ class Barrier1D(GDS):
         self.alpha, self.eta, self.min_distance = p.alpha, p.eta, p.min_distance
 
     def _w(self, x: Tensor) -> tuple[Tensor, Tensor]:
-        x = x.clamp(min=self.min_distance)
-        d = (self.r_w - x).clamp(min=0.0)
-        w = d**2 / x
-        grad_w = (-2.0 * d * x - d**2) / x**2
+        xc = x.clamp(min=self.min_distance)
+        d = (self.r_w - xc).clamp(min=0.0)
+        w = d**2 / xc
+        grad_w = (-2.0 * d * xc - d**2) / xc**2
+        # below min_distance: the tangent line, so w stays positive, finite and consistent with ∇w
+        # (the leaf remains an exact GDS even when a control sphere penetrates an obstacle)
+        inside = x < self.min_distance
+        w = torch.where(inside, w + grad_w * (x - self.min_distance), w)
         return w, grad_w
 
     def _u(self, xd: Tensor) -> tuple[Tensor, Tensor]:

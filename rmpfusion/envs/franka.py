@@ -1,0 +1,642 @@
+"""Franka Panda reaching around cylinder obstacles in pybullet (paper §4.2, App. D.2).
+
+Two ways to run a policy q̈ = π(q, q̇, aux):
+- ``torque``: each rollout has its own pybullet world; the tree's acceleration becomes joint torques by
+  computed-torque control (pybullet's inverse dynamics, default velocity motors disabled), so the
+  simulated robot is the paper's feedback-linearised system, integrated by pybullet itself;
+- ``kinematic``: the same closed loop integrated in torch for the whole batch at once (data collection).
+Collision means some robot link is at distance ≤ 0 from an obstacle by pybullet's closest points, in both
+modes (kinematic rollouts are replayed in pybullet at every integration step after the fact).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Callable, Literal, Mapping, Sequence
+
+import numpy as np
+import torch
+from pydantic import Field, model_validator
+from torch import Tensor
+
+from ..maps.kinematics import Chain
+from ..maps.urdf import PANDA_ARM_JOINTS, load_panda_urdf_path, parse_urdf
+from ..registry import ENVS, Params
+from .franka_tree import EE_LINK, EE_OFFSET
+
+Vec3 = tuple[float, float, float]
+Range = tuple[float, float]
+
+_DTYPES = {"float64": torch.float64, "float32": torch.float32}
+ARM_JOINTS = list(range(7))  # pybullet joint indices of panda_joint1..7 in pybullet_data's panda.urdf
+FINGER_JOINTS = [9, 10]
+
+
+def _pb():
+    import pybullet
+
+    return pybullet
+
+
+@dataclass
+class FrankaRollout:
+    """A batch of closed-loop trajectories sampled at the record times (``times``).
+
+    A rollout ended early by an error (pybullet, or a non-finite state) has its ``error`` set and NaN
+    records from then on; its flags count only what happened before. ``time_to_goal`` is NaN if the
+    end effector never came within the goal tolerance.
+    """
+
+    mode: str
+    times: Tensor  # (T,)
+    q: Tensor  # (T, B, 7)
+    qd: Tensor  # (T, B, 7)
+    qdd: Tensor  # (T, B, 7): the policy's command
+    ee: Tensor  # (T, B, 3) end-effector (fingertip centre) position
+    goal_distance: Tensor  # (T, B)
+    collided: Tensor  # (B,) bool: some link at distance ≤ 0 from an obstacle at some integration step
+    min_clearance: Tensor  # (B,) smallest link–obstacle distance seen (capped at clearance_query)
+    reached: Tensor  # (B,) bool: within goal_tolerance at some integration step
+    time_to_goal: Tensor  # (B,) first such time (s), NaN if never
+    success: Tensor  # (B,) reached, never collided, no error
+    error: list[str | None] = field(default_factory=list)
+    V: Tensor | None = None  # (T, B)
+    dissipation: Tensor | None = None  # (T, B): q̇ᵀBq̇ at the root
+
+    @property
+    def batch_size(self) -> int:
+        return self.q.shape[1]
+
+
+class ObstacleSpec(Params):
+    center: Vec3
+    radius: float = Field(gt=0)
+    height: float = Field(0.5, gt=0)
+
+
+class _Scene:
+    """One pybullet world: the Panda on a fixed base at the origin, cylinder obstacles and a goal marker."""
+
+    def __init__(self, gui: bool = False, gravity: float = -9.81):
+        p = _pb()
+        self.p = p
+        self.cid = p.connect(p.GUI if gui else p.DIRECT)
+        if self.cid < 0:
+            raise RuntimeError("pybullet: could not connect (a GUI may already be open)")
+        self.robot = p.loadURDF(load_panda_urdf_path(), useFixedBase=True, flags=p.URDF_USE_INERTIA_FROM_FILE,
+                                physicsClientId=self.cid)
+        for j in range(-1, p.getNumJoints(self.robot, physicsClientId=self.cid)):
+            # pybullet's default link damping is not in its inverse dynamics; remove it so the
+            # computed-torque loop realises the commanded acceleration exactly
+            p.changeDynamics(self.robot, j, linearDamping=0.0, angularDamping=0.0, jointDamping=0.0,
+                             physicsClientId=self.cid)
+        p.setGravity(0, 0, gravity, physicsClientId=self.cid)
+        self.joints = ARM_JOINTS + FINGER_JOINTS
+        p.setJointMotorControlArray(self.robot, self.joints, p.VELOCITY_CONTROL, forces=[0.0] * len(self.joints),
+                                    physicsClientId=self.cid)
+        self.obstacles: list[int] = []
+        self.goal_marker: int | None = None
+
+    def set_env(self, centers: np.ndarray, radii: np.ndarray, heights: Sequence[float], goal: np.ndarray | None,
+                visual: bool = False) -> None:
+        p, cid = self.p, self.cid
+        for b in self.obstacles:
+            p.removeBody(b, physicsClientId=cid)
+        self.obstacles = []
+        for c, r, h in zip(centers, radii, heights):
+            col = p.createCollisionShape(p.GEOM_CYLINDER, radius=float(r), height=float(h), physicsClientId=cid)
+            vis = p.createVisualShape(p.GEOM_CYLINDER, radius=float(r), length=float(h), rgbaColor=[0.8, 0.2, 0.2, 1],
+                                      physicsClientId=cid) if visual else -1
+            self.obstacles.append(p.createMultiBody(0.0, col, vis, [float(v) for v in c], physicsClientId=cid))
+        if visual and goal is not None:
+            if self.goal_marker is None:
+                vis = p.createVisualShape(p.GEOM_SPHERE, radius=0.03, rgbaColor=[1.0, 0.6, 0.0, 1], physicsClientId=cid)
+                self.goal_marker = p.createMultiBody(0.0, -1, vis, [0, 0, 0], physicsClientId=cid)
+            p.resetBasePositionAndOrientation(self.goal_marker, [float(v) for v in goal], [0, 0, 0, 1],
+                                              physicsClientId=cid)
+
+    def reset(self, q: np.ndarray, qd: np.ndarray | None = None) -> None:
+        qd = np.zeros(7) if qd is None else qd
+        for i, j in enumerate(ARM_JOINTS):
+            self.p.resetJointState(self.robot, j, float(q[i]), float(qd[i]), physicsClientId=self.cid)
+        for j in FINGER_JOINTS:
+            self.p.resetJointState(self.robot, j, 0.0, 0.0, physicsClientId=self.cid)
+
+    def state(self) -> tuple[np.ndarray, np.ndarray]:
+        """(q, q̇) of all 9 movable joints (arm then fingers)."""
+        js = self.p.getJointStates(self.robot, self.joints, physicsClientId=self.cid)
+        return np.array([s[0] for s in js]), np.array([s[1] for s in js])
+
+    def clearance(self, query: float) -> float:
+        """Smallest robot–obstacle distance, or ``query`` when nothing is closer than that."""
+        best = query
+        for ob in self.obstacles:
+            for pt in self.p.getClosestPoints(self.robot, ob, query, physicsClientId=self.cid):
+                best = min(best, pt[8])
+        return best
+
+    def close(self) -> None:
+        try:
+            self.p.disconnect(physicsClientId=self.cid)
+        except Exception:  # noqa: BLE001 - already gone
+            pass
+
+
+@ENVS.register("franka")
+class Franka:
+    """Franka Panda goal reaching around cylinders; see the module docstring for the two modes."""
+
+    class Params(Params):
+        gui: bool = Field(False, description="open pybullet's GUI for the first torque-mode world (else DIRECT)")
+        mode: Literal["torque", "kinematic"] = "kinematic"
+        control_rate: float = Field(240.0, gt=0, description="Hz; the pybullet/integration step is 1/control_rate")
+        integrator: Literal["semi_implicit_euler", "rk4"] = Field(
+            "semi_implicit_euler", description="kinematic mode; semi-implicit Euler is what pybullet uses")
+        gravity: float = -9.81
+        obstacles: list[ObstacleSpec] = Field(
+            default_factory=lambda: [ObstacleSpec(center=(0.5, 0.0, 0.25), radius=0.06, height=0.5)],
+            description="nominal cylinders (standing, axis z); their number is n_obstacles")
+        obstacle_jitter: Vec3 = Field((0.0, 0.0, 0.0), description="± uniform perturbation of every centre per env")
+        goal_region: tuple[Range, Range, Range] = Field(((0.3, 0.6), (-0.45, -0.2), (0.15, 0.55)),
+                                                        description="goal ~ uniform in this box (m)")
+        goal_clearance: float = Field(0.15, ge=0, description="min horizontal distance from goal to obstacle surfaces")
+        nominal_q: tuple[float, ...] = Field((0.6, -0.3, 0.0, -2.2, 0.0, 2.0, 0.785), description="centre of the starts")
+        start_spread: tuple[float, ...] = Field((0.3, 0.3, 0.3, 0.3, 0.3, 0.3, 0.3), description="± uniform per joint")
+        start_speed: float = Field(0.0, ge=0, description="initial joint speeds ~ uniform in ±start_speed")
+        start_clearance: float = Field(0.05, ge=0, description="min pybullet clearance of the start configuration")
+        joint_margin: float = Field(0.05, ge=0, description="starts stay this far inside the URDF limits (rad)")
+        goal_tolerance: float = Field(0.05, gt=0)
+        clearance_query: float = Field(0.3, gt=0, description="distances beyond this are not resolved")
+        max_tries: int = Field(200, ge=1)
+        camera: tuple[float, float, float, Vec3] = Field((1.4, 50.0, -30.0, (0.3, 0.0, 0.3)),
+                                                         description="render: distance, yaw, pitch (deg), target")
+        dtype: Literal["float64", "float32"] = "float64"
+
+        @model_validator(mode="after")
+        def _shapes(self):
+            for name in ("nominal_q", "start_spread"):
+                if len(getattr(self, name)) != 7:
+                    raise ValueError(f"{name} needs 7 values (one per joint)")
+            for axis, r in zip("xyz", self.goal_region):
+                if not r[0] <= r[1]:
+                    raise ValueError(f"goal_region.{axis}: low {r[0]} is above high {r[1]}")
+            return self
+
+    def __init__(self, params: Params | None = None, **overrides: Any):
+        if params is None:
+            params = self.Params(**overrides)
+        elif overrides:
+            params = self.Params.model_validate({**params.model_dump(), **overrides})
+        self.params = params
+        self.dtype = _DTYPES[params.dtype]
+        self.chain = Chain(parse_urdf(load_panda_urdf_path()), PANDA_ARM_JOINTS)
+        self.lower, self.upper = (t.to(self.dtype) for t in self.chain.joint_limits())
+        self._ee_offset = torch.tensor(EE_OFFSET, dtype=self.dtype)
+        self._checker: _Scene | None = None
+        self._renderer: _Scene | None = None
+
+    # ------------------------------------------------------------------ bookkeeping
+    @property
+    def n_obstacles(self) -> int:
+        return len(self.params.obstacles)
+
+    @property
+    def dt(self) -> float:
+        return 1.0 / self.params.control_rate
+
+    def aux_dims(self) -> dict[str, int]:
+        """Names and sizes of the per-sample aux state; pass to ``build_tree(..., aux_dims=...)``."""
+        dims = {"goal": 3}
+        for k in range(1, self.n_obstacles + 1):
+            dims[f"obstacle{k}_center"] = 3
+            dims[f"obstacle{k}_radius"] = 1
+        return dims
+
+    def close(self) -> None:
+        """Disconnect the helper pybullet worlds (collision checking, rendering)."""
+        for s in (self._checker, self._renderer):
+            if s is not None:
+                s.close()
+        self._checker = self._renderer = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def __del__(self):
+        try:
+            self.close()
+        except Exception:  # noqa: BLE001 - interpreter shutdown
+            pass
+
+    def _scene_args(self, aux: Mapping[str, Tensor], b: int):
+        K = self.n_obstacles
+        centers = np.array([aux[f"obstacle{k}_center"][b].tolist() for k in range(1, K + 1)]).reshape(K, 3)
+        radii = np.array([float(aux[f"obstacle{k}_radius"][b].reshape(-1)[0]) for k in range(1, K + 1)])
+        heights = [o.height for o in self.params.obstacles]
+        goal = np.array(aux["goal"][b].tolist()) if "goal" in aux else None
+        return centers, radii, heights, goal
+
+    def checker(self) -> _Scene:
+        if self._checker is None:
+            self._checker = _Scene(gui=False, gravity=self.params.gravity)
+        return self._checker
+
+    # ------------------------------------------------------------------ geometry
+    def ee_position(self, q: Tensor) -> Tensor:
+        """(B, 3) fingertip centre, the point the tree's attractor drives to the goal."""
+        R, p = self.chain.forward_kinematics(q, [EE_LINK])[EE_LINK]
+        return p + (R @ self._ee_offset.to(q).unsqueeze(-1)).squeeze(-1)
+
+    def clearance(self, q: Tensor, aux: Mapping[str, Tensor]) -> Tensor:
+        """(B,) pybullet distance from the robot to the nearest obstacle (≤ 0: collision; capped at clearance_query)."""
+        sc = self.checker()
+        out = []
+        for b in range(q.shape[0]):
+            centers, radii, heights, _ = self._scene_args(aux, b)
+            sc.set_env(centers, radii, heights, None)
+            sc.reset(q[b].detach().cpu().numpy())
+            out.append(sc.clearance(self.params.clearance_query))
+        return torch.tensor(out, dtype=self.dtype)
+
+    def in_collision(self, q: Tensor, aux: Mapping[str, Tensor]) -> Tensor:
+        """(B,) bool: some link within zero distance of an obstacle."""
+        return self.clearance(q, aux) <= 0.0
+
+    # ------------------------------------------------------------------ sampling
+    def _uniform(self, shape, lo, hi, g) -> Tensor:
+        lo = torch.as_tensor(lo, dtype=self.dtype)
+        hi = torch.as_tensor(hi, dtype=self.dtype)
+        return lo + (hi - lo) * torch.rand(shape, generator=g, dtype=self.dtype)
+
+    def _goal_ok(self, goal: Tensor, centers: Tensor, radii: Tensor) -> Tensor:
+        if centers.shape[1] == 0:
+            return torch.ones(goal.shape[0], dtype=torch.bool)
+        horiz = (goal[:, None, :2] - centers[..., :2]).norm(dim=-1) - radii
+        return (horiz >= self.params.goal_clearance).all(1)
+
+    def sample_envs(self, n_envs: int, generator: torch.Generator | None = None) -> dict[str, Tensor]:
+        """``n_envs`` environments as an aux dict of (n_envs, k) tensors, reproducible given the generator.
+
+        Obstacles are the nominal ones moved by ``obstacle_jitter``; goals are redrawn until they clear
+        every obstacle horizontally by ``goal_clearance``.
+        """
+        p, K = self.params, self.n_obstacles
+        nominal = torch.tensor([o.center for o in p.obstacles], dtype=self.dtype).reshape(K, 3)
+        radii = torch.tensor([o.radius for o in p.obstacles], dtype=self.dtype).expand(n_envs, K)
+        jit = torch.tensor(p.obstacle_jitter, dtype=self.dtype)
+        centers = nominal + self._uniform((n_envs, K, 3), -jit, jit, generator)
+        lo = [r[0] for r in p.goal_region]
+        hi = [r[1] for r in p.goal_region]
+        goal = self._uniform((n_envs, 3), lo, hi, generator)
+        bad = ~self._goal_ok(goal, centers, radii)
+        tries = 1
+        while bool(bad.any()):
+            if tries >= p.max_tries:
+                raise RuntimeError(f"franka: no goal clear of the obstacles for {int(bad.sum())} environments in "
+                                   f"{tries} rounds; move goal_region or lower goal_clearance")
+            g2 = self._uniform((n_envs, 3), lo, hi, generator)
+            take = bad & self._goal_ok(g2, centers, radii)
+            goal = torch.where(take[:, None], g2, goal)
+            bad &= ~take
+            tries += 1
+        aux = {"goal": goal}
+        for k in range(K):
+            aux[f"obstacle{k + 1}_center"] = centers[:, k].contiguous()
+            aux[f"obstacle{k + 1}_radius"] = radii[:, k : k + 1].contiguous()
+        return aux
+
+    def sample_initial_states(
+        self, envs_aux: Mapping[str, Tensor], n_per_env: int, generator: torch.Generator | None = None
+    ) -> tuple[Tensor, Tensor, dict[str, Tensor]]:
+        """(q0, q̇0, aux) for n_envs·n_per_env samples, environment-major; starts are redrawn until they
+        lie ``joint_margin`` inside the limits and clear every obstacle by ``start_clearance`` in pybullet."""
+        p = self.params
+        aux = {k: v.repeat_interleave(n_per_env, dim=0) for k, v in envs_aux.items()}
+        n = aux["goal"].shape[0]
+        nom = torch.tensor(p.nominal_q, dtype=self.dtype)
+        spread = torch.tensor(p.start_spread, dtype=self.dtype)
+        lo, hi = self.lower + p.joint_margin, self.upper - p.joint_margin
+
+        def draw():
+            q = (nom + self._uniform((n, 7), -spread, spread, generator)).clamp(lo, hi)
+            qd = self._uniform((n, 7), -p.start_speed, p.start_speed, generator)
+            return q, qd
+
+        def ok(q):
+            return self.clearance(q, aux) >= p.start_clearance
+
+        q0, qd0 = draw()
+        bad = ~ok(q0)
+        tries = 1
+        while bool(bad.any()):
+            if tries >= p.max_tries:
+                raise RuntimeError(f"franka: could not place {int(bad.sum())} start configurations clear of the "
+                                   "obstacles; move nominal_q or shrink start_spread")
+            q2, qd2 = draw()
+            idx = bad.nonzero().flatten()
+            sub = {k: v[idx] for k, v in aux.items()}
+            good = self.clearance(q2[idx], sub) >= p.start_clearance
+            take = torch.zeros_like(bad)
+            take[idx[good]] = True
+            q0 = torch.where(take[:, None], q2, q0)
+            qd0 = torch.where(take[:, None], qd2, qd0)
+            bad &= ~take
+            tries += 1
+        return q0, qd0, aux
+
+    def sample(self, n_envs: int, n_per_env: int, seed: int | None = None,
+               generator: torch.Generator | None = None) -> tuple[Tensor, Tensor, dict[str, Tensor]]:
+        """Environments and initial states in one call, from a seed or a generator."""
+        if generator is None and seed is not None:
+            generator = torch.Generator().manual_seed(seed)
+        return self.sample_initial_states(self.sample_envs(n_envs, generator), n_per_env, generator)
+
+    # ------------------------------------------------------------------ rollouts
+    def rollout(
+        self,
+        policy: Callable[..., Any],
+        q0: Tensor,
+        qd0: Tensor,
+        aux: Mapping[str, Tensor],
+        horizon: float,
+        record_every: float = 0.1,
+        mode: Literal["torque", "kinematic"] | None = None,
+        monitor: Callable[..., Any] | None = None,
+        enable_grad: bool = False,
+    ) -> FrankaRollout:
+        """Run q̈ = policy(q, q̇, aux) for ``horizon`` seconds from (q0, q̇0), batched over samples.
+
+        ``policy`` returns a (B, 7) tensor or a TreeOutput (then V and q̇ᵀBq̇ are recorded from the same
+        evaluation). ``record_every`` and ``horizon`` must be multiples of 1/control_rate. ``mode``
+        overrides the env's. ``monitor(i, t, q, qd, qdd, V)`` is called at each record.
+        """
+        dt = self.dt
+        n_steps = int(round(horizon / dt))
+        every = int(round(record_every / dt))
+        if every < 1 or abs(every * dt - record_every) > 1e-9 * max(1.0, record_every):
+            raise ValueError(f"record_every={record_every} must be a positive multiple of 1/control_rate={dt}")
+        if abs(n_steps * dt - horizon) > 1e-9 * max(1.0, horizon):
+            raise ValueError(f"horizon={horizon} must be a multiple of 1/control_rate={dt}")
+        if q0.dim() != 2 or q0.shape[-1] != 7 or qd0.shape != q0.shape:
+            raise ValueError(f"q0 and qd0 must both be (B, 7); got {tuple(q0.shape)} and {tuple(qd0.shape)}")
+        mode = mode or self.params.mode
+        aux = {k: torch.as_tensor(v).to(self.dtype) for k, v in aux.items()}
+        q0, qd0 = q0.to(self.dtype), qd0.to(self.dtype)
+        with torch.set_grad_enabled(enable_grad):
+            if mode == "torque":
+                return self._rollout_torque(policy, q0, qd0, aux, n_steps, every, monitor)
+            return self._rollout_kinematic(policy, q0, qd0, aux, n_steps, every, monitor)
+
+    def _evaluate(self, policy, q, qd, aux):
+        out = policy(q, qd, aux)
+        if isinstance(out, Tensor):
+            return out, None, None
+        V = getattr(out, "V", None)
+        Bm = getattr(out, "B", None)
+        D = torch.einsum("bi,bij,bj->b", qd, Bm, qd) if Bm is not None else None
+        return out.qdd, V, D
+
+    def _rollout_kinematic(self, policy, q0, qd0, aux, n_steps, every, monitor) -> FrankaRollout:
+        dt, B = self.dt, q0.shape[0]
+        q, qd = q0.clone(), qd0.clone()
+        alive = torch.ones(B, dtype=torch.bool)
+        errors: list[str | None] = [None] * B
+        rec = _Recorder()
+        path = [q.detach().clone()]  # every integration step, replayed in pybullet for collisions
+        goal_hit = _GoalTracker(B, self.dtype)
+        goal_hit.update(0.0, self.ee_position(q), aux["goal"], self.params.goal_tolerance, alive)
+
+        def accel(x, xd):
+            return _qdd_of(policy(x, xd, aux))
+
+        for k in range(n_steps + 1):
+            a = None
+            if k % every == 0 or self.params.integrator == "semi_implicit_euler":
+                a, V, D = self._evaluate(policy, q, qd, aux)
+                if k % every == 0:
+                    rec.add(k * dt, q, qd, a, V, D, alive)
+                    if monitor is not None:
+                        monitor(len(rec.t) - 1, k * dt, q, qd, a, V)
+            if k == n_steps:
+                break
+            if self.params.integrator == "semi_implicit_euler":
+                qd_new = qd + dt * a
+                q_new = q + dt * qd_new
+            else:
+                q_new, qd_new = _rk4(accel, q, qd, dt, a)
+            finite = q_new.isfinite().all(-1) & qd_new.isfinite().all(-1)
+            for b in (alive & ~finite).nonzero().flatten().tolist():
+                errors[b] = f"non-finite state at t={(k + 1) * dt:.4f}s"
+            alive &= finite
+            # a dead sample keeps its last finite state so the batched evaluation stays well posed
+            q = torch.where(alive[:, None], q_new, q)
+            qd = torch.where(alive[:, None], qd_new, torch.zeros_like(qd))
+            path.append(q.detach().clone())
+            goal_hit.update((k + 1) * dt, self.ee_position(q), aux["goal"], self.params.goal_tolerance, alive)
+        # collisions: replay every integration step of every sample in pybullet
+        Q = torch.stack(path)  # (n_steps+1, B, 7)
+        death = rec.death_index(alive, errors, n_steps, every)
+        min_clear = torch.full((B,), float(self.params.clearance_query), dtype=self.dtype)
+        sc = self.checker()
+        for b in range(B):
+            try:
+                centers, radii, heights, _ = self._scene_args(aux, b)
+                sc.set_env(centers, radii, heights, None)
+                last = n_steps if errors[b] is None else death[b]
+                for k in range(last + 1):
+                    sc.reset(Q[k, b].cpu().numpy())
+                    min_clear[b] = min(float(min_clear[b]), sc.clearance(self.params.clearance_query))
+            except _pb().error as e:
+                errors[b] = f"pybullet error during collision check: {e}"
+                self._checker = None  # a broken world is not reused
+        return self._finish("kinematic", rec, aux, min_clear, goal_hit, errors)
+
+    def _rollout_torque(self, policy, q0, qd0, aux, n_steps, every, monitor) -> FrankaRollout:
+        p, dt, B = _pb(), self.dt, q0.shape[0]
+        errors: list[str | None] = [None] * B
+        alive = torch.ones(B, dtype=torch.bool)
+        scenes: list[_Scene | None] = []
+        min_clear = torch.full((B,), float(self.params.clearance_query), dtype=self.dtype)
+        q, qd = q0.clone(), qd0.clone()
+        try:
+            for b in range(B):
+                try:
+                    sc = _Scene(gui=self.params.gui and b == 0, gravity=self.params.gravity)
+                    sc.set_env(*self._scene_args(aux, b), visual=self.params.gui and b == 0)
+                    p.setTimeStep(dt, physicsClientId=sc.cid)
+                    sc.reset(q0[b].cpu().numpy(), qd0[b].cpu().numpy())
+                    scenes.append(sc)
+                    min_clear[b] = sc.clearance(self.params.clearance_query)
+                except p.error as e:
+                    scenes.append(None)
+                    errors[b] = f"pybullet error at setup: {e}"
+                    alive[b] = False
+            rec = _Recorder()
+            goal_hit = _GoalTracker(B, self.dtype)
+            fingers = [np.zeros(2)] * B
+            finger_v = [np.zeros(2)] * B
+
+            def read_states():
+                for b, sc in enumerate(scenes):
+                    if not alive[b]:
+                        continue
+                    try:
+                        qa, qda = sc.state()
+                    except p.error as e:
+                        self._kill(b, f"pybullet error reading state: {e}", alive, errors, scenes)
+                        continue
+                    q[b] = torch.as_tensor(qa[:7], dtype=self.dtype)
+                    qd[b] = torch.as_tensor(qda[:7], dtype=self.dtype)
+                    fingers[b], finger_v[b] = qa[7:], qda[7:]
+
+            read_states()
+            goal_hit.update(0.0, self.ee_position(q), aux["goal"], self.params.goal_tolerance, alive)
+            for k in range(n_steps + 1):
+                a, V, D = self._evaluate(policy, q, qd, aux)
+                if k % every == 0:
+                    rec.add(k * dt, q, qd, a, V, D, alive)
+                    if monitor is not None:
+                        monitor(len(rec.t) - 1, k * dt, q, qd, a, V)
+                if k == n_steps:
+                    break
+                a_np = a.detach().cpu().numpy()
+                for b, sc in enumerate(scenes):
+                    if not alive[b]:
+                        continue
+                    if not np.isfinite(a_np[b]).all():
+                        self._kill(b, f"non-finite acceleration at t={k * dt:.4f}s", alive, errors, scenes)
+                        continue
+                    try:
+                        # fingers are held closed by a stiff PD acceleration inside the same inverse dynamics
+                        acc_f = -400.0 * fingers[b] - 40.0 * finger_v[b]
+                        qs = q[b].tolist() + fingers[b].tolist()
+                        vs = qd[b].tolist() + finger_v[b].tolist()
+                        tau = p.calculateInverseDynamics(sc.robot, qs, vs, a_np[b].tolist() + acc_f.tolist(),
+                                                         physicsClientId=sc.cid)
+                        p.setJointMotorControlArray(sc.robot, sc.joints, p.TORQUE_CONTROL, forces=list(tau),
+                                                    physicsClientId=sc.cid)
+                        p.stepSimulation(physicsClientId=sc.cid)
+                        min_clear[b] = min(float(min_clear[b]), sc.clearance(self.params.clearance_query))
+                    except p.error as e:
+                        self._kill(b, f"pybullet error at t={k * dt:.4f}s: {e}", alive, errors, scenes)
+                read_states()
+                goal_hit.update((k + 1) * dt, self.ee_position(q), aux["goal"], self.params.goal_tolerance, alive)
+        finally:
+            for sc in scenes:
+                if sc is not None:
+                    sc.close()
+        return self._finish("torque", rec, aux, min_clear, goal_hit, errors)
+
+    @staticmethod
+    def _kill(b, reason, alive, errors, scenes):
+        alive[b] = False
+        errors[b] = reason
+        if scenes[b] is not None:
+            scenes[b].close()
+            scenes[b] = None
+
+    def _finish(self, mode, rec: "_Recorder", aux, min_clear, goal_hit: "_GoalTracker", errors) -> FrankaRollout:
+        q = rec.stack(rec.q)
+        T, B = q.shape[:2]
+        ee = self.ee_position(q.nan_to_num().reshape(T * B, 7)).reshape(T, B, 3)
+        ee = torch.where(q.isnan().any(-1, keepdim=True), torch.full_like(ee, float("nan")), ee)
+        gd = (ee - aux["goal"].unsqueeze(0)).norm(dim=-1)
+        collided = min_clear <= 0.0
+        ok = torch.tensor([e is None for e in errors])
+        return FrankaRollout(
+            mode=mode,
+            times=torch.tensor(rec.t, dtype=self.dtype),
+            q=q, qd=rec.stack(rec.qd), qdd=rec.stack(rec.qdd), ee=ee, goal_distance=gd,
+            collided=collided, min_clearance=min_clear, reached=goal_hit.reached, time_to_goal=goal_hit.time,
+            success=goal_hit.reached & ~collided & ok, error=list(errors),
+            V=rec.stack(rec.V) if rec.V else None,
+            dissipation=rec.stack(rec.D) if rec.D else None,
+        )
+
+    # ------------------------------------------------------------------ rendering
+    def render(self, q: Tensor | Sequence[float], aux: Mapping[str, Tensor], width: int = 320, height: int = 240,
+               sample: int = 0) -> np.ndarray:
+        """(height, width, 3) uint8 image of the robot at ``q`` in environment ``aux[sample]``, rendered
+        headless by pybullet's tiny renderer, for figures and animations."""
+        p = _pb()
+        q = torch.as_tensor(q, dtype=self.dtype).reshape(-1, 7)
+        qb = q[min(sample, q.shape[0] - 1)]
+        if self._renderer is None:
+            self._renderer = _Scene(gui=False, gravity=self.params.gravity)
+        sc = self._renderer
+        aux = {k: torch.as_tensor(v).reshape(-1, torch.as_tensor(v).shape[-1]) for k, v in aux.items()}
+        sc.set_env(*self._scene_args(aux, sample), visual=True)
+        sc.reset(qb.cpu().numpy())
+        dist, yaw, pitch, target = self.params.camera
+        view = p.computeViewMatrixFromYawPitchRoll(list(target), dist, yaw, pitch, 0.0, 2, physicsClientId=sc.cid)
+        proj = p.computeProjectionMatrixFOV(60.0, width / height, 0.05, 10.0, physicsClientId=sc.cid)
+        img = p.getCameraImage(width, height, view, proj, renderer=p.ER_TINY_RENDERER, physicsClientId=sc.cid)
+        rgba = np.asarray(img[2], dtype=np.uint8).reshape(height, width, 4)
+        return np.ascontiguousarray(rgba[..., :3])
+
+
+class _Recorder:
+    """Records at the record times; samples that died get NaN rows."""
+
+    def __init__(self):
+        self.t, self.q, self.qd, self.qdd, self.V, self.D = [], [], [], [], [], []
+        self.alive: list[Tensor] = []
+
+    def add(self, t, q, qd, a, V, D, alive):
+        m = alive[:, None]
+        nan = float("nan")
+        self.t.append(t)
+        self.q.append(torch.where(m, q, nan).detach().clone())
+        self.qd.append(torch.where(m, qd, nan).detach().clone())
+        self.qdd.append(torch.where(m, a, nan).detach().clone())
+        if V is not None:
+            self.V.append(torch.where(alive, V, nan).detach().clone())
+        if D is not None:
+            self.D.append(torch.where(alive, D, nan).detach().clone())
+        self.alive.append(alive.clone())
+
+    @staticmethod
+    def stack(xs):
+        return torch.stack(xs)
+
+    def death_index(self, alive, errors, n_steps, every) -> list[int]:
+        """Last integration step each sample was alive at (approximate to a record for dead ones)."""
+        out = []
+        for b in range(alive.shape[0]):
+            if errors[b] is None:
+                out.append(n_steps)
+                continue
+            last = max((i for i, a in enumerate(self.alive) if bool(a[b])), default=0)
+            out.append(min(n_steps, (last + 1) * every))
+        return out
+
+
+class _GoalTracker:
+    def __init__(self, B, dtype):
+        self.reached = torch.zeros(B, dtype=torch.bool)
+        self.time = torch.full((B,), float("nan"), dtype=dtype)
+
+    def update(self, t, ee, goal, tol, alive):
+        hit = ((ee - goal).norm(dim=-1) <= tol) & alive & ~self.reached
+        self.time = torch.where(hit, torch.full_like(self.time, t), self.time)
+        self.reached |= hit
+
+
+def _qdd_of(out: Any) -> Tensor:
+    return out if isinstance(out, Tensor) else out.qdd
+
+
+def _rk4(accel, q, qd, dt, a=None):
+    """Classical RK4 on (q, q̇); ``a`` reuses the acceleration already evaluated at (q, q̇)."""
+    k1v = accel(q, qd) if a is None else a
+    k1x = qd
+    k2x = qd + 0.5 * dt * k1v
+    k2v = accel(q + 0.5 * dt * k1x, k2x)
+    k3x = qd + 0.5 * dt * k2v
+    k3v = accel(q + 0.5 * dt * k2x, k3x)
+    k4x = qd + dt * k3v
+    k4v = accel(q + dt * k3x, k4x)
+    return q + dt / 6 * (k1x + 2 * k2x + 2 * k3x + k4x), qd + dt / 6 * (k1v + 2 * k2v + 2 * k3v + k4v)

@@ -1,0 +1,247 @@
+"""The Franka Panda environment and tree: spec generation, stability, pybullet torque control vs. the
+kinematic integration, collision checks, shared obstacle weights with several obstacles, rendering."""
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import pytest
+import torch
+import yaml
+
+pytest.importorskip("pybullet")
+
+import rmpfusion  # noqa: E402
+from rmpfusion.envs.franka import Franka, FrankaRollout  # noqa: E402
+from rmpfusion.envs.franka_tree import (  # noqa: E402
+    DEFAULT_CONTROL_POINTS, copy_weights, franka_tree_spec, with_weights,
+)
+from rmpfusion.evaluate import lyapunov_monotone, max_relative_increase  # noqa: E402
+from rmpfusion.registry import ENVS  # noqa: E402
+
+F64 = torch.float64
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+NOMINAL = [0.6, -0.3, 0.0, -2.2, 0.0, 2.0, 0.785]
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _one_thread():
+    # B≈1 evaluations of a 46-node tree are dominated by thread hand-off on a shared machine
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(n)
+
+
+@pytest.fixture(scope="module")
+def expert_weights():
+    with open(os.path.join(ROOT, "conf", "expert", "franka.yaml"), encoding="utf-8") as f:
+        return yaml.safe_load(f)
+
+
+@pytest.fixture(scope="module")
+def env():
+    e = Franka()
+    yield e
+    e.close()
+
+
+@pytest.fixture(scope="module")
+def expert(env, expert_weights):
+    return rmpfusion.build_tree(with_weights(franka_tree_spec(None, 1), expert_weights), aux_dims=env.aux_dims())
+
+
+def make_aux(goal, centers, radii):
+    aux = {"goal": torch.tensor([goal], dtype=F64)}
+    for k, (c, r) in enumerate(zip(centers, radii), start=1):
+        aux[f"obstacle{k}_center"] = torch.tensor([c], dtype=F64)
+        aux[f"obstacle{k}_radius"] = torch.tensor([[r]], dtype=F64)
+    return aux
+
+
+# ---------------------------------------------------------------- spec and tree
+
+def test_yaml_is_the_generated_spec():
+    with open(os.path.join(ROOT, "conf", "tree", "franka.yaml"), encoding="utf-8") as f:
+        assert yaml.safe_load(f) == franka_tree_spec(DEFAULT_CONTROL_POINTS, 1)
+
+
+def test_spec_structure_follows_the_paper():
+    spec = franka_tree_spec(DEFAULT_CONTROL_POINTS, 2)
+    nodes = spec["nodes"]
+    assert nodes["attractor"]["parent"] == "ee" and nodes["attractor"]["map"]["origin"] == "goal"
+    assert sum(n.startswith("jl") for n in nodes) == 14
+    limits = {n: v["map"]["limit"] for n, v in nodes.items() if n.startswith("jl")}
+    assert limits["jl4_upper"] == pytest.approx(0.0) and limits["jl4_lower"] == pytest.approx(-3.1416)
+    ncp = len(DEFAULT_CONTROL_POINTS)
+    assert sum(n.startswith("cp") and "_obstacle" in n for n in nodes) == 2 * ncp
+    assert set(spec["shared_weights"]) == {f"cp{i}_obstacle" for i in range(1, ncp + 1)}
+    for k in (1, 2):
+        w = nodes[f"cp3_obstacle{k}"]["weight"]
+        assert w == {"shared": "cp3_obstacle",
+                     "bind": {"obstacle_center": f"obstacle{k}_center", "obstacle_radius": f"obstacle{k}_radius"}}
+    for n in ("damper", "identity_metric"):
+        assert "weight" not in nodes[n] and nodes[n]["parent"] == "q"
+    with pytest.raises(ValueError, match="unknown keys"):
+        franka_tree_spec([{"link": "panda_link3", "radius": 0.1, "size": 2}], 1)
+
+
+def test_tree_finite_qdd_and_positive_definite_M(env, expert, expert_weights):
+    learner = rmpfusion.build_tree(franka_tree_spec(None, 1), aux_dims=env.aux_dims())
+    g = torch.Generator().manual_seed(0)
+    B = 8
+    lo, hi = env.lower + 0.05, env.upper - 0.05
+    q = lo + (hi - lo) * torch.rand(B, 7, generator=g, dtype=F64)
+    qd = torch.randn(B, 7, generator=g, dtype=F64)
+    aux = env.sample_envs(B, g)
+    for tree in (expert, learner):
+        with torch.no_grad():
+            out = tree(q, qd, aux)
+        assert out.qdd.shape == (B, 7) and out.qdd.isfinite().all()
+        assert torch.linalg.eigvalsh(out.M).min() > 0
+        assert out.V.isfinite().all()
+
+
+# ---------------------------------------------------------------- rollouts
+
+def test_torque_control_tracks_the_kinematic_rollout(expert):
+    """pybullet's computed-torque loop realises the tree's q̈ (same semi-implicit Euler step), and V falls."""
+    env = Franka(control_rate=120.0)
+    q0 = torch.tensor([NOMINAL], dtype=F64)
+    qd0 = torch.tensor([[0.3, -0.2, 0.1, 0.2, -0.3, 0.1, 0.2]], dtype=F64)
+    aux = make_aux([0.4, -0.3, 0.35], [[0.5, 0.0, 0.25]], [0.06])
+    with torch.no_grad():
+        rt = env.rollout(expert, q0, qd0, aux, horizon=0.5, record_every=0.05, mode="torque")
+        rk = env.rollout(expert, q0, qd0, aux, horizon=0.5, record_every=0.05, mode="kinematic")
+    env.close()
+    assert rt.error == [None] and rk.error == [None]
+    assert rt.q.shape == rk.q.shape == (11, 1, 7)
+    err = (rt.q - rk.q).abs().max().item()
+    print(f"torque vs kinematic: max |Δq| over 0.5 s = {err:.2e} rad")
+    assert err < 1e-3
+    moved = (rk.q[-1] - rk.q[0]).abs().max().item()
+    assert moved > 10 * err  # the comparison is not trivially satisfied by a robot at rest
+    for r in (rt, rk):
+        assert bool(lyapunov_monotone(r.V, rtol=1e-3).all()), max_relative_increase(r.V)
+        assert r.V[-1, 0] < r.V[0, 0]
+        assert not r.collided.any()
+
+
+def test_kinematic_batch_equals_single_rollouts(env, expert):
+    q0, qd0, aux = env.sample(3, 1, seed=1)
+    with torch.no_grad():
+        rb = env.rollout(expert, q0, qd0, aux, horizon=0.1, record_every=0.05)
+        r1 = env.rollout(expert, q0[1:2], qd0[1:2], {k: v[1:2] for k, v in aux.items()}, horizon=0.1, record_every=0.05)
+    assert isinstance(rb, FrankaRollout) and rb.q.shape == (3, 3, 7) and rb.V.shape == (3, 3)
+    torch.testing.assert_close(rb.q[:, 1:2], r1.q, rtol=1e-10, atol=1e-12)
+    assert (rb.q[-1] != rb.q[0]).any()
+
+
+def test_collision_detection_on_hand_made_configurations(env):
+    q = torch.tensor([NOMINAL, NOMINAL], dtype=F64)
+    ee = env.ee_position(q[:1])[0].tolist()
+    hit = make_aux([0.4, -0.3, 0.3], [ee], [0.03])
+    far = make_aux([0.4, -0.3, 0.3], [[-0.8, -0.8, 0.25]], [0.05])
+    both = {k: torch.cat([hit[k], far[k]]) for k in hit}
+    assert env.in_collision(q, both).tolist() == [True, False]
+    c = env.clearance(q, both)
+    assert c[0] <= 0 and c[1] > 0.2
+
+
+def test_rollout_flags_a_collision_and_isolates_a_failing_sample(env):
+    """A policy that coasts sweeps the arm into the obstacle; a NaN policy row ends only its own rollout."""
+    q0 = torch.tensor([NOMINAL] * 2, dtype=F64)
+    qd0 = torch.tensor([[-1.5, 0, 0, 0, 0, 0, 0]] * 2, dtype=F64)  # joint 1 swings the arm towards −y
+    aux = {k: v.repeat(2, 1) for k, v in make_aux([0.4, -0.3, 0.3], [[0.45, 0.0, 0.25]], [0.06]).items()}
+
+    def coast(q, qd, aux):
+        a = torch.zeros_like(q)
+        a[1] = float("nan")
+        return a
+
+    for mode in ("kinematic", "torque"):
+        r = env.rollout(coast, q0, qd0, aux, horizon=0.5, record_every=0.1, mode=mode)
+        assert r.error[0] is None and "non-finite" in r.error[1]
+        assert bool(r.collided[0]) and r.min_clearance[0] <= 0
+        assert r.q[:, 0].isfinite().all() and r.q[-1, 1].isnan().all()
+        assert not r.success.any()
+
+
+def test_expert_reaches_a_goal_in_front_of_the_obstacle(expert):
+    env = Franka(control_rate=60.0)
+    q0 = torch.tensor([NOMINAL], dtype=F64)
+    aux = make_aux([0.35, -0.2, 0.35], [[0.55, 0.0, 0.25]], [0.06])
+    with torch.no_grad():
+        r = env.rollout(expert, q0, torch.zeros_like(q0), aux, horizon=3.0, record_every=0.1)
+    env.close()
+    print(f"expert: time to goal {r.time_to_goal.item():.2f} s, min clearance {r.min_clearance.item():.3f} m")
+    assert r.error == [None]
+    assert bool(r.success[0]) and not bool(r.collided[0])
+    assert r.goal_distance[-1, 0] < env.params.goal_tolerance
+
+
+# ---------------------------------------------------------------- shared weights, several obstacles
+
+def test_weights_trained_with_one_obstacle_run_with_two(env):
+    tree1 = rmpfusion.build_tree(franka_tree_spec(None, 1), aux_dims=env.aux_dims())
+    g = torch.Generator().manual_seed(3)
+    with torch.no_grad():  # stand-in for training: move every parameter away from its initialisation
+        for p in tree1.parameters():
+            p.add_(0.3 * torch.randn(p.shape, generator=g, dtype=p.dtype))
+    env2 = Franka(obstacles=[{"center": (0.5, 0.0, 0.25), "radius": 0.06}, {"center": (0.3, 0.4, 0.25), "radius": 0.05}])
+    tree2 = rmpfusion.build_tree(franka_tree_spec(None, 2), aux_dims=env2.aux_dims())
+    copied = copy_weights(tree1, tree2)
+    assert "attractor" in copied and "cp5_obstacle" in copied
+    n_params = lambda t: sum(p.numel() for p in t.parameters())  # noqa: E731
+    assert n_params(tree1) == n_params(tree2)  # the second obstacle adds no parameters
+    assert tree2.weights["cp5_obstacle2"].fn is tree2.shared["cp5_obstacle"] is tree2.weights["cp5_obstacle1"].fn
+
+    q = torch.tensor([NOMINAL], dtype=F64)
+    qd = torch.full((1, 7), 0.2, dtype=F64)
+    aux1 = make_aux([0.4, -0.3, 0.35], [[0.5, 0.05, 0.25]], [0.06])
+    # the second obstacle as the trained one: the shared weight must see it exactly as obstacle 1
+    aux2 = make_aux([0.4, -0.3, 0.35], [[0.9, 0.9, 0.25], [0.5, 0.05, 0.25]], [0.05, 0.06])
+    x = torch.randn(4, 3, generator=g, dtype=F64)
+    w1, gw1 = tree1.weights["cp5_obstacle1"](x, {k: v.expand(4, -1) for k, v in aux1.items()})
+    w2, gw2 = tree2.weights["cp5_obstacle2"](x, {k: v.expand(4, -1) for k, v in aux2.items()})
+    torch.testing.assert_close(w2, w1)
+    torch.testing.assert_close(gw2, gw1)
+    # an obstacle beyond every barrier's support changes nothing; a nearby one does
+    with torch.no_grad():
+        a1 = tree1(q, qd, aux1).qdd
+        a2 = tree2(q, qd, aux2).qdd
+        torch.testing.assert_close(a2, a1, rtol=1e-9, atol=1e-10)
+        near = make_aux([0.4, -0.3, 0.35], [[0.5, 0.05, 0.25], list(env.ee_position(q)[0] + torch.tensor([0.0, 0.2, 0.0]))],
+                        [0.06, 0.05])
+        out = tree2(q, qd, near)
+    assert out.qdd.isfinite().all() and torch.linalg.eigvalsh(out.M).min() > 0
+    assert (out.qdd - a1).abs().max() > 1e-3
+
+
+# ---------------------------------------------------------------- env plumbing
+
+def test_registered_params_and_sampling(env):
+    entry = ENVS.get("franka")
+    assert entry.obj is Franka
+    p = entry.validate({"mode": "torque", "control_rate": 100})
+    assert p.mode == "torque" and not p.gui and Franka(p).dt == pytest.approx(0.01)
+    with pytest.raises(Exception):
+        entry.validate({"control_hz": 100})
+    q0, qd0, aux = env.sample(3, 2, seed=5)
+    assert q0.shape == (6, 7) and aux["goal"].shape == (6, 3) and aux["obstacle1_radius"].shape == (6, 1)
+    assert (q0 >= env.lower).all() and (q0 <= env.upper).all()
+    assert (env.clearance(q0, aux) >= env.params.start_clearance).all()
+    q0b, _, auxb = env.sample(3, 2, seed=5)
+    torch.testing.assert_close(q0b, q0)
+    torch.testing.assert_close(auxb["goal"], aux["goal"])
+    horiz = (aux["goal"][:, :2] - aux["obstacle1_center"][:, :2]).norm(dim=-1) - aux["obstacle1_radius"][:, 0]
+    assert (horiz >= env.params.goal_clearance).all()
+    with pytest.raises(ValueError, match="multiple of"):
+        env.rollout(lambda q, qd, a: torch.zeros_like(q), q0, qd0, aux, horizon=0.1, record_every=0.013)
+
+
+def test_render_returns_an_rgb_image(env):
+    aux = make_aux([0.4, -0.3, 0.35], [[0.5, 0.0, 0.25]], [0.06])
+    img = env.render(torch.tensor(NOMINAL, dtype=F64), aux, width=64, height=48)
+    assert img.shape == (48, 64, 3) and img.dtype == np.uint8
+    assert img.std() > 5  # robot and obstacle are drawn, not a blank frame
