@@ -219,3 +219,15 @@ def test_non_finite_values_raise_an_error_naming_where():
         tree.weights["o1"].fn.layers[0].weight[0, 0] = float("nan")
     with pytest.raises(NumericalError, match=r"non-finite weight at node 'o1'"):
         tree(q, qd, aux)
+
+
+def test_float32_agrees_with_float64(gen):
+    """Training may run in float32: the same tree and weights give the same accelerations to float32 precision."""
+    t64 = rmpfusion.build_tree(TWO_LEVEL)
+    t32 = rmpfusion.build_tree(TWO_LEVEL, dtype=torch.float32)
+    t32.load_state_dict({k: v.float() for k, v in t64.state_dict().items()})
+    q, qd, aux = two_level_inputs(64, gen)
+    out64 = t64(q, qd, aux).qdd
+    out32 = t32(q.float(), qd.float(), {k: v.float() for k, v in aux.items()}).qdd
+    scale = out64.abs().amax(-1, keepdim=True) + 1
+    assert ((out32.double() - out64).abs() / scale).max() < 1e-4
