@@ -16,8 +16,8 @@ $(VENV)/.installed: pyproject.toml
 
 install: $(VENV)/.installed
 
-demo: install  ## the main job: a complete paper experiment with its defaults
-	$(PY) tools/demo.py
+demo: install  ## the main job: the paper's 2d1level experiment with its defaults
+	$(VENV)/bin/rmpfusion-run experiment=2d1level
 
 test: install  ## the fast test suite
 	$(PY) -m pytest

@@ -366,12 +366,14 @@ class Franka:
         mode: Literal["torque", "kinematic"] | None = None,
         monitor: Callable[..., Any] | None = None,
         enable_grad: bool = False,
+        progress: Callable[[int, int], Any] | None = None,
     ) -> FrankaRollout:
         """Run q̈ = policy(q, q̇, aux) for ``horizon`` seconds from (q0, q̇0), batched over samples.
 
         ``policy`` returns a (B, 7) tensor or a TreeOutput (then V and q̇ᵀBq̇ are recorded from the same
         evaluation). ``record_every`` and ``horizon`` must be multiples of 1/control_rate. ``mode``
-        overrides the env's. ``monitor(i, t, q, qd, qdd, V)`` is called at each record.
+        overrides the env's. ``monitor(i, t, q, qd, qdd, V)`` is called at each record, and
+        ``progress(i, total)`` too.
         """
         dt = self.dt
         n_steps = int(round(horizon / dt))
@@ -383,6 +385,14 @@ class Franka:
         if q0.dim() != 2 or q0.shape[-1] != 7 or qd0.shape != q0.shape:
             raise ValueError(f"q0 and qd0 must both be (B, 7); got {tuple(q0.shape)} and {tuple(qd0.shape)}")
         mode = mode or self.params.mode
+        if progress is not None:  # progress(records done, records in all), reported at every record
+            user_monitor, total = monitor, n_steps // every
+
+            def monitor(i, *rest):
+                if user_monitor is not None:
+                    user_monitor(i, *rest)
+                progress(i, total)
+
         aux = {k: torch.as_tensor(v).to(self.dtype) for k, v in aux.items()}
         q0, qd0 = q0.to(self.dtype), qd0.to(self.dtype)
         with torch.set_grad_enabled(enable_grad):

@@ -16,6 +16,8 @@ from typing import Any, Mapping, Sequence
 
 from ..maps.urdf import PANDA_ARM_JOINTS, load_panda_urdf_path, parse_urdf
 
+from ..learn.weighting import tree_with_weights as with_weights  # noqa: F401  (expert configs: node or shared-weight names)
+
 # Spheres covering the Panda's collision meshes from link3 to the closed fingers, in each link's frame:
 # a k-means fit of the mesh vertices, each radius covering its cluster (rounded up by ~5 mm).
 DEFAULT_CONTROL_POINTS: list[dict[str, Any]] = [
@@ -137,26 +139,6 @@ def franka_tree_spec(
         "shared_weights": shared,
         "nodes": nodes,
     }
-
-
-def with_weights(spec: Mapping[str, Any], weights: Mapping[str, Any]) -> dict[str, Any]:
-    """A copy of ``spec`` with weights replaced by name: a node name sets that edge's weight, a
-    ``shared_weights`` name replaces the shared function (so one entry covers all obstacles on a point).
-
-    This is how an expert config (``conf/expert/franka.yaml``) is applied to the tree.
-    """
-    out = copy.deepcopy(dict(spec))
-    unknown = [n for n in weights if n not in out["nodes"] and n not in out.get("shared_weights", {})]
-    if unknown:
-        raise KeyError(f"weights for unknown nodes/shared weights {unknown}")
-    for name, w in weights.items():
-        if name in out.get("shared_weights", {}):
-            out["shared_weights"][name] = copy.deepcopy(dict(w))
-        else:
-            out["nodes"][name]["weight"] = copy.deepcopy(w) if w is not None else None
-            if w is None:
-                del out["nodes"][name]["weight"]
-    return out
 
 
 def _panda_limits():

@@ -1,4 +1,4 @@
-"""The main job: a complete 2d1level run of an RMPfusion tree with state-dependent weights.
+"""Theorem 2 on a batch of 2d1level rollouts of a hand-designed RMPfusion tree (no learning).
 
 Samples environments, rolls the closed loop q̈ = π(q, q̇) out for the whole batch, checks Theorem 2 on
 every rollout (V_r non-increasing, dV_r/dt = −q̇ᵀB_r q̇), and writes figures and metrics.json to a new
@@ -39,7 +39,7 @@ TREE = {
 def main() -> int:
     torch.set_num_threads(1)
     torch.manual_seed(0)
-    run_dir = Path("outputs") / "demo" / datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
+    run_dir = Path("outputs") / "lyapunov_demo" / datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
     (run_dir / "figures").mkdir(parents=True, exist_ok=False)
     env = Particle2D(n_obstacles=1)
     tree = rmpfusion.build_tree(TREE, aux_dims=env.aux_dims())

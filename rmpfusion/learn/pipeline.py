@@ -1,0 +1,288 @@
+"""One experiment end to end (issue 4, paper §4.1): demonstrations -> expert -> learners -> behavior cloning
+-> evaluation at every snapshot -> figures -> metrics.json. Everything lands in the run directory.
+
+All on CPU, one intra-op thread: the batches are small (2-D states), so extra threads only contend on a
+shared machine (a batched 2x2 solve got ~10x slower with 2 busy threads in measurements).
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import sys
+import time
+import zlib
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any, Callable, Mapping
+
+import torch
+
+from ..config.schema import RunConfig
+from ..core.tree import build_tree
+from ..evaluate.metrics import evaluate_learner, online_loss, rollout_rates
+from ..registry import ENVS
+from .demonstrations import Dataset, collect, load_dataset, save_dataset
+from .learners import build_learner, build_order
+from .train import _atomic_save, load_snapshot, train
+
+
+def expert_spec(cfg: RunConfig) -> dict:
+    """The tree with the expert's weights; the validator's version also places weights on shared-weight names."""
+    from ..config.validate import expert_spec as spec
+
+    return spec(cfg)
+
+
+# ---------------------------------------------------------------------------------------------- helpers
+class Progress:
+    """Progress of long steps with rate and ETA: a bar redrawn in place on a terminal; on a file or pipe
+    (CI, SLURM logs) plain lines every 10 % or every 30 s, whichever comes first."""
+
+    def __init__(self, enabled: bool = True, stream=None, every_seconds: float = 30.0):
+        self.enabled = enabled
+        self.stream = stream or sys.stdout
+        self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
+        self.every_seconds = every_seconds
+        self._state: dict[str, tuple[float, int, float]] = {}  # label -> (start, last tenth, last print time)
+
+    def say(self, msg: str) -> None:
+        if self.enabled:
+            print(("\r\033[K" if self.tty else "") + msg, file=self.stream, flush=True)
+
+    @staticmethod
+    def _clock(seconds: float) -> str:
+        seconds = int(max(seconds, 0))
+        return f"{seconds // 3600:d}:{seconds // 60 % 60:02d}:{seconds % 60:02d}" if seconds >= 3600 else f"{seconds // 60:02d}:{seconds % 60:02d}"
+
+    def _line(self, label: str, done: int, total: int, elapsed: float) -> str:
+        rate = done / elapsed if elapsed > 0 else 0.0
+        eta = (total - done) / rate if rate > 0 else float("nan")
+        width = 24
+        filled = int(width * done / total)
+        bar = "#" * filled + "." * (width - filled)
+        eta_s = self._clock(eta) if eta == eta else "--:--"
+        return f"{label} [{bar}] {done}/{total} {100 * done / total:3.0f}%  {rate:.1f}/s  elapsed {self._clock(elapsed)}  eta {eta_s}"
+
+    def bar(self, label: str) -> Callable[[int, int], None]:
+        def cb(done: int, total: int) -> None:
+            if not self.enabled or total <= 0:
+                return
+            now = time.perf_counter()
+            start, last_tenth, last_print = self._state.get(label, (now, -1, 0.0))
+            if done == 0 or label not in self._state:
+                start, last_tenth, last_print = now, -1, 0.0
+            tenth = int(10 * done / total)
+            if self.tty:
+                print("\r\033[K" + self._line(label, done, total, now - start), end="\n" if done >= total else "",
+                      file=self.stream, flush=True)
+            elif done >= total or tenth > last_tenth or now - last_print >= self.every_seconds:
+                print(self._line(label, done, total, now - start), file=self.stream, flush=True)
+                last_tenth, last_print = max(tenth, last_tenth), now
+            self._state[label] = (start, last_tenth, last_print)
+        return cb
+
+
+@contextmanager
+def _threads(n: int):
+    old = torch.get_num_threads()
+    torch.set_num_threads(n)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(old)
+
+
+def _write_json(path: Path, obj: Any) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    with open(tmp, "w") as fh:
+        json.dump(obj, fh, indent=2, sort_keys=False, default=str)
+        fh.write("\n")
+    os.replace(tmp, path)
+
+
+def data_hash(cfg: RunConfig) -> str:
+    """What determines the demonstrations: env, tree, expert, data sizes and seed (not the cache location)."""
+    key = {"env": cfg.env.model_dump(), "tree": cfg.tree, "expert": cfg.expert, "seed": cfg.seed,
+           "data": cfg.data.model_dump(exclude={"cache_dir"})}
+    return hashlib.sha256(json.dumps(key, sort_keys=True, default=str).encode()).hexdigest()
+
+
+def make_env(cfg: RunConfig):
+    block = cfg.env.model_dump()
+    entry = ENVS.get(block.pop("type"))
+    return entry.obj(entry.validate(block))
+
+
+def _fine_record(env, interval: float) -> float:
+    """A recording interval dividing ``interval`` ~10x finer, on the env's step grid (smooth figures, stricter monitor)."""
+    dt = getattr(getattr(env, "params", None), "dt", None)
+    if not dt:
+        return interval
+    steps = int(round(interval / dt))
+    for n in (10, 8, 5, 4, 2):
+        if steps % n == 0:
+            return interval / n
+    return interval
+
+
+def _finite(x: float) -> float | None:
+    return x if isinstance(x, float) and math.isfinite(x) else None
+
+
+def _clean(m: Mapping[str, Any]) -> dict:
+    """JSON has no inf/nan: a diverged learner's loss is written as null (and reported as such)."""
+    return {k: (_finite(v) if isinstance(v, float) else v) for k, v in m.items()}
+
+
+def load_or_collect(cfg: RunConfig, env, expert, run_dir: Path, split: str, say: Progress) -> tuple[Dataset, dict]:
+    """The split's dataset from the cache when present and valid, else collected and saved (then reused)."""
+    d = cfg.data
+    h = data_hash(cfg)
+    cache = Path(d.cache_dir) if d.cache_dir else run_dir / "data"
+    path = cache / f"{split}-{h[:16]}.pt"
+    meta = {"seed": cfg.seed, "config_hash": h, "split": split}
+    if path.exists():
+        ds = load_dataset(path, meta)  # damaged or foreign files raise, naming the file and the fix
+        say.say(f"data: reusing {split} set {path} ({len(ds)} points)")
+        return ds, {"path": str(path), "sha256": ds.checksum(), "points": len(ds), "reused": True}
+    n_envs, n_traj = (d.train_envs, d.train_trajectories) if split == "train" else (d.test_envs, d.test_trajectories)
+    gen = torch.Generator().manual_seed(cfg.seed if split == "train" else cfg.seed + 1_000_003)
+    say.say(f"data: collecting {split} set, {n_envs} envs x {n_traj} trajectories x {d.points} points")
+    t0 = time.time()
+    ds = collect(env, expert, n_envs, n_traj, d.points, d.interval, gen, progress=say.bar(f"collect {split}"))
+    sha = save_dataset(path, ds, meta)
+    return ds, {"path": str(path), "sha256": sha, "points": len(ds), "reused": False, "seconds": time.time() - t0,
+                "expert_success": float(ds.success.double().mean()), "expert_collision": float(ds.collided.double().mean())}
+
+
+def _learner_seed(seed: int, name: str) -> int:
+    return (seed * 1_000_003 + zlib.crc32(name.encode())) % (2**63 - 1)
+
+
+# ---------------------------------------------------------------------------------------------- the run
+def run_experiment(cfg: RunConfig, run_dir: str | os.PathLike, progress: bool = True,
+                   log: Callable[[dict[str, float]], Any] | None = None, threads: int = 1) -> dict:
+    """Run ``cfg`` in ``run_dir`` and return (and write) its metrics; rerunning reuses data and checkpoints."""
+    run_dir = Path(run_dir)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    say = Progress(progress)
+    with _threads(threads):
+        return _run(cfg, run_dir, say, log)
+
+
+def _run(cfg: RunConfig, run_dir: Path, say: Progress, log) -> dict:
+    t_start = time.time()
+    timing: dict[str, float] = {}
+    config = cfg.model_dump()
+    _write_json(run_dir / "config.json", config)
+    env = make_env(cfg)
+    aux_dims = env.aux_dims()
+    expert = build_tree(expert_spec(cfg), aux_dims=aux_dims)
+    dim = expert.dim
+
+    t0 = time.time()
+    train_ds, train_info = load_or_collect(cfg, env, expert, run_dir, "train", say)
+    test_ds, test_info = load_or_collect(cfg, env, expert, run_dir, "test", say)
+    timing["data_s"] = time.time() - t0
+
+    d, ev = cfg.data, cfg.eval
+    horizon = ev.horizon if ev.horizon is not None else d.points * d.interval
+    fine = _fine_record(env, d.interval)
+    q0, qd0, aux0 = test_ds.initial_states()
+
+    # the expert on the same test initial states: the reference for rates and the dashed lines in figures
+    t0 = time.time()
+    say.say("eval: expert")
+    exp_ro = online_loss(expert, expert, env, q0, qd0, aux0, horizon, d.interval, fine, say.bar("rollout expert")).rollout
+    expert_metrics = rollout_rates(exp_ro, ev.lyapunov_rtol, ev.lyapunov_atol)
+    timing["expert_eval_s"] = time.time() - t0
+
+    blocks = {n: b.model_dump() for n, b in cfg.learners.items()}
+    learners: dict[str, torch.nn.Module] = {}
+    for name in build_order(blocks):
+        with torch.random.fork_rng():
+            torch.manual_seed(_learner_seed(cfg.seed, name))
+            learners[name] = build_learner(blocks[name], cfg.tree, aux_dims, dim, expert=cfg.expert, built=learners,
+                                           where=f"learners.{name}")
+        say.say(f"learner {name}: {blocks[name]['type']}, {learners[name].num_parameters()} parameters")
+
+    results: dict[str, dict] = {}
+    figures: list[str] = []
+    fig_dir = run_dir / "figures"
+    per_env = d.test_trajectories
+    plot_idx = torch.arange(min(per_env, q0.shape[0]))  # test environment 0
+    aux_plot = {k: v[:1] for k, v in aux0.items()}
+    curves: dict[str, dict] = {}
+    for name in cfg.learners:  # config order for reporting
+        model = learners[name]
+        t0 = time.time()
+        tr = train(model, train_ds, cfg.train, seed=_learner_seed(cfg.seed, name) + 1, test_data=test_ds,
+                   checkpoint_dir=run_dir / "checkpoints" / name, run_config=config,
+                   progress=say.bar(f"train {name}"),
+                   log=(lambda m, _n=name: log({f"{_n}/{k}" if k != "iteration" else k: v for k, v in m.items()}))
+                   if log is not None else None)
+        train_s = time.time() - t0
+        dtype = next(model.parameters()).dtype
+        model.to(torch.float64)  # rollouts and evaluation in float64 (DESIGN.md §5)
+        _atomic_save({"model": model.state_dict(), "learner": blocks[name], "config": config,
+                      "iterations": cfg.train.iterations}, run_dir / "checkpoints" / name / "final.pt")
+        t0 = time.time()
+        snaps: dict[str, dict] = {}
+        stages = []
+        final_metrics, final_online = None, None
+        for it in sorted(tr.snapshots):
+            m_it = load_snapshot(model, tr.snapshots[it]).to(torch.float64)
+            met, onl = evaluate_learner(m_it, expert, env, test_ds, horizon, d.interval, ev.lyapunov_rtol,
+                                        ev.lyapunov_atol, fine, say.bar(f"eval {name}@{it}"))
+            snaps[str(it)] = _clean(met)
+            ro = onl.rollout
+            stages.append({"label": f"{name} @ {it}", "q": ro.q[:, plot_idx], "times": ro.times,
+                           "V": ro.V[:, plot_idx] if ro.V is not None else None})
+            if it == cfg.train.iterations:
+                final_metrics, final_online = met, onl
+            if log is not None:
+                log({"iteration": float(it), **{f"{name}/snapshot_{k}": v for k, v in met.items()}})
+        if final_metrics is None:
+            final_metrics, final_online = evaluate_learner(model, expert, env, test_ds, horizon, d.interval,
+                                                           ev.lyapunov_rtol, ev.lyapunov_atol, fine,
+                                                           say.bar(f"eval {name}"))
+        eval_s = time.time() - t0
+        model.to(dtype)
+        res = _clean(final_metrics)
+        res.update({"num_parameters": model.num_parameters(), "type": blocks[name]["type"],
+                    "train_seconds": train_s, "eval_seconds": eval_s, "snapshots": snaps,
+                    "final_train_loss": tr.curve[-1][1] if tr.curve else None,
+                    "resumed_from": tr.resumed_from})
+        if hasattr(model, "hidden"):
+            res["hidden"] = list(model.hidden)
+        results[name] = res
+        curves[name] = {"train": tr.curve, "test": tr.test_curve}
+        say.say(f"learner {name}: " + ", ".join(f"{k}={v:.4g}" for k, v in res.items()
+                                                 if isinstance(v, float) and k not in ("train_seconds", "eval_seconds")))
+        if ev.figures:
+            from ..plots import plot_learning_curves, plot_lyapunov, plot_progression, plot_trajectories
+            ro = final_online.rollout
+            figures.append(str(plot_trajectories(
+                fig_dir / f"trajectories_{name}.png", aux_plot, exp_ro.q[:, plot_idx], {name: ro.q[:, plot_idx]},
+                q0[plot_idx], qd0[plot_idx], title=f"{cfg.name}: expert (dashed) vs {name}")))
+            if ro.V is not None:
+                figures.append(str(plot_lyapunov(fig_dir / f"lyapunov_{name}.png", ro.times, ro.V[:, plot_idx],
+                                                 title=f"{name}: $V_r(t)$, test environment 0")))
+            figures.append(str(plot_learning_curves(fig_dir / f"learning_curve_{name}.png", {name: curves[name]},
+                                                    {name: sorted(tr.snapshots)})))
+            if stages:
+                figures.append(str(plot_progression(fig_dir / f"progression_{name}.png", aux_plot,
+                                                    exp_ro.q[:, plot_idx], stages, q0[plot_idx], qd0[plot_idx])))
+    if ev.figures and curves:
+        from ..plots import plot_learning_curves
+        figures.append(str(plot_learning_curves(fig_dir / "learning_curves.png", curves)))
+    timing["total_s"] = time.time() - t_start
+    metrics = {"name": cfg.name, "seed": cfg.seed, "config_hash": data_hash(cfg),
+               "data": {"train": train_info, "test": test_info}, "expert": expert_metrics,
+               "learners": results, "figures": figures, "timing": timing}
+    _write_json(run_dir / "metrics.json", metrics)
+    say.say(f"done in {timing['total_s']:.1f}s: {run_dir / 'metrics.json'}")
+    return metrics

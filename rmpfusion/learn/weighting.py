@@ -1,0 +1,48 @@
+"""Put weight functions on the edges of a tree spec: the expert and learner-rmp are the same tree with
+different weights, so both are derived from one weightless spec rather than written twice."""
+from __future__ import annotations
+
+import copy
+from typing import Any, Mapping
+
+from ..config.errors import ConfigError, Issue
+
+
+def tree_with_weights(tree_spec: Mapping[str, Any], weights: Mapping[str, Any], where: str = "weights") -> dict:
+    """A deep copy of ``tree_spec`` with the named weights in place.
+
+    A name is a node (its incoming edge gets that weight spec; ``None`` removes the weight) or an entry of
+    ``shared_weights`` (the shared function is replaced, so one entry covers every edge that uses it, e.g.
+    all obstacles on a Franka control point). All unknown names are reported together.
+    """
+    spec = copy.deepcopy(dict(tree_spec))
+    nodes = spec.get("nodes") or {}
+    shared = dict(spec.get("shared_weights") or {})
+    unknown = [n for n in weights if n not in nodes and n not in shared]
+    if unknown:
+        root = (spec.get("root") or {}).get("name", "q")
+        issues = []
+        for n in unknown:
+            why = "is the root, which has no incoming edge to weight" if n == root else "is not a node or shared weight of the tree"
+            issues.append(Issue(f"{where}.{n}", f"'{n}' {why}; nodes: {', '.join(nodes)}"))
+        raise ConfigError(issues)
+    for n, w in weights.items():
+        w = copy.deepcopy(w if w is None or isinstance(w, str) else dict(w))
+        if n in nodes:
+            node = dict(nodes[n])
+            node.pop("weight", None)
+            nodes[n] = node if w is None else {**node, "weight": w}
+        else:
+            shared[n] = w
+    spec["nodes"] = nodes
+    if shared:
+        spec["shared_weights"] = shared
+    return spec
+
+
+def expand_aux(weight_spec: Mapping[str, Any], aux_dims: Mapping[str, int]) -> dict:
+    """Resolve ``aux: all`` in a weight spec to every declared aux name (sorted, so the input order is fixed)."""
+    w = dict(weight_spec)
+    if w.get("aux") == "all":
+        w["aux"] = sorted(aux_dims)
+    return w

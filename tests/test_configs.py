@@ -1,0 +1,189 @@
+"""Every config in conf/ composes, validates and builds; bad configs fail with path-named errors before running."""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from hydra import compose, initialize_config_dir
+
+from rmpfusion.config.errors import ConfigError
+from rmpfusion.config.validate import build_all, resolve_and_validate
+from rmpfusion.registry import LEAF_RMPS
+
+CONF = Path(__file__).resolve().parents[1] / "conf"
+EXPERIMENTS = sorted(p.stem for p in (CONF / "experiment").glob("*.yaml"))
+TINY = ["data=tiny", "train=tiny", "eval=fast", "logger=disabled"]
+
+
+def compose_cfg(overrides=(), hydra_cfg=False):
+    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
+        return compose("config", overrides=list(overrides), return_hydra_config=hydra_cfg)
+
+
+def _overrides_for(group: str, option: str) -> list[str]:
+    """How to select one file of a group so that the rest of the config fits it."""
+    if group == "rmp":
+        fixed = getattr(LEAF_RMPS.get(compose_cfg()["tree"]["nodes"]["conditioning"]["rmp"]["type"]).obj, "dim", None)
+        import yaml
+
+        rtype = yaml.safe_load((CONF / "rmp" / f"{option}.yaml").read_text())["type"]
+        one_d = getattr(LEAF_RMPS.get(rtype).obj, "dim", None) == 1
+        assert fixed is None
+        return [f"rmp@tree.nodes.{'obstacle' if one_d else 'conditioning'}.rmp={option}"]
+    if group == "weights":
+        return [f"weights@learners.rmp.weights={option}"]
+    if group == "learner":
+        return [f"+learner@learners.extra={option}"]
+    for exp in EXPERIMENTS:  # env/tree/expert/data/train files belonging to an experiment are used with it
+        text = (CONF / "experiment" / f"{exp}.yaml").read_text()
+        if f"override /{group}: {option}\n" in text:
+            return [f"experiment={exp}"]
+    return [f"{group}={option}"]
+
+
+CONFIG_FILES = sorted(
+    (p.parent.name, p.stem) for p in CONF.glob("*/*.yaml") if p.parent.name not in ("experiment",)
+)
+
+
+def test_every_group_file_is_listed():
+    groups = {g for g, _ in CONFIG_FILES}
+    assert {"env", "tree", "expert", "rmp", "weights", "learner", "train", "data", "logger", "sweep", "launcher"} <= groups
+
+
+@pytest.mark.parametrize("group,option", CONFIG_FILES, ids=[f"{g}/{o}" for g, o in CONFIG_FILES])
+def test_every_config_file_composes_validates_builds(group, option):
+    cfg = compose_cfg(_overrides_for(group, option), hydra_cfg=group in ("sweep", "launcher"))
+    run = resolve_and_validate(cfg)
+    env, expert, learners = build_all(run)
+    assert expert.dim == run.tree["root"]["dim"] and learners
+    if group == "sweep":
+        assert cfg.hydra.sweeper.params, "a sweep recipe must set hydra.sweeper.params"
+    if group == "launcher":
+        assert option.split("_")[0] in cfg.hydra.launcher._target_.lower()
+
+
+@pytest.mark.parametrize("experiment", EXPERIMENTS)
+def test_every_experiment_validates_and_builds(experiment):
+    run = resolve_and_validate(compose_cfg([f"experiment={experiment}"]))
+    assert run.name == experiment
+    env, expert, learners = build_all(run)
+    assert set(learners) == set(run.learners)
+    assert expert.describe().startswith(run.tree["root"]["name"])
+
+
+def test_paper_sizes_are_the_defaults():
+    run = resolve_and_validate(compose_cfg(["experiment=2d2level_unstructured"]))
+    assert (run.train.optimizer, run.train.batch_size, run.train.iterations) == ("rmsprop", 200, 20000)
+    assert (run.data.train_envs, run.data.train_trajectories, run.data.points) == (20, 50, 60)
+    _, _, learners = build_all(run)
+    ratio = learners["un_large"].num_parameters() / learners["rmp"].num_parameters()
+    assert abs(ratio - 5.8) < 0.1 and abs(learners["un"].num_parameters() / learners["rmp"].num_parameters() - 1) < 0.05
+
+
+# --------------------------------------------------------------------------- overrides reach the modules
+def test_override_changes_built_rmp():
+    base = build_all(resolve_and_validate(compose_cfg()))[1]
+    changed = build_all(resolve_and_validate(compose_cfg(["tree.nodes.goal.rmp.gain=3.5"])))[1]
+    assert base.rmps["goal"].gain == 10.0 and changed.rmps["goal"].gain == 3.5
+
+
+def test_override_swaps_leaf_preset_and_weight_network():
+    run = resolve_and_validate(compose_cfg(["rmp@tree.nodes.goal.rmp=rmpflow_goal_attractor",
+                                            "weights@learners.rmp.weights=mlp_small", "learners.rmp.weights.floor=0.01"]))
+    _, expert, learners = build_all(run)
+    assert type(expert.rmps["goal"]).__name__ == "RMPflowGoalAttractor"
+    w = learners["rmp"].tree.weights["goal"].fn
+    assert [layer.out_features for layer in w.layers] == [16, 16, 1] and w.floor == 0.01
+
+
+def test_override_changes_expert_weight():
+    _, expert, _ = build_all(resolve_and_validate(compose_cfg(["expert.obstacle.high=9"])))
+    assert expert.weights["obstacle"].fn.high == 9.0
+
+
+# --------------------------------------------------------------------------- the catalogue of bad configs
+BAD = {
+    "unknown_type": (["expert.goal.type=rfb"], "expert.goal.type", "did you mean 'rbf'"),
+    "unknown_rmp_type": (["tree.nodes.goal.rmp.type=goal_atractor"], "tree.nodes.goal.rmp.type", "goal_attractor"),
+    "misspelt_key": (["+tree.nodes.goal.rmp.gian=2"], "tree.nodes.goal.rmp.gian", "did you mean 'gain'"),
+    "misspelt_top_level": (["+trian.lr=1"], "trian", "did you mean 'train'"),
+    "wrong_type": (["train.batch_size=lots"], "train.batch_size", "lots"),
+    "wrong_param_type": (["tree.nodes.goal.rmp.gain=fast"], "tree.nodes.goal.rmp.gain", "fast"),
+    "missing_parameter": (["~expert.goal.low"], "expert.goal.low", "missing"),
+    "dimension_mismatch": (["tree.nodes.goal.rmp.type=collision_avoidance", "~tree.nodes.goal.rmp.gain",
+                            "~tree.nodes.goal.rmp.w_u", "~tree.nodes.goal.rmp.w_l"],
+                           "tree.nodes.goal.rmp", "dimension"),
+    "map_dimension_mismatch": (["tree.nodes.goal.map.origin=[1,2,3]"], "tree.nodes.goal.map", "dimension"),
+    "cycle": (["tree.nodes.goal.parent=conditioning", "tree.nodes.conditioning.parent=goal"],
+              "tree.nodes.", "cycle"),
+    "orphan": (["tree.nodes.goal.parent=nowhere"], "tree.nodes.goal.parent", "not a node"),
+    "duplicate_name": (["+tree.nodes.q={parent: q, rmp: {type: damper}}"], "tree.nodes.q", "root's name"),
+    "unknown_aux": (["tree.nodes.goal.map.origin=gaol"], "tree.nodes.goal.map.origin", "did you mean 'goal'"),
+    "unknown_aux_in_expert": (["expert.obstacle.center=obstacle2_center"], "expert.obstacle.center", "provides"),
+    "non_positive_constant": (["~expert.goal", "+expert.goal={type: constant, value: 0}"], "expert.goal.value", "> 0"),
+    "non_positive_shorthand": (["expert.goal=-1"], "expert.goal", "> 0"),
+    "expert_unknown_node": (["+expert.gaol={type: constant}"], "expert.gaol", "did you mean 'goal'"),
+    "leaf_without_rmp": (["~tree.nodes.goal.rmp"], "tree.nodes.goal.rmp", "leaf needs"),
+    "unknown_learner": (["learners.rmp.type=rnp"], "learners.rmp.type", "did you mean 'rmp'"),
+    "unknown_env": (["env.type=particle3d"], "env.type", "particle2d"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD))
+def test_bad_config_is_rejected_with_its_path(case, monkeypatch):
+    overrides, path, hint = BAD[case]
+    import rmpfusion.learn.pipeline as pipeline
+
+    monkeypatch.setattr(pipeline, "run_experiment", lambda *a, **k: pytest.fail("an invalid config was run"))
+    with pytest.raises(ConfigError) as err:
+        resolve_and_validate(compose_cfg(overrides))
+    lines = [str(i) for i in err.value.issues]
+    assert any(line.startswith(path) and hint in line for line in lines), lines
+
+
+def test_all_problems_are_reported_together():
+    with pytest.raises(ConfigError) as err:
+        resolve_and_validate(compose_cfg(["expert.goal.type=rfb", "+tree.nodes.goal.rmp.gian=2",
+                                          "tree.nodes.goal.map.origin=gaol"]))
+    paths = {i.path for i in err.value.issues}
+    assert {"expert.goal.type", "tree.nodes.goal.rmp.gian", "tree.nodes.goal.map.origin"} <= paths
+
+
+def _cli(*args, timeout=300, cwd="/"):
+    env = {**os.environ, "WANDB_MODE": "disabled", "HYDRA_FULL_ERROR": "0"}
+    return subprocess.run([sys.executable, "-m", *args], capture_output=True, text=True, timeout=timeout, cwd=cwd,
+                          env=env)
+
+
+def test_cli_bad_config_exits_nonzero_without_traceback(tmp_path):
+    r = _cli("rmpfusion.cli.run", "expert.goal.type=rfb", "+tree.nodes.goal.rmp.gian=2", f"hydra.run.dir={tmp_path}")
+    assert r.returncode == 2, r.stderr
+    assert "Traceback" not in r.stderr and "expert.goal.type" in r.stderr and "did you mean 'gain'" in r.stderr
+    assert not (tmp_path / "data").exists() and not (tmp_path / "metrics.json").exists()
+
+
+def test_validate_cli_from_any_cwd_prints_tree(tmp_path):
+    r = _cli("rmpfusion.cli.validate", "experiment=2d2level", f"hydra.run.dir={tmp_path}", cwd=str(tmp_path))
+    assert r.returncode == 0, r.stderr
+    assert "└── obstacles (dim 2)" in r.stdout and "OK:" in r.stdout
+
+
+# --------------------------------------------------------------------------- sweeps
+def test_sweep_all_experiments_tiny(tmp_path):
+    """-m experiment=glob(*) on tiny sizes runs the whole pipeline once per experiment."""
+    r = _cli("rmpfusion.cli.run", "-m", "experiment=glob(*)", *TINY, f"hydra.sweep.dir={tmp_path}", timeout=900)
+    assert r.returncode == 0, r.stderr[-3000:]
+    metrics = sorted(tmp_path.glob("*/metrics.json"))
+    assert len(metrics) == len(EXPERIMENTS), (metrics, r.stderr[-2000:])
+
+
+def test_submitit_local_two_jobs(tmp_path):
+    r = _cli("rmpfusion.cli.validate", "-m", "hydra/launcher=submitit_local", "seed=1,2",
+             f"hydra.sweep.dir={tmp_path}", "hydra.launcher.timeout_min=5", timeout=600)
+    assert r.returncode == 0, r.stderr[-3000:]
+    outs = sorted(tmp_path.glob(".submitit/*/*_result.pkl"))
+    assert len(outs) == 2 and len(list(tmp_path.glob("*_2d1level/.hydra/config.yaml"))) == 2

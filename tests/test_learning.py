@@ -1,0 +1,272 @@
+"""Learning pipeline: datasets (determinism, tamper detection), learners, behavior cloning with exact resume,
+and the whole 2D experiment end to end on tiny sizes."""
+import json
+import os
+
+import pytest
+import torch
+
+from rmpfusion.config.errors import ConfigError
+from rmpfusion.config.schema import RunConfig, TrainConfig
+from rmpfusion.core.tree import build_tree
+from rmpfusion.envs import Particle2D
+from rmpfusion.learn import (DatasetError, RMPLearner, collect, load_dataset, save_dataset,
+                             train, tree_with_weights, width_for_parameters)
+from rmpfusion.learn.learners import build_learner, mlp_parameters
+from rmpfusion.learn.pipeline import run_experiment
+from rmpfusion.registry import LEARNERS
+
+
+def _rbf(center, radius, low, high, sigma):
+    return {"type": "rbf", "center": center, "radius": radius, "low": low, "high": high, "sigma": sigma}
+
+
+def _obstacle(parent, k):
+    return {"parent": parent, "rmp": {"type": "collision_avoidance"},
+            "map": {"type": "sphere_distance", "center": f"obstacle{k}_center", "radius": f"obstacle{k}_radius"}}
+
+
+GOAL = {"parent": "q", "map": {"type": "offset", "origin": "goal"}, "rmp": {"type": "goal_attractor"}}
+METRIC = {"parent": "q", "rmp": {"type": "identity_metric", "scale": 0.01}}
+
+TREE_1LEVEL = {"root": {"name": "q", "dim": 2},
+               "nodes": {"obstacle": _obstacle("q", 1), "goal": GOAL, "metric": METRIC}}
+EXPERT_1LEVEL = {"obstacle": _rbf("obstacle1_center", "obstacle1_radius", 1.0, 5.0, 0.5),
+                 "goal": _rbf("goal", 0.0, 1.0, 2.0, 1.0)}
+TREE_2LEVEL = {"root": {"name": "q", "dim": 2},
+               "nodes": {"goal": GOAL, "obstacles": {"parent": "q", "map": {"type": "identity"}},
+                         "obstacle1": _obstacle("obstacles", 1), "obstacle2": _obstacle("obstacles", 2),
+                         "metric": METRIC}}
+EXPERT_2LEVEL = {"goal": _rbf("goal", 0.0, 1.0, 2.0, 1.0),
+                 "obstacles": {"type": "logistic", "center": "goal", "radius": 0.0, "low": 0.5, "high": 2.0,
+                               "steepness": 2.0, "switch_distance": 1.0},
+                 "obstacle1": _rbf("obstacle1_center", "obstacle1_radius", 1.0, 5.0, 0.5),
+                 "obstacle2": _rbf("obstacle2_center", "obstacle2_radius", 1.0, 5.0, 0.5)}
+RMP_LEARNER = {"type": "rmp", "weights": {"type": "mlp", "hidden": [8, 8], "aux": "all"}}
+
+
+def tiny_config(level: int = 1, learners=None, iterations: int = 50, **data) -> RunConfig:
+    tree, expert = (TREE_1LEVEL, EXPERT_1LEVEL) if level == 1 else (TREE_2LEVEL, EXPERT_2LEVEL)
+    return RunConfig(
+        name=f"tiny-2d{level}level", seed=3,
+        env={"type": "particle2d", "n_obstacles": level, "dt": 0.01},  # coarser RK4 steps break V's monotonicity
+        tree=tree, expert=expert,
+        learners=learners or {"learner-rmp": RMP_LEARNER},
+        data={"train_envs": 2, "train_trajectories": 3, "test_envs": 2, "test_trajectories": 2, "points": 4,
+              "interval": 0.25, **data},
+        train={"iterations": iterations, "batch_size": 16, "snapshots": [0, iterations // 2, iterations],
+               "log_every": 10, "checkpoint_every": 25, "lr": 1e-3},
+        eval={"figures": True},
+        logger={"mode": "disabled"},
+    )
+
+
+def _expert(level=1):
+    env = Particle2D(n_obstacles=level, dt=0.05)
+    tree, w = (TREE_1LEVEL, EXPERT_1LEVEL) if level == 1 else (TREE_2LEVEL, EXPERT_2LEVEL)
+    return env, build_tree(tree_with_weights(tree, w), aux_dims=env.aux_dims())
+
+
+@pytest.fixture(scope="module")
+def small_data():
+    env, expert = _expert()
+    ds = collect(env, expert, 2, 3, 5, 0.5, torch.Generator().manual_seed(0))
+    return env, expert, ds
+
+
+# ------------------------------------------------------------------------------------------ weighting
+def test_tree_with_weights_names_missing_node_and_copies():
+    with pytest.raises(ConfigError, match="nodes.obstacel|'obstacel' is not a node"):
+        tree_with_weights(TREE_1LEVEL, {"obstacel": {"type": "constant"}})
+    with pytest.raises(ConfigError, match="root"):
+        tree_with_weights(TREE_1LEVEL, {"q": {"type": "constant"}})
+    out = tree_with_weights(TREE_1LEVEL, {"goal": {"type": "constant", "value": 2.0}})
+    assert out["nodes"]["goal"]["weight"] == {"type": "constant", "value": 2.0}
+    assert "weight" not in TREE_1LEVEL["nodes"]["goal"]  # the input spec is untouched
+
+
+# ------------------------------------------------------------------------------------------ datasets
+def test_dataset_layout_labels_are_expert_accelerations(small_data):
+    env, expert, ds = small_data
+    assert len(ds) == 2 * 3 * 5
+    assert ds.env_id.tolist() == [i // 15 for i in range(30)]
+    assert torch.allclose(ds.t[:5], torch.tensor([0.0, 0.5, 1.0, 1.5, 2.0]))
+    with torch.no_grad():
+        again = expert(ds.q, ds.qd, ds.aux).qdd
+    assert torch.allclose(again, ds.qdd, atol=1e-12)
+    # consecutive records of one trajectory are the rollout, not independent samples
+    assert not torch.allclose(ds.q[0], ds.q[1])
+    assert torch.equal(ds.aux["goal"][0], ds.aux["goal"][4])
+
+
+def test_dataset_determinism_and_roundtrip(tmp_path, small_data):
+    env, expert, ds = small_data
+    ds2 = collect(env, expert, 2, 3, 5, 0.5, torch.Generator().manual_seed(0))
+    ds3 = collect(env, expert, 2, 3, 5, 0.5, torch.Generator().manual_seed(1))
+    assert ds.checksum() == ds2.checksum()
+    assert ds.checksum() != ds3.checksum()
+    meta = {"seed": 0, "config_hash": "abc"}
+    s1 = save_dataset(tmp_path / "a.pt", ds, meta)
+    s2 = save_dataset(tmp_path / "b.pt", ds2, meta)
+    assert s1 == s2 == ds.checksum()
+    back = load_dataset(tmp_path / "a.pt", meta)
+    assert back.checksum() == s1 and torch.equal(back.qdd, ds.qdd)
+    assert not [p for p in os.listdir(tmp_path) if ".tmp" in p]  # atomic write leaves no temp files
+
+
+def test_dataset_tamper_truncation_meta_and_missing(tmp_path, small_data):
+    _, _, ds = small_data
+    meta = {"seed": 0, "config_hash": "abc"}
+    p = tmp_path / "d.pt"
+    save_dataset(p, ds, meta)
+    with pytest.raises(DatasetError, match="different configuration.*seed"):
+        load_dataset(p, {"seed": 1, "config_hash": "abc"})
+    # tamper: same format, one label changed, old checksum kept
+    payload = torch.load(p, weights_only=True)
+    payload["tensors"]["qdd"][3, 0] += 1e-9
+    torch.save(payload, p)
+    with pytest.raises(DatasetError, match=r"checksum.*delete .*d\.pt"):
+        load_dataset(p, meta)
+    save_dataset(p, ds, meta)
+    raw = p.read_bytes()
+    p.write_bytes(raw[: len(raw) // 2])
+    with pytest.raises(DatasetError, match=r"unreadable or truncated.*delete"):
+        load_dataset(p, meta)
+    with pytest.raises(DatasetError, match="does not exist"):
+        load_dataset(tmp_path / "nope.pt", meta)
+
+
+# ------------------------------------------------------------------------------------------ learners
+def test_learners_registered_and_rmp_edges():
+    assert {"rmp", "unstructured"} <= set(LEARNERS.names())
+    env = Particle2D(n_obstacles=2)
+    aux = env.aux_dims()
+    p = RMPLearner.Params(weights={"type": "mlp", "hidden": [8], "aux": "all"})
+    with_expert = RMPLearner(p, TREE_2LEVEL, aux, 2, expert=EXPERT_2LEVEL)
+    assert with_expert.edges == ["goal", "obstacles", "obstacle1", "obstacle2"]
+    without = RMPLearner(p, TREE_2LEVEL, aux, 2)
+    assert "metric" not in without.edges and "obstacles" in without.edges
+    w = with_expert.tree.weights["goal"].fn
+    assert w.aux_names == sorted(aux)  # aux: all
+    with pytest.raises(ConfigError, match="nope"):
+        RMPLearner(RMPLearner.Params(edges=["nope"]), TREE_2LEVEL, aux, 2)
+    q, qd, a = env.sample(2, 2, seed=0)
+    assert with_expert(q, qd, a).shape == (4, 2)
+    assert with_expert.policy(q, qd, a).V.shape == (4,)
+
+
+@pytest.mark.parametrize("target,depth", [(1000, 2), (5800, 2), (300, 1), (20000, 3)])
+def test_width_for_parameters_is_closest(target, depth):
+    w = width_for_parameters(target, 9, 2, depth)
+    best = min(range(1, 400), key=lambda k: abs(mlp_parameters(9, 2, [k] * depth) - target))
+    assert abs(mlp_parameters(9, 2, [w] * depth) - target) == abs(mlp_parameters(9, 2, [best] * depth) - target)
+
+
+def test_unstructured_matches_parameter_count():
+    env = Particle2D(n_obstacles=2)
+    aux = env.aux_dims()
+    rmp = build_learner(RMP_LEARNER, TREE_2LEVEL, aux, 2, expert=EXPERT_2LEVEL)
+    un = build_learner({"type": "unstructured", "hidden": [1, 1], "match_parameters_of": "rmp"}, TREE_2LEVEL, aux, 2,
+                       built={"rmp": rmp})
+    big = build_learner({"type": "unstructured", "hidden": [1, 1], "match_parameters_of": "rmp",
+                         "parameter_ratio": 5.8}, TREE_2LEVEL, aux, 2, built={"rmp": rmp})
+    n = rmp.num_parameters()
+    assert abs(un.num_parameters() - n) / n < 0.1
+    assert abs(big.num_parameters() / n - 5.8) < 0.3
+    with pytest.raises(ValueError, match="not built"):
+        build_learner({"type": "unstructured", "match_parameters_of": "ghost"}, TREE_2LEVEL, aux, 2, built={})
+    q, qd, a = env.sample(1, 3, seed=0)
+    assert un(q, qd, a).shape == (3, 2)
+
+
+# ------------------------------------------------------------------------------------------ training
+def _learner(seed=0):
+    torch.manual_seed(seed)
+    return RMPLearner(RMPLearner.Params(weights={"type": "mlp", "hidden": [8], "aux": "all"}), TREE_1LEVEL,
+                      Particle2D().aux_dims(), 2, expert=EXPERT_1LEVEL)
+
+
+def test_training_reduces_loss_and_keeps_snapshots(small_data):
+    _, _, ds = small_data
+    cfg = TrainConfig(iterations=60, batch_size=16, snapshots=[0, 30, 60], log_every=20, lr=3e-3)
+    model = _learner()
+    logged = []
+    res = train(model, ds, cfg, seed=0, test_data=ds, log=logged.append)
+    assert sorted(res.snapshots) == [0, 30, 60]
+    assert [m["iteration"] for m in logged] == [20.0, 40.0, 60.0]
+    assert res.test_curve[-1][1] < res.test_curve[0][1]
+    assert not torch.equal(res.snapshots[0]["tree.weights.goal.fn.layers.0.weight"],
+                           res.snapshots[60]["tree.weights.goal.fn.layers.0.weight"])
+
+
+@pytest.mark.parametrize("optimizer", ["rmsprop", "adam"])
+def test_resume_equals_uninterrupted(tmp_path, small_data, optimizer):
+    _, _, ds = small_data
+    full = TrainConfig(optimizer=optimizer, iterations=40, batch_size=8, snapshots=[0, 10, 40], checkpoint_every=20,
+                       log_every=10)
+    a = _learner()
+    ra = train(a, ds, full, seed=5, checkpoint_dir=tmp_path / "a")
+    b = _learner()
+    half = full.model_copy(update={"iterations": 20})
+    train(b, ds, half, seed=5, checkpoint_dir=tmp_path / "b")
+    b2 = _learner(seed=99)  # a fresh process: different init, everything must come from the checkpoint
+    rb = train(b2, ds, full, seed=5, checkpoint_dir=tmp_path / "b")
+    assert rb.resumed_from == 20
+    for k, v in a.state_dict().items():
+        assert torch.equal(v, b2.state_dict()[k]), k
+    assert ra.curve == rb.curve
+    assert all(torch.equal(ra.snapshots[i][k], rb.snapshots[i][k]) for i in ra.snapshots for k in ra.snapshots[i])
+    with pytest.raises(RuntimeError, match="different training settings"):
+        train(_learner(), ds, full.model_copy(update={"lr": 0.5}), seed=5, checkpoint_dir=tmp_path / "b")
+
+
+# ------------------------------------------------------------------------------------------ pipeline
+def test_pipeline_end_to_end_2d1level(tmp_path, capsys):
+    cfg = tiny_config(1)
+    logged = []
+    m = run_experiment(cfg, tmp_path / "run", progress=True, log=logged.append)
+    on_disk = json.loads((tmp_path / "run" / "metrics.json").read_text())
+    assert on_disk["learners"].keys() == m["learners"].keys() == {"learner-rmp"}
+    r = on_disk["learners"]["learner-rmp"]
+    for k in ("batch_loss", "online_loss", "success", "collision", "lyapunov_monotone_fraction", "num_parameters"):
+        assert r[k] is not None, k
+    assert set(r["snapshots"]) == {"0", "25", "50"}
+    # Theorem 2: learner-rmp's V_r never rises, at every snapshot including the untrained one
+    assert all(s["lyapunov_monotone_fraction"] == 1.0 for s in r["snapshots"].values())
+    assert r["snapshots"]["50"]["batch_loss"] < r["snapshots"]["0"]["batch_loss"]
+    assert on_disk["expert"]["lyapunov_monotone_fraction"] == 1.0
+    figs = {os.path.basename(f) for f in on_disk["figures"]}
+    assert {"trajectories_learner-rmp.png", "lyapunov_learner-rmp.png", "learning_curve_learner-rmp.png",
+            "progression_learner-rmp.png", "learning_curves.png"} <= figs
+    for f in on_disk["figures"]:
+        assert open(f, "rb").read(8) == b"\x89PNG\r\n\x1a\n"
+    assert any("learner-rmp/train_loss" in e for e in logged)
+    out = capsys.readouterr().out
+    assert "collecting train set" in out and "\r" not in out  # plain lines when not a TTY
+    # a rerun reuses the dataset and the finished checkpoints, and lands on the same numbers
+    m2 = run_experiment(cfg, tmp_path / "run", progress=False)
+    assert m2["data"]["train"]["reused"] and m2["data"]["train"]["sha256"] == m["data"]["train"]["sha256"]
+    assert m2["learners"]["learner-rmp"]["batch_loss"] == m["learners"]["learner-rmp"]["batch_loss"]
+    # a tampered cache is refused, not silently retrained on
+    path = m["data"]["train"]["path"]
+    payload = torch.load(path, weights_only=True)
+    payload["tensors"]["q"][0, 0] += 1.0
+    torch.save(payload, path)
+    with pytest.raises(DatasetError, match="checksum"):
+        run_experiment(cfg, tmp_path / "run", progress=False)
+
+
+def test_pipeline_2d2level_structured_and_unstructured(tmp_path):
+    learners = {"learner-rmp": RMP_LEARNER,
+                "learner-un": {"type": "unstructured", "hidden": [4, 4], "match_parameters_of": "learner-rmp"},
+                "learner-un-large": {"type": "unstructured", "hidden": [4, 4], "match_parameters_of": "learner-rmp",
+                                     "parameter_ratio": 5.8}}
+    cfg = tiny_config(2, learners=learners, iterations=20)
+    m = run_experiment(cfg, tmp_path / "run2", progress=False)
+    L = m["learners"]
+    n = L["learner-rmp"]["num_parameters"]
+    assert abs(L["learner-un"]["num_parameters"] / n - 1) < 0.1
+    assert abs(L["learner-un-large"]["num_parameters"] / n - 5.8) < 0.3
+    assert "lyapunov_monotone_fraction" not in L["learner-un"]
+    assert all(s["lyapunov_monotone_fraction"] == 1.0 for s in L["learner-rmp"]["snapshots"].values())
+    assert (tmp_path / "run2" / "figures" / "progression_learner-un.png").exists()
