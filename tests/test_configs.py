@@ -88,7 +88,7 @@ def test_paper_sizes_are_the_defaults():
 def test_override_changes_built_rmp():
     base = build_all(resolve_and_validate(compose_cfg()))[1]
     changed = build_all(resolve_and_validate(compose_cfg(["tree.nodes.goal.rmp.gain=3.5"])))[1]
-    assert base.rmps["goal"].gain == 10.0 and changed.rmps["goal"].gain == 3.5
+    assert base.rmps["goal"].gain == 1.0 and changed.rmps["goal"].gain == 3.5
 
 
 def test_override_swaps_leaf_preset_and_weight_network():
@@ -187,3 +187,13 @@ def test_submitit_local_two_jobs(tmp_path):
     assert r.returncode == 0, r.stderr[-3000:]
     outs = sorted(tmp_path.glob(".submitit/*/*_result.pkl"))
     assert len(outs) == 2 and len(list(tmp_path.glob("*_2d1level/.hydra/config.yaml"))) == 2
+
+
+def test_optuna_sweep_searches_and_reports_the_best_learning_rate(tmp_path):
+    """conf/sweep/optuna_lr.yaml: two tiny trials, each a full run whose returned loss Optuna minimises."""
+    r = _cli("rmpfusion.cli.run", "-m", "experiment=2d1level", "sweep=optuna_lr", "data=tiny", "train=tiny", "eval=fast",
+             "logger=disabled", "hydra.sweeper.n_trials=2", f"hydra.sweep.dir={tmp_path}", timeout=600)
+    assert r.returncode == 0, r.stderr[-3000:]
+    best = (tmp_path / "optimization_results.yaml").read_text()
+    assert "train.lr" in best and "best_value" in best
+    assert len(list(tmp_path.glob("*_2d1level/metrics.json"))) == 2

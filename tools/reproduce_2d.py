@@ -24,57 +24,29 @@ PAPER = {  # (experiment, learner): batch, online, success, collision   (None = 
 }
 
 
-def _rbf(center, radius, low, high, sigma):
-    return {"type": "rbf", "center": center, "radius": radius, "low": low, "high": high, "sigma": sigma}
+LEARNER_NAMES = {"rmp": "learner-rmp", "un": "learner-un", "un_large": "learner-un-large"}
+EXPERIMENTS = {"2d1level": "2d1level", "2d2level": "2d2level_unstructured"}  # paper experiment -> conf/experiment
 
 
-def _obstacle(parent, k):
-    return {"parent": parent, "rmp": {"type": "collision_avoidance"},
-            "map": {"type": "sphere_distance", "center": f"obstacle{k}_center", "radius": f"obstacle{k}_radius"}}
+def config(exp: str, scale: float, seed: int, lr: float | None, cache: str | None, extra: list[str]) -> RunConfig:
+    """The paper experiment as composed from conf/ (the same YAML `rmpfusion-run experiment=...` uses)."""
+    from hydra import compose, initialize_config_dir
 
+    from rmpfusion.cli._common import CONF_DIR
+    from rmpfusion.config.validate import resolve_and_validate
 
-_GOAL = {"parent": "q", "map": {"type": "offset", "origin": "goal"}, "rmp": {"type": "goal_attractor"}}
-_METRIC = {"parent": "q", "rmp": {"type": "identity_metric", "scale": 0.01}}  # conditioning of resolve, not learned
-TREES = {
-    "2d1level": {"root": {"name": "q", "dim": 2}, "nodes": {"obstacle": _obstacle("q", 1), "goal": _GOAL, "metric": _METRIC}},
-    "2d2level": {"root": {"name": "q", "dim": 2},
-                 "nodes": {"goal": _GOAL, "obstacles": {"parent": "q", "map": {"type": "identity"}},
-                           "obstacle1": _obstacle("obstacles", 1), "obstacle2": _obstacle("obstacles", 2), "metric": _METRIC}},
-}
-# the experts' hidden weights: obstacles count more near their surface, the goal more near the goal;
-# in 2d2level the all-obstacles edge fades near the goal, so its weight multiplies the per-obstacle ones
-EXPERTS = {
-    "2d1level": {"obstacle": _rbf("obstacle1_center", "obstacle1_radius", 1.0, 5.0, 0.5), "goal": _rbf("goal", 0.0, 1.0, 2.0, 1.0)},
-    "2d2level": {"goal": _rbf("goal", 0.0, 1.0, 2.0, 1.0),
-                 "obstacles": {"type": "logistic", "center": "goal", "radius": 0.0, "low": 0.5, "high": 2.0,
-                               "steepness": 2.0, "switch_distance": 1.0},
-                 "obstacle1": _rbf("obstacle1_center", "obstacle1_radius", 1.0, 5.0, 0.5),
-                 "obstacle2": _rbf("obstacle2_center", "obstacle2_radius", 1.0, 5.0, 0.5)},
-}
-
-
-def learners(exp: str, hidden: list[int]) -> dict:
-    rmp = {"learner-rmp": {"type": "rmp", "weights": {"type": "mlp", "hidden": hidden, "aux": "all"}}}
-    if exp == "2d1level":
-        return rmp
-    return {**rmp,
-            "learner-un": {"type": "unstructured", "hidden": [1, 1], "match_parameters_of": "learner-rmp"},
-            "learner-un-large": {"type": "unstructured", "hidden": [1, 1], "match_parameters_of": "learner-rmp",
-                                 "parameter_ratio": 5.8}}
-
-
-def config(exp: str, scale: float, seed: int, hidden: list[int], lr: float, cache: str | None) -> RunConfig:
     it = max(10, round(20000 * scale))
     snaps = sorted({0, it // 20, it // 4, it})
-    return RunConfig(
-        name=exp, seed=seed, env={"type": "particle2d", "n_obstacles": 1 if exp == "2d1level" else 2},
-        tree=TREES[exp], expert=EXPERTS[exp], learners=learners(exp, hidden),
-        data={"train_envs": 20, "train_trajectories": max(1, round(50 * scale)), "test_envs": 5,
-              "test_trajectories": 10, "points": 60, "interval": 1.0, "cache_dir": cache},
-        train={"iterations": it, "snapshots": snaps, "lr": lr, "checkpoint_every": max(1, it // 10),
-               "log_every": max(1, it // 100)},
-        logger={"mode": "disabled"},
-    )
+    over = [f"experiment={EXPERIMENTS[exp]}", f"seed={seed}", "logger=disabled",
+            f"data.train_trajectories={max(1, round(50 * scale))}", f"train.iterations={it}",
+            f"train.snapshots=[{','.join(map(str, snaps))}]", f"train.checkpoint_every={max(1, it // 10)}",
+            f"train.log_every={max(1, it // 100)}"]
+    if lr is not None:
+        over.append(f"train.lr={lr}")
+    if cache:
+        over.append(f"data.cache_dir={cache}")
+    with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
+        return resolve_and_validate(compose("config", overrides=over + list(extra)))
 
 
 def _f(x, pct=False):
@@ -88,7 +60,7 @@ def table(results: dict) -> str:
             "| success (ours / paper) | collision (ours / paper) | V_r monotone, all snapshots | train s |",
             "|---|---|---|---|---|---|---|---|---|"]
     for (exp, name), paper in PAPER.items():
-        r = results.get(exp, {}).get("learners", {}).get(name)
+        r = {LEARNER_NAMES.get(k, k): v for k, v in results.get(exp, {}).get("learners", {}).items()}.get(name)
         if r is None:
             continue
         lyap = [s.get("lyapunov_monotone_fraction") for s in r["snapshots"].values()]
@@ -109,8 +81,8 @@ def main(argv=None) -> int:
     ap.add_argument("--out", type=Path, default=Path("outputs/reproduce_2d"))
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--only", choices=["2d1level", "2d2level"], nargs="*", default=["2d1level", "2d2level"])
-    ap.add_argument("--hidden", type=int, nargs="+", default=[32, 32], help="learner-rmp weight MLP widths")
-    ap.add_argument("--lr", type=float, default=3e-3, help="RMSprop step; 3e-3 reached 2.7x lower test loss than 1e-3 at 2k iterations")
+    ap.add_argument("--lr", type=float, default=None, help="override train.lr (default: conf/train/bc_rmsprop.yaml)")
+    ap.add_argument("overrides", nargs="*", help="further Hydra overrides, e.g. weights@learners.rmp.weights=mlp_small")
     ap.add_argument("--cache", default=None, help="shared dataset cache directory")
     a = ap.parse_args(argv)
     if not 0 < a.scale <= 1:
@@ -118,7 +90,7 @@ def main(argv=None) -> int:
     results = {}
     t0 = time.time()
     for exp in a.only:
-        results[exp] = run_experiment(config(exp, a.scale, a.seed, a.hidden, a.lr, a.cache), a.out / exp)
+        results[exp] = run_experiment(config(exp, a.scale, a.seed, a.lr, a.cache, a.overrides), a.out / exp)
     md = (f"# 2D experiments (scale {a.scale}, seed {a.seed}, {time.time() - t0:.0f} s)\n\n" + table(results))
     a.out.mkdir(parents=True, exist_ok=True)
     (a.out / "table.md").write_text(md)
