@@ -8,7 +8,6 @@ instead of silently training on the wrong data.
 from __future__ import annotations
 
 import hashlib
-import io
 import json
 import os
 from dataclasses import dataclass, field
@@ -17,6 +16,8 @@ from typing import Any, Callable, Mapping
 
 import torch
 from torch import Tensor
+
+from ..files import atomic_torch_save
 
 FORMAT = "rmpfusion-dataset/1"
 
@@ -115,14 +116,7 @@ def save_dataset(path: str | os.PathLike, ds: Dataset, meta: Mapping[str, Any]) 
     checksum = ds.checksum()
     payload = {"format": FORMAT, "sha256": checksum, "meta": _canonical(meta),
                "tensors": {k: v.detach().cpu() for k, v in ds.tensors().items()}}
-    buf = io.BytesIO()
-    torch.save(payload, buf)
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    with open(tmp, "wb") as fh:
-        fh.write(buf.getvalue())
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
+    atomic_torch_save(payload, path)
     return checksum
 
 

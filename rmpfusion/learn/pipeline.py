@@ -21,11 +21,12 @@ import torch
 
 from ..config.schema import RunConfig
 from ..core.tree import build_tree
+from ..files import atomic_torch_save, atomic_write_json
 from ..evaluate.metrics import evaluate_learner, online_loss, rollout_rates
 from ..registry import ENVS
 from .demonstrations import Dataset, collect, load_dataset, save_dataset
 from .learners import build_learner, build_order
-from .train import _atomic_save, load_snapshot, train
+from .train import load_snapshot, train
 
 
 def expert_spec(cfg: RunConfig) -> dict:
@@ -92,15 +93,6 @@ def _threads(n: int):
         yield
     finally:
         torch.set_num_threads(old)
-
-
-def _write_json(path: Path, obj: Any) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    with open(tmp, "w") as fh:
-        json.dump(obj, fh, indent=2, sort_keys=False, default=str)
-        fh.write("\n")
-    os.replace(tmp, path)
 
 
 def data_hash(cfg: RunConfig) -> str:
@@ -177,7 +169,7 @@ def _run(cfg: RunConfig, run_dir: Path, say: Progress, log) -> dict:
     t_start = time.time()
     timing: dict[str, float] = {}
     config = cfg.model_dump()
-    _write_json(run_dir / "config.json", config)
+    atomic_write_json(run_dir / "config.json", config)
     env = make_env(cfg)
     aux_dims = env.aux_dims()
     expert = build_tree(expert_spec(cfg), aux_dims=aux_dims)
@@ -227,7 +219,7 @@ def _run(cfg: RunConfig, run_dir: Path, say: Progress, log) -> dict:
         train_s = time.time() - t0
         dtype = next(model.parameters()).dtype
         model.to(torch.float64)  # rollouts and evaluation in float64 (DESIGN.md §5)
-        _atomic_save({"model": model.state_dict(), "learner": blocks[name], "config": config,
+        atomic_torch_save({"model": model.state_dict(), "learner": blocks[name], "config": config,
                       "iterations": cfg.train.iterations}, run_dir / "checkpoints" / name / "final.pt")
         t0 = time.time()
         snaps: dict[str, dict] = {}
@@ -283,6 +275,6 @@ def _run(cfg: RunConfig, run_dir: Path, say: Progress, log) -> dict:
     metrics = {"name": cfg.name, "seed": cfg.seed, "config_hash": data_hash(cfg),
                "data": {"train": train_info, "test": test_info}, "expert": expert_metrics,
                "learners": results, "figures": figures, "timing": timing}
-    _write_json(run_dir / "metrics.json", metrics)
+    atomic_write_json(run_dir / "metrics.json", metrics)
     say.say(f"done in {timing['total_s']:.1f}s: {run_dir / 'metrics.json'}")
     return metrics

@@ -6,7 +6,6 @@ model and optimizer, so a run resumed from a checkpoint ends at exactly the weig
 from __future__ import annotations
 
 import copy
-import io
 import os
 import re
 from dataclasses import dataclass, field
@@ -18,6 +17,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from ..config.schema import TrainConfig
+from ..files import atomic_torch_save
 from .demonstrations import Dataset
 
 _DTYPES = {"float32": torch.float32, "float64": torch.float64}
@@ -59,17 +59,6 @@ def dataset_loss(model: nn.Module, data: Dataset, chunk: int = 4096) -> float:
 
 def _state_copy(model: nn.Module) -> dict[str, torch.Tensor]:
     return {k: v.detach().clone() for k, v in model.state_dict().items()}
-
-
-def _atomic_save(obj: Any, path: Path) -> None:
-    buf = io.BytesIO()
-    torch.save(obj, buf)
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    with open(tmp, "wb") as fh:
-        fh.write(buf.getvalue())
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
 
 
 _CKPT = re.compile(r"^ckpt-(\d+)\.pt$")
@@ -124,7 +113,7 @@ def train(model: nn.Module, data: Dataset, cfg: TrainConfig, seed: int, test_dat
         if ckdir is None:
             return
         ckdir.mkdir(parents=True, exist_ok=True)
-        _atomic_save({"model": model.state_dict(), "optimizer": opt.state_dict(), "rng": gen.get_state(),
+        atomic_torch_save({"model": model.state_dict(), "optimizer": opt.state_dict(), "rng": gen.get_state(),
                       "iteration": it, "snapshots": res.snapshots, "curve": res.curve, "test_curve": res.test_curve,
                       "train_config": cfg.model_dump(), "config": dict(run_config or {})}, ckdir / f"ckpt-{it:08d}.pt")
         olds = sorted((int(m.group(1)), p) for p in ckdir.iterdir() if (m := _CKPT.match(p.name)))

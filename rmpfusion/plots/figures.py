@@ -15,16 +15,18 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 from matplotlib.patches import Circle  # noqa: E402
 
+from ..files import atomic_path  # noqa: E402
+
 _OBSTACLE_COLOURS = ("tab:red", "tab:blue", "tab:purple", "tab:brown")
 
 
 def save_figure(fig, path: str | os.PathLike, dpi: int = 110) -> Path:
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.stem}.tmp{os.getpid()}.png")
-    fig.savefig(tmp, dpi=dpi, format="png", bbox_inches="tight")
-    plt.close(fig)
-    os.replace(tmp, path)
+    try:
+        with atomic_path(path, suffix=".png") as tmp:
+            fig.savefig(tmp, dpi=dpi, format="png", bbox_inches="tight")
+    finally:
+        plt.close(fig)
     return path
 
 
