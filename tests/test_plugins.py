@@ -43,7 +43,7 @@ def test_plugin_preset_from_command_line_reaches_built_tree(plugin_site, tmp_pat
     r = _cli(plugin_site, "rmpfusion.cli.validate", "rmp@tree.nodes.goal.rmp=spring", "tree.nodes.goal.rmp.gain=7",
              f"hydra.run.dir={tmp_path}")
     assert r.returncode == 0, r.stderr
-    assert "goal (dim 2)  map=offset  weight=logistic  rmp=spring" in r.stdout
+    assert "goal (dim 2)  map=offset  weight=rbf  rmp=spring" in r.stdout
 
 
 def test_plugin_tree_file_trains_a_few_steps(plugin_site, tmp_path):
