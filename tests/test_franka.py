@@ -24,15 +24,6 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 NOMINAL = [0.6, -0.3, 0.0, -2.2, 0.0, 2.0, 0.785]
 
 
-@pytest.fixture(scope="module", autouse=True)
-def _one_thread():
-    # B≈1 evaluations of a 46-node tree are dominated by thread hand-off on a shared machine
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
-
-
 @pytest.fixture(scope="module")
 def expert_weights():
     with open(os.path.join(ROOT, "conf", "expert", "franka.yaml"), encoding="utf-8") as f:

@@ -44,8 +44,7 @@ def main() -> int:
     env = Particle2D(n_obstacles=1)
     tree = rmpfusion.build_tree(TREE, aux_dims=env.aux_dims())
     print(tree.describe())
-    g = torch.Generator().manual_seed(0)
-    q0, qd0, aux = env.sample(n_envs=8, n_per_env=8, seed=0) if hasattr(env, "sample") else None
+    q0, qd0, aux = env.sample(n_envs=8, n_per_env=8, seed=0)
     t0 = time.perf_counter()
     last = [0.0]
 

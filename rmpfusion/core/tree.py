@@ -33,6 +33,15 @@ class TreeOutput:
     nodes: dict[str, Any] | None = None  # per-node states and RMPs when asked for
 
 
+def breadth_first(children: Mapping[str, list[str]], root: str) -> list[str]:
+    """Every node below ``root``, parents before children: the pushforward order (reversed: pullback*)."""
+    order, frontier = [], [root]
+    while frontier:
+        frontier = [c for p in frontier for c in children.get(p, [])]
+        order += frontier
+    return order
+
+
 class NumericalError(FloatingPointError):
     """A non-finite value in a tree evaluation; the message names where it first appeared."""
 
@@ -82,14 +91,7 @@ class RMPTree(nn.Module):
             self.children_of[n] = []
         for n, node in spec.nodes.items():
             self.children_of[node.parent].append(n)
-        order, frontier = [], [self.root_name]
-        while frontier:  # breadth-first: every parent before its children
-            nxt = []
-            for p in frontier:
-                order.extend(self.children_of[p])
-                nxt.extend(self.children_of[p])
-            frontier = nxt
-        self.order = order
+        self.order = breadth_first(self.children_of, self.root_name)
         self.parent_of = {n: node.parent for n, node in spec.nodes.items()}
         self.node_dims = {self.root_name: self.dim, **{n: maps[n].out_dim for n in spec.nodes}}
 
@@ -228,15 +230,10 @@ def build_tree(
             issues.append(Issue(f"{where}.shared_weights.{name}", "declared but used by no edge; remove it"))
             continue
         shared[name] = (wspec, users)
-    order = []
     children: dict[str, list[str]] = {}
     for n, nd in ts.nodes.items():
         children.setdefault(nd.parent, []).append(n)
-    frontier = [ts.root.name]
-    while frontier:
-        nxt = [c for p in frontier for c in children.get(p, [])]
-        order += nxt
-        frontier = nxt
+    order = breadth_first(children, ts.root.name)
     built_shared: dict[str, tuple[nn.Module, int]] = {}
     for n in order:
         nd, p = ts.nodes[n], f"{where}.nodes.{n}"

@@ -10,7 +10,6 @@ modes (kinematic rollouts are replayed in pybullet at every integration step aft
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from typing import Any, Callable, Literal, Mapping, Sequence
 
@@ -22,6 +21,7 @@ from torch import Tensor
 from ..maps.kinematics import Chain
 from ..maps.urdf import PANDA_ARM_JOINTS, load_panda_urdf_path, parse_urdf
 from ..registry import ENVS, Params
+from .common import SeededSampling, qdd_of, redraw_until_ok, rk4, semi_implicit_euler
 from .franka_tree import EE_LINK, EE_OFFSET
 
 Vec3 = tuple[float, float, float]
@@ -143,7 +143,7 @@ class _Scene:
 
 
 @ENVS.register("franka")
-class Franka:
+class Franka(SeededSampling):
     """Franka Panda goal reaching around cylinders; see the module docstring for the two modes."""
 
     class Params(Params):
@@ -325,34 +325,11 @@ class Franka:
             qd = self._uniform((n, 7), -p.start_speed, p.start_speed, generator)
             return q, qd
 
-        def ok(q):
-            return self.clearance(q, aux) >= p.start_clearance
-
-        q0, qd0 = draw()
-        bad = ~ok(q0)
-        tries = 1
-        while bool(bad.any()):
-            if tries >= p.max_tries:
-                raise RuntimeError(f"franka: could not place {int(bad.sum())} start configurations clear of the "
-                                   "obstacles; move nominal_q or shrink start_spread")
-            q2, qd2 = draw()
-            idx = bad.nonzero().flatten()
-            sub = {k: v[idx] for k, v in aux.items()}
-            good = self.clearance(q2[idx], sub) >= p.start_clearance
-            take = torch.zeros_like(bad)
-            take[idx[good]] = True
-            q0 = torch.where(take[:, None], q2, q0)
-            qd0 = torch.where(take[:, None], qd2, qd0)
-            bad &= ~take
-            tries += 1
+        q0, qd0 = redraw_until_ok(
+            draw, lambda v, a: self.clearance(v[0], a) >= p.start_clearance, aux, p.max_tries,
+            lambda left: f"franka: could not place {left} start configurations clear of the obstacles; "
+                         "move nominal_q or shrink start_spread")
         return q0, qd0, aux
-
-    def sample(self, n_envs: int, n_per_env: int, seed: int | None = None,
-               generator: torch.Generator | None = None) -> tuple[Tensor, Tensor, dict[str, Tensor]]:
-        """Environments and initial states in one call, from a seed or a generator."""
-        if generator is None and seed is not None:
-            generator = torch.Generator().manual_seed(seed)
-        return self.sample_initial_states(self.sample_envs(n_envs, generator), n_per_env, generator)
 
     # ------------------------------------------------------------------ rollouts
     def rollout(
@@ -420,23 +397,20 @@ class Franka:
         goal_hit.update(0.0, self.ee_position(q), aux["goal"], self.params.goal_tolerance, alive)
 
         def accel(x, xd):
-            return _qdd_of(policy(x, xd, aux))
+            return qdd_of(policy(x, xd, aux))
 
         for k in range(n_steps + 1):
             a = None
             if k % every == 0 or self.params.integrator == "semi_implicit_euler":
                 a, V, D = self._evaluate(policy, q, qd, aux)
                 if k % every == 0:
-                    rec.add(k * dt, q, qd, a, V, D, alive)
-                    if monitor is not None:
-                        monitor(len(rec.t) - 1, k * dt, q, qd, a, V)
+                    rec.add(k * dt, q, qd, a, V, D, alive, monitor)
             if k == n_steps:
                 break
             if self.params.integrator == "semi_implicit_euler":
-                qd_new = qd + dt * a
-                q_new = q + dt * qd_new
+                q_new, qd_new = semi_implicit_euler(accel, q, qd, dt, a)
             else:
-                q_new, qd_new = _rk4(accel, q, qd, dt, a)
+                q_new, qd_new = rk4(accel, q, qd, dt, a)
             finite = q_new.isfinite().all(-1) & qd_new.isfinite().all(-1)
             for b in (alive & ~finite).nonzero().flatten().tolist():
                 errors[b] = f"non-finite state at t={(k + 1) * dt:.4f}s"
@@ -507,9 +481,7 @@ class Franka:
             for k in range(n_steps + 1):
                 a, V, D = self._evaluate(policy, q, qd, aux)
                 if k % every == 0:
-                    rec.add(k * dt, q, qd, a, V, D, alive)
-                    if monitor is not None:
-                        monitor(len(rec.t) - 1, k * dt, q, qd, a, V)
+                    rec.add(k * dt, q, qd, a, V, D, alive, monitor)
                 if k == n_steps:
                     break
                 a_np = a.detach().cpu().numpy()
@@ -595,7 +567,10 @@ class _Recorder:
         self.t, self.q, self.qd, self.qdd, self.V, self.D = [], [], [], [], [], []
         self.alive: list[Tensor] = []
 
-    def add(self, t, q, qd, a, V, D, alive):
+    def add(self, t, q, qd, a, V, D, alive, monitor=None):
+        """Record one time; ``monitor(i, t, q, qd, qdd, V)`` sees the live values of record i."""
+        if monitor is not None:
+            monitor(len(self.t), t, q, qd, a, V)
         m = alive[:, None]
         nan = float("nan")
         self.t.append(t)
@@ -633,20 +608,3 @@ class _GoalTracker:
         hit = ((ee - goal).norm(dim=-1) <= tol) & alive & ~self.reached
         self.time = torch.where(hit, torch.full_like(self.time, t), self.time)
         self.reached |= hit
-
-
-def _qdd_of(out: Any) -> Tensor:
-    return out if isinstance(out, Tensor) else out.qdd
-
-
-def _rk4(accel, q, qd, dt, a=None):
-    """Classical RK4 on (q, q̇); ``a`` reuses the acceleration already evaluated at (q, q̇)."""
-    k1v = accel(q, qd) if a is None else a
-    k1x = qd
-    k2x = qd + 0.5 * dt * k1v
-    k2v = accel(q + 0.5 * dt * k1x, k2x)
-    k3x = qd + 0.5 * dt * k2v
-    k3v = accel(q + 0.5 * dt * k2x, k3x)
-    k4x = qd + dt * k3v
-    k4v = accel(q + dt * k3x, k4x)
-    return q + dt / 6 * (k1x + 2 * k2x + 2 * k3x + k4x), qd + dt / 6 * (k1v + 2 * k2v + 2 * k3v + k4v)

@@ -15,6 +15,7 @@ from pydantic import Field, model_validator
 from torch import Tensor
 
 from ..registry import ENVS, Params
+from .common import SeededSampling, qdd_of, redraw_until_ok, rk4, semi_implicit_euler
 
 Range = tuple[float, float]
 Box = tuple[tuple[float, float], tuple[float, float]]  # ((x_low, x_high), (y_low, y_high))
@@ -52,7 +53,7 @@ def _check_range(name: str, r: Range) -> None:
 
 
 @ENVS.register("particle2d")
-class Particle2D:
+class Particle2D(SeededSampling):
     """Goal reaching around 1 (2d1level) or 2 (2d2level) circular obstacles in a [-5, 5]² workspace."""
 
     class Params(Params):
@@ -218,27 +219,10 @@ class Particle2D:
             angle = self._uniform((n,), (-torch.pi, torch.pi), generator)
             return q, speed[:, None] * torch.stack([angle.cos(), angle.sin()], -1)
 
-        q0, qd0 = draw()
-        bad = self.clearance(q0, aux) < p.clearance
-        tries = 1
-        while bool(bad.any()):
-            if tries >= p.max_tries:
-                raise RuntimeError(f"particle2d: could not place {int(bad.sum())} start states clear of the obstacles")
-            q2, qd2 = draw()
-            take = bad & (self.clearance(q2, aux) >= p.clearance)
-            q0 = torch.where(take[:, None], q2, q0)
-            qd0 = torch.where(take[:, None], qd2, qd0)
-            bad &= ~take
-            tries += 1
+        q0, qd0 = redraw_until_ok(
+            draw, lambda v, a: self.clearance(v[0], a) >= p.clearance, aux, p.max_tries,
+            lambda left: f"particle2d: could not place {left} start states clear of the obstacles")
         return q0, qd0, aux
-
-    def sample(
-        self, n_envs: int, n_per_env: int, seed: int | None = None, generator: torch.Generator | None = None
-    ) -> tuple[Tensor, Tensor, dict[str, Tensor]]:
-        """Environments and initial states in one call, from a seed or a generator."""
-        if generator is None and seed is not None:
-            generator = torch.Generator().manual_seed(seed)
-        return self.sample_initial_states(self.sample_envs(n_envs, generator), n_per_env, generator)
 
     # ------------------------------------------------------------------ dynamics
     def rollout(
@@ -270,7 +254,7 @@ class Particle2D:
             raise ValueError(f"horizon={horizon} must be a multiple of dt={dt}")
         if q0.dim() != 2 or q0.shape[-1] != 2 or qd0.shape != q0.shape:
             raise ValueError(f"q0 and qd0 must both be (B, 2); got {tuple(q0.shape)} and {tuple(qd0.shape)}")
-        step = _semi_implicit_euler if self.params.integrator == "semi_implicit_euler" else _rk4
+        step = semi_implicit_euler if self.params.integrator == "semi_implicit_euler" else rk4
         with torch.set_grad_enabled(enable_grad):
             return self._rollout(policy, step, q0, qd0, dict(aux), dt, n_steps, every, monitor, progress)
 
@@ -282,13 +266,13 @@ class Particle2D:
         reached = self.success(q, aux)
 
         def accel(x, xd):
-            return _qdd_of(policy(x, xd, aux))
+            return qdd_of(policy(x, xd, aux))
 
         for k in range(n_steps + 1):
             a = None
             if k % every == 0:
                 out = policy(q, qd, aux)
-                a = _qdd_of(out)
+                a = qdd_of(out)
                 V = None if isinstance(out, Tensor) else getattr(out, "V", None)
                 qs.append(q), qds.append(qd), qdds.append(a), ts.append(k * dt)
                 if V is not None:
@@ -319,30 +303,3 @@ class Particle2D:
             V=torch.stack(Vs) if Vs else None,
             dissipation=torch.stack(Ds) if Ds else None,
         )
-
-
-def _qdd_of(out: Any) -> Tensor:
-    return out if isinstance(out, Tensor) else out.qdd
-
-
-def _semi_implicit_euler(accel, q, qd, dt, a=None):
-    """Symplectic Euler: velocity first, then position with the new velocity (first order, no energy drift)."""
-    if a is None:
-        a = accel(q, qd)
-    qd = qd + dt * a
-    return q + dt * qd, qd
-
-
-def _rk4(accel, q, qd, dt, a=None):
-    """Classical RK4 on the first-order system (q, q̇); ``a`` reuses an acceleration already evaluated at (q, q̇)."""
-    k1v = accel(q, qd) if a is None else a
-    k1x = qd
-    k2x = qd + 0.5 * dt * k1v
-    k2v = accel(q + 0.5 * dt * k1x, k2x)
-    k3x = qd + 0.5 * dt * k2v
-    k3v = accel(q + 0.5 * dt * k2x, k3x)
-    k4x = qd + dt * k3v
-    k4v = accel(q + dt * k3x, k4x)
-    q = q + dt / 6 * (k1x + 2 * k2x + 2 * k3x + k4x)
-    qd = qd + dt / 6 * (k1v + 2 * k2v + 2 * k3v + k4v)
-    return q, qd
