@@ -66,6 +66,10 @@ def test_gds_leaf_matches_finite_difference_definitions(name, dim, params, gen):
     Xi, xi = leaf.curvature(y, yd)
     torch.testing.assert_close(Xi, Xi_ad, atol=1e-10, rtol=1e-10)
     torch.testing.assert_close(xi, xi_ad, atol=1e-10, rtol=1e-10)
+    # a fused ``terms`` (one evaluation shared by all six terms) equals the separate definitions exactly
+    plain = (leaf.metric(y, yd), leaf.damping(y, yd), leaf.potential(y), GDS.potential_grad(leaf, y), Xi_ad, xi_ad)
+    for got, want in zip(leaf.terms(y, yd), plain):
+        torch.testing.assert_close(got, want, atol=1e-10, rtol=1e-10)
 
 
 def test_barrier_inside_obstacle_is_finite_and_pushes_out():

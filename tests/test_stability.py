@@ -150,7 +150,10 @@ def test_energy_identity_on_the_franka_tree_even_with_penetrating_control_points
         o = tree(q, qd, aux, return_nodes=True)
         dists = torch.cat([o.nodes["state"][n][0] for n in o.nodes["state"] if n.endswith("_obstacle1")], dim=1)
         assert (dists < 0).any()  # the scenario really has penetration
-        eps = 1e-5
+
+        # the barriers make V large (hundreds) and stiff inside obstacles and are only C¹ at their switch points,
+        # so a central difference needs a small step; the tolerance is relative to V's scale
+        eps = 1e-7
         dVdt = (tree(q + eps * qd, qd + eps * o.qdd, aux).V - tree(q - eps * qd, qd - eps * o.qdd, aux).V) / (2 * eps)
     expect = -torch.einsum("bi,bij,bj->b", qd, o.B, qd)
-    torch.testing.assert_close(dVdt, expect, rtol=1e-6, atol=1e-6)
+    torch.testing.assert_close(dVdt, expect, rtol=1e-6, atol=2e-8 * float(o.V.abs().max()))

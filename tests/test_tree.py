@@ -53,16 +53,19 @@ def _random_node(B, n, gen):
 
 
 def test_pullback_star_is_eq6_per_sample(gen):
-    """Eq. 6 written out per sample in numpy, children of different dimensions, some unweighted."""
+    """Eq. 6 written out per sample in numpy, children of different dimensions, some unweighted, and the
+    shortcuts pullback* takes (1-D children, edges flagged as identity Jacobians) against the general formula."""
     B, m = 4, 3
     xd = torch.randn(B, m, generator=gen)
     kids = []
-    for n, weighted in [(1, True), (2, False), (3, True)]:
-        J = torch.randn(B, n, m, generator=gen)
+    for n, weighted, identity in [(1, True, False), (2, False, False), (3, True, False), (1, False, False),
+                                  (3, True, True), (3, False, True)]:
+        J = torch.eye(m).expand(B, m, m) if identity else torch.randn(B, n, m, generator=gen)
         w = torch.rand(B, generator=gen) + 0.1 if weighted else None
         gw = torch.randn(B, m, generator=gen) if weighted else None
         yd = (J @ xd[..., None])[..., 0]
-        kids.append((Edge(J=J, c=torch.randn(B, n, generator=gen), yd=yd, w=w, grad_w=gw), _random_node(B, n, gen)))
+        kids.append((Edge(J=J, c=torch.randn(B, n, generator=gen), yd=yd, w=w, grad_w=gw, identity=identity),
+                     _random_node(B, n, gen)))
     out = pullback_star(xd, kids)
     for b in range(B):
         f = np.zeros(m); M = np.zeros((m, m)); G = np.zeros((m, m)); Bm = np.zeros((m, m)); L = Phi = V = 0.0

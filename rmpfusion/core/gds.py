@@ -10,7 +10,7 @@ import torch
 from torch import Tensor, nn
 
 from . import autodiff
-from .algebra import NodeRMP
+from .algebra import NodeRMP, matvec
 
 
 class LeafRMP(nn.Module):
@@ -65,12 +65,15 @@ class GDS(LeafRMP):
         xi = Gdot_yd - 0.5 * grad_quad
         return Xi, xi
 
-    def forward(self, y: Tensor, yd: Tensor) -> NodeRMP:
-        G = self.metric(y, yd)
-        Bm = self.damping(y, yd)
-        Phi = self.potential(y)
+    def terms(self, y: Tensor, yd: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor, Tensor]:
+        """(G, B, Φ, ∇Φ, Ξ_G, ξ_G) from the methods above; a leaf may override it to share intermediate
+        values between them (tests hold the override to the separate methods)."""
         Xi, xi = self.curvature(y, yd)
+        return self.metric(y, yd), self.damping(y, yd), self.potential(y), self.potential_grad(y), Xi, xi
+
+    def forward(self, y: Tensor, yd: Tensor) -> NodeRMP:
+        G, Bm, Phi, dPhi, Xi, xi = self.terms(y, yd)
         M = G + Xi
-        f = -self.potential_grad(y) - (Bm @ yd.unsqueeze(-1)).squeeze(-1) - xi
+        f = -dPhi - matvec(Bm, yd) - xi
         K = 0.5 * quad(yd, G)
         return NodeRMP(f=f, M=M, G=G, B=Bm, Phi=Phi, L=K - Phi, V=K + Phi)

@@ -5,6 +5,8 @@ root. Then resolve. Gradients reach every weight-function parameter, including t
 """
 from __future__ import annotations
 
+import logging
+import types
 from dataclasses import dataclass
 from typing import Any, Mapping
 
@@ -14,7 +16,7 @@ from torch import Tensor, nn
 from ..config.errors import ConfigError, Issue
 from ..config.tree_spec import TreeSpec, validate_tree_spec
 from ..registry import LEAF_RMPS, TASK_MAPS, WEIGHTS
-from .algebra import Edge, NodeRMP, pullback_star, resolve
+from .algebra import Edge, NodeRMP, lu_solve, pullback_star, resolve
 from .auxstate import AuxDict
 
 
@@ -43,7 +45,44 @@ def breadth_first(children: Mapping[str, list[str]], root: str) -> list[str]:
 
 
 class NumericalError(FloatingPointError):
-    """A non-finite value in a tree evaluation; the message names where it first appeared."""
+    """A non-finite value in a tree evaluation; the message names where it first appeared.
+
+    ``where`` is that place (``q``, ``aux['goal']``, ``weight at node 'o1'``, ...) and ``samples`` the batch
+    indices affected there (None when unknown), so a caller can isolate those samples and keep the others.
+    """
+
+    def __init__(self, message: str, where: str | None = None, samples: list[int] | None = None):
+        super().__init__(message)
+        self.where = where if where is not None else getattr(message, "where", None)
+        self.samples = samples if samples is not None else getattr(message, "samples", None)
+
+
+class _Diagnosis(str):
+    """A diagnosis message that also carries where and which samples (read by NumericalError)."""
+
+    where: str | None = None
+    samples: list[int] | None = None
+
+    @classmethod
+    def make(cls, text: str, where: str | None = None, samples: list[int] | None = None) -> "_Diagnosis":
+        d = cls(text)
+        d.where, d.samples = where, samples
+        return d
+
+
+def _nonfinite_samples(t: Tensor) -> list[int]:
+    """Batch indices of the samples of ``t`` holding a non-finite value (all of them for an unbatched t)."""
+    bad = ~torch.isfinite(t.detach())
+    if bad.dim() == 0:
+        return []
+    return bad.reshape(bad.shape[0], -1).any(-1).nonzero().flatten().tolist()
+
+
+def _samples_text(samples: list[int]) -> str:
+    if not samples:
+        return ""
+    shown = ", ".join(map(str, samples[:10])) + (", …" if len(samples) > 10 else "")
+    return f" in sample{'s' if len(samples) > 1 else ''} {shown}"
 
 
 def _first_nonfinite(named) -> str | None:
@@ -94,6 +133,17 @@ class RMPTree(nn.Module):
         self.order = breadth_first(self.children_of, self.root_name)
         self.parent_of = {n: node.parent for n, node in spec.nodes.items()}
         self.node_dims = {self.root_name: self.dim, **{n: maps[n].out_dim for n in spec.nodes}}
+        first: dict[tuple, str] = {}
+        for n in self.order:  # maps that share a computation also share its modules
+            key = getattr(self.maps[n], "shared_key", None)
+            if key is not None:
+                k = (self.parent_of[n], key)
+                if k in first:
+                    self.maps[n].adopt_shared(self.maps[first[k]])
+                else:
+                    first[k] = n
+        self._compiled = None  # the torch.compile'd _root_rmp, built on first use after compile()
+        self._compile_args: tuple | None = None
 
     def _normalise_aux(self, aux: AuxDict | None, batch: int) -> dict[str, Tensor] | None:
         if aux is None:
@@ -115,17 +165,61 @@ class RMPTree(nn.Module):
     def forward(self, q: Tensor, qd: Tensor, aux: AuxDict | None = None, return_nodes: bool = False) -> TreeOutput:
         if q.dim() != 2 or q.shape[-1] != self.dim or qd.shape != q.shape:
             raise ValueError(f"q and qd must both be (B, {self.dim}); got {tuple(q.shape)} and {tuple(qd.shape)}")
+        dtype = self._dtype()
+        if dtype is not None and (q.dtype != dtype or qd.dtype != dtype):
+            raise TypeError(f"q and qd are {q.dtype} and {qd.dtype} but the tree computes in {dtype}; convert the "
+                            f"state (q.to({dtype})) or the tree (tree.to({q.dtype}))")
         aux = self._normalise_aux(aux, q.shape[0])
+        solved = False  # LU solve succeeded with a finite result for every sample
+        if return_nodes:
+            state, edges, rmp = self._passes(q, qd, aux)
+            r = rmp[self.root_name]
+        else:
+            run = self._compiled_fn() if self._compile_args is not None else self._root_rmp
+            *fields, qdd, ok = run(q, qd, aux)
+            r = NodeRMP(*fields)
+            solved = self.resolve_method == "solve" and bool(ok)
+        if not solved:  # singular or non-finite samples, or pinv asked for: the full treatment
+            qdd = resolve(r.f, r.M, self.resolve_method)
+        if self.check_finite and not solved and not bool(torch.isfinite(qdd).all()):
+            raise NumericalError(self._diagnose(q, qd, aux))
+        nodes = {"state": state, "edge": edges, "rmp": rmp} if return_nodes else None
+        return TreeOutput(qdd=qdd, f=r.f, M=r.M, G=r.G, B=r.B, Phi=r.Phi, V=r.V, L=r.L, nodes=nodes)
+
+    def _dtype(self) -> torch.dtype | None:
+        """The floating dtype of the tree's parameters and buffers (float64 unless converted); None if it has none."""
+        for t in self.parameters():
+            return t.dtype
+        for t in self.buffers():
+            if t.is_floating_point():
+                return t.dtype
+        return None
+
+    def _passes(self, q: Tensor, qd: Tensor, aux: dict[str, Tensor] | None):
+        """Pushforward then pullback*: every node's state, edge and RMP (the root's RMP under the root's name).
+
+        Sibling maps that declare the same ``shared_key`` (e.g. forward kinematics of one robot to several
+        links) compute their common part once per parent state through ``prepare``.
+        """
         state = {self.root_name: (q, qd)}
         edges: dict[str, Edge] = {}
+        prepared: dict[tuple, Any] = {}
         for n in self.order:  # pushforward
-            x, xd = state[self.parent_of[n]]
-            y, yd, J, c = self.maps[n](x, xd, aux)
+            parent = self.parent_of[n]
+            x, xd = state[parent]
+            m = self.maps[n]
+            key = m.shared_key
+            if key is None:
+                y, yd, J, c = m(x, xd, aux)
+            else:
+                if (parent, key) not in prepared:
+                    prepared[(parent, key)] = m.prepare(x, xd, aux)
+                y, yd, J, c = m.from_prepared(prepared[(parent, key)], x, xd, aux)
             w = gw = None
             if n in self.weights:
                 w, gw = self.weights[n](x, aux)
             state[n] = (y, yd)
-            edges[n] = Edge(J=J, c=c, yd=yd, w=w, grad_w=gw)
+            edges[n] = Edge(J=J, c=c, yd=yd, w=w, grad_w=gw, identity=m.identity_jacobian)
         rmp: dict[str, NodeRMP] = {}
         for n in reversed(self.order):  # pullback*
             kids = self.children_of[n]
@@ -133,41 +227,102 @@ class RMPTree(nn.Module):
                 rmp[n] = pullback_star(state[n][1], ((edges[k], rmp[k]) for k in kids))
             else:
                 rmp[n] = self.rmps[n](*state[n])
-        r = pullback_star(qd, ((edges[k], rmp[k]) for k in self.children_of[self.root_name]))
-        qdd = resolve(r.f, r.M, self.resolve_method)
-        if self.check_finite and not bool(torch.isfinite(qdd).all()):
-            raise NumericalError(self._diagnose(q, qd, aux))
-        nodes = None
-        if return_nodes:
-            nodes = {"state": state, "edge": edges, "rmp": {**rmp, self.root_name: r}}
-        return TreeOutput(qdd=qdd, f=r.f, M=r.M, G=r.G, B=r.B, Phi=r.Phi, V=r.V, L=r.L, nodes=nodes)
+        rmp[self.root_name] = pullback_star(qd, ((edges[k], rmp[k]) for k in self.children_of[self.root_name]))
+        return state, edges, rmp
+
+    def _root_rmp(self, q: Tensor, qd: Tensor, aux: dict[str, Tensor] | None) -> tuple[Tensor, ...]:
+        """The root's RMP, its LU-solved acceleration and whether that solve is good for every sample, as a
+        plain tuple of tensors: the pure tensor program that ``compile`` hands to torch.compile."""
+        r = self._passes(q, qd, aux)[2][self.root_name]
+        a, good = lu_solve(r.M, r.f)
+        return r.f, r.M, r.G, r.B, r.Phi, r.L, r.V, a, good.all()
+
+    def compile(self, dynamic: bool | None = None, options: dict[str, Any] | None = None) -> "RMPTree":
+        """Evaluate through ``torch.compile`` (same code, fused kernels): pays off for small batches in a
+        control loop and for training. The first call per input shape compiles (seconds to minutes);
+        inductor caches the result on disk for later processes. ``return_nodes`` and the checks stay eager.
+        Copies of a compiled tree (``copy.deepcopy``) compile their own code on their first call."""
+        self._compile_args = (dynamic, {"cpp_wrapper": True, **(options or {})})  # C++ call wrapper: less Python per call
+        self._compiled = None
+        return self
+
+    def _compiled_fn(self):
+        if self._compiled is None:
+            dynamic, options = self._compile_args
+            # the C++ wrapper calls LU ops through a generic shim and says so at every compile: expected
+            logging.getLogger("torch._inductor.ir").setLevel(logging.ERROR)
+            # a private copy of the function's code: torch.compile caches per code object, so trees compiled in one
+            # process would otherwise pile their guards onto one cache and each call would check all of them
+            fn = types.FunctionType(RMPTree._root_rmp.__code__.replace(), globals(), f"_root_rmp_{id(self):x}")
+            self._compiled = torch.compile(types.MethodType(fn, self), dynamic=dynamic, options=options)
+        return self._compiled
+
+    def uncompile(self) -> "RMPTree":
+        self._compiled = self._compile_args = None
+        return self
+
+    def __getstate__(self):
+        # copies and pickles carry the tree and whether it is compiled, not the compiled code (bound to this tree)
+        state = super().__getstate__() if hasattr(super(), "__getstate__") else self.__dict__.copy()
+        return {**state, "_compiled": None}
 
     def _diagnose(self, q: Tensor, qd: Tensor, aux: AuxDict | None) -> str:
-        """Where the first non-finite value came from: inputs, then nodes in pushforward order, then the root."""
-        bad = _first_nonfinite([("q", q), ("qd", qd), *((f"aux['{k}']", v) for k, v in (aux or {}).items())])
+        """Where the first non-finite value came from: inputs, then nodes in pushforward order, then the leaves'
+        and inner nodes' RMPs, then the root. The message names the place and the samples; the returned string
+        also carries them as ``where`` and ``samples`` for ``NumericalError``."""
+        import warnings
+
+        declared = [k for k in (aux or {}) if k in self.aux_dims]  # aux the tree does not use cannot be the cause
+        inputs = [("q", q), ("qd", qd), *((f"aux['{k}']", aux[k]) for k in declared)]
+        bad = _first_nonfinite(inputs)
         if bad:
-            return f"non-finite input {bad}; check the state or aux state passed to the tree"
+            samples = _nonfinite_samples(dict(inputs)[bad])
+            return _Diagnosis.make(f"non-finite input {bad}{_samples_text(samples)}; check the state or aux state "
+                                   "passed to the tree (a NaN here must not become a command)", bad, samples)
+
+        def scale() -> str:  # finite but extreme inputs overflow inside the tree: say how large they were
+            big = [f"max |{n}| = {float(t.detach().abs().max()):.3g}" for n, t in (("q", q), ("qd", qd)) if t.numel()]
+            return "; inputs were finite (" + ", ".join(big) + ")"
+
         was, self.check_finite = self.check_finite, False
         try:
-            with torch.no_grad():
+            with torch.no_grad(), warnings.catch_warnings():
+                warnings.simplefilter("ignore")  # the fallback was already reported by the failing call
                 out = self.forward(q, qd, aux, return_nodes=True)
         finally:
             self.check_finite = was
         n = out.nodes
         for name in self.order:
             e = n["edge"][name]
-            where = _first_nonfinite([("y", n["state"][name][0]), ("ydot", n["state"][name][1]), ("J", e.J), ("Jdot_xdot", e.c),
-                                      ("weight", e.w), ("weight gradient", e.grad_w)])
+            named = [("y", n["state"][name][0]), ("ydot", n["state"][name][1]), ("J", e.J), ("Jdot_xdot", e.c),
+                     ("weight", e.w), ("weight gradient", e.grad_w)]
+            where = _first_nonfinite(named)
             if where:
-                return f"non-finite {where} at node '{name}' (map {self.spec.nodes[name].map.get('type')})"
+                samples = _nonfinite_samples(dict(named)[where])
+                node = self.spec.nodes[name]
+                origin = (f"weight {node.weight.get('type') if isinstance(node.weight, Mapping) else node.weight}"
+                          if where.startswith("weight") else f"map {node.map.get('type')}")
+                return _Diagnosis.make(f"non-finite {where} at node '{name}' ({origin}){_samples_text(samples)}{scale()}",
+                                       f"{where} at node '{name}'", samples)
         for name in reversed(self.order):
-            where = _first_nonfinite(n["rmp"][name].items())
+            items = list(n["rmp"][name].items())
+            where = _first_nonfinite(items)
             if where:
-                return f"non-finite {where} in the RMP of node '{name}'"
-        where = _first_nonfinite(n["rmp"][self.root_name].items())
+                samples = _nonfinite_samples(dict(items)[where])
+                rmp = self.spec.nodes[name].rmp
+                kind = f"leaf {rmp.get('type')}" if rmp else "pullback* of its children"
+                return _Diagnosis.make(f"non-finite {where} in the RMP of node '{name}' ({kind}){_samples_text(samples)}"
+                                       f"{scale()}", f"{where} in the RMP of node '{name}'", samples)
+        items = list(n["rmp"][self.root_name].items())
+        where = _first_nonfinite(items)
         if where:
-            return f"non-finite root {where} after pullback*"
-        return "non-finite acceleration from resolve: the root inertia M is singular or badly conditioned; add an identity_metric leaf on the root"
+            samples = _nonfinite_samples(dict(items)[where])
+            return _Diagnosis.make(f"non-finite root {where} after pullback*{_samples_text(samples)}{scale()}",
+                                   f"root {where}", samples)
+        samples = _nonfinite_samples(out.qdd)
+        return _Diagnosis.make(
+            f"non-finite acceleration from resolve{_samples_text(samples)}: the root inertia M is singular or badly "
+            "conditioned there; add an identity_metric leaf on the root", "resolve", samples)
 
     def policy(self, q: Tensor, qd: Tensor, aux: AuxDict | None = None) -> Tensor:
         """Just the acceleration: the closed loop q̈ = π(q, q̇)."""

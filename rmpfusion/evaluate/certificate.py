@@ -1,13 +1,19 @@
 """A stability certificate for a tree at given states (Theorem 2), usable after training.
 
 For each state it checks the theorem's premises and conclusion directly, not through a rollout:
+  - the tree's outputs are finite there,
   - every edge weight is positive (and finite),
-  - the root inertia M_r is positive definite (smallest eigenvalue of its symmetric part),
+  - the root inertia M_r is positive definite (smallest eigenvalue of its symmetric part above ``pd_rtol``
+    times its largest: a numerically singular M_r is not certified, since resolve cannot be trusted there),
   - dV_r/dt along q̈ = π(q, q̇), by a central difference in time, equals −q̇ᵀB_r q̇ ≤ 0.
+
+``certify`` takes a batch of states; ``certify_rollout`` takes the records of a rollout.
 """
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+import warnings
+from dataclasses import asdict, dataclass, field
+from typing import Any, Mapping
 
 import torch
 from torch import Tensor
@@ -26,10 +32,12 @@ class Certificate:
     max_energy_identity_error: float  # |dV/dt + q̇ᵀBq̇| relative to 1 + |q̇ᵀBq̇|
     dissipative: bool  # q̇ᵀB_r q̇ ≥ 0 everywhere
     failing_states: list[int]
+    non_finite_states: list[int] = field(default_factory=list)  # the tree's outputs are NaN/inf there
 
     @property
     def ok(self) -> bool:
-        return self.weights_positive and self.inertia_positive_definite and self.energy_identity_holds and self.dissipative
+        return (self.weights_positive and self.inertia_positive_definite and self.energy_identity_holds
+                and self.dissipative and not self.non_finite_states)
 
     def as_dict(self) -> dict:
         return {**asdict(self), "ok": self.ok}
@@ -38,45 +46,89 @@ class Certificate:
         mark = lambda b: "ok  " if b else "FAIL"  # noqa: E731
         return "\n".join([
             f"stability certificate over {self.states} states: {'PASSED' if self.ok else 'FAILED'}",
+            f"  [{mark(not self.non_finite_states)}] outputs finite           ({len(self.non_finite_states)} states not)",
             f"  [{mark(self.weights_positive)}] weights positive         (min w = {self.min_weight:.3e})",
             f"  [{mark(self.inertia_positive_definite)}] M_r positive definite    (min eig = {self.min_inertia_eigenvalue:.3e})",
             f"  [{mark(self.energy_identity_holds)}] dV/dt = -qd'B qd         (max rel. error = {self.max_energy_identity_error:.3e})",
             f"  [{mark(self.dissipative)}] qd'B qd >= 0",
+            *([f"  non-finite states: {self.non_finite_states[:20]}"] if self.non_finite_states else []),
             *([f"  failing states: {self.failing_states[:20]}"] if self.failing_states else []),
         ])
 
 
-def certify(tree: RMPTree, q: Tensor, qd: Tensor, aux=None, eps: float = 1e-6, rtol: float = 1e-5) -> Certificate:
-    """Check Theorem 2's premises and identity at every state of the batch (float64 recommended)."""
-    with torch.no_grad():
-        out = tree(q, qd, aux, return_nodes=True)
-        ws = [e.w for e in out.nodes["edge"].values() if e.w is not None]
-        w_all = torch.stack(ws, dim=1) if ws else q.new_ones(q.shape[0], 1)
-        w_ok = torch.isfinite(w_all).all(1) & (w_all > 0).all(1)
-        Msym = 0.5 * (out.M + out.M.transpose(-1, -2))
-        eig = torch.linalg.eigvalsh(Msym)[:, 0]
-        pd = eig > 0
-        was = tree.check_finite
-        tree.check_finite = False
-        try:
-            Vp = tree(q + eps * qd, qd + eps * out.qdd, aux).V
-            Vm = tree(q - eps * qd, qd - eps * out.qdd, aux).V
-        finally:
-            tree.check_finite = was
-        dVdt = (Vp - Vm) / (2 * eps)
-        diss = torch.einsum("bi,bij,bj->b", qd, out.B, qd)
-        err = (dVdt + diss).abs() / (1 + diss.abs())
-        ident = err <= rtol
-        dissipative = diss >= -1e-12 * (1 + diss.abs())
-    good = w_ok & pd & ident & dissipative
+def _nanmin(x: Tensor) -> float:
+    x = x[torch.isfinite(x)]
+    return float(x.min()) if x.numel() else float("nan")
+
+
+def certify(tree: RMPTree, q: Tensor, qd: Tensor, aux=None, eps: float = 1e-6, rtol: float = 1e-5,
+            pd_rtol: float | None = None) -> Certificate:
+    """Check Theorem 2's premises and identity at every state of the batch (float64 recommended).
+
+    ``pd_rtol`` (default 100·machine epsilon of the tree's dtype) is how far above zero, relative to the
+    largest eigenvalue, the smallest eigenvalue of M_r must be. States where the tree's outputs are not
+    finite are listed in ``non_finite_states`` (and fail) instead of raising.
+    """
+    if pd_rtol is None:
+        pd_rtol = 100 * torch.finfo(q.dtype).eps
+    was = tree.check_finite
+    tree.check_finite = False  # every state gets a verdict; a NaN is a failing state here, not an exception
+    try:
+        with torch.no_grad(), warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # singular M_r is reported below as not positive definite
+            out = tree(q, qd, aux, return_nodes=True)
+            ws = [e.w for e in out.nodes["edge"].values() if e.w is not None]
+            w_all = torch.stack(ws, dim=1) if ws else q.new_ones(q.shape[0], 1)
+            finite = torch.ones(q.shape[0], dtype=torch.bool)
+            for t in (out.qdd, out.f, out.M, out.B, out.V, w_all):
+                finite &= torch.isfinite(t).reshape(t.shape[0], -1).all(-1)
+            w_ok = torch.isfinite(w_all).all(1) & (w_all > 0).all(1)
+            Msym = 0.5 * (out.M + out.M.transpose(-1, -2))
+            Msym = torch.where(finite[:, None, None], Msym, torch.eye(q.shape[1], dtype=q.dtype))
+            eigs = torch.linalg.eigvalsh(Msym)
+            eig = eigs[:, 0]
+            pd = (eig > pd_rtol * eigs.abs().amax(-1)) & finite
+            qdd = torch.where(finite[:, None], out.qdd, torch.zeros_like(out.qdd))
+            Vp = tree(q + eps * qd, qd + eps * qdd, aux).V
+            Vm = tree(q - eps * qd, qd - eps * qdd, aux).V
+    finally:
+        tree.check_finite = was
+    dVdt = (Vp - Vm) / (2 * eps)
+    diss = torch.einsum("bi,bij,bj->b", qd, out.B, qd)
+    err = (dVdt + diss).abs() / (1 + diss.abs())
+    ident = (err <= rtol) & finite
+    dissipative = (diss >= -1e-12 * (1 + diss.abs())) & finite
+    good = w_ok & pd & ident & dissipative & finite
     return Certificate(
         states=int(q.shape[0]),
         weights_positive=bool(w_ok.all()),
-        min_weight=float(w_all.min()),
+        min_weight=_nanmin(w_all),
         inertia_positive_definite=bool(pd.all()),
-        min_inertia_eigenvalue=float(eig.min()),
+        min_inertia_eigenvalue=_nanmin(eig[finite]),
         energy_identity_holds=bool(ident.all()),
-        max_energy_identity_error=float(err.max()),
+        max_energy_identity_error=float(err[finite].max()) if bool(finite.any()) else float("nan"),
         dissipative=bool(dissipative.all()),
         failing_states=[int(i) for i in (~good).nonzero().flatten()],
+        non_finite_states=[int(i) for i in (~finite).nonzero().flatten()],
     )
+
+
+def certify_rollout(tree: RMPTree, rollout: Any, aux: Mapping[str, Tensor] | None = None, **kwargs) -> Certificate:
+    """``certify`` at every recorded state of a rollout (``rollout.q``, ``rollout.qd``: (T, B, d)).
+
+    ``aux`` is the rollout's per-sample aux state (B, k). Records of samples that ended early (NaN rows) are
+    skipped. ``failing_states`` index the flattened time-major records: record ``i`` is time ``i // B``,
+    sample ``i % B``.
+    """
+    q, qd = rollout.q, rollout.qd
+    T, B, d = q.shape
+    qf, qdf = q.reshape(T * B, d), qd.reshape(T * B, d)
+    keep = torch.isfinite(qf).all(-1) & torch.isfinite(qdf).all(-1)
+    idx = keep.nonzero().flatten()
+    rep = None
+    if aux is not None:
+        rep = {k: torch.as_tensor(v).expand(B, -1).repeat(T, 1)[idx] for k, v in aux.items()}
+    cert = certify(tree, qf[idx], qdf[idx], rep, **kwargs)
+    cert.failing_states = [int(idx[i]) for i in cert.failing_states]
+    cert.non_finite_states = [int(idx[i]) for i in cert.non_finite_states]
+    return cert

@@ -10,6 +10,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Mapping
@@ -92,15 +93,30 @@ def collect(env, expert, n_envs: int, n_traj: int, n_points: int, interval: floa
     if T != n_points:
         raise RuntimeError(f"expert rollout recorded {T} points, expected {n_points}")
 
-    def flat(x: Tensor) -> Tensor:  # (T, B, ...) -> (B·T, ...) trajectory-major
-        return x.transpose(0, 1).reshape(B * T, *x.shape[2:]).contiguous()
+    # a trajectory the expert could not finish (a recorded error, or any non-finite record) must not become
+    # training data: it is left out, with a warning that says which and why; none left is an error
+    errors = list(getattr(ro, "error", None) or [None] * B)
+    finite = (ro.q.isfinite() & ro.qd.isfinite() & ro.qdd.isfinite()).all(-1).all(0)
+    failed = {b: errors[b] or "non-finite record" for b in range(B) if errors[b] is not None or not bool(finite[b])}
+    if len(failed) == B:
+        raise RuntimeError(f"the expert failed on every one of the {B} trajectories (first: {failed[0]}); "
+                           "check the expert and the environment before collecting")
+    if failed:
+        shown = "; ".join(f"trajectory {b}: {r}" for b, r in list(failed.items())[:3])
+        warnings.warn(f"expert failed on {len(failed)} of {B} trajectories, left out of the dataset ({shown}"
+                      f"{'; …' if len(failed) > 3 else ''})", RuntimeWarning, stacklevel=2)
+    keep = torch.tensor([b not in failed for b in range(B)])
+    rows = keep.repeat_interleave(T)
 
-    traj = torch.arange(B).repeat_interleave(T)
+    def flat(x: Tensor) -> Tensor:  # (T, B, ...) -> (B·T, ...) trajectory-major, failed trajectories left out
+        return x.transpose(0, 1).reshape(B * T, *x.shape[2:])[rows].contiguous()
+
+    traj = torch.arange(B).repeat_interleave(T)[rows]
     return Dataset(
         q=flat(ro.q), qd=flat(ro.qd), qdd=flat(ro.qdd).detach(),
-        aux={k: v.repeat_interleave(T, dim=0).contiguous() for k, v in aux.items()},
-        env_id=traj // n_traj, traj_id=traj, t=ro.times.repeat(B).contiguous(),
-        collided=ro.collided.clone(), success=ro.success.clone(),
+        aux={k: v.repeat_interleave(T, dim=0)[rows].contiguous() for k, v in aux.items()},
+        env_id=traj // n_traj, traj_id=traj, t=ro.times.repeat(B)[rows].contiguous(),
+        collided=ro.collided[keep].clone(), success=ro.success[keep].clone(),
     )
 
 
@@ -112,6 +128,13 @@ def save_dataset(path: str | os.PathLike, ds: Dataset, meta: Mapping[str, Any]) 
     """Write ``ds`` with ``meta`` (seed, config hash, ...) and its checksum; atomic, so a crash leaves either the
     old file or the new one, never half of one. Returns the checksum."""
     path = Path(path)
+    for name, v in ds.tensors().items():  # a NaN label or state would silently poison training: refuse it here
+        if v.is_floating_point() and not bool(v.isfinite().all()):
+            bad = (~v.isfinite()).reshape(v.shape[0], -1).any(-1).nonzero().flatten()
+            trajs = sorted(set(ds.traj_id[bad].tolist())) if ds.traj_id.numel() == v.shape[0] else []
+            raise DatasetError(f"refusing to write dataset {path}: {name} is non-finite in {bad.numel()} rows "
+                               f"(first rows {bad[:5].tolist()}{f', trajectories {trajs[:5]}' if trajs else ''}); "
+                               "the expert failed there: drop those records (or fix the expert) before saving")
     path.parent.mkdir(parents=True, exist_ok=True)
     checksum = ds.checksum()
     payload = {"format": FORMAT, "sha256": checksum, "meta": _canonical(meta),
@@ -120,20 +143,51 @@ def save_dataset(path: str | os.PathLike, ds: Dataset, meta: Mapping[str, Any]) 
     return checksum
 
 
+def load_error_cause(e: BaseException) -> str:
+    """A one-line cause for a file torch could not load: torch's own messages run to paragraphs (and suggest
+    ``weights_only=False``, which is the wrong advice for a damaged or tampered file)."""
+    msg = str(e)
+    if "WeightsUnpickler error:" in msg:
+        msg = msg.split("WeightsUnpickler error:", 1)[1]
+    lines = [ln.strip() for ln in msg.strip().splitlines() if ln.strip()]
+    first = lines[0] if lines else {EOFError: "the file ends early"}.get(type(e), "no detail")
+    for cut in (" This is an internal", ". Please use", " was not an allowed global"):
+        first = first.split(cut, 1)[0]
+    if len(first) > 160:
+        first = first[:157] + "..."
+    return f"{type(e).__name__}: {first}"
+
+
+def read_torch_file(path: Path, what: str, fix: str, error: type[Exception], fmt: str | None = None,
+                    missing: str | None = None) -> dict:
+    """``torch.load`` (weights only) of a file this package wrote, every failure as ``error`` naming the file.
+
+    ``fmt`` is the ``format`` tag the payload must carry; ``missing`` the advice when the file does not exist.
+    """
+    if not path.is_file():
+        raise error(f"{what} file {path} does not exist" + (f"; {missing}" if missing else ""))
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # torch's warnings about odd pickles: the error below says it all
+            payload = torch.load(path, map_location="cpu", weights_only=True)
+        if not isinstance(payload, dict) or (fmt is not None and payload.get("format") != fmt):
+            raise ValueError(f"not a {fmt or 'rmpfusion'} file")
+    except Exception as e:  # noqa: BLE001 - any unreadable file gets the same advice
+        raise error(f"{what} file {path} is unreadable or truncated ({load_error_cause(e)}); {fix}") from e
+    return payload
+
+
 def load_dataset(path: str | os.PathLike, expected_meta: Mapping[str, Any] | None = None) -> Dataset:
     """Load a dataset written by ``save_dataset``, refusing one that is damaged or was made differently."""
     path = Path(path)
     fix = f"delete {path} to have it collected again"
-    if not path.is_file():
-        raise DatasetError(f"dataset file {path} does not exist; run the experiment (it collects the data) "
-                           "or point data.cache_dir at the directory that holds it")
+    payload = read_torch_file(path, "dataset", fix, DatasetError, FORMAT,
+                              missing="run the experiment (it collects the data) or point data.cache_dir at the "
+                                      "directory that holds it")
     try:
-        payload = torch.load(path, map_location="cpu", weights_only=True)
-        if not isinstance(payload, dict) or payload.get("format") != FORMAT:
-            raise ValueError(f"not a {FORMAT} file")
         ds = Dataset.from_tensors(payload["tensors"])
-    except Exception as e:  # noqa: BLE001 - any unreadable file gets the same advice
-        raise DatasetError(f"dataset file {path} is unreadable or truncated ({type(e).__name__}: {e}); {fix}") from e
+    except Exception as e:  # noqa: BLE001 - a payload missing tensors is damaged too
+        raise DatasetError(f"dataset file {path} is unreadable or truncated ({load_error_cause(e)}); {fix}") from e
     actual = ds.checksum()
     if actual != payload.get("sha256"):
         raise DatasetError(f"dataset file {path} fails its checksum (stored {str(payload.get('sha256'))[:12]}…, "
@@ -148,5 +202,7 @@ def load_dataset(path: str | os.PathLike, expected_meta: Mapping[str, Any] | Non
 
 
 def dataset_meta(path: str | os.PathLike) -> dict:
-    """The stored meta of a dataset file (no checksum verification)."""
-    return torch.load(path, map_location="cpu", weights_only=True)["meta"]
+    """The stored meta of a dataset file (no checksum verification); DatasetError if it cannot be read."""
+    path = Path(path)
+    return dict(read_torch_file(path, "dataset", f"delete {path} to have it collected again", DatasetError,
+                                FORMAT).get("meta", {}))

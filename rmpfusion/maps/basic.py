@@ -20,6 +20,8 @@ def _eye(n: int, x: Tensor) -> Tensor:
 class Identity(TaskMap):
     """y = x: attach several RMPs to the same space, or weight a whole subtree."""
 
+    identity_jacobian = True
+
     class Params(Params):
         pass
 
@@ -37,6 +39,8 @@ class Identity(TaskMap):
 @TASK_MAPS.register("offset")
 class Offset(TaskMap):
     """y = x − origin: an attractor space with the goal at 0 (origin may be aux state)."""
+
+    identity_jacobian = True
 
     class Params(Params):
         origin: AuxOrValue

@@ -14,6 +14,7 @@ import torch
 from pydantic import Field, model_validator
 from torch import Tensor, nn
 
+from ..core.algebra import matmul_small, matvec
 from ..core.taskmap import TaskMap
 from ..registry import TASK_MAPS, Params
 from .urdf import PANDA_ARM_JOINTS, URDFModel, load_panda_urdf_path, parse_urdf
@@ -124,16 +125,16 @@ class Chain(nn.Module):
         """Child pose of joint k, plus the joint's world origin and world axis (before its own motion)."""
         Rp, pp = parent
         c = lambda name: getattr(self, name)[k].to(q)  # noqa: E731
-        o = pp + (Rp @ c("origin_p").unsqueeze(-1)).squeeze(-1)
-        z = (Rp @ c("origin_axis").unsqueeze(-1)).squeeze(-1)
+        o = pp + matvec(Rp, c("origin_p"))
+        z = matvec(Rp, c("origin_axis"))
         kind, qi = self._kind[k], self._qidx[k]
         if kind == REVOLUTE:
             s, cq = torch.sin(q[:, qi]), torch.cos(q[:, qi])
             Rl = c("origin_R") + s[:, None, None] * c("rot_sin") + (1 - cq)[:, None, None] * c("rot_cos")
-            return (Rp @ Rl, o), o, z
+            return (matmul_small(Rp, Rl), o), o, z
         if kind == PRISMATIC:
-            return (Rp @ c("origin_R"), o + z * q[:, qi, None]), o, z
-        return (Rp @ c("origin_R"), o), o, z
+            return (matmul_small(Rp, c("origin_R")), o + z * q[:, qi, None]), o, z
+        return (matmul_small(Rp, c("origin_R")), o), o, z
 
     def _root(self, q: Tensor) -> Pose:
         B = q.shape[0]
@@ -167,6 +168,22 @@ class Chain(nn.Module):
         O = torch.stack(Os, 1) if Os else empty
         Z = torch.stack(Zs, 1) if Zs else empty
         return pose, qs, O, Z
+
+    def all_frames(self, q: Tensor) -> tuple[list[Pose], Tensor, Tensor]:
+        """Every link's world pose (by link index) and every joint's world origin and axis, (B, K, 3) each:
+        one pass that serves the Jacobians of points on any links."""
+        self._check_q(q)
+        poses: list[Pose] = [self._root(q)]
+        Os, Zs = [], []
+        for k in range(len(self._parent)):
+            pose, o, z = self._step(k, poses[self._parent[k]], q)
+            poses.append(pose)
+            Os.append(o)
+            Zs.append(z)
+        B = q.shape[0]
+        O = torch.stack(Os, 1) if Os else q.new_zeros(B, 0, 3)
+        Z = torch.stack(Zs, 1) if Zs else q.new_zeros(B, 0, 3)
+        return poses, O, Z
 
     def forward(self, q: Tensor) -> dict[str, Pose]:
         return self.forward_kinematics(q)
@@ -225,6 +242,11 @@ class ForwardKinematics(TaskMap):
         if qs:
             S[torch.arange(len(qs)), torch.tensor(qs)] = 1.0
         self.register_buffer("select", S)
+        self.register_buffer("path_q", torch.tensor(qs, dtype=torch.long), persistent=False)
+        moving = [k for k in path_joints if self.chain._kind[k] != FIXED]
+        self.register_buffer("path_index", torch.tensor(moving, dtype=torch.long), persistent=False)
+        self.link_index = self.chain.check_link(self.link)
+        self.shared_key = ("forward_kinematics", str(path), tuple(self.chain.actuated))
         self.register_buffer("revolute", torch.tensor(revolute, dtype=torch.bool))
         self.register_buffer("offset", torch.tensor(params.offset, dtype=torch.float64))
         self.out_dim = 3
@@ -237,7 +259,7 @@ class ForwardKinematics(TaskMap):
 
     def _point(self, pose: Pose, x: Tensor) -> Tensor:
         R, p = pose
-        return p + (R @ self.offset.to(x).unsqueeze(-1)).squeeze(-1)
+        return p + matvec(R, self.offset.to(x))
 
     def psi(self, x, aux=None):
         R, p = self.chain.forward_kinematics(x, [self.link])[self.link]
@@ -249,7 +271,8 @@ class ForwardKinematics(TaskMap):
         return torch.where(rev, torch.linalg.cross(Z, y.unsqueeze(1) - O), Z)
 
     def _full(self, cols: Tensor, x: Tensor) -> Tensor:
-        return torch.einsum("bki,kn->bin", cols, self.select.to(x))
+        """(B, 3, dof): the path joints' columns in their configuration slots, zeros elsewhere."""
+        return cols.new_zeros(cols.shape[0], 3, self.in_dim).index_copy(-1, self.path_q, cols.transpose(1, 2))
 
     def jacobian(self, x, aux=None):
         pose, _, O, Z = self.chain.path_frames(x, self.link)
@@ -260,11 +283,24 @@ class ForwardKinematics(TaskMap):
 
     def forward(self, x, xd, aux=None):
         pose, _, O, Z = self.chain.path_frames(x, self.link)
+        return self._outputs(pose, O, Z, x, xd)
+
+    def prepare(self, x, xd, aux=None):
+        return self.chain.all_frames(x)
+
+    def adopt_shared(self, other: "ForwardKinematics") -> None:
+        self.chain = other.chain  # one set of robot constants per tree
+
+    def from_prepared(self, prepared, x, xd, aux=None):
+        poses, O, Z = prepared
+        return self._outputs(poses[self.link_index], O[:, self.path_index], Z[:, self.path_index], x, xd)
+
+    def _outputs(self, pose: Pose, O: Tensor, Z: Tensor, x: Tensor, xd: Tensor):
         y = self._point(pose, x)
         cols = self._columns(y, O, Z)
         J = self._full(cols, x)
-        yd = (J @ xd.unsqueeze(-1)).squeeze(-1)
-        c = self._jdot_qdot(y, yd, O, Z, xd @ self.select.to(x).T)
+        yd = matvec(J, xd)
+        c = self._jdot_qdot(y, yd, O, Z, xd[:, self.path_q])
         return y, yd, J, c
 
     def _jdot_qdot(self, y: Tensor, yd: Tensor, O: Tensor, Z: Tensor, qd: Tensor) -> Tensor:

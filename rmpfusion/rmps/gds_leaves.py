@@ -128,13 +128,17 @@ class Barrier1D(GDS):
         return (self.alpha * w * gw)[:, None]
 
     def curvature(self, y, yd):
-        _, gw = self._w(y[:, 0])
-        w, _ = self._w(y[:, 0])
-        xd = yd[:, 0]
+        return self.terms(y, yd)[4:]
+
+    def terms(self, y, yd):
+        """All six terms from one evaluation of w(x) and u(ẋ) (the methods above are views of it)."""
+        x, xd = y[:, 0], yd[:, 0]
+        w, gw = self._w(x)
         u, du = self._u(xd)
+        g = (w * u)[:, None, None]
         Xi = 0.5 * xd * w * du
         xi = 0.5 * xd**2 * u * gw
-        return Xi[:, None, None], xi[:, None]
+        return g, self.eta * g, 0.5 * self.alpha * w**2, (self.alpha * w * gw)[:, None], Xi[:, None, None], xi[:, None]
 
 
 @LEAF_RMPS.register("collision_avoidance")

@@ -8,7 +8,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
-_GL_NODES, _GL_WEIGHTS = np.polynomial.legendre.leggauss(16)
+# torch constants (not numpy arrays): torch.compile treats them as graph constants instead of re-reading numpy
+_GL_NODES, _GL_WEIGHTS = (torch.from_numpy(a) for a in np.polynomial.legendre.leggauss(16))
 
 
 def logcosh(z: Tensor) -> Tensor:
@@ -22,8 +23,8 @@ def radial_integral(integrand: Callable[[Tensor], Tensor], lo: Tensor, hi: Tenso
 
     Accurate to rounding for the smooth, Gaussian-decaying integrands the attractors use.
     """
-    t = torch.as_tensor(_GL_NODES, dtype=lo.dtype, device=lo.device)
-    wq = torch.as_tensor(_GL_WEIGHTS, dtype=lo.dtype, device=lo.device)
+    t = _GL_NODES.to(dtype=lo.dtype, device=lo.device)
+    wq = _GL_WEIGHTS.to(dtype=lo.dtype, device=lo.device)
     k = torch.arange(panels, dtype=lo.dtype, device=lo.device)
     width = (hi - lo) / panels  # (B,)
     # panel p spans [lo + p·width, lo + (p+1)·width]; node = panel centre + ½ width · t

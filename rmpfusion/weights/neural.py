@@ -87,15 +87,15 @@ class MLPWeight(WeightFunction):
         feats = aux_features(self.aux_names, aux, B)
         parts = ([x] if self.use_config else []) + ([feats] if feats is not None else [])
         h = torch.cat(parts, dim=-1) if len(parts) > 1 else parts[0]
-        # tangent dh/dx, (B, width, in_dim): seeded only on the configuration inputs
+        # tangent (dh/dx)ᵀ, (B, in_dim, width), seeded only on the configuration inputs: with the width last,
+        # each layer maps it by one plain matrix product (no batched copies of the weight matrices)
         W0 = self.layers[0].weight
         z = F.linear(h, W0, self.layers[0].bias)
-        dz = W0[:, : self.in_dim].expand(B, -1, -1) if self.use_config else None
+        dz = W0[:, : self.in_dim].T.unsqueeze(0) if self.use_config else None
         for layer in self.layers[1:]:
             a, da = self.act(z)
-            dh = da.unsqueeze(-1) * dz if dz is not None else None
+            dz = F.linear(da.unsqueeze(1) * dz, layer.weight) if dz is not None else None
             z = layer(a)
-            dz = layer.weight @ dh if dh is not None else None
         out = z[:, 0]
         if self.positivity == "exp":
             pos = torch.exp(out)
@@ -104,7 +104,7 @@ class MLPWeight(WeightFunction):
             pos = F.softplus(out)
             dpos = torch.sigmoid(out)
         w = self.floor + pos
-        grad = dpos[:, None] * dz[:, 0, :] if dz is not None else None  # no config input: ∇_x w = 0
+        grad = dpos[:, None] * dz[..., 0] if dz is not None else None  # no config input: ∇_x w = 0
         return w, grad
 
     def value(self, x, aux):

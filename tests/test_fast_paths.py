@@ -1,0 +1,104 @@
+"""The optimised paths compute the same numbers as the plain ones (float64, to 1e-10): the torch.compile'd
+tree, the shared forward-kinematics pass, the pullback* shortcuts (tested in test_tree), the fused GDS terms
+(test_leaves) and the forward-mode MLP tangent (test_weights). No test here looks at wall time."""
+import copy
+
+import pytest
+import torch
+
+import rmpfusion
+from test_tree import TWO_LEVEL, two_level_inputs
+
+FIELDS = ("qdd", "f", "M", "G", "B", "Phi", "V", "L")
+
+
+def _assert_same(a, b, tol=1e-10):
+    for k in FIELDS:
+        torch.testing.assert_close(getattr(a, k), getattr(b, k), rtol=tol, atol=tol, msg=lambda m, k=k: f"{k}: {m}")
+
+
+def test_compiled_tree_equals_eager_values_and_parameter_gradients(gen):
+    """One compile of a depth-2 tree with MLP, rbf and constant weights, a barrier, an attractor and a damper:
+    every root quantity and every parameter gradient (through the h_i terms) as in eager mode."""
+    eager = rmpfusion.build_tree(TWO_LEVEL)
+    fast = copy.deepcopy(eager).compile(dynamic=False)
+    q, qd, aux = two_level_inputs(16, gen)
+    out_e, out_c = eager(q, qd, aux), fast(q, qd, aux)
+    _assert_same(out_c, out_e)
+    for tree, out in ((eager, out_e), (fast, out_c)):
+        (out.qdd.square().sum() + out.V.sum()).backward()
+    grads = {n: p.grad for n, p in eager.named_parameters()}
+    assert grads, "the tree has learnable weights"
+    for n, p in fast.named_parameters():
+        torch.testing.assert_close(p.grad, grads[n], rtol=1e-10, atol=1e-10, msg=lambda m, n=n: f"{n}: {m}")
+
+
+def test_compiled_tree_falls_back_to_the_pseudo_inverse_where_the_solve_fails():
+    """A root inertia that is singular for some samples: the compiled fast path reports it and the eager
+    resolve gives the Moore–Penrose answer, exactly as without compilation."""
+    spec = {"root": {"name": "q", "dim": 2}, "nodes": {
+        "x": {"parent": "q", "map": {"type": "select", "indices": [0]}, "rmp": {"type": "damper", "w": 1.0, "eta": 1.0}}}}
+    eager = rmpfusion.build_tree(spec)
+    fast = copy.deepcopy(eager).compile(dynamic=False)
+    q = torch.zeros(3, 2, dtype=torch.float64)
+    qd = torch.tensor([[1.0, 2.0], [-1.0, 0.5], [0.0, 3.0]], dtype=torch.float64)
+    out_e, out_c = eager(q, qd), fast(q, qd)
+    _assert_same(out_c, out_e)
+    torch.testing.assert_close(out_c.qdd, torch.stack([-qd[:, 0], torch.zeros(3, dtype=torch.float64)], -1))
+
+
+def test_shared_forward_kinematics_pass_equals_one_pass_per_control_point():
+    """The Franka tree computes one kinematics pass for all 15 points; switching the sharing off (each map
+    runs its own chain) gives the same tree output, and each map's prepared output equals its forward."""
+    from rmpfusion.envs.franka_tree import franka_tree_spec
+
+    spec = franka_tree_spec(n_obstacles=2)
+    aux_dims = dict(spec["aux"])
+    shared = rmpfusion.build_tree(spec)
+    plain = rmpfusion.build_tree(spec)
+    fk = [m for m in plain.maps.values() if m.shared_key is not None]
+    assert len(fk) == 15
+    for m in fk:
+        m.shared_key = None
+    g = torch.Generator().manual_seed(1)
+    lo, hi = fk[0].chain.joint_limits()
+    q = lo + (hi - lo) * torch.rand(6, 7, generator=g, dtype=torch.float64)
+    qd = torch.randn(6, 7, generator=g, dtype=torch.float64)
+    aux = {k: torch.rand(6, d, generator=g, dtype=torch.float64) + (0.3 if "center" in k else 0.05)
+           for k, d in aux_dims.items()}
+    _assert_same(shared(q, qd, aux), plain(q, qd, aux), tol=1e-12)
+    prepared = fk[0].prepare(q, qd)
+    for m in fk:
+        for a, b in zip(m.from_prepared(prepared, q, qd), m(q, qd)):
+            torch.testing.assert_close(a, b, rtol=1e-13, atol=1e-13)
+
+
+@pytest.mark.parametrize("name", ["identity", "offset"])
+def test_maps_flagged_identity_have_identity_jacobians(name, gen):
+    from rmpfusion.registry import TASK_MAPS
+
+    entry = TASK_MAPS.get(name)
+    params = {"origin": [0.5, -1.0, 2.0]} if name == "offset" else {}
+    m = entry.obj(entry.validate(params), 3, {})
+    assert m.identity_jacobian
+    x, xd = torch.randn(4, 3, generator=gen), torch.randn(4, 3, generator=gen)
+    _, yd, J, c = m(x, xd)
+    torch.testing.assert_close(J, torch.eye(3).expand(4, 3, 3))
+    torch.testing.assert_close(yd, xd)
+    torch.testing.assert_close(c, torch.zeros_like(xd))
+
+
+def test_copies_of_a_compiled_tree_evaluate_their_own_weights(gen):
+    """Snapshots are evaluated on copies: a copy of a compiled tree must use the copy's weights, not the
+    original's (its compiled code is built for the copy on first use)."""
+    tree = rmpfusion.build_tree(TWO_LEVEL).compile(dynamic=False)
+    q, qd, aux = two_level_inputs(8, gen)
+    with torch.no_grad():
+        before = tree(q, qd, aux).qdd
+        other = copy.deepcopy(tree)
+        for p in other.parameters():
+            p.add_(0.1)
+        moved = other(q, qd, aux).qdd
+        assert not torch.allclose(moved, before)
+        torch.testing.assert_close(tree(q, qd, aux).qdd, before, rtol=0, atol=0)
+        torch.testing.assert_close(moved, copy.deepcopy(other).uncompile()(q, qd, aux).qdd, rtol=1e-10, atol=1e-10)
