@@ -67,8 +67,14 @@ def test_documented_sweep_and_run_overrides_compose():
     cmds = [ln.split("#")[0].strip() for b in EXAMPLES["bash"] for ln in b.splitlines()]
     runs = [shlex.split(c)[1:] for c in cmds if c.startswith("rmpfusion-run")]
     assert runs
+    def one_point(a: str) -> str:  # a multirun sweep `key=a,b,c` composes as its first point
+        key, _, value = a.partition("=")
+        return f"{key}={value.split(',')[0]}" if "," in value and value[:1] not in "[{(" and "(" not in value else a
+
     for args in runs:
-        over = [a for a in args if a != "-m" and "spring" not in a and "glob(" not in a]
+        multirun = "-m" in args or "--multirun" in args
+        over = [one_point(a) if multirun else a for a in args
+                if a not in ("-m", "--multirun") and "spring" not in a and "glob(" not in a]
         with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
             compose("config", overrides=over, return_hydra_config=True)
 

@@ -10,7 +10,8 @@ import contextlib
 import os
 import sys
 from pathlib import Path
-from typing import Iterator
+from dataclasses import dataclass
+from typing import Any, Iterator
 
 #: Exit code of a command whose configuration is invalid (nothing was run).
 CONFIG_ERROR_EXIT = 2
@@ -54,10 +55,77 @@ def hydra_run_dir() -> Path:
 
 
 def save_resolved(run, run_dir: Path) -> Path:
-    """The resolved, validated config beside Hydra's unresolved copy: what actually ran."""
+    """The resolved, validated config beside Hydra's unresolved copy: what actually ran (and what a rerun in
+    the same directory must match, see rundir.check_same_config)."""
     import yaml
 
-    path = run_dir / "config.resolved.yaml"
-    run_dir.mkdir(parents=True, exist_ok=True)
-    path.write_text(yaml.safe_dump(run.model_dump(mode="json"), sort_keys=False))
+    from ..files import atomic_write_bytes
+    from .rundir import RESOLVED
+
+    path = run_dir / RESOLVED
+    atomic_write_bytes(path, yaml.safe_dump(run.model_dump(mode="json"), sort_keys=False).encode())
     return path
+
+
+@dataclass
+class Job:
+    """One Hydra job: its validated config, run directory, logger and the environment that ran it."""
+
+    run: Any
+    dir: Path
+    logger: Any
+    environment: dict
+
+
+@contextlib.contextmanager
+def job(cfg, threads: int = 1, log: bool = True) -> Iterator[Job]:
+    """Everything a job does before and after its work, in this order:
+
+    validate the config (exit 2 listing every problem); claim the run directory (exit 2 if another process
+    holds it, or if it holds a run of a different configuration, with Hydra's ``.hydra/`` files put back);
+    save the resolved config, ``versions.json`` and a copy of the console (``console.log``); remove
+    temporaries left by a killed process; start the one wandb run of this job (``log``); limit torch to
+    ``threads`` intra-op threads; then yield, and finish the wandb run with the job's exit status.
+    """
+    import torch
+
+    from ..config.validate import resolve_and_validate
+    from . import logger as wandb_logger
+    from .rundir import (HydraFiles, RunDirError, check_same_config, console_log, exclusive, record_environment,
+                         remove_stale_temporaries)
+
+    run_dir = hydra_run_dir()
+    hydra_files = HydraFiles(run_dir)
+    with contextlib.ExitStack() as stack:
+        try:
+            with config_errors_exit():
+                run = resolve_and_validate(cfg)
+            stack.enter_context(exclusive(run_dir))
+            check_same_config(run.model_dump(mode="json"), run_dir)
+        except RunDirError as e:
+            hydra_files.restore()
+            print(f"error: {e}", file=sys.stderr)
+            sys.exit(CONFIG_ERROR_EXIT)
+        except SystemExit:
+            hydra_files.restore()
+            raise
+        hydra_files.accept()
+        save_resolved(run, run_dir)
+        stack.enter_context(console_log(run_dir))
+        environment = record_environment(run_dir, threads)
+        for p in remove_stale_temporaries(run_dir):
+            print(f"removed {p}: a temporary left by a process killed while writing (never read)")
+        old_threads = torch.get_num_threads()
+        torch.set_num_threads(threads)
+        stack.callback(torch.set_num_threads, old_threads)
+        lg = wandb_logger.start(run, run_dir, environment) if log else wandb_logger.JobLogger(None)
+        code = 1
+        try:
+            yield Job(run=run, dir=run_dir, logger=lg, environment=environment)
+            code = 0
+        except SystemExit as e:
+            code = 0 if e.code is None else e.code if isinstance(e.code, int) else 1
+            raise
+        finally:
+            if lg.run is not None:
+                lg.run.finish(exit_code=code)

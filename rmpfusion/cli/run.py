@@ -9,14 +9,16 @@ checkpoints; point a later stage at an earlier run with ``hydra.run.dir=outputs/
 """
 from __future__ import annotations
 
-import contextlib
 import sys
 from pathlib import Path
 
 import hydra
 from omegaconf import DictConfig
 
-from ._common import CONF_DIR, config_errors_exit, hydra_run_dir, save_resolved
+from ._common import CONF_DIR, Job, config_errors_exit, job
+
+#: torch intra-op threads per job: the batches are small, extra threads only contend (see learn/pipeline.py)
+THREADS = 1
 
 
 def _objective(result) -> float | None:
@@ -33,34 +35,6 @@ def _objective(result) -> float | None:
     return None
 
 
-@contextlib.contextmanager
-def _wandb_log(run, run_dir: Path):
-    """One wandb run per job (so per sweep point), writing into the run directory; None when disabled."""
-    if run.logger.mode == "disabled":
-        yield None
-        return
-    import wandb
-
-    lg = run.logger
-    wb = wandb.init(project=lg.project, entity=lg.entity, tags=list(lg.tags), group=lg.group or run.name,
-                    name=f"{run.name}-seed{run.seed}", mode=lg.mode, dir=str(run_dir),
-                    config=run.model_dump(mode="json"), reinit=True)
-    try:
-        yield wb.log
-    finally:
-        wb.finish()
-
-
-def _validated(cfg: DictConfig):
-    from ..config.validate import resolve_and_validate
-
-    with config_errors_exit():
-        run = resolve_and_validate(cfg)
-    run_dir = hydra_run_dir()
-    save_resolved(run, run_dir)
-    return run, run_dir
-
-
 def _collect(run, run_dir: Path, say):
     from ..core.tree import build_tree
     from ..learn import pipeline
@@ -73,15 +47,26 @@ def _collect(run, run_dir: Path, say):
     return env, expert, train_ds, test_ds, {"train": info_tr, "test": info_te}
 
 
-@hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="config")
-def main(cfg: DictConfig) -> float | None:
-    """The whole experiment: demonstrations, training, evaluation, figures, metrics.json."""
+def _experiment(j: Job) -> float | None:
     from ..learn.pipeline import run_experiment
 
-    run, run_dir = _validated(cfg)
-    with _wandb_log(run, run_dir) as log, config_errors_exit():
-        result = run_experiment(run, run_dir, progress=True, log=log)
+    with config_errors_exit():
+        result = run_experiment(j.run, j.dir, progress=True, log=j.logger.log, threads=THREADS)
+    for name, res in (result.get("learners") or {}).items():
+        if res.get("resumed_from") is not None:
+            print(f"learner {name}: resumed from the checkpoint at iteration {res['resumed_from']}")
+    j.logger.finish(result)
     return _objective(result)
+
+
+@hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="config")
+def main(cfg: DictConfig) -> float | None:
+    """The whole experiment: demonstrations, training, evaluation, figures, metrics.json.
+
+    Rerun with the same overrides and ``hydra.run.dir`` to resume a killed run: data is reused and training
+    continues from the last checkpoint."""
+    with job(cfg, THREADS) as j:
+        return _experiment(j)
 
 
 @hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="config")
@@ -89,40 +74,48 @@ def collect(cfg: DictConfig) -> None:
     """Stage 1: the expert's demonstrations, written (checksummed) into the run directory."""
     from ..learn.pipeline import Progress
 
-    run, run_dir = _validated(cfg)
-    *_, info = _collect(run, run_dir, Progress(True))
-    for split, i in info.items():
-        print(f"{split}: {i['points']} points in {i['path']}{' (reused)' if i.get('reused') else ''}")
+    with job(cfg, THREADS, log=False) as j:
+        *_, info = _collect(j.run, j.dir, Progress(True))
+        for split, i in info.items():
+            print(f"{split}: {i['points']} points in {i['path']}{' (reused)' if i.get('reused') else ''} "
+                  f"sha256 {i['sha256']}")
 
 
 @hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="config")
 def train(cfg: DictConfig) -> None:
     """Stage 2: train every learner on the run directory's demonstrations (collected first if absent);
-    checkpoints go to checkpoints/<learner>/, and a rerun resumes from them."""
+    checkpoints go to checkpoints/<learner>/, and a rerun resumes from them (also after SIGKILL; SIGTERM and
+    Ctrl-C write a checkpoint before stopping)."""
     import torch
 
     from ..learn import pipeline
     from ..learn.learners import build_learner, build_order
     from ..learn.train import train as train_model
 
-    run, run_dir = _validated(cfg)
-    say = pipeline.Progress(True)
-    env, expert, train_ds, test_ds, _ = _collect(run, run_dir, say)
-    blocks = {n: b.model_dump() for n, b in run.learners.items()}
-    built: dict = {}
-    with _wandb_log(run, run_dir) as log:
+    with job(cfg, THREADS) as j:
+        run, run_dir, log = j.run, j.dir, j.logger.log
+        say = pipeline.Progress(True)
+        env, expert, train_ds, test_ds, _ = _collect(run, run_dir, say)
+        blocks = {n: b.model_dump() for n, b in run.learners.items()}
+        built: dict = {}
         for name in build_order(blocks):  # the pipeline's seeds, so rmpfusion-evaluate resumes the same runs
             with torch.random.fork_rng():
                 torch.manual_seed(pipeline._learner_seed(run.seed, name))
                 built[name] = build_learner(blocks[name], run.tree, env.aux_dims(), expert.dim, expert=run.expert,
                                             built=built, where=f"learners.{name}")
+        summary: dict = {}
         for name in run.learners:
+            ckdir = run_dir / "checkpoints" / name
             tr = train_model(built[name], train_ds, run.train, seed=pipeline._learner_seed(run.seed, name) + 1,
-                             test_data=test_ds, checkpoint_dir=run_dir / "checkpoints" / name,
+                             test_data=test_ds, checkpoint_dir=ckdir,
                              run_config=run.model_dump(), progress=say.bar(f"train {name}"),
                              log=(lambda m, _n=name: log({f"{_n}/{k}": v for k, v in m.items()})) if log else None)
+            if tr.resumed_from is not None:
+                print(f"learner {name}: resumed from iteration {tr.resumed_from} ({ckdir})")
             last = tr.curve[-1][1] if tr.curve else float("nan")
             print(f"learner {name}: {run.train.iterations} iterations, final train loss {last:.4g}")
+            summary[name] = {"final_train_loss": last, "resumed_from": tr.resumed_from}
+        j.logger.finish({"learners": summary})
 
 
 @hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="config")
@@ -131,22 +124,19 @@ def evaluate(cfg: DictConfig) -> float | None:
 
     Needs the checkpoints rmpfusion-train left in the same run directory; nothing is retrained.
     """
-    from ..learn.pipeline import run_experiment
     from ..learn.train import latest_checkpoint
 
-    run, run_dir = _validated(cfg)
-    missing = []
-    for name in run.learners:
-        ck = latest_checkpoint(run_dir / "checkpoints" / name)
-        if ck is None or int(torch_load_iteration(ck)) < run.train.iterations:
-            missing.append(name)
-    if missing:
-        print(f"error: no fully trained checkpoints for {missing} in {run_dir / 'checkpoints'}; run rmpfusion-train "
-              f"with the same overrides and hydra.run.dir={run_dir} first", file=sys.stderr)
-        sys.exit(1)
-    with _wandb_log(run, run_dir) as log, config_errors_exit():
-        result = run_experiment(run, run_dir, progress=True, log=log)
-    return _objective(result)
+    with job(cfg, THREADS) as j:
+        missing = []
+        for name in j.run.learners:
+            ck = latest_checkpoint(j.dir / "checkpoints" / name)
+            if ck is None or int(torch_load_iteration(ck)) < j.run.train.iterations:
+                missing.append(name)
+        if missing:
+            print(f"error: no fully trained checkpoints for {missing} in {j.dir / 'checkpoints'}; run rmpfusion-train "
+                  f"with the same overrides and hydra.run.dir={j.dir} first", file=sys.stderr)
+            sys.exit(1)
+        return _experiment(j)
 
 
 def torch_load_iteration(path: Path) -> int:

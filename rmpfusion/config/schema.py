@@ -30,6 +30,8 @@ class DataConfig(_Frozen):
 class TrainConfig(_Frozen):
     optimizer: Literal["rmsprop", "adam", "sgd"] = "rmsprop"
     lr: float = Field(1e-3, gt=0)
+    lr_schedule: Literal["constant", "cosine"] = Field("constant", description="cosine: anneal lr to lr·lr_final")
+    lr_final: float = Field(0.01, ge=0, le=1, description="final step size as a fraction of lr (cosine schedule)")
     batch_size: int = Field(200, gt=0)
     iterations: int = Field(20000, ge=0)
     snapshots: list[int] = Field(default_factory=lambda: [0, 1000, 5000, 20000],
@@ -38,6 +40,8 @@ class TrainConfig(_Frozen):
     log_every: int = Field(100, gt=0)
     dtype: Literal["float32", "float64"] = "float64"
     grad_clip: float | None = Field(None, gt=0)
+    compile: bool = Field(False, description="train learner trees through torch.compile: a one-off compile "
+                                             "(seconds), then about twice as fast per step (tools/bench.py)")
 
 
 class EvalConfig(_Frozen):
@@ -45,6 +49,8 @@ class EvalConfig(_Frozen):
     lyapunov_rtol: float = Field(1e-6, ge=0)
     lyapunov_atol: float = Field(1e-9, ge=0)
     figures: bool = True
+    compile: bool = Field(False, description="roll out through torch.compile'd trees (same numbers, faster "
+                                             "after a one-off compile per tree)")
 
 
 class LoggerConfig(_Frozen):

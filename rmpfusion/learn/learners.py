@@ -151,7 +151,22 @@ def build_learner(block: Mapping[str, Any], tree_spec: Mapping[str, Any], aux_di
         if not built or ref not in built:
             raise ValueError(f"{where}.match_parameters_of: learner '{ref}' is not built (known: {sorted(built or {})})")
         kwargs["target_parameters"] = round(built[ref].num_parameters() * params.parameter_ratio)
-    return entry.obj(params, tree_spec, aux_dims, dim, **kwargs)
+    # initial weights drawn in float64 whatever torch's global default is, so one seed gives one learner
+    old = torch.get_default_dtype()
+    torch.set_default_dtype(torch.float64)
+    try:
+        return entry.obj(params, tree_spec, aux_dims, dim, **kwargs)
+    finally:
+        torch.set_default_dtype(old)
+
+
+def compile_learner(model: nn.Module) -> nn.Module:
+    """Route a learner's tree through torch.compile (same numbers, fused kernels); other learners are left
+    as they are (a plain MLP gains little)."""
+    tree = getattr(model, "tree", None)
+    if isinstance(tree, RMPTree) and tree._compile_args is None:
+        tree.compile()
+    return model
 
 
 def build_order(blocks: Mapping[str, Mapping[str, Any]]) -> list[str]:

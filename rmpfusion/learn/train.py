@@ -2,12 +2,20 @@
 
 Everything random comes from one torch.Generator seeded by the run seed, and checkpoints carry it with the
 model and optimizer, so a run resumed from a checkpoint ends at exactly the weights of an uninterrupted one.
+
+Checkpoints are written atomically (a kill mid-write leaves only a temporary that is never read, and is removed
+by the next run); SIGTERM (SLURM preemption, ``kill``) and SIGINT (Ctrl-C) during training finish the current
+step, write a checkpoint and then stop as the signal would have, so a rerun loses nothing.
 """
 from __future__ import annotations
 
 import copy
+import math
 import os
 import re
+import signal
+import sys
+import threading
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Mapping
@@ -22,7 +30,7 @@ from .demonstrations import Dataset
 
 _DTYPES = {"float32": torch.float32, "float64": torch.float64}
 #: TrainConfig fields that change the optimisation path; a checkpoint made with other values is not resumed.
-_PATH_KEYS = ("optimizer", "lr", "batch_size", "dtype", "grad_clip")
+_PATH_KEYS = ("optimizer", "lr", "lr_schedule", "lr_final", "batch_size", "dtype", "grad_clip")
 
 
 @dataclass
@@ -33,12 +41,21 @@ class TrainResult:
     resumed_from: int | None = None
 
 
+def learning_rate(cfg: TrainConfig, it: int) -> float:
+    """The step size of step ``it`` (0-based): a function of the iteration alone, so a resumed run follows the
+    same schedule. ``cosine`` anneals from ``lr`` to ``lr · lr_final`` over ``iterations``."""
+    if cfg.lr_schedule == "constant" or cfg.iterations <= 1:
+        return cfg.lr
+    frac = min(it, cfg.iterations - 1) / (cfg.iterations - 1)
+    return cfg.lr * (cfg.lr_final + (1.0 - cfg.lr_final) * 0.5 * (1.0 + math.cos(math.pi * frac)))
+
+
 def make_optimizer(params, cfg: TrainConfig) -> torch.optim.Optimizer:
     if cfg.optimizer == "rmsprop":
-        return torch.optim.RMSprop(params, lr=cfg.lr)
+        return torch.optim.RMSprop(params, lr=cfg.lr, foreach=True)  # one fused update for all tensors (CPU defaults to a loop)
     if cfg.optimizer == "adam":
-        return torch.optim.Adam(params, lr=cfg.lr)
-    return torch.optim.SGD(params, lr=cfg.lr)
+        return torch.optim.Adam(params, lr=cfg.lr, foreach=True)
+    return torch.optim.SGD(params, lr=cfg.lr, foreach=True)
 
 
 def mse(model: nn.Module, q, qd, aux, qdd) -> torch.Tensor:
@@ -72,6 +89,140 @@ def latest_checkpoint(directory: str | os.PathLike) -> Path | None:
     return max(found)[1] if found else None
 
 
+CHECKPOINT_FORMAT = "rmpfusion-checkpoint/1"
+
+
+class CheckpointError(RuntimeError):
+    """A checkpoint file that cannot be used: missing, damaged, tampered with, or made for another model."""
+
+
+def _digest(obj: Any, h) -> None:
+    if isinstance(obj, torch.Tensor):
+        t = obj.detach().cpu().contiguous()
+        h.update(f"T|{t.dtype}|{tuple(t.shape)}|".encode())
+        h.update(t.reshape(-1).view(torch.uint8).numpy().tobytes())
+    elif isinstance(obj, Mapping):
+        h.update(f"D{len(obj)}|".encode())
+        for k in sorted(obj, key=repr):
+            _digest(k, h)
+            _digest(obj[k], h)
+    elif isinstance(obj, (list, tuple)):
+        h.update(f"L{len(obj)}|".encode())
+        for v in obj:
+            _digest(v, h)
+    else:
+        h.update(f"{type(obj).__name__}:{obj!r}|".encode())
+
+
+def checkpoint_checksum(payload: Mapping[str, Any]) -> str:
+    """sha256 of a checkpoint's content (every tensor's bytes, every number and string; not the ``sha256`` key)."""
+    import hashlib
+
+    h = hashlib.sha256()
+    _digest({k: v for k, v in payload.items() if k != "sha256"}, h)
+    return h.hexdigest()
+
+
+def save_checkpoint(payload: Mapping[str, Any], path: str | os.PathLike) -> None:
+    """Write a checkpoint atomically with its format tag and content checksum."""
+    payload = {**payload, "format": CHECKPOINT_FORMAT}
+    atomic_torch_save({**payload, "sha256": checkpoint_checksum(payload)}, path)
+
+
+def load_checkpoint(path: str | os.PathLike, model: nn.Module | None = None) -> dict[str, Any]:
+    """Read a checkpoint written by ``save_checkpoint``; refuse (CheckpointError naming the file and the fix) one
+    that is missing, unreadable, truncated, fails its checksum, or (given ``model``) holds another model's weights."""
+    from .demonstrations import read_torch_file
+
+    path = Path(path)
+    fix = (f"delete {path} (training then resumes from the previous checkpoint in {path.parent} if there is one, "
+           "else starts over)")
+    state = read_torch_file(path, "checkpoint", fix, CheckpointError, CHECKPOINT_FORMAT,
+                            missing="run rmpfusion-train first (it writes checkpoints/<learner>/ in the run directory)")
+    stored = state.get("sha256")
+    actual = checkpoint_checksum(state)
+    if stored != actual:
+        raise CheckpointError(f"checkpoint file {path} fails its checksum (stored {str(stored)[:12]}…, content "
+                              f"{actual[:12]}…): it was modified or damaged; {fix}")
+    if model is not None:
+        want = {k: tuple(v.shape) for k, v in model.state_dict().items()}
+        have = {k: tuple(v.shape) for k, v in state.get("model", {}).items()}
+        if want != have:
+            diff = sorted(set(want) ^ set(have)) + sorted(k for k in set(want) & set(have) if want[k] != have[k])
+            shown = ", ".join(f"{k}: file {have.get(k)} vs model {want.get(k)}" for k in diff[:5])
+            raise CheckpointError(f"checkpoint file {path} holds the weights of a different model ({shown}"
+                                  f"{', …' if len(diff) > 5 else ''}); it was made by another configuration of this "
+                                  f"learner: use the run directory that made it, or {fix}")
+    return state
+
+
+_TMP = re.compile(r"^\.ckpt-\d+\.pt\.tmp(\d+)")
+
+
+def _remove_stale_temporaries(directory: Path) -> None:
+    """Temporaries of checkpoint writes whose process died mid-write: never loaded (``latest_checkpoint`` only
+    matches finished names); removed so they do not pile up."""
+    for p in directory.iterdir():
+        m = _TMP.match(p.name)
+        if m and int(m.group(1)) != os.getpid():
+            try:
+                os.kill(int(m.group(1)), 0)
+                continue  # its writer is alive (another process on this directory): not ours to delete
+            except ProcessLookupError:
+                p.unlink(missing_ok=True)
+            except PermissionError:
+                continue
+
+
+class _StopOnSignal:
+    """While training, SIGTERM and SIGINT only set a flag; the loop then checkpoints at the end of the current
+    step and calls ``stop``, which does what the signal would have done: exit with status 128+signum for a
+    default SIGTERM, KeyboardInterrupt for a default SIGINT, or call a handler someone else installed and go on
+    training if it returns (submitit's SIGTERM handler does: the job lives on until its requeue). SIGUSR1/2 are
+    taken only when a Python handler is installed (submitit's preemption signal requeues the job: the checkpoint
+    comes first). A second Ctrl-C stops at once."""
+
+    SIGNALS = (signal.SIGTERM, signal.SIGINT)
+    CHAINED = tuple(getattr(signal, n) for n in ("SIGUSR1", "SIGUSR2") if hasattr(signal, n))
+
+    def __init__(self):
+        self.signum: int | None = None
+        self._old: dict[int, Any] = {}
+
+    def __enter__(self) -> "_StopOnSignal":
+        if threading.current_thread() is threading.main_thread():
+            for s in self.SIGNALS + self.CHAINED:
+                old = signal.getsignal(s)
+                if old in (signal.SIG_IGN, None) or (s in self.CHAINED and not callable(old)):
+                    continue
+                self._old[s] = old
+                signal.signal(s, self._handler)
+        return self
+
+    def _handler(self, signum, frame) -> None:
+        if self.signum == signal.SIGINT and signum == signal.SIGINT:
+            raise KeyboardInterrupt
+        self.signum = signum
+
+    def __exit__(self, *exc) -> None:
+        for s, old in self._old.items():
+            signal.signal(s, old)
+        self._old = {}
+
+    def stop(self, where: str) -> None:
+        signum, self.signum = self.signum, None
+        name = signal.Signals(signum).name
+        old = self._old.get(signum, signal.SIG_DFL)
+        print(f"rmpfusion: {name} received; {where}", file=sys.stderr, flush=True)
+        if callable(old) and old is not signal.default_int_handler:
+            old(signum, None)  # someone else's handler decides; if it returns, training goes on
+            return
+        self.__exit__()
+        if signum == signal.SIGINT:
+            raise KeyboardInterrupt
+        raise SystemExit(128 + signum)
+
+
 def train(model: nn.Module, data: Dataset, cfg: TrainConfig, seed: int, test_data: Dataset | None = None,
           checkpoint_dir: str | os.PathLike | None = None, run_config: Mapping[str, Any] | None = None,
           progress: Callable[[int, int], Any] | None = None,
@@ -91,10 +242,13 @@ def train(model: nn.Module, data: Dataset, cfg: TrainConfig, seed: int, test_dat
     res = TrainResult(snapshots={}, curve=[])
     start = 0
     ckdir = Path(checkpoint_dir) if checkpoint_dir is not None else None
+    if ckdir is not None and ckdir.is_dir():
+        _remove_stale_temporaries(ckdir)
     if ckdir is not None and (ck := latest_checkpoint(ckdir)) is not None:
-        state = torch.load(ck, map_location="cpu", weights_only=True)
+        state = load_checkpoint(ck, model)  # damaged, tampered or foreign files raise, naming the file
         old = state["train_config"]
-        bad = [k for k in _PATH_KEYS if old.get(k) != getattr(cfg, k)]
+        keys = _PATH_KEYS + (("iterations",) if cfg.lr_schedule != "constant" else ())  # the schedule spans them
+        bad = [k for k in keys if old.get(k, TrainConfig.model_fields[k].default) != getattr(cfg, k)]
         if bad:
             raise RuntimeError(f"checkpoint {ck} was made with different training settings "
                                f"({', '.join(f'{k}: {old.get(k)!r} vs {getattr(cfg, k)!r}' for k in bad)}); "
@@ -109,16 +263,18 @@ def train(model: nn.Module, data: Dataset, cfg: TrainConfig, seed: int, test_dat
     if start > cfg.iterations:
         raise RuntimeError(f"checkpoint in {ckdir} is at iteration {start}, beyond iterations={cfg.iterations}")
 
-    def checkpoint(it: int) -> None:
+    def checkpoint(it: int) -> Path | None:
         if ckdir is None:
-            return
+            return None
         ckdir.mkdir(parents=True, exist_ok=True)
-        atomic_torch_save({"model": model.state_dict(), "optimizer": opt.state_dict(), "rng": gen.get_state(),
+        path = ckdir / f"ckpt-{it:08d}.pt"
+        save_checkpoint({"model": model.state_dict(), "optimizer": opt.state_dict(), "rng": gen.get_state(),
                       "iteration": it, "snapshots": res.snapshots, "curve": res.curve, "test_curve": res.test_curve,
-                      "train_config": cfg.model_dump(), "config": dict(run_config or {})}, ckdir / f"ckpt-{it:08d}.pt")
+                      "train_config": cfg.model_dump(), "config": dict(run_config or {})}, path)
         olds = sorted((int(m.group(1)), p) for p in ckdir.iterdir() if (m := _CKPT.match(p.name)))
         for _, p in olds[:-keep_checkpoints]:
             p.unlink(missing_ok=True)
+        return path
 
     if start == 0 and 0 in snaps_at:
         res.snapshots[0] = _state_copy(model)
@@ -127,32 +283,42 @@ def train(model: nn.Module, data: Dataset, cfg: TrainConfig, seed: int, test_dat
         res.test_curve.append((0, dataset_loss(model, test_data)))
     N = len(data)
     model.train()
-    for it in range(start, cfg.iterations):
-        idx = torch.randint(N, (min(cfg.batch_size, N),), generator=gen)
-        q, qd, aux, qdd = data.select(idx)
-        opt.zero_grad(set_to_none=True)
-        loss = mse(model, q, qd, aux, qdd)
-        loss.backward()
-        if cfg.grad_clip is not None:
-            nn.utils.clip_grad_norm_(model.parameters(), cfg.grad_clip)
-        opt.step()
-        done = it + 1
-        lv = float(loss.detach())
-        res.curve.append((done, lv))
-        if done % cfg.log_every == 0 or done == cfg.iterations:
-            metrics = {"iteration": float(done), "train_loss": lv}
-            if test_data is not None:
-                tl = dataset_loss(model, test_data)
-                res.test_curve.append((done, tl))
-                metrics["test_loss"] = tl
-            if log is not None:
-                log(metrics)
-        if done in snaps_at:
-            res.snapshots[done] = _state_copy(model)
-        if done % cfg.checkpoint_every == 0 or done == cfg.iterations:
-            checkpoint(done)
-        if progress is not None:
-            progress(done, cfg.iterations)
+    with _StopOnSignal() as stop:
+        for it in range(start, cfg.iterations):
+            idx = torch.randint(N, (min(cfg.batch_size, N),), generator=gen)
+            q, qd, aux, qdd = data.select(idx)
+            if cfg.lr_schedule != "constant":
+                for group in opt.param_groups:
+                    group["lr"] = learning_rate(cfg, it)
+            opt.zero_grad(set_to_none=True)
+            loss = mse(model, q, qd, aux, qdd)
+            loss.backward()
+            if cfg.grad_clip is not None:
+                nn.utils.clip_grad_norm_(model.parameters(), cfg.grad_clip)
+            opt.step()
+            done = it + 1
+            lv = float(loss.detach())
+            res.curve.append((done, lv))
+            if done % cfg.log_every == 0 or done == cfg.iterations:
+                metrics = {"iteration": float(done), "train_loss": lv}
+                if test_data is not None:
+                    tl = dataset_loss(model, test_data)
+                    res.test_curve.append((done, tl))
+                    metrics["test_loss"] = tl
+                if log is not None:
+                    log(metrics)
+            if done in snaps_at:
+                res.snapshots[done] = _state_copy(model)
+            saved = None
+            if done % cfg.checkpoint_every == 0 or done == cfg.iterations:
+                saved = checkpoint(done)
+            if progress is not None:
+                progress(done, cfg.iterations)
+            if stop.signum is not None:
+                saved = saved or checkpoint(done)
+                stop.stop(f"checkpoint at iteration {done}/{cfg.iterations} written to {saved}; run the same command "
+                          "again (same run directory) to resume" if saved else
+                          f"stopped at iteration {done}/{cfg.iterations} (no checkpoint_dir, nothing saved)")
     model.eval()
     return res
 

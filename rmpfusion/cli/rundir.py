@@ -1,0 +1,325 @@
+"""The run directory of one job: claimed by one process at a time, tied to one configuration, with the
+versions that produced it and a copy of everything the job printed.
+
+A rerun in the same directory (``hydra.run.dir=outputs/x``, a requeued SLURM job, a rerun of a sweep with a
+fixed ``hydra.sweep.dir``) resumes it: the datasets are reused and training continues from the last
+checkpoint. A rerun whose configuration differs from the one saved there is refused before anything is
+written, so no run ever overwrites another run's files.
+"""
+from __future__ import annotations
+
+import contextlib
+import datetime as _dt
+import errno
+import os
+import platform
+import re
+import shutil
+import socket
+import sys
+from importlib import metadata
+from pathlib import Path
+from typing import Any, Iterator, Mapping
+
+#: the resolved, validated configuration of the run that owns a directory (written by save_resolved)
+RESOLVED = "config.resolved.yaml"
+VERSIONS = "versions.json"
+CONSOLE = "console.log"
+LOCK = ".lock"
+#: keys a rerun may change without changing results: where and whether the logger writes
+MAY_DIFFER = ("logger",)
+#: distributions whose versions decide a run's numbers or its files
+DISTRIBUTIONS = ("rmpfusion", "torch", "numpy", "hydra-core", "omegaconf", "pydantic", "wandb", "pybullet",
+                 "matplotlib", "submitit", "hydra-submitit-launcher", "hydra-joblib-launcher", "joblib")
+
+
+class RunDirError(RuntimeError):
+    """The run directory cannot be used by this job (it belongs to another configuration, or is busy)."""
+
+
+# ----------------------------------------------------------------------------------- configuration guard
+def config_diff(old: Any, new: Any, path: str = "") -> list[tuple[str, Any, Any]]:
+    """``(dotted path, old, new)`` for every leaf that differs between two plain containers."""
+    if isinstance(old, Mapping) and isinstance(new, Mapping):
+        out: list[tuple[str, Any, Any]] = []
+        for k in sorted(set(old) | set(new), key=str):
+            sub = f"{path}.{k}" if path else str(k)
+            if k not in old:
+                out.append((sub, "<absent>", new[k]))
+            elif k not in new:
+                out.append((sub, old[k], "<absent>"))
+            else:
+                out += config_diff(old[k], new[k], sub)
+        return out
+    same = old == new or (isinstance(old, float) and isinstance(new, float) and old != old and new != new)  # NaN
+    return [] if same else [(path, old, new)]
+
+
+def check_same_config(resolved: Mapping[str, Any], run_dir: Path) -> None:
+    """Refuse ``run_dir`` if it holds a run made with another configuration (``logger`` may differ)."""
+    import yaml
+
+    saved = run_dir / RESOLVED
+    if not saved.is_file():
+        return
+    fix = (f"Rerun with the configuration saved in {saved} to resume that run, or give this run its own "
+           f"directory (a new hydra.run.dir=..., or no hydra.run.dir for a fresh timestamped one).")
+    try:
+        old = yaml.safe_load(saved.read_text())
+        if not isinstance(old, Mapping):
+            raise ValueError("not a mapping")
+    except Exception as e:  # noqa: BLE001 - any unreadable file gets the same advice
+        raise RunDirError(f"{run_dir} holds a run whose saved configuration {saved} is unreadable "
+                          f"({type(e).__name__}: {e}); nothing was changed. {fix}") from e
+    strip = lambda c: {k: v for k, v in c.items() if k not in MAY_DIFFER}  # noqa: E731
+    diffs = config_diff(strip(old), strip(dict(resolved)))
+    if diffs:
+        shown = "\n".join(f"  - {p}: {o!r} (saved) vs {n!r} (now)" for p, o, n in diffs[:12])
+        more = f"\n  - ... and {len(diffs) - 12} more" if len(diffs) > 12 else ""
+        raise RunDirError(f"{run_dir} already holds a run with a different configuration (saved in {saved}):\n"
+                          f"{shown}{more}\nNothing was changed. {fix}")
+
+
+class HydraFiles:
+    """Hydra writes ``.hydra/*.yaml`` into the job directory before the job starts, so a refused rerun would
+    replace the owner's copies. The accepted copies are kept in ``.hydra/accepted/`` and put back on refusal."""
+
+    def __init__(self, run_dir: Path):
+        from hydra.core.hydra_config import HydraConfig
+
+        sub = HydraConfig.get().output_subdir if HydraConfig.initialized() else None
+        self.dir = run_dir / sub if sub else None
+
+    def _files(self) -> list[Path]:
+        return sorted(self.dir.glob("*.yaml")) if self.dir is not None and self.dir.is_dir() else []
+
+    def accept(self) -> None:
+        if self.dir is None:
+            return
+        keep = self.dir / "accepted"
+        keep.mkdir(parents=True, exist_ok=True)
+        for f in self._files():
+            shutil.copy2(f, keep / f.name)
+
+    def restore(self) -> bool:
+        keep = self.dir / "accepted" if self.dir is not None else None
+        if keep is None or not keep.is_dir():
+            return False
+        for f in self._files():
+            if not (keep / f.name).exists():
+                f.unlink()
+        for f in keep.glob("*.yaml"):
+            shutil.copy2(f, self.dir / f.name)
+        return True
+
+
+# ------------------------------------------------------------------------------------------------ lock
+@contextlib.contextmanager
+def exclusive(run_dir: Path) -> Iterator[None]:
+    """Hold ``run_dir/.lock`` for the job: a second process in the same directory is refused at once.
+
+    The lock is the kernel's (flock), so it is released however the holder ends, SIGKILL included.
+    On filesystems without locking the job runs unlocked."""
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - Windows
+        yield
+        return
+    run_dir.mkdir(parents=True, exist_ok=True)
+    path = run_dir / LOCK
+    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError as e:
+            if e.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
+                holder = os.pread(fd, 200, 0).decode(errors="replace").strip() or "another process"
+                raise RunDirError(f"{run_dir} is in use by {holder} ({path}); wait for it to finish, or give this "
+                                  "run its own directory (hydra.run.dir=...)") from None
+            yield  # locking unsupported here (some network filesystems): run without it
+            return
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"pid {os.getpid()} on {socket.gethostname()}\n".encode(), 0)
+        yield
+    finally:
+        os.close(fd)  # releases the lock
+
+
+# ----------------------------------------------------------------------------------------- versions
+def git_commit(start: Path | None = None) -> dict[str, Any] | None:
+    """The commit of the source checkout rmpfusion is imported from, read from ``.git`` (no git process)."""
+    here = (start or Path(__file__)).resolve()
+    for root in here.parents:
+        dot = root / ".git"
+        if dot.is_file():  # a worktree: "gitdir: <path>"
+            m = re.match(r"gitdir:\s*(.+)", dot.read_text().strip())
+            dot = (root / m.group(1)).resolve() if m else dot
+        if not dot.is_dir():
+            continue
+        try:
+            head = (dot / "HEAD").read_text().strip()
+            common = dot
+            if (dot / "commondir").is_file():
+                common = (dot / (dot / "commondir").read_text().strip()).resolve()
+            if not head.startswith("ref:"):
+                return {"commit": head, "branch": None, "repo": str(root)}
+            ref = head.split(":", 1)[1].strip()
+            for base in (dot, common):
+                if (base / ref).is_file():
+                    return {"commit": (base / ref).read_text().strip(), "branch": ref.rsplit("/", 1)[-1],
+                            "repo": str(root)}
+            packed = common / "packed-refs"
+            if packed.is_file():
+                for line in packed.read_text().splitlines():
+                    parts = line.split()
+                    if len(parts) == 2 and parts[1] == ref:
+                        return {"commit": parts[0], "branch": ref.rsplit("/", 1)[-1], "repo": str(root)}
+            return {"commit": None, "branch": ref.rsplit("/", 1)[-1], "repo": str(root)}  # no commits yet
+        except OSError:
+            return None
+    return None
+
+
+def environment(threads: int | None = None) -> dict[str, Any]:
+    """What produced a run: interpreter, package versions, source commit, machine and threads."""
+    import torch
+
+    packages = {}
+    for name in DISTRIBUTIONS:
+        try:
+            packages[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            packages[name] = None
+    env_keys = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "CUDA_VISIBLE_DEVICES", "SLURM_JOB_ID", "SLURM_ARRAY_JOB_ID",
+                "SLURM_ARRAY_TASK_ID", "SUBMITIT_EXECUTOR")
+    return {
+        "python": platform.python_version(),
+        "implementation": platform.python_implementation(),
+        "executable": sys.executable,
+        "packages": packages,
+        "torch_build": {"cuda": torch.version.cuda, "debug": torch.version.debug},
+        "git": git_commit(),
+        "platform": platform.platform(),
+        "machine": platform.machine(),
+        "hostname": socket.gethostname(),
+        "cpu_count": os.cpu_count(),
+        "torch_threads": threads if threads is not None else torch.get_num_threads(),
+        "environment": {k: os.environ[k] for k in env_keys if k in os.environ},
+        "argv": list(sys.argv),
+        "started": _dt.datetime.now().astimezone().isoformat(timespec="seconds"),
+    }
+
+
+def record_environment(run_dir: Path, threads: int | None = None) -> dict[str, Any]:
+    """Write ``versions.json``; a resumed run keeps the earlier invocations' records under ``history`` and
+    warns when the packages changed in between (the numbers may then differ from an uninterrupted run)."""
+    import json
+
+    from ..files import atomic_write_json
+
+    rec = environment(threads)
+    path = run_dir / VERSIONS
+    history: list = []
+    if path.is_file():
+        try:
+            old = json.loads(path.read_text())
+            history = list(old.pop("history", [])) + [old]
+            changed = {k: (old.get("packages", {}).get(k), v) for k, v in rec["packages"].items()
+                       if old.get("packages", {}).get(k) != v}
+            if changed:
+                print("warning: this run was started with other package versions ("
+                      + ", ".join(f"{k} {a} -> {b}" for k, (a, b) in changed.items())
+                      + f"); see {path}", file=sys.stderr)
+        except (OSError, ValueError):
+            history = []
+    atomic_write_json(path, {**rec, "history": history} if history else rec)
+    return rec
+
+
+# ------------------------------------------------------------------------------------------ stale files
+_TMP = re.compile(r"^\..+\.tmp(\d+)")
+
+
+def remove_stale_temporaries(directory: Path, recursive: bool = True) -> list[Path]:
+    """Delete the temporaries of atomic writes (``.<name>.tmp<pid>...``) whose writer is no longer running.
+
+    They only exist when a process was killed mid-write; no reader ever picks them up, this only frees the space."""
+    removed: list[Path] = []
+    if not directory.is_dir():
+        return removed
+    it = directory.rglob(".*.tmp*") if recursive else directory.glob(".*.tmp*")
+    for p in it:
+        m = _TMP.match(p.name)
+        if not m or not p.is_file() or "wandb" in p.relative_to(directory).parts:
+            continue
+        pid = int(m.group(1))
+        if pid != os.getpid() and not _alive(pid):
+            p.unlink(missing_ok=True)
+            removed.append(p)
+    return removed
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+# --------------------------------------------------------------------------------------------- console
+class _Tee:
+    """A text stream that also appends what it is given to a log file, one clean line per line: terminal
+    redraws (``\\r`` and erase-line codes of progress bars) keep only their final state in the file."""
+
+    _ANSI = re.compile(r"\x1b\[[0-9;]*[A-Za-z]")
+
+    def __init__(self, stream, fh):
+        self._stream, self._fh, self._partial = stream, fh, ""
+
+    def write(self, s: str) -> int:
+        n = self._stream.write(s)
+        text = self._partial + s
+        *lines, self._partial = text.split("\n")
+        for line in lines:
+            self._fh.write(self._ANSI.sub("", line.rsplit("\r", 1)[-1]) + "\n")
+        self._partial = self._partial.rsplit("\r", 1)[-1]
+        if lines:
+            self._fh.flush()
+        return n
+
+    def flush(self) -> None:
+        self._stream.flush()
+        self._fh.flush()
+
+    def close_file(self) -> None:
+        if self._partial:
+            self._fh.write(self._ANSI.sub("", self._partial) + "\n")
+            self._partial = ""
+        self._fh.flush()
+
+    def isatty(self) -> bool:
+        return bool(getattr(self._stream, "isatty", lambda: False)())
+
+    def __getattr__(self, name):
+        return getattr(self._stream, name)
+
+
+@contextlib.contextmanager
+def console_log(run_dir: Path) -> Iterator[None]:
+    """Copy everything the job prints (stdout and stderr, progress included) into ``run_dir/console.log``."""
+    run_dir.mkdir(parents=True, exist_ok=True)
+    with open(run_dir / CONSOLE, "a", encoding="utf-8", errors="replace") as fh:
+        fh.write(f"==== {_dt.datetime.now().astimezone().isoformat(timespec='seconds')} pid {os.getpid()}: "
+                 f"{' '.join(sys.argv)}\n")
+        old_out, old_err = sys.stdout, sys.stderr
+        out, err = _Tee(old_out, fh), _Tee(old_err, fh)
+        sys.stdout, sys.stderr = out, err
+        try:
+            yield
+        finally:
+            sys.stdout, sys.stderr = old_out, old_err
+            out.close_file()
+            err.close_file()
