@@ -236,3 +236,181 @@ def test_render_returns_an_rgb_image(env):
     img = env.render(torch.tensor(NOMINAL, dtype=F64), aux, width=64, height=48)
     assert img.shape == (48, 64, 3) and img.dtype == np.uint8
     assert img.std() > 5  # robot and obstacle are drawn, not a blank frame
+
+
+# ---------------------------------------------------------------- execution metrics, demonstrations
+
+def test_execution_metrics_match_the_recorded_path(expert):
+    """The rollout's execution metrics (paper §4.2) agree with the path recorded at every integration step."""
+    env = Franka(control_rate=60.0)
+    q0 = torch.tensor([NOMINAL], dtype=F64)
+    aux = make_aux([0.35, -0.2, 0.35], [[0.55, 0.0, 0.25]], [0.06])
+    with torch.no_grad():
+        r = env.rollout(expert, q0, torch.zeros_like(q0), aux, horizon=3.0, record_every=env.dt)
+    env.close()
+    assert bool(r.reached[0])
+    k = int(round(r.time_to_goal.item() / env.dt))  # the record where the execution ended
+    assert r.goal_distance[k, 0] <= env.params.goal_tolerance < r.goal_distance[k - 1, 0]
+    torch.testing.assert_close(r.cspace_length[0], (r.q[1:k + 1, 0] - r.q[:k, 0]).norm(dim=-1).sum())
+    torch.testing.assert_close(r.ee_length[0], (r.ee[1:k + 1, 0] - r.ee[:k, 0]).norm(dim=-1).sum())
+    torch.testing.assert_close(r.end_goal_distance[0], r.goal_distance[k, 0])
+    m = env.task_metrics(r)
+    assert m["time"].item() == pytest.approx(r.time_to_goal.item())
+    assert m["ee_length"].item() >= (r.ee[k, 0] - r.ee[0, 0]).norm().item()  # no shorter than the straight line
+    assert m["final_goal_distance"].item() < m["goal_distance"].item()  # it kept converging after the execution
+
+
+def _fake_rollout(gd, speed, dt=0.1):
+    """A FrankaRollout with given goal distances and joint speeds (T, B) for the bookkeeping tests."""
+    gd, speed = torch.as_tensor(gd, dtype=F64), torch.as_tensor(speed, dtype=F64)
+    T, B = gd.shape
+    qd = torch.zeros(T, B, 7, dtype=F64)
+    qd[..., 0] = speed
+    q = torch.zeros(T, B, 7, dtype=F64)
+    z = torch.zeros(B, dtype=F64)
+    return FrankaRollout(mode="kinematic", times=torch.arange(T, dtype=F64) * dt, q=q, qd=qd, qdd=qd.clone(),
+                         ee=torch.zeros(T, B, 3, dtype=F64), goal_distance=gd, collided=torch.zeros(B, dtype=torch.bool),
+                         min_clearance=z + 0.1, reached=torch.ones(B, dtype=torch.bool), time_to_goal=z + 0.1,
+                         success=torch.ones(B, dtype=torch.bool), error=[None] * B, cspace_length=z, ee_length=z,
+                         end_goal_distance=z)
+
+
+def test_demonstrations_last_until_the_expert_rests_at_the_goal():
+    env = Franka(demo_min_duration=0.3, demo_settle_distance=0.01, demo_settle_speed=0.05)
+    far, near = 0.2, 0.001
+    gd = torch.tensor([[far, far, far],
+                       [near, far, far],
+                       [near, near, far],
+                       [near, near, far],
+                       [near, near, far],
+                       [near, near, far]])
+    speed = torch.tensor([[1.0, 1.0, 1.0],
+                          [0.0, 1.0, 1.0],
+                          [0.0, 0.5, 1.0],
+                          [0.0, 0.01, 1.0],
+                          [0.0, 0.0, 1.0],
+                          [0.0, 0.0, 1.0]])
+    r = _fake_rollout(gd, speed)
+    # 0: at rest from t = 0.1 but kept to the minimum 0.3 s; 1: at rest from t = 0.3; 2: never -> whole rollout
+    assert env.demonstration_lengths(r).tolist() == [4, 4, 6]
+    r.q[4:, 2] = float("nan")  # an error ends a demonstration at its last finite record
+    assert env.demonstration_lengths(r).tolist() == [4, 4, 4]
+
+
+def test_collected_demonstrations_have_per_trajectory_goals_lengths_and_split_obstacles(expert):
+    env = Franka(control_rate=30.0, demo_min_duration=0.2, demo_settle_distance=0.3, demo_settle_speed=100.0,
+                 test_obstacles=[{"center": (0.45, 0.1, 0.25), "radius": 0.05}])
+    g = torch.Generator().manual_seed(0)
+    ds = env.collect_demonstrations(expert, 1, 3, n_points=6, interval=0.1, generator=g, split="train")
+    assert ds.traj_id.unique().tolist() == [0, 1, 2] and (ds.env_id == 0).all()
+    assert len({tuple(ds.aux["goal"][ds.traj_id == b][0].tolist()) for b in range(3)}) == 3  # a goal per trajectory
+    for b in range(3):
+        rows = ds.traj_id == b
+        t = ds.t[rows]
+        assert t[0] == 0 and (t.diff() > 0).all() and 0.2 - 1e-9 <= t[-1] <= 0.5 + 1e-9
+        # the label is the expert's acceleration at the recorded state
+        out = expert(ds.q[rows], ds.qd[rows], {k: v[rows] for k, v in ds.aux.items()})
+        torch.testing.assert_close(out.qdd, ds.qdd[rows])
+    torch.testing.assert_close(ds.aux["obstacle1_center"][0], torch.tensor([0.5, 0.0, 0.25], dtype=F64))
+    test = env.collect_demonstrations(expert, 1, 2, n_points=3, interval=0.1, generator=g, split="test")
+    assert (test.aux["obstacle1_center"] == torch.tensor([0.45, 0.1, 0.25], dtype=F64)).all()
+    assert (test.aux["obstacle1_radius"] == 0.05).all()
+    with pytest.raises(ValueError, match="test_obstacles"):
+        Franka(test_obstacles=[{"center": (0.45, 0.1, 0.25), "radius": 0.05}] * 2)
+
+
+def test_ratios_to_the_expert_are_per_trajectory():
+    from rmpfusion.evaluate.metrics import ratios_to_expert, summarize
+
+    expert = {"time": torch.tensor([2.0, 4.0, 1.0]), "x": torch.tensor([1.0, 0.0, 2.0])}
+    learner = {"time": torch.tensor([3.0, 4.0, float("nan")]), "x": torch.tensor([2.0, 1.0, 2.0])}
+    r = ratios_to_expert(learner, expert, ["time", "x"])
+    assert r["time"]["n"] == 2 and r["time"]["mean"] == pytest.approx(1.25)
+    assert r["time"]["std"] == pytest.approx(torch.tensor([1.5, 1.0], dtype=F64).std().item())
+    assert r["x"]["n"] == 2 and r["x"]["mean"] == pytest.approx(1.5)  # the zero expert value is left out
+    s = summarize(expert)
+    assert s["time"]["mean"] == pytest.approx(7 / 3) and s["time"]["max"] == 4.0 and s["time"]["n"] == 3
+
+
+# ---------------------------------------------------------------- several obstacles at run time
+
+def test_a_one_obstacle_tree_runs_in_pybullet_with_two_obstacles(env):
+    """Weights learned with one obstacle drive the robot around two: a second cylinder placed on the path the
+    one-obstacle execution takes is avoided by the shared per-control-point weights (no collision in pybullet),
+    the goal is still reached and V_r still decreases."""
+    learner1 = rmpfusion.build_tree(franka_tree_spec(None, 1), aux_dims=env.aux_dims())
+    g = torch.Generator().manual_seed(5)
+    with torch.no_grad():  # stand-in for training: move every parameter away from its initialisation
+        for p in learner1.parameters():
+            p.add_(0.05 * torch.randn(p.shape, generator=g, dtype=p.dtype))
+    env2 = Franka(control_rate=60.0, obstacles=[{"center": (0.55, 0.0, 0.3), "radius": 0.05, "height": 0.6}] * 2)
+    learner2 = rmpfusion.build_tree(franka_tree_spec(None, 2), aux_dims=env2.aux_dims())
+    copy_weights(learner1, learner2)
+    q0 = torch.tensor([[0.8, -0.3, 0.0, -2.2, 0.0, 2.0, 0.785]], dtype=F64)
+    goal = [0.38, -0.3, 0.35]
+    first = [0.55, 0.0, 0.3]
+    with torch.no_grad():
+        r1 = env2.rollout(learner2, q0, torch.zeros_like(q0), make_aux(goal, [first, [5.0, 5.0, 0.3]], [0.05, 0.05]),
+                          horizon=5.0, record_every=0.1, mode="kinematic")
+        # the second cylinder stands where the end effector passed at t = 0.6 s
+        x, y, _ = r1.ee[6, 0].tolist()
+        two = make_aux(goal, [first, [x, y, 0.3]], [0.05, 0.04])
+        assert env2.clearance(q0, two).item() > 0.1  # the start is clear of it
+        r2 = env2.rollout(learner2, q0, torch.zeros_like(q0), two, horizon=5.0, record_every=0.1, mode="torque")
+    env2.close()
+    assert r1.error == [None] and r2.error == [None] and bool(r1.success[0])
+    d = (r2.ee[:, 0, :2] - torch.tensor([x, y], dtype=F64)).norm(dim=-1).min()
+    print(f"two obstacles: min clearance {r2.min_clearance.item():.3f} m, end effector passes {d:.3f} m from the "
+          f"second axis, reached in {r2.time_to_goal.item():.2f} s (one obstacle: {r1.time_to_goal.item():.2f} s)")
+    assert not r2.collided.any() and r2.min_clearance[0] > 0.01
+    assert d > 0.04 + 0.05  # the hand went around the new cylinder rather than through its old path
+    assert bool(r2.success[0]) and r2.time_to_goal[0] > r1.time_to_goal[0]
+    assert bool(lyapunov_monotone(r2.V, rtol=1e-6).all()), max_relative_increase(r2.V)
+
+
+# ---------------------------------------------------------------- the whole experiment, tiny
+
+def test_tiny_franka_experiment_end_to_end(tmp_path):
+    """experiment=franka on tiny sizes: data -> training -> evaluation in pybullet -> Franka metrics, ratios to the
+    expert, collisions, Lyapunov monitor and the figures (ratio chart, V_r, render strip, GIF) in the run dir."""
+    import json
+
+    from hydra import compose, initialize_config_dir
+
+    from rmpfusion.config.validate import resolve_and_validate
+    from rmpfusion.learn.pipeline import run_experiment
+
+    overrides = ["experiment=franka", "logger=disabled", "env.control_rate=60", "data.train_trajectories=3",
+                 "data.test_trajectories=2", "data.points=6", "env.demo_min_duration=0.2",
+                 "train.iterations=3", "train.batch_size=8", "train.snapshots=[0,3]", "train.checkpoint_every=3",
+                 "train.log_every=1", "eval.horizon=0.5", "env.render_times=[0.0,0.5]", "env.render_size=[64,48]"]
+    with initialize_config_dir(config_dir=os.path.join(ROOT, "conf"), version_base="1.3"):
+        cfg = compose("config", overrides=overrides)
+    run = resolve_and_validate(cfg)
+    run_experiment(run, tmp_path, progress=False)
+    m = json.loads((tmp_path / "metrics.json").read_text())
+    keys = {"time", "cspace_length", "ee_length", "goal_distance"}
+    assert keys <= set(m["expert"]["task"]) and m["expert"]["task"]["time"]["n"] == 2
+    assert m["data"]["train"]["trajectories"] == 3 and m["data"]["test"]["trajectories"] == 2
+    assert 0.2 - 1e-9 <= m["data"]["train"]["trajectory_seconds"]["min"] <= 0.5 + 1e-9
+    snaps = m["learners"]["rmp"]["snapshots"]
+    assert set(snaps) == {"0", "3"}
+    for s in snaps.values():
+        assert set(s["ratio_to_expert"]) == keys
+        for v in s["ratio_to_expert"].values():
+            assert v["n"] == 2 and v["mean"] > 0 and v["std"] >= 0
+        assert 0.0 <= s["lyapunov"]["monotone_fraction"] <= 1.0
+    rows = {r["policy"]: r for r in m["task_table"]}
+    assert set(rows) == {"expert", "learner-0", "learner-3"}
+    assert all(isinstance(r["collisions"], int) and r["trajectories"] == 2 for r in rows.values())
+    assert rows["learner-3"]["ratio"]["time"]["mean"] == pytest.approx(snaps["3"]["ratio_to_expert"]["time"]["mean"])
+    figs = {os.path.basename(f) for f in m["figures"]}
+    assert {"franka_ratios.png", "franka_lyapunov.png", "franka_execution.png", "franka_execution.gif",
+            "franka_ee_paths.png", "learning_curve_rmp.png"} <= figs
+    assert not any(f.startswith(("trajectories_", "progression_")) for f in figs)  # no 2-D plots of a 7-D robot
+    for f in m["figures"]:
+        assert os.path.getsize(f) > 1000
+    from PIL import Image
+
+    with Image.open(tmp_path / "figures" / "franka_execution.gif") as gif:
+        assert gif.n_frames == 6  # 0.5 s at 10 frames per second, both ends included

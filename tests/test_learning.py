@@ -1,6 +1,7 @@
 """Learning pipeline: datasets (determinism, tamper detection), learners, behavior cloning with exact resume,
 and the whole 2D experiment end to end on tiny sizes."""
 import json
+from pathlib import Path
 import os
 
 import pytest
@@ -220,6 +221,38 @@ def test_resume_equals_uninterrupted(tmp_path, small_data, optimizer):
         train(_learner(), ds, full.model_copy(update={"lr": 0.5}), seed=5, checkpoint_dir=tmp_path / "b")
 
 
+def test_cosine_schedule_anneals_and_resumes_exactly(tmp_path, small_data):
+    """The step size is a function of the iteration alone: lr at the start, lr·lr_final at the end, and a run
+    interrupted after a checkpoint resumes on the same schedule to the same weights."""
+    from rmpfusion.learn.train import learning_rate
+
+    _, _, ds = small_data
+    cfg = TrainConfig(optimizer="rmsprop", lr=1e-2, lr_schedule="cosine", lr_final=0.1, iterations=40, batch_size=8,
+                      snapshots=[0, 40], checkpoint_every=20, log_every=10)
+    lrs = [learning_rate(cfg, i) for i in range(40)]
+    assert lrs[0] == pytest.approx(1e-2) and lrs[-1] == pytest.approx(1e-3)
+    assert all(a >= b for a, b in zip(lrs, lrs[1:]))
+    a = _learner()
+    train(a, ds, cfg, seed=5, checkpoint_dir=tmp_path / "a")
+
+    class Interrupted(Exception):
+        pass
+
+    def stop_after_25(done, total):
+        if done == 25:
+            raise Interrupted
+
+    with pytest.raises(Interrupted):
+        train(_learner(), ds, cfg, seed=5, checkpoint_dir=tmp_path / "b", progress=stop_after_25)
+    b = _learner(seed=99)
+    rb = train(b, ds, cfg, seed=5, checkpoint_dir=tmp_path / "b")
+    assert rb.resumed_from == 20
+    for k, v in a.state_dict().items():
+        assert torch.equal(v, b.state_dict()[k]), k
+    with pytest.raises(RuntimeError, match="different training settings"):  # the schedule spans `iterations`
+        train(_learner(), ds, cfg.model_copy(update={"iterations": 60}), seed=5, checkpoint_dir=tmp_path / "b")
+
+
 # ------------------------------------------------------------------------------------------ pipeline
 def test_pipeline_end_to_end_2d1level(tmp_path, capsys):
     cfg = tiny_config(1)
@@ -270,3 +303,28 @@ def test_pipeline_2d2level_structured_and_unstructured(tmp_path):
     assert "lyapunov_monotone_fraction" not in L["learner-un"]
     assert all(s["lyapunov_monotone_fraction"] == 1.0 for s in L["learner-rmp"]["snapshots"].values())
     assert (tmp_path / "run2" / "figures" / "progression_learner-un.png").exists()
+
+
+def test_evaluation_from_a_checkpoint_alone(tmp_path):
+    """A training checkpoint carries the run config: rebuilding everything from it alone gives exactly the
+    pipeline's final metrics, and a damaged checkpoint is refused with the file named (exit code 2)."""
+    from rmpfusion.cli.from_checkpoint import evaluate_checkpoint, main
+
+    cfg = tiny_config(1, iterations=20)
+    m = run_experiment(cfg, tmp_path / "run", progress=False)
+    ck = tmp_path / "run" / "checkpoints" / "learner-rmp" / "ckpt-00000020.pt"
+    assert ck.exists()
+    res = evaluate_checkpoint(ck, tmp_path / "eval", progress=False)
+    want = m["learners"]["learner-rmp"]
+    for k in ("batch_loss", "online_loss", "success", "collision", "lyapunov_monotone_fraction"):
+        assert res["metrics"][k] == want[k], k
+    assert res["test_data"]["reused"] and res["iteration"] == 20
+    assert json.loads((tmp_path / "eval" / "metrics.json").read_text())["metrics"] == res["metrics"]
+    assert {Path(p).name for p in res["figures"]} == {"lyapunov_learner-rmp.png", "trajectories_learner-rmp.png"}
+    data = bytearray(ck.read_bytes())
+    data[len(data) // 2] ^= 0xFF
+    bad = tmp_path / "bad" / "checkpoints" / "learner-rmp" / "ckpt-00000020.pt"
+    bad.parent.mkdir(parents=True)
+    bad.write_bytes(bytes(data))
+    assert main([str(bad), "--out", str(tmp_path / "bad_eval")]) == 2
+    assert not (tmp_path / "bad_eval" / "metrics.json").exists()

@@ -68,11 +68,21 @@ def table(results: dict) -> str:
         rows.append(f"| {exp} | {name} | {r['num_parameters']} | {_f(r['batch_loss'])} / {_f(paper[0])} "
                     f"| {_f(r['online_loss'])} / {_f(paper[1])} | {_f(r['success'], 1)} / {_f(paper[2], 1)} "
                     f"| {_f(r['collision'], 1)} / {_f(paper[3], 1)} | {ly} | {r['train_seconds']:.0f} |")
+    rmp2 = {LEARNER_NAMES.get(k, k): v for k, v in results.get("2d2level", {}).get("learners", {}).items()}
+    ratio_lines = []
+    for un in ("learner-un", "learner-un-large"):
+        if "learner-rmp" in rmp2 and un in rmp2:
+            parts = []
+            for key in ("batch_loss", "online_loss"):
+                a, b = rmp2["learner-rmp"].get(key), rmp2[un].get(key)
+                parts.append(f"{key} {b / a:.3g}x" if a and b else f"{key} –")
+            ratio_lines.append(f"- 2d2level {un} / learner-rmp: " + ", ".join(parts))
     for exp, m in results.items():
         e = m["expert"]
         rows.append(f"| {exp} | expert | – | 0 | 0 | {_f(e['success'], 1)} | {_f(e['collision'], 1)} "
                     f"| {_f(e.get('lyapunov_monotone_fraction'), 1)} | – |")
-    return "\n".join(rows) + "\n"
+    return "\n".join(rows) + "\n" + ("\nLoss ratios (the paper's claim: learner-rmp's losses are orders of magnitude lower):\n"
+                                      + "\n".join(ratio_lines) + "\n" if ratio_lines else "")
 
 
 def main(argv=None) -> int:

@@ -144,6 +144,7 @@ class RMPTree(nn.Module):
                     first[k] = n
         self._compiled = None  # the torch.compile'd _root_rmp, built on first use after compile()
         self._compile_args: tuple | None = None
+        self._dtype_cache: tuple | None = None  # (dtype,) once known; see _dtype
 
     def _normalise_aux(self, aux: AuxDict | None, batch: int) -> dict[str, Tensor] | None:
         if aux is None:
@@ -187,13 +188,16 @@ class RMPTree(nn.Module):
         return TreeOutput(qdd=qdd, f=r.f, M=r.M, G=r.G, B=r.B, Phi=r.Phi, V=r.V, L=r.L, nodes=nodes)
 
     def _dtype(self) -> torch.dtype | None:
-        """The floating dtype of the tree's parameters and buffers (float64 unless converted); None if it has none."""
-        for t in self.parameters():
-            return t.dtype
-        for t in self.buffers():
-            if t.is_floating_point():
-                return t.dtype
-        return None
+        """The floating dtype of the tree's parameters and buffers (float64 unless converted); None if it has none.
+        Cached: walking the modules costs more than a compiled evaluation; ``.to()``/``.double()`` reset it."""
+        if self._dtype_cache is None:
+            found = [t.dtype for t in (*self.parameters(), *self.buffers()) if t.is_floating_point()]
+            self._dtype_cache = (found[0] if found else None,)
+        return self._dtype_cache[0]
+
+    def _apply(self, fn, *args, **kwargs):
+        self._dtype_cache = None
+        return super()._apply(fn, *args, **kwargs)
 
     def _passes(self, q: Tensor, qd: Tensor, aux: dict[str, Tensor] | None):
         """Pushforward then pullback*: every node's state, edge and RMP (the root's RMP under the root's name).

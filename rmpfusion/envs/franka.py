@@ -10,6 +10,7 @@ modes (kinematic rollouts are replayed in pybullet at every integration step aft
 """
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field
 from typing import Any, Callable, Literal, Mapping, Sequence
 
@@ -22,6 +23,7 @@ from ..maps.kinematics import Chain
 from ..maps.urdf import PANDA_ARM_JOINTS, load_panda_urdf_path, parse_urdf
 from ..registry import ENVS, Params
 from .common import SeededSampling, qdd_of, redraw_until_ok, rk4, semi_implicit_euler
+from .faults import IsolatingPolicy
 from .franka_tree import EE_LINK, EE_OFFSET
 
 Vec3 = tuple[float, float, float]
@@ -62,6 +64,10 @@ class FrankaRollout:
     error: list[str | None] = field(default_factory=list)
     V: Tensor | None = None  # (T, B)
     dissipation: Tensor | None = None  # (T, B): q̇ᵀBq̇ at the root
+    # the execution (paper §4.2): from t = 0 until the goal tolerance is first reached, else the whole horizon
+    cspace_length: Tensor | None = None  # (B,) Σ‖Δq‖ over integration steps (rad)
+    ee_length: Tensor | None = None  # (B,) Σ‖Δee‖ (m)
+    end_goal_distance: Tensor | None = None  # (B,) goal distance when the execution ended (m)
 
     @property
     def batch_size(self) -> int:
@@ -115,6 +121,12 @@ class _Scene:
             p.resetBasePositionAndOrientation(self.goal_marker, [float(v) for v in goal], [0, 0, 0, 1],
                                               physicsClientId=cid)
 
+    def add_ground(self) -> None:
+        """pybullet_data's checkered plane at z = 0 (renders only: the robot's base sits on it)."""
+        import pybullet_data
+
+        self.p.loadURDF(os.path.join(pybullet_data.getDataPath(), "plane.urdf"), physicsClientId=self.cid)
+
     def reset(self, q: np.ndarray, qd: np.ndarray | None = None) -> None:
         qd = np.zeros(7) if qd is None else qd
         for i, j in enumerate(ARM_JOINTS):
@@ -148,7 +160,10 @@ class Franka(SeededSampling):
 
     class Params(Params):
         gui: bool = Field(False, description="open pybullet's GUI for the first torque-mode world (else DIRECT)")
-        mode: Literal["torque", "kinematic"] = "kinematic"
+        mode: Literal["torque", "kinematic"] = Field(
+            "kinematic", description="how rollouts run policies (evaluation); torque = pybullet, computed torque")
+        collect_mode: Literal["torque", "kinematic"] = Field(
+            "kinematic", description="how the expert's demonstrations are rolled out (kinematic: batched, fast)")
         control_rate: float = Field(240.0, gt=0, description="Hz; the pybullet/integration step is 1/control_rate")
         integrator: Literal["semi_implicit_euler", "rk4"] = Field(
             "semi_implicit_euler", description="kinematic mode; semi-implicit Euler is what pybullet uses")
@@ -156,7 +171,17 @@ class Franka(SeededSampling):
         obstacles: list[ObstacleSpec] = Field(
             default_factory=lambda: [ObstacleSpec(center=(0.5, 0.0, 0.25), radius=0.06, height=0.5)],
             description="nominal cylinders (standing, axis z); their number is n_obstacles")
+        test_obstacles: list[ObstacleSpec] | None = Field(
+            None, description="the test split's cylinders (paper: a different placement); null = the same as obstacles")
         obstacle_jitter: Vec3 = Field((0.0, 0.0, 0.0), description="± uniform perturbation of every centre per env")
+        goal_per_trajectory: bool = Field(
+            True, description="draw a goal per trajectory (paper §4.2); else one goal per environment")
+        min_start_goal_distance: float = Field(0.0, ge=0, description="starts whose end effector is closer are redrawn")
+        demo_min_duration: float = Field(5.0, ge=0, description="demonstrations last at least this long (s) ...")
+        demo_settle_distance: float = Field(0.01, gt=0, description="... and end once the end effector is this close "
+                                                                     "to the goal (m) ...")
+        demo_settle_speed: float = Field(0.05, gt=0, description="... with joint speed ‖q̇‖ below this (rad/s); "
+                                                                  "at most data.points records")
         goal_region: tuple[Range, Range, Range] = Field(((0.3, 0.6), (-0.45, -0.2), (0.15, 0.55)),
                                                         description="goal ~ uniform in this box (m)")
         goal_clearance: float = Field(0.15, ge=0, description="min horizontal distance from goal to obstacle surfaces")
@@ -168,8 +193,15 @@ class Franka(SeededSampling):
         goal_tolerance: float = Field(0.05, gt=0)
         clearance_query: float = Field(0.3, gt=0, description="distances beyond this are not resolved")
         max_tries: int = Field(200, ge=1)
-        camera: tuple[float, float, float, Vec3] = Field((1.4, 50.0, -30.0, (0.3, 0.0, 0.3)),
+        camera: tuple[float, float, float, Vec3] = Field((1.2, -20.0, -50.0, (0.3, 0.0, 0.3)),
                                                          description="render: distance, yaw, pitch (deg), target")
+        render_size: tuple[int, int] = Field((320, 240), description="figures: width, height of a rendered frame")
+        render_times: tuple[float, ...] = Field((0.0, 1.0, 2.0, 3.0, 5.0, 10.0),
+                                                description="figures: times (s) of the frames of the render strip")
+        render_trajectory: int | None = Field(
+            None, ge=0, description="figures: the test trajectory rendered; null = the one where the expert comes "
+                                    "closest to the obstacle")
+        gif_fps: float = Field(10.0, gt=0, description="figures: frames per second of the execution GIF (real time)")
         dtype: Literal["float64", "float32"] = "float64"
 
         @model_validator(mode="after")
@@ -180,6 +212,9 @@ class Franka(SeededSampling):
             for axis, r in zip("xyz", self.goal_region):
                 if not r[0] <= r[1]:
                     raise ValueError(f"goal_region.{axis}: low {r[0]} is above high {r[1]}")
+            if self.test_obstacles is not None and len(self.test_obstacles) != len(self.obstacles):
+                raise ValueError(f"test_obstacles has {len(self.test_obstacles)} cylinders but obstacles has "
+                                 f"{len(self.obstacles)}: the tree has one distance node per obstacle")
             return self
 
     def __init__(self, params: Params | None = None, **overrides: Any):
@@ -277,31 +312,47 @@ class Franka(SeededSampling):
         horiz = (goal[:, None, :2] - centers[..., :2]).norm(dim=-1) - radii
         return (horiz >= self.params.goal_clearance).all(1)
 
-    def sample_envs(self, n_envs: int, generator: torch.Generator | None = None) -> dict[str, Tensor]:
-        """``n_envs`` environments as an aux dict of (n_envs, k) tensors, reproducible given the generator.
+    def obstacle_specs(self, split: str = "train") -> list[ObstacleSpec]:
+        """The nominal cylinders of a data split: ``test_obstacles`` for ``test`` when set, else ``obstacles``."""
+        if split not in ("train", "test"):
+            raise ValueError(f"split must be 'train' or 'test', got {split!r}")
+        p = self.params
+        return list(p.test_obstacles) if split == "test" and p.test_obstacles is not None else list(p.obstacles)
 
-        Obstacles are the nominal ones moved by ``obstacle_jitter``; goals are redrawn until they clear
-        every obstacle horizontally by ``goal_clearance``.
-        """
-        p, K = self.params, self.n_obstacles
-        nominal = torch.tensor([o.center for o in p.obstacles], dtype=self.dtype).reshape(K, 3)
-        radii = torch.tensor([o.radius for o in p.obstacles], dtype=self.dtype).expand(n_envs, K)
-        jit = torch.tensor(p.obstacle_jitter, dtype=self.dtype)
-        centers = nominal + self._uniform((n_envs, K, 3), -jit, jit, generator)
+    def _sample_goals(self, centers: Tensor, radii: Tensor, generator) -> Tensor:
+        """One goal per row of (n, K, 3) centres / (n, K) radii, redrawn until clear of that row's obstacles."""
+        p, n = self.params, centers.shape[0]
         lo = [r[0] for r in p.goal_region]
         hi = [r[1] for r in p.goal_region]
-        goal = self._uniform((n_envs, 3), lo, hi, generator)
+        goal = self._uniform((n, 3), lo, hi, generator)
         bad = ~self._goal_ok(goal, centers, radii)
         tries = 1
         while bool(bad.any()):
             if tries >= p.max_tries:
-                raise RuntimeError(f"franka: no goal clear of the obstacles for {int(bad.sum())} environments in "
+                raise RuntimeError(f"franka: no goal clear of the obstacles for {int(bad.sum())} samples in "
                                    f"{tries} rounds; move goal_region or lower goal_clearance")
-            g2 = self._uniform((n_envs, 3), lo, hi, generator)
+            g2 = self._uniform((n, 3), lo, hi, generator)
             take = bad & self._goal_ok(g2, centers, radii)
             goal = torch.where(take[:, None], g2, goal)
             bad &= ~take
             tries += 1
+        return goal
+
+    def sample_envs(self, n_envs: int, generator: torch.Generator | None = None,
+                    split: str = "train") -> dict[str, Tensor]:
+        """``n_envs`` environments as an aux dict of (n_envs, k) tensors, reproducible given the generator.
+
+        Obstacles are the split's nominal ones (``obstacle_specs``) moved by ``obstacle_jitter``; goals are
+        redrawn until they clear every obstacle horizontally by ``goal_clearance`` (with
+        ``goal_per_trajectory``, ``sample_initial_states`` draws each trajectory's own goal in the same way).
+        """
+        p, K = self.params, self.n_obstacles
+        specs = self.obstacle_specs(split)
+        nominal = torch.tensor([o.center for o in specs], dtype=self.dtype).reshape(K, 3)
+        radii = torch.tensor([o.radius for o in specs], dtype=self.dtype).expand(n_envs, K)
+        jit = torch.tensor(p.obstacle_jitter, dtype=self.dtype)
+        centers = nominal + self._uniform((n_envs, K, 3), -jit, jit, generator)
+        goal = self._sample_goals(centers, radii, generator)
         aux = {"goal": goal}
         for k in range(K):
             aux[f"obstacle{k + 1}_center"] = centers[:, k].contiguous()
@@ -316,6 +367,11 @@ class Franka(SeededSampling):
         p = self.params
         aux = {k: v.repeat_interleave(n_per_env, dim=0) for k, v in envs_aux.items()}
         n = aux["goal"].shape[0]
+        if p.goal_per_trajectory:
+            K = self.n_obstacles
+            centers = torch.stack([aux[f"obstacle{k}_center"] for k in range(1, K + 1)], 1).reshape(n, K, 3)
+            radii = torch.cat([aux[f"obstacle{k}_radius"] for k in range(1, K + 1)], 1).reshape(n, K)
+            aux["goal"] = self._sample_goals(centers, radii, generator)
         nom = torch.tensor(p.nominal_q, dtype=self.dtype)
         spread = torch.tensor(p.start_spread, dtype=self.dtype)
         lo, hi = self.lower + p.joint_margin, self.upper - p.joint_margin
@@ -325,10 +381,18 @@ class Franka(SeededSampling):
             qd = self._uniform((n, 7), -p.start_speed, p.start_speed, generator)
             return q, qd
 
+        def ok(v, a):
+            far = (self.ee_position(v[0]) - a["goal"]).norm(dim=-1) >= p.min_start_goal_distance
+            good = far.clone()
+            if bool(far.any()):  # pybullet only for the candidates that pass the cheap test
+                idx = far.nonzero().flatten()
+                good[idx] = self.clearance(v[0][idx], {k: x[idx] for k, x in a.items()}) >= p.start_clearance
+            return good
+
         q0, qd0 = redraw_until_ok(
-            draw, lambda v, a: self.clearance(v[0], a) >= p.start_clearance, aux, p.max_tries,
-            lambda left: f"franka: could not place {left} start configurations clear of the obstacles; "
-                         "move nominal_q or shrink start_spread")
+            draw, ok, aux, p.max_tries,
+            lambda left: f"franka: could not place {left} start configurations clear of the obstacles and "
+                         f"min_start_goal_distance from the goal; move nominal_q or change start_spread")
         return q0, qd0, aux
 
     # ------------------------------------------------------------------ rollouts
@@ -388,13 +452,14 @@ class Franka(SeededSampling):
 
     def _rollout_kinematic(self, policy, q0, qd0, aux, n_steps, every, monitor) -> FrankaRollout:
         dt, B = self.dt, q0.shape[0]
+        policy = IsolatingPolicy(policy)  # a sample whose evaluation raises gets NaN, the others go on
         q, qd = q0.clone(), qd0.clone()
         alive = torch.ones(B, dtype=torch.bool)
         errors: list[str | None] = [None] * B
         rec = _Recorder()
         path = [q.detach().clone()]  # every integration step, replayed in pybullet for collisions
         goal_hit = _GoalTracker(B, self.dtype)
-        goal_hit.update(0.0, self.ee_position(q), aux["goal"], self.params.goal_tolerance, alive)
+        goal_hit.update(0.0, self.ee_position(q), aux["goal"], self.params.goal_tolerance, alive, q)
 
         def accel(x, xd):
             return qdd_of(policy(x, xd, aux))
@@ -413,13 +478,13 @@ class Franka(SeededSampling):
                 q_new, qd_new = rk4(accel, q, qd, dt, a)
             finite = q_new.isfinite().all(-1) & qd_new.isfinite().all(-1)
             for b in (alive & ~finite).nonzero().flatten().tolist():
-                errors[b] = f"non-finite state at t={(k + 1) * dt:.4f}s"
+                errors[b] = policy.explain(b, f"non-finite state at t={(k + 1) * dt:.4f}s")
             alive &= finite
             # a dead sample keeps its last finite state so the batched evaluation stays well posed
             q = torch.where(alive[:, None], q_new, q)
             qd = torch.where(alive[:, None], qd_new, torch.zeros_like(qd))
             path.append(q.detach().clone())
-            goal_hit.update((k + 1) * dt, self.ee_position(q), aux["goal"], self.params.goal_tolerance, alive)
+            goal_hit.update((k + 1) * dt, self.ee_position(q), aux["goal"], self.params.goal_tolerance, alive, q)
         # collisions: replay every integration step of every sample in pybullet
         Q = torch.stack(path)  # (n_steps+1, B, 7)
         death = rec.death_index(alive, errors, n_steps, every)
@@ -440,6 +505,7 @@ class Franka(SeededSampling):
 
     def _rollout_torque(self, policy, q0, qd0, aux, n_steps, every, monitor) -> FrankaRollout:
         p, dt, B = _pb(), self.dt, q0.shape[0]
+        policy = IsolatingPolicy(policy)  # a sample whose evaluation raises gets NaN, the others go on
         errors: list[str | None] = [None] * B
         alive = torch.ones(B, dtype=torch.bool)
         scenes: list[_Scene | None] = []
@@ -477,7 +543,7 @@ class Franka(SeededSampling):
                     fingers[b], finger_v[b] = qa[7:], qda[7:]
 
             read_states()
-            goal_hit.update(0.0, self.ee_position(q), aux["goal"], self.params.goal_tolerance, alive)
+            goal_hit.update(0.0, self.ee_position(q), aux["goal"], self.params.goal_tolerance, alive, q)
             for k in range(n_steps + 1):
                 a, V, D = self._evaluate(policy, q, qd, aux)
                 if k % every == 0:
@@ -489,7 +555,8 @@ class Franka(SeededSampling):
                     if not alive[b]:
                         continue
                     if not np.isfinite(a_np[b]).all():
-                        self._kill(b, f"non-finite acceleration at t={k * dt:.4f}s", alive, errors, scenes)
+                        self._kill(b, policy.explain(b, f"non-finite acceleration at t={k * dt:.4f}s"), alive, errors,
+                                   scenes)
                         continue
                     try:
                         # fingers are held closed by a stiff PD acceleration inside the same inverse dynamics
@@ -505,7 +572,7 @@ class Franka(SeededSampling):
                     except p.error as e:
                         self._kill(b, f"pybullet error at t={k * dt:.4f}s: {e}", alive, errors, scenes)
                 read_states()
-                goal_hit.update((k + 1) * dt, self.ee_position(q), aux["goal"], self.params.goal_tolerance, alive)
+                goal_hit.update((k + 1) * dt, self.ee_position(q), aux["goal"], self.params.goal_tolerance, alive, q)
         finally:
             for sc in scenes:
                 if sc is not None:
@@ -534,9 +601,87 @@ class Franka(SeededSampling):
             q=q, qd=rec.stack(rec.qd), qdd=rec.stack(rec.qdd), ee=ee, goal_distance=gd,
             collided=collided, min_clearance=min_clear, reached=goal_hit.reached, time_to_goal=goal_hit.time,
             success=goal_hit.reached & ~collided & ok, error=list(errors),
+            cspace_length=goal_hit.cspace_length, ee_length=goal_hit.ee_length, end_goal_distance=goal_hit.end_distance,
             V=rec.stack(rec.V) if rec.V else None,
             dissipation=rec.stack(rec.D) if rec.D else None,
         )
+
+    # ------------------------------------------------------------------ hooks of the experiment pipeline
+    def demonstration_lengths(self, ro: FrankaRollout) -> Tensor:
+        """(B,) records to keep of each demonstration (paper §4.2: trajectories of 5–10 s).
+
+        A demonstration runs until the expert has settled at the goal (within ``demo_settle_distance`` and
+        slower than ``demo_settle_speed``) but at least ``demo_min_duration``; at most the whole rollout.
+        Records after an error (NaN) are never kept.
+        """
+        p = self.params
+        finite = ro.q.isfinite().all(-1) & ro.qd.isfinite().all(-1)  # (T, B)
+        settled = ((ro.goal_distance <= p.demo_settle_distance) & (ro.qd.norm(dim=-1) <= p.demo_settle_speed)
+                   & (ro.times[:, None] >= p.demo_min_duration - 1e-9) & finite)
+        T = ro.q.shape[0]
+        idx = torch.arange(T)[:, None].expand_as(settled)
+        first_settled = torch.where(settled, idx, T).min(0).values  # T when never settled
+        first_bad = torch.where(~finite, idx, T).min(0).values
+        return torch.minimum(first_settled + 1, first_bad).clamp(max=T)
+
+    def collect_demonstrations(self, expert, n_envs: int, n_traj: int, n_points: int, interval: float,
+                               generator: torch.Generator | None = None, split: str = "train",
+                               progress: Callable[[int, int], Any] | None = None):
+        """The expert's demonstrations of a data split (paper §4.2) as a ``Dataset``.
+
+        ``n_envs`` obstacle placements of the split (``obstacle_specs``) × ``n_traj`` (start, goal) pairs; the
+        expert runs for at most ``(n_points − 1)·interval`` s in ``collect_mode``, recorded every ``interval`` s
+        and cut by ``demonstration_lengths``. Each record is (q, q̇, aux, the expert's q̈ there).
+        """
+        from ..learn.demonstrations import Dataset
+
+        envs = self.sample_envs(n_envs, generator, split=split)
+        q0, qd0, aux = self.sample_initial_states(envs, n_traj, generator)
+        with torch.no_grad():
+            ro = self.rollout(expert, q0, qd0, aux, horizon=(n_points - 1) * interval, record_every=interval,
+                              mode=self.params.collect_mode, progress=progress)
+        lengths = self.demonstration_lengths(ro).tolist()
+        B = q0.shape[0]
+        rows = [(b, k) for b in range(B) for k in range(lengths[b])]  # trajectory-major, time-ordered
+        bi = torch.tensor([r[0] for r in rows], dtype=torch.long)
+        ki = torch.tensor([r[1] for r in rows], dtype=torch.long)
+        return Dataset(
+            q=ro.q[ki, bi].contiguous(), qd=ro.qd[ki, bi].contiguous(), qdd=ro.qdd[ki, bi].detach().contiguous(),
+            aux={k: v[bi].contiguous() for k, v in aux.items()}, env_id=bi // n_traj, traj_id=bi,
+            t=ro.times[ki].contiguous(), collided=ro.collided.clone(), success=ro.success.clone(),
+        )
+
+    #: Metrics compared with the expert's as per-trajectory ratios learner/expert (paper Fig. 5b).
+    ratio_metrics = ("time", "cspace_length", "ee_length", "goal_distance")
+
+    def task_metrics(self, ro: FrankaRollout) -> dict[str, Tensor]:
+        """Per-trajectory (B,) metrics of paper §4.2 on a rollout whose horizon is the time-out.
+
+        An execution ends when the end effector first comes within ``goal_tolerance`` of the goal, else at the
+        time-out. ``time``: its duration; ``cspace_length`` / ``ee_length``: distance travelled in configuration
+        space (rad) and by the end effector (m) during it; ``goal_distance``: end-effector–goal distance when it
+        ended. Also ``final_goal_distance`` at the time-out, ``reached``, ``collided`` (any link within zero
+        distance of an obstacle during the whole rollout) and ``min_clearance``. A rollout ended by an error
+        gets NaN execution metrics.
+        """
+        timeout = float(ro.times[-1])
+        failed = torch.tensor([e is not None for e in ro.error])
+        time = torch.where(ro.reached, ro.time_to_goal, torch.full_like(ro.time_to_goal, timeout))
+        out = {"time": time, "cspace_length": ro.cspace_length, "ee_length": ro.ee_length,
+               "goal_distance": ro.end_goal_distance}
+        out = {k: torch.where(failed, float("nan"), v) for k, v in out.items()}
+        out.update({"final_goal_distance": ro.goal_distance[-1], "reached": ro.reached.to(self.dtype),
+                    "collided": ro.collided.to(self.dtype), "min_clearance": ro.min_clearance,
+                    "error": failed.to(self.dtype)})
+        return out
+
+    def figures(self, fig_dir, expert, stages, aux: Mapping[str, Tensor], title: str = "franka") -> list[str]:
+        """The Franka figures (paper Fig. 5b, 6): ratio bars, V_r(t) per stage, a render strip and a GIF of one
+        test execution, end-effector paths seen from above. ``expert`` / ``stages`` are ``StageResult``s on the
+        same test initial states, ``aux`` their aux state. Returns the files written."""
+        from ..plots import franka as fp
+
+        return fp.franka_figures(self, fig_dir, expert, stages, aux, title=title)
 
     # ------------------------------------------------------------------ rendering
     def render(self, q: Tensor | Sequence[float], aux: Mapping[str, Tensor], width: int = 320, height: int = 240,
@@ -548,16 +693,32 @@ class Franka(SeededSampling):
         qb = q[min(sample, q.shape[0] - 1)]
         if self._renderer is None:
             self._renderer = _Scene(gui=False, gravity=self.params.gravity)
+            self._renderer.add_ground()
         sc = self._renderer
         aux = {k: torch.as_tensor(v).reshape(-1, torch.as_tensor(v).shape[-1]) for k, v in aux.items()}
         sc.set_env(*self._scene_args(aux, sample), visual=True)
         sc.reset(qb.cpu().numpy())
-        dist, yaw, pitch, target = self.params.camera
-        view = p.computeViewMatrixFromYawPitchRoll(list(target), dist, yaw, pitch, 0.0, 2, physicsClientId=sc.cid)
-        proj = p.computeProjectionMatrixFOV(60.0, width / height, 0.05, 10.0, physicsClientId=sc.cid)
+        view, proj = self._camera(width, height)
         img = p.getCameraImage(width, height, view, proj, renderer=p.ER_TINY_RENDERER, physicsClientId=sc.cid)
         rgba = np.asarray(img[2], dtype=np.uint8).reshape(height, width, 4)
         return np.ascontiguousarray(rgba[..., :3])
+
+    def _camera(self, width: int, height: int) -> tuple[list[float], list[float]]:
+        p = _pb()
+        dist, yaw, pitch, target = self.params.camera
+        view = p.computeViewMatrixFromYawPitchRoll(list(target), dist, yaw, pitch, 0.0, 2)
+        proj = p.computeProjectionMatrixFOV(60.0, width / height, 0.05, 10.0)
+        return list(view), list(proj)
+
+    def project(self, points, width: int = 320, height: int = 240) -> np.ndarray:
+        """(N, 2) pixel coordinates (column, row) of world points (N, 3) in ``render``'s image, to draw paths on it."""
+        view, proj = self._camera(width, height)
+        V = np.asarray(view, dtype=float).reshape(4, 4).T  # pybullet matrices are column-major (OpenGL)
+        P = np.asarray(proj, dtype=float).reshape(4, 4).T
+        pts = np.asarray(points, dtype=float).reshape(-1, 3)
+        clip = (P @ V @ np.concatenate([pts, np.ones((len(pts), 1))], 1).T).T
+        ndc = clip[:, :3] / clip[:, 3:4]
+        return np.stack([(ndc[:, 0] + 1) / 2 * width, (1 - ndc[:, 1]) / 2 * height], 1)
 
 
 class _Recorder:
@@ -600,11 +761,30 @@ class _Recorder:
 
 
 class _GoalTracker:
+    """Per integration step: the first time within the goal tolerance, and the *execution* up to then (paper
+    §4.2: an execution ends on reaching the goal or at the time-out): configuration-space and end-effector
+    path lengths and the goal distance where it ended."""
+
     def __init__(self, B, dtype):
         self.reached = torch.zeros(B, dtype=torch.bool)
         self.time = torch.full((B,), float("nan"), dtype=dtype)
+        self.cspace_length = torch.zeros(B, dtype=dtype)
+        self.ee_length = torch.zeros(B, dtype=dtype)
+        self.end_distance = torch.full((B,), float("nan"), dtype=dtype)
+        self._prev: tuple[Tensor, Tensor] | None = None
 
-    def update(self, t, ee, goal, tol, alive):
-        hit = ((ee - goal).norm(dim=-1) <= tol) & alive & ~self.reached
+    def update(self, t, ee, goal, tol, alive, q=None):
+        ee = ee.detach()
+        dist = (ee - goal).norm(dim=-1)
+        going = alive & ~self.reached  # executions still running at this step
+        if q is not None:
+            q = q.detach()
+            if self._prev is not None:
+                pq, pe = self._prev
+                self.cspace_length += torch.where(going, (q - pq).norm(dim=-1), 0.0)
+                self.ee_length += torch.where(going, (ee - pe).norm(dim=-1), 0.0)
+            self._prev = (q.clone(), ee.clone())
+        self.end_distance = torch.where(going, dist, self.end_distance)
+        hit = (dist <= tol) & going
         self.time = torch.where(hit, torch.full_like(self.time, t), self.time)
         self.reached |= hit

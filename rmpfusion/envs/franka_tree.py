@@ -42,8 +42,11 @@ EE_LINK = "panda_hand"
 EE_OFFSET = [0.0, 0.0, 0.1034]
 
 # Leaf parameters tuned for metre/radian scales of the Panda; all GDSs, so Theorem 2 holds for any weights.
+# The obstacle barrier's potential gain (alpha) makes its force exceed the attractor's within ~1 cm of a control
+# sphere touching an obstacle, so no weighting that keeps obstacle weights near 1 can press the arm into it
+# (with 1e-4 untrained learners pushed through cylinders in pybullet; 1e-2 keeps ≥ 4 cm in the same scenes).
 ATTRACTOR_RMP = {"type": "goal_attractor", "gain": 5.0, "alpha": 10.0, "eta": 5.0, "w_u": 1.0, "w_l": 1.0, "sigma": 1.0}
-OBSTACLE_RMP = {"type": "collision_avoidance", "r_w": 0.15, "sigma": 0.5, "epsilon": 0.2, "alpha": 1e-4, "eta": 0.0,
+OBSTACLE_RMP = {"type": "collision_avoidance", "r_w": 0.15, "sigma": 0.5, "epsilon": 0.2, "alpha": 1e-2, "eta": 0.0,
                 "min_distance": 0.005}
 JOINT_LIMIT_RMP = {"type": "joint_limit", "r_w": 0.25, "sigma": 0.5, "epsilon": 0.1, "alpha": 1e-3, "eta": 0.0}
 DAMPER_RMP = {"type": "damper", "w": 0.1, "eta": 4.0}

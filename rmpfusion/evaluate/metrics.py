@@ -56,20 +56,50 @@ def online_loss(learner: nn.Module, expert: Callable, env, q0: Tensor, qd0: Tens
     qs, qds, qdds = ro.q[::stride], ro.qd[::stride], ro.qdd[::stride]
     T, B, d = qs.shape
     rep = {k: v.repeat(T, *([1] * (v.dim() - 1))) for k, v in aux.items()}  # time-major flat, matches reshape below
-    out = expert(qs.reshape(T * B, d), qds.reshape(T * B, d), rep)
-    eq = (out if isinstance(out, Tensor) else out.qdd).reshape(T, B, d)
-    err = (qdds - eq) ** 2
-    loss = float(err.mean())
+    # the expert is asked only at finite records. A sample that ended early (recorded error) is scored on its records
+    # before the failure (rollout_rates counts the failure); any other non-finite record makes the loss inf (diverged)
+    finite = (qs.isfinite() & qds.isfinite() & qdds.isfinite()).all(-1)
+    valid = torch.ones(T, B, dtype=torch.bool)
+    ended = _ended(ro)
+    if ended:
+        valid[:, ended] = finite[:, ended]
+    flat = finite.reshape(T * B)
+    eq = torch.full((T * B, d), float("nan"), dtype=qdds.dtype)
+    if bool(flat.any()):
+        out = expert(qs.reshape(T * B, d)[flat], qds.reshape(T * B, d)[flat], {k: v[flat] for k, v in rep.items()})
+        eq[flat] = out if isinstance(out, Tensor) else out.qdd
+    eq = eq.reshape(T, B, d)
+    err = ((qdds - eq) ** 2)[valid]
+    loss = float(err.mean()) if err.numel() else float("inf")
     if not math.isfinite(loss):
         loss = float("inf")
     return OnlineResult(loss=loss, rollout=ro, expert_qdd=eq)
 
 
+def _ended(ro) -> list[int]:
+    """Samples whose rollout ended early with a recorded reason (``ro.error``, e.g. Franka: pybullet or non-finite)."""
+    return [b for b, e in enumerate(getattr(ro, "error", None) or []) if e is not None]
+
+
 def rollout_rates(ro, rtol: float = 1e-6, atol: float = 1e-9, with_lyapunov: bool = True) -> dict[str, float]:
-    """success / collision rates of a rollout, and the fraction of trajectories whose V_r never rises (if recorded)."""
+    """success / collision rates of a rollout, and the fraction of trajectories whose V_r never rises (if recorded).
+
+    Rollouts that record errors also give ``failed``: the fraction of samples that ended early (they never
+    count as successes). Their V_r is judged on the records before the failure.
+    """
     out = {"success": float(ro.success.double().mean()), "collision": float(ro.collided.double().mean())}
+    ended = _ended(ro)
+    if getattr(ro, "error", None) is not None and len(ro.error):
+        out["failed"] = len(ended) / len(ro.error)
     if with_lyapunov and ro.V is not None:
-        out["lyapunov_monotone_fraction"] = float(lyapunov_monotone(ro.V, rtol=rtol, atol=atol).double().mean())
+        V = ro.V
+        if ended:  # hold an ended sample's last finite V: its NaN records say it stopped, not that V rose
+            V = V.clone()
+            for b in ended:
+                fin = V[:, b].isfinite().nonzero().flatten()
+                if fin.numel() and int(fin[-1]) + 1 < V.shape[0] and bool(V[: int(fin[-1]) + 1, b].isfinite().all()):
+                    V[int(fin[-1]) + 1:, b] = V[int(fin[-1]), b]
+        out["lyapunov_monotone_fraction"] = float(lyapunov_monotone(V, rtol=rtol, atol=atol).double().mean())
     return out
 
 
@@ -89,3 +119,69 @@ def evaluate_learner(learner: nn.Module, expert: Callable, env, test_data, horiz
     m.update(rollout_rates(online.rollout, rtol, atol, with_lyapunov=bool(getattr(learner, "has_lyapunov", False))))
     learner.train(was_training)
     return m, online
+
+
+# ---------------------------------------------------------------------------------------------- task metrics
+# Environments may define per-trajectory task metrics (``env.task_metrics(rollout) -> {name: (B,)}``) and name
+# those compared with the expert as ratios (``env.ratio_metrics``), as the Franka experiment does (paper Fig. 5b).
+
+def _stats(x: Tensor) -> dict[str, float | int]:
+    """mean, std (sample, n−1), min, max over the finite entries, and their count n."""
+    x = x.detach().double().flatten()
+    x = x[x.isfinite()]
+    n = int(x.numel())
+    if n == 0:
+        return {"mean": float("nan"), "std": float("nan"), "min": float("nan"), "max": float("nan"), "n": 0}
+    return {"mean": float(x.mean()), "std": float(x.std()) if n > 1 else 0.0, "min": float(x.min()),
+            "max": float(x.max()), "n": n}
+
+
+def summarize(per_trajectory: Mapping[str, Tensor]) -> dict[str, dict[str, float | int]]:
+    """``{name: {mean, std, min, max, n}}`` of per-trajectory metrics (non-finite entries left out and not counted)."""
+    return {k: _stats(v) for k, v in per_trajectory.items()}
+
+
+def ratios_to_expert(learner: Mapping[str, Tensor], expert: Mapping[str, Tensor], keys) -> dict[str, dict]:
+    """Per trajectory learner/expert for each of ``keys`` (both on the same initial state), then mean ± std over
+    trajectories: the paper's Fig. 5b statistic, 1 = the expert. Pairs with a non-finite value or a zero expert
+    value are left out; ``n`` says how many remain."""
+    out = {}
+    for k in keys:
+        num, den = learner[k].detach().double(), expert[k].detach().double()
+        r = torch.where(den != 0, num / den, torch.full_like(num, float("nan")))
+        out[k] = _stats(r)
+    return out
+
+
+@dataclass
+class StageResult:
+    """One policy evaluated on the test initial states: the expert, or a learner at a training snapshot."""
+
+    label: str
+    rollout: Any
+    per_trajectory: dict[str, Tensor]
+    summary: dict[str, dict]
+    ratios: dict[str, dict] | None = None
+    learner: str | None = None
+    iteration: int | None = None
+    lyapunov: dict[str, float] | None = None
+
+
+def task_stage(label: str, rollout, env, expert: "StageResult | None" = None, rtol: float = 1e-6,
+               atol: float = 1e-9, learner: str | None = None, iteration: int | None = None) -> StageResult:
+    """The env's task metrics of ``rollout`` summarised, the ratios to ``expert`` if given, and the Lyapunov
+    monitor per trajectory (fraction monotone, worst relative increase) when the rollout recorded V_r."""
+    from .lyapunov import max_relative_increase
+
+    per = {k: v.detach() for k, v in env.task_metrics(rollout).items()}
+    ratios = None
+    if expert is not None:
+        ratios = ratios_to_expert(per, expert.per_trajectory, getattr(env, "ratio_metrics", ()))
+    lyap = None
+    if getattr(rollout, "V", None) is not None:
+        mono = lyapunov_monotone(rollout.V, rtol=rtol, atol=atol)
+        per["lyapunov_monotone"] = mono.double()
+        lyap = {"monotone_fraction": float(mono.double().mean()),
+                "max_relative_increase": float(max_relative_increase(rollout.V, atol=atol).max())}
+    return StageResult(label=label, rollout=rollout, per_trajectory=per, summary=summarize(per), ratios=ratios,
+                       learner=learner, iteration=iteration, lyapunov=lyap)

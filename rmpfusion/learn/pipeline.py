@@ -22,10 +22,10 @@ import torch
 from ..config.schema import RunConfig
 from ..core.tree import build_tree
 from ..files import atomic_torch_save, atomic_write_json
-from ..evaluate.metrics import evaluate_learner, online_loss, rollout_rates
+from ..evaluate.metrics import StageResult, evaluate_learner, online_loss, rollout_rates, task_stage
 from ..registry import ENVS
 from .demonstrations import Dataset, collect, load_dataset, save_dataset
-from .learners import build_learner, build_order
+from .learners import build_learner, build_order, compile_learner
 from .train import load_snapshot, train
 
 
@@ -110,7 +110,9 @@ def make_env(cfg: RunConfig):
 
 def _fine_record(env, interval: float) -> float:
     """A recording interval dividing ``interval`` ~10x finer, on the env's step grid (smooth figures, stricter monitor)."""
-    dt = getattr(getattr(env, "params", None), "dt", None)
+    dt = getattr(env, "dt", None)
+    if not isinstance(dt, (int, float)):
+        dt = getattr(getattr(env, "params", None), "dt", None)
     if not dt:
         return interval
     steps = int(round(interval / dt))
@@ -124,9 +126,20 @@ def _finite(x: float) -> float | None:
     return x if isinstance(x, float) and math.isfinite(x) else None
 
 
-def _clean(m: Mapping[str, Any]) -> dict:
-    """JSON has no inf/nan: a diverged learner's loss is written as null (and reported as such)."""
-    return {k: (_finite(v) if isinstance(v, float) else v) for k, v in m.items()}
+def _clean(m: Any) -> Any:
+    """JSON has no inf/nan: a diverged learner's loss is written as null (and reported as such); nested too."""
+    if isinstance(m, Mapping):
+        return {k: _clean(v) for k, v in m.items()}
+    if isinstance(m, (list, tuple)):
+        return [_clean(v) for v in m]
+    return _finite(m) if isinstance(m, float) else m
+
+
+def _trajectory_seconds(ds: Dataset) -> dict[str, float]:
+    """Duration of the dataset's trajectories (min, mean, max): fixed for the 2D data, 5–10 s for Franka's."""
+    ids, inv = ds.traj_id.unique(return_inverse=True)
+    last = torch.zeros(len(ids), dtype=ds.t.dtype).scatter_reduce(0, inv, ds.t, "amax", include_self=False)
+    return {"min": float(last.min()), "mean": float(last.mean()), "max": float(last.max())}
 
 
 def load_or_collect(cfg: RunConfig, env, expert, run_dir: Path, split: str, say: Progress) -> tuple[Dataset, dict]:
@@ -139,15 +152,30 @@ def load_or_collect(cfg: RunConfig, env, expert, run_dir: Path, split: str, say:
     if path.exists():
         ds = load_dataset(path, meta)  # damaged or foreign files raise, naming the file and the fix
         say.say(f"data: reusing {split} set {path} ({len(ds)} points)")
-        return ds, {"path": str(path), "sha256": ds.checksum(), "points": len(ds), "reused": True}
+        info = {"path": str(path), "sha256": ds.checksum(), "points": len(ds), "reused": True}
+        if getattr(env, "collect_demonstrations", None) is not None:
+            info.update(trajectories=int(ds.traj_id.unique().numel()), trajectory_seconds=_trajectory_seconds(ds),
+                        expert_success=float(ds.success.double().mean()),
+                        expert_collision=float(ds.collided.double().mean()))
+        return ds, info
     n_envs, n_traj = (d.train_envs, d.train_trajectories) if split == "train" else (d.test_envs, d.test_trajectories)
     gen = torch.Generator().manual_seed(cfg.seed if split == "train" else cfg.seed + 1_000_003)
-    say.say(f"data: collecting {split} set, {n_envs} envs x {n_traj} trajectories x {d.points} points")
+    hook = getattr(env, "collect_demonstrations", None)  # an env with its own protocol (Franka: 5-10 s, split obstacles)
+    say.say(f"data: collecting {split} set, {n_envs} envs x {n_traj} trajectories x {'up to ' if hook else ''}"
+            f"{d.points} points")
     t0 = time.time()
-    ds = collect(env, expert, n_envs, n_traj, d.points, d.interval, gen, progress=say.bar(f"collect {split}"))
+    bar = say.bar(f"collect {split}")
+    if hook is not None:
+        ds = hook(expert, n_envs, n_traj, d.points, d.interval, gen, split=split, progress=bar)
+    else:
+        ds = collect(env, expert, n_envs, n_traj, d.points, d.interval, gen, progress=bar)
     sha = save_dataset(path, ds, meta)
-    return ds, {"path": str(path), "sha256": sha, "points": len(ds), "reused": False, "seconds": time.time() - t0,
-                "expert_success": float(ds.success.double().mean()), "expert_collision": float(ds.collided.double().mean())}
+    info = {"path": str(path), "sha256": sha, "points": len(ds), "reused": False, "seconds": time.time() - t0,
+            "expert_success": float(ds.success.double().mean()), "expert_collision": float(ds.collided.double().mean())}
+    if hook is not None:
+        info["trajectories"] = int(ds.traj_id.unique().numel())
+        info["trajectory_seconds"] = _trajectory_seconds(ds)
+    return ds, info
 
 
 def _learner_seed(seed: int, name: str) -> int:
@@ -173,7 +201,12 @@ def _run(cfg: RunConfig, run_dir: Path, say: Progress, log) -> dict:
     env = make_env(cfg)
     aux_dims = env.aux_dims()
     expert = build_tree(expert_spec(cfg), aux_dims=aux_dims)
+    if cfg.eval.compile:
+        expert.compile()
     dim = expert.dim
+    # optional environment hooks (Franka): per-trajectory task metrics compared with the expert, and its figures
+    has_task = callable(getattr(env, "task_metrics", None))
+    env_figures = getattr(env, "figures", None)
 
     t0 = time.time()
     train_ds, train_info = load_or_collect(cfg, env, expert, run_dir, "train", say)
@@ -190,6 +223,11 @@ def _run(cfg: RunConfig, run_dir: Path, say: Progress, log) -> dict:
     say.say("eval: expert")
     exp_ro = online_loss(expert, expert, env, q0, qd0, aux0, horizon, d.interval, fine, say.bar("rollout expert")).rollout
     expert_metrics = rollout_rates(exp_ro, ev.lyapunov_rtol, ev.lyapunov_atol)
+    expert_stage: StageResult | None = None
+    if has_task:
+        expert_stage = task_stage("expert", exp_ro, env, rtol=ev.lyapunov_rtol, atol=ev.lyapunov_atol)
+        expert_metrics["task"] = expert_stage.summary
+        say.say("expert: " + _task_line(expert_stage))
     timing["expert_eval_s"] = time.time() - t0
 
     blocks = {n: b.model_dump() for n, b in cfg.learners.items()}
@@ -208,9 +246,12 @@ def _run(cfg: RunConfig, run_dir: Path, say: Progress, log) -> dict:
     plot_idx = torch.arange(min(per_env, q0.shape[0]))  # test environment 0
     aux_plot = {k: v[:1] for k, v in aux0.items()}
     curves: dict[str, dict] = {}
+    task_stages: list[StageResult] = []
     for name in cfg.learners:  # config order for reporting
         model = learners[name]
         t0 = time.time()
+        if cfg.train.compile:
+            compile_learner(model)
         tr = train(model, train_ds, cfg.train, seed=_learner_seed(cfg.seed, name) + 1, test_data=test_ds,
                    checkpoint_dir=run_dir / "checkpoints" / name, run_config=config,
                    progress=say.bar(f"train {name}"),
@@ -219,28 +260,44 @@ def _run(cfg: RunConfig, run_dir: Path, say: Progress, log) -> dict:
         train_s = time.time() - t0
         dtype = next(model.parameters()).dtype
         model.to(torch.float64)  # rollouts and evaluation in float64 (DESIGN.md §5)
+        if cfg.eval.compile:
+            compile_learner(model)
         atomic_torch_save({"model": model.state_dict(), "learner": blocks[name], "config": config,
                       "iterations": cfg.train.iterations}, run_dir / "checkpoints" / name / "final.pt")
         t0 = time.time()
         snaps: dict[str, dict] = {}
         stages = []
         final_metrics, final_online = None, None
+
+        def with_task(met: dict, ro, it: int) -> dict:
+            if expert_stage is None:
+                return met
+            label = f"learner-{it}" if len(cfg.learners) == 1 else f"{name}-{it}"  # the paper's names
+            st = task_stage(label, ro, env, expert_stage, ev.lyapunov_rtol, ev.lyapunov_atol,
+                            learner=name, iteration=it)
+            task_stages.append(st)
+            say.say(f"{label}: " + _task_line(st))
+            return {**met, "task": st.summary, "ratio_to_expert": st.ratios, "lyapunov": st.lyapunov}
+
         for it in sorted(tr.snapshots):
             m_it = load_snapshot(model, tr.snapshots[it]).to(torch.float64)
             met, onl = evaluate_learner(m_it, expert, env, test_ds, horizon, d.interval, ev.lyapunov_rtol,
                                         ev.lyapunov_atol, fine, say.bar(f"eval {name}@{it}"))
-            snaps[str(it)] = _clean(met)
             ro = onl.rollout
+            met = with_task(met, ro, it)
+            snaps[str(it)] = _clean(met)
             stages.append({"label": f"{name} @ {it}", "q": ro.q[:, plot_idx], "times": ro.times,
                            "V": ro.V[:, plot_idx] if ro.V is not None else None})
             if it == cfg.train.iterations:
                 final_metrics, final_online = met, onl
             if log is not None:
-                log({"iteration": float(it), **{f"{name}/snapshot_{k}": v for k, v in met.items()}})
+                log({"iteration": float(it), **{f"{name}/snapshot_{k}": v for k, v in met.items()
+                                                if isinstance(v, (int, float))}})
         if final_metrics is None:
             final_metrics, final_online = evaluate_learner(model, expert, env, test_ds, horizon, d.interval,
                                                            ev.lyapunov_rtol, ev.lyapunov_atol, fine,
                                                            say.bar(f"eval {name}"))
+            final_metrics = with_task(final_metrics, final_online.rollout, cfg.train.iterations)
         eval_s = time.time() - t0
         model.to(dtype)
         res = _clean(final_metrics)
@@ -257,24 +314,59 @@ def _run(cfg: RunConfig, run_dir: Path, say: Progress, log) -> dict:
         if ev.figures:
             from ..plots import plot_learning_curves, plot_lyapunov, plot_progression, plot_trajectories
             ro = final_online.rollout
-            figures.append(str(plot_trajectories(
-                fig_dir / f"trajectories_{name}.png", aux_plot, exp_ro.q[:, plot_idx], {name: ro.q[:, plot_idx]},
-                q0[plot_idx], qd0[plot_idx], title=f"{cfg.name}: expert (dashed) vs {name}")))
-            if ro.V is not None:
-                figures.append(str(plot_lyapunov(fig_dir / f"lyapunov_{name}.png", ro.times, ro.V[:, plot_idx],
-                                                 title=f"{name}: $V_r(t)$, test environment 0")))
+            state_space = env_figures is None  # the default figures draw 2-D configuration spaces (particle2d)
+            if state_space:
+                figures.append(str(plot_trajectories(
+                    fig_dir / f"trajectories_{name}.png", aux_plot, exp_ro.q[:, plot_idx], {name: ro.q[:, plot_idx]},
+                    q0[plot_idx], qd0[plot_idx], title=f"{cfg.name}: expert (dashed) vs {name}")))
+                if ro.V is not None:
+                    figures.append(str(plot_lyapunov(fig_dir / f"lyapunov_{name}.png", ro.times, ro.V[:, plot_idx],
+                                                     title=f"{name}: $V_r(t)$, test environment 0")))
             figures.append(str(plot_learning_curves(fig_dir / f"learning_curve_{name}.png", {name: curves[name]},
                                                     {name: sorted(tr.snapshots)})))
-            if stages:
-                figures.append(str(plot_progression(fig_dir / f"progression_{name}.png", aux_plot,
-                                                    exp_ro.q[:, plot_idx], stages, q0[plot_idx], qd0[plot_idx])))
+            if state_space:
+                if stages:
+                    figures.append(str(plot_progression(fig_dir / f"progression_{name}.png", aux_plot,
+                                                        exp_ro.q[:, plot_idx], stages, q0[plot_idx], qd0[plot_idx])))
     if ev.figures and curves:
         from ..plots import plot_learning_curves
         figures.append(str(plot_learning_curves(fig_dir / "learning_curves.png", curves)))
+    if ev.figures and env_figures is not None and expert_stage is not None:
+        t0 = time.time()
+        say.say("figures: " + cfg.name)
+        figures += [str(f) for f in env_figures(fig_dir, expert_stage, task_stages, aux0, title=cfg.name)]
+        timing["figures_s"] = time.time() - t0
     timing["total_s"] = time.time() - t_start
     metrics = {"name": cfg.name, "seed": cfg.seed, "config_hash": data_hash(cfg),
-               "data": {"train": train_info, "test": test_info}, "expert": expert_metrics,
+               "data": {"train": train_info, "test": test_info}, "expert": _clean(expert_metrics),
                "learners": results, "figures": figures, "timing": timing}
+    if expert_stage is not None:
+        metrics["task_table"] = _clean(_task_table(expert_stage, task_stages, getattr(env, "ratio_metrics", ())))
     atomic_write_json(run_dir / "metrics.json", metrics)
     say.say(f"done in {timing['total_s']:.1f}s: {run_dir / 'metrics.json'}")
     return metrics
+
+
+def _task_line(st: StageResult) -> str:
+    parts = [f"{k}={v['mean']:.4g}±{v['std']:.2g}" for k, v in st.summary.items()]
+    if st.ratios:
+        parts += [f"ratio.{k}={v['mean']:.3f}±{v['std']:.3f}" for k, v in st.ratios.items()]
+    return ", ".join(parts)
+
+
+def _task_table(expert: StageResult, stages: list[StageResult], ratio_keys) -> list[dict]:
+    """One row per policy (expert, then every learner snapshot): task-metric means ± std, ratios to the expert,
+    collisions and the Lyapunov monitor: the numbers of the paper's Fig. 5b in one place."""
+    rows = []
+    for st in [expert, *stages]:
+        row: dict[str, Any] = {"policy": st.label, "learner": st.learner, "iteration": st.iteration}
+        for k, v in st.summary.items():
+            row[k] = {"mean": v["mean"], "std": v["std"]}
+        row["collisions"] = int(round(float(st.per_trajectory["collided"].sum()))) if "collided" in st.per_trajectory else None
+        row["trajectories"] = int(st.rollout.q.shape[1])
+        if st.ratios:
+            row["ratio"] = {k: {"mean": v["mean"], "std": v["std"]} for k, v in st.ratios.items() if k in ratio_keys}
+        if st.lyapunov:
+            row["lyapunov"] = dict(st.lyapunov)
+        rows.append(row)
+    return rows

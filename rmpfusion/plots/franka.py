@@ -1,0 +1,245 @@
+"""Figures of the Franka experiment (paper §4.2, Fig. 5b and Fig. 6): the learner/expert ratio chart, V_r(t) per
+policy, a render strip and an animated GIF of one test execution (pybullet's headless renderer), and the
+end-effector paths seen from above. Written atomically, like every figure of the project."""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
+from matplotlib.patches import Circle  # noqa: E402
+
+from ..files import atomic_path  # noqa: E402
+from .figures import _np, save_figure  # noqa: E402
+
+METRIC_LABELS = {"time": "time", "cspace_length": "conf length", "ee_length": "end eff length",
+                 "goal_distance": "goal distance"}
+_STAGE_COLOURS = ("tab:red", "tab:orange", "tab:green", "tab:blue", "tab:purple", "tab:brown", "tab:pink")
+
+
+def plot_ratio_bars(path, ratios: Mapping[str, Mapping[str, Mapping[str, float]]],
+                    metrics: Sequence[str] | None = None, title: str = "") -> Path:
+    """Paper Fig. 5b: per metric, one bar per policy = mean of the per-trajectory ratios learner/expert, error bar
+    = their standard deviation; the expert is the dotted line at 1. ``ratios[label][metric] = {mean, std}``."""
+    labels = list(ratios)
+    metrics = list(metrics or (next(iter(ratios.values())).keys() if ratios else []))
+    fig, ax = plt.subplots(figsize=(1.6 + 1.5 * len(metrics), 3.4))
+    n = max(len(labels), 1)
+    width = 0.8 / n
+    x = np.arange(len(metrics))
+    for i, lab in enumerate(labels):
+        mean = [ratios[lab].get(m, {}).get("mean", np.nan) for m in metrics]
+        std = [ratios[lab].get(m, {}).get("std", np.nan) for m in metrics]
+        mean = np.array([np.nan if v is None else v for v in mean], dtype=float)
+        std = np.array([np.nan if v is None else v for v in std], dtype=float)
+        ax.bar(x + (i - (n - 1) / 2) * width, mean, width * 0.9, yerr=std, capsize=3, label=lab,
+               color=_STAGE_COLOURS[(i + 1) % len(_STAGE_COLOURS)], alpha=0.85, error_kw={"lw": 1})
+    ax.axhline(1.0, color="k", ls=":", lw=1.2, label="expert")
+    ax.set_xticks(x)
+    ax.set_xticklabels([METRIC_LABELS.get(m, m) for m in metrics])
+    ax.set_ylabel("learner / expert")
+    ax.set_title(title, fontsize=9)
+    ax.legend(fontsize=7, ncol=2)
+    return save_figure(fig, path)
+
+
+def plot_lyapunov_stages(path, panels: Sequence[Mapping[str, Any]], title: str = "") -> Path:
+    """Paper Fig. 6e: one panel per policy with V_r(t) of every test trajectory (thin) and of the rendered
+    example (thick). ``panels`` items: ``{"label", "times" (T,), "V" (T, B), "highlight": int}``."""
+    n = len(panels)
+    fig, axes = plt.subplots(1, n, figsize=(2.8 * n, 2.7), squeeze=False)
+    for ax, p in zip(axes[0], panels):
+        t, V = _np(p["times"]), _np(p["V"])
+        ax.plot(t, V, lw=0.6, color="0.6")
+        h = p.get("highlight")
+        if h is not None:
+            ax.plot(t, V[:, h], lw=1.8, color="tab:blue")
+        ax.set_title(str(p["label"]), fontsize=9)
+        ax.set_xlabel("t [s]")
+    axes[0, 0].set_ylabel("$V_r$")
+    if title:
+        fig.suptitle(title, fontsize=9, y=1.04)
+    return save_figure(fig, path)
+
+
+def plot_render_strip(path, rows: Sequence[Mapping[str, Any]], title: str = "") -> Path:
+    """Paper Fig. 6a-d: one row per policy, one column per time, each a pybullet render with the end-effector
+    path so far (line) and the goal (star). ``rows`` items: ``{"label", "frames": [{"t", "image", "trail" (N, 2)
+    pixels, "goal" (2,) pixels}]}``."""
+    n_rows = len(rows)
+    n_cols = max(len(r["frames"]) for r in rows) if rows else 1
+    h, w = rows[0]["frames"][0]["image"].shape[:2]
+    fig, axes = plt.subplots(n_rows, n_cols, figsize=(1.9 * n_cols * w / h, 1.9 * n_rows), squeeze=False)
+    for i, r in enumerate(rows):
+        for j in range(n_cols):
+            ax = axes[i, j]
+            ax.set_xticks([])
+            ax.set_yticks([])
+            if j >= len(r["frames"]):
+                ax.axis("off")
+                continue
+            f = r["frames"][j]
+            ax.imshow(f["image"])
+            tr = f.get("trail")
+            if tr is not None and len(tr) > 1:
+                ax.plot(tr[:, 0], tr[:, 1], "-", color="yellow", lw=1.2)
+            g = f.get("goal")
+            if g is not None:
+                ax.plot(g[0], g[1], "*", color="orange", mec="k", ms=9)
+            ax.set_xlim(0, w)
+            ax.set_ylim(h, 0)
+            if i == 0:
+                ax.set_title(f"t = {f['t']:.1f} s", fontsize=9)
+            if j == 0:
+                ax.set_ylabel(str(r["label"]), fontsize=9)
+    if title:
+        fig.suptitle(title, fontsize=10)
+    fig.subplots_adjust(wspace=0.02, hspace=0.04)
+    return save_figure(fig, path)
+
+
+def plot_ee_paths(path, aux: Mapping[str, torch.Tensor], paths: Mapping[str, Any], title: str = "") -> Path:
+    """End-effector paths of one test execution seen from above (x-y), obstacles as discs, goal as a star."""
+    fig, ax = plt.subplots(figsize=(4.6, 4.6))
+    k = 1
+    while f"obstacle{k}_center" in aux:
+        c = _np(aux[f"obstacle{k}_center"]).reshape(-1)[:2]
+        r = float(_np(aux[f"obstacle{k}_radius"]).reshape(-1)[0])
+        ax.add_patch(Circle(c, r, color="tab:red", alpha=0.5, lw=0))
+        k += 1
+    g = _np(aux["goal"]).reshape(-1)
+    ax.add_patch(Circle(g[:2], 0.05, fill=False, ls="--", color="orange"))
+    for (lab, p), col in zip(paths.items(), _STAGE_COLOURS):
+        p = _np(p).reshape(-1, 3)
+        p = p[np.isfinite(p).all(1)]
+        ax.plot(p[:, 0], p[:, 1], "--" if lab == "expert" else "-", color="k" if lab == "expert" else col, lw=1.3,
+                label=lab)
+        if len(p):
+            ax.plot(p[0, 0], p[0, 1], "o", color="k", ms=4)
+    ax.plot(g[0], g[1], "*", color="orange", mec="k", ms=12, label="goal")
+    ax.plot(0, 0, "s", color="0.3", ms=8, label="robot base")
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.legend(fontsize=7)
+    ax.set_title(title, fontsize=9)
+    return save_figure(fig, path)
+
+
+def _label(img: np.ndarray, text: str) -> np.ndarray:
+    from PIL import Image, ImageDraw
+
+    im = Image.fromarray(img)
+    d = ImageDraw.Draw(im)
+    d.rectangle([0, 0, 8 + 7 * len(text), 16], fill=(255, 255, 255))
+    d.text((4, 2), text, fill=(0, 0, 0))
+    return np.asarray(im)
+
+
+def save_gif(path, frames: Sequence[np.ndarray], fps: float = 10.0) -> Path:
+    """An animated GIF (pillow) of (H, W, 3) uint8 frames, looping."""
+    from PIL import Image
+
+    path = Path(path)
+    if not frames:
+        raise ValueError("save_gif: no frames")
+    ims = [Image.fromarray(f) for f in frames]
+    with atomic_path(path, suffix=".gif") as tmp:
+        ims[0].save(tmp, format="GIF", save_all=True, append_images=ims[1:], duration=int(round(1000 / fps)), loop=0)
+    return path
+
+
+# ---------------------------------------------------------------------------------------------- the Franka set
+def _example(env, expert) -> int:
+    """The rendered test trajectory: the configured one, else the one where the expert comes closest to the
+    obstacle among those it completes (the most interaction)."""
+    chosen = env.params.render_trajectory
+    B = expert.rollout.q.shape[1]
+    if chosen is not None:
+        return min(int(chosen), B - 1)
+    clear = expert.per_trajectory["min_clearance"].clone().double()
+    ok = expert.per_trajectory["reached"].bool() & ~expert.per_trajectory["collided"].bool()
+    clear[~ok] = float("inf")
+    return int(clear.argmin()) if bool(ok.any()) else 0
+
+
+def _index_at(times: torch.Tensor, t: float) -> int:
+    return int((times - t).abs().argmin())
+
+
+def franka_figures(env, fig_dir, expert, stages, aux: Mapping[str, torch.Tensor], title: str = "franka") -> list[Path]:
+    """All Franka figures; see the module docstring. ``expert``/``stages``: ``StageResult``s."""
+    fig_dir = Path(fig_dir)
+    out: list[Path] = []
+    ratios = {st.label: st.ratios for st in stages if st.ratios}
+    if ratios:
+        out.append(plot_ratio_bars(fig_dir / "franka_ratios.png", ratios, env.ratio_metrics,
+                                   title=f"{title}: learner / expert on the test set (mean ± std over trajectories)"))
+    b = _example(env, expert)
+    policies = [expert, *stages]
+    panels = [{"label": st.label, "times": st.rollout.times, "V": st.rollout.V, "highlight": b}
+              for st in policies if st.rollout.V is not None]
+    if panels:
+        out.append(plot_lyapunov_stages(fig_dir / "franka_lyapunov.png", panels,
+                                        title=f"{title}: $V_r(t)$ on the test set (thick: the rendered execution {b})"))
+    ex_aux = {k: v[b:b + 1] for k, v in aux.items()}
+    out.append(plot_ee_paths(fig_dir / "franka_ee_paths.png", ex_aux,
+                             {st.label: st.rollout.ee[:, b] for st in policies},
+                             title=f"{title}: end-effector paths, test execution {b} (top view)"))
+    w, h = env.params.render_size
+    goal_px = env.project(ex_aux["goal"].reshape(1, 3).cpu().numpy(), w, h)[0]
+
+    def frame(st, t: float, width: int, height: int, goal) -> dict:
+        ro = st.rollout
+        i = _index_at(ro.times, t)
+        q = ro.q[i, b]
+        if not bool(q.isfinite().all()):  # the rollout ended early: show its last valid state
+            ok = ro.q[:, b].isfinite().all(-1).nonzero().flatten()
+            i = int(ok.max()) if len(ok) else 0
+            q = ro.q[i, b].nan_to_num()
+        ee = ro.ee[: i + 1, b]
+        ee = ee[ee.isfinite().all(-1)].cpu().numpy()
+        return {"t": float(ro.times[i]), "image": env.render(q, ex_aux, width=width, height=height),
+                "trail": env.project(ee, width, height) if len(ee) else None, "goal": goal}
+
+    horizon = float(expert.rollout.times[-1])
+    times = [t for t in env.params.render_times if t <= horizon + 1e-9] or [0.0]
+    rows = [{"label": st.label, "frames": [frame(st, t, w, h, goal_px) for t in times]} for st in policies]
+    out.append(plot_render_strip(fig_dir / "franka_execution.png", rows,
+                                 title=f"{title}: test execution {b}, left to right in time"))
+    # the animation: policies side by side, real time
+    gw, gh = (w * 3) // 4, (h * 3) // 4
+    goal_g = env.project(ex_aux["goal"].reshape(1, 3).cpu().numpy(), gw, gh)[0]
+    n_frames = int(np.floor(horizon * env.params.gif_fps + 1e-9)) + 1
+    frames = []
+    for k in range(n_frames):
+        t = k / env.params.gif_fps
+        tiles = []
+        for st in policies:
+            f = frame(st, t, gw, gh, goal_g)
+            tiles.append(_label(_draw_trail(f["image"], f["trail"], goal_g), f"{st.label}  t={f['t']:.1f}s"))
+        frames.append(np.concatenate(tiles, axis=1))
+    out.append(save_gif(fig_dir / "franka_execution.gif", frames, env.params.gif_fps))
+    return out
+
+
+def _draw_trail(img: np.ndarray, trail, goal) -> np.ndarray:
+    from PIL import Image, ImageDraw
+
+    im = Image.fromarray(img)
+    d = ImageDraw.Draw(im)
+    if trail is not None and len(trail) > 1:
+        d.line([tuple(map(float, p)) for p in trail], fill=(230, 200, 0), width=2)
+    if goal is not None:
+        x, y = float(goal[0]), float(goal[1])
+        d.ellipse([x - 4, y - 4, x + 4, y + 4], outline=(255, 140, 0), width=2)
+    return np.asarray(im)
+
+
+__all__ = ["franka_figures", "plot_ee_paths", "plot_lyapunov_stages", "plot_ratio_bars", "plot_render_strip",
+           "save_gif"]
