@@ -241,10 +241,14 @@ def test_signals_during_training_in_process_checkpoint_then_defer_to_the_install
     assert res.curve[-1][0] == 12
     assert sorted(p.name for p in (tmp_path / "a").glob("ckpt-*.pt")) == ["ckpt-00000005.pt", "ckpt-00000012.pt"]
 
-    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
-    with pytest.raises(KeyboardInterrupt):
-        train(model(), data, cfg, seed=0, checkpoint_dir=tmp_path / "b", progress=signal_at(4, signal.SIGINT))
-    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    # Python's own Ctrl-C handler, whatever this process inherited (background jobs and CI start with SIGINT ignored)
+    inherited = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            train(model(), data, cfg, seed=0, checkpoint_dir=tmp_path / "b", progress=signal_at(4, signal.SIGINT))
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    finally:
+        signal.signal(signal.SIGINT, inherited)
     assert [p.name for p in (tmp_path / "b").glob("ckpt-*.pt")] == ["ckpt-00000004.pt"]
     resumed = train(model(), data, cfg, seed=0, checkpoint_dir=tmp_path / "b")
     assert resumed.resumed_from == 4 and resumed.curve == res.curve  # the interrupted run ends as the other one
