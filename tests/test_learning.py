@@ -156,6 +156,21 @@ def test_learners_registered_and_rmp_edges():
     assert with_expert.policy(q, qd, a).V.shape == (4,)
 
 
+def test_edge_weights_override_the_shared_spec_per_edge():
+    aux = Particle2D(n_obstacles=2).aux_dims()
+    own = {"obstacle1": {"aux": ["obstacle1_center", "obstacle1_radius"]}, "goal": {"aux": ["goal"], "hidden": [4]}}
+    m = RMPLearner(RMPLearner.Params(weights={"type": "mlp", "hidden": [8], "aux": "all"}, edge_weights=own),
+                   TREE_2LEVEL, aux, 2, expert=EXPERT_2LEVEL)
+    w = {n: m.tree.weights[n].fn for n in m.edges}
+    assert w["obstacle1"].aux_names == ["obstacle1_center", "obstacle1_radius"]
+    assert w["obstacle1"].layers[0].in_features == 2 + 3  # q, then the obstacle's centre and radius
+    assert w["goal"].aux_names == ["goal"] and w["goal"].layers[0].out_features == 4
+    assert w["obstacle2"].aux_names == sorted(aux)  # untouched edges keep the shared spec
+    with pytest.raises(ConfigError, match=r"learners\.rmp\.edge_weights\.metric: 'metric' is not a learned edge"):
+        RMPLearner(RMPLearner.Params(edge_weights={"metric": {"aux": ["goal"]}}), TREE_2LEVEL, aux, 2,
+                   expert=EXPERT_2LEVEL)
+
+
 @pytest.mark.parametrize("target,depth", [(1000, 2), (5800, 2), (300, 1), (20000, 3)])
 def test_width_for_parameters_is_closest(target, depth):
     w = width_for_parameters(target, 9, 2, depth)

@@ -13,6 +13,7 @@ import torch
 from pydantic import Field
 from torch import Tensor, nn
 
+from ..config.errors import ConfigError, Issue
 from ..core.tree import RMPTree, build_tree
 from ..core.weight import aux_features
 from ..registry import LEARNERS, Params
@@ -37,14 +38,22 @@ class RMPLearner(nn.Module):
                                         description="weight spec put on every learned edge; aux: all = every aux input")
         edges: list[str] | None = Field(None, description="edges to learn; default: those the expert weights, "
                                                           "else every edge except regulariser leaves")
+        edge_weights: dict[str, dict[str, Any]] = Field(
+            default_factory=dict, description="per-edge keys merged over `weights`, e.g. "
+                                              "{obstacle1: {aux: [obstacle1_center, obstacle1_radius]}}")
 
     def __init__(self, params: Params, tree_spec: Mapping[str, Any], aux_dims: Mapping[str, int], dim: int,
                  expert: Mapping[str, Any] | None = None):
         super().__init__()
         self.params = params
         edges = list(params.edges) if params.edges is not None else self.default_edges(tree_spec, expert)
-        w = expand_aux(params.weights, aux_dims)
-        spec = tree_with_weights(tree_spec, {e: w for e in edges}, where="learners.rmp.edges")
+        stray = [e for e in params.edge_weights if e not in edges]
+        if stray:
+            raise ConfigError([Issue(f"learners.rmp.edge_weights.{e}",
+                                     f"'{e}' is not a learned edge; learned edges: {', '.join(edges)} "
+                                     "(add it to learners.rmp.edges or remove the entry)") for e in stray])
+        per_edge = {e: expand_aux({**params.weights, **params.edge_weights.get(e, {})}, aux_dims) for e in edges}
+        spec = tree_with_weights(tree_spec, per_edge, where="learners.rmp.edges")
         self.edges = edges
         self.tree: RMPTree = build_tree(spec, aux_dims=dict(aux_dims))
         if self.tree.dim != dim:

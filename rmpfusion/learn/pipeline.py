@@ -26,7 +26,7 @@ from ..evaluate.metrics import StageResult, evaluate_learner, online_loss, rollo
 from ..registry import ENVS
 from .demonstrations import Dataset, collect, load_dataset, save_dataset
 from .learners import build_learner, build_order, compile_learner
-from .train import load_snapshot, train
+from .train import latest_checkpoint, load_snapshot, train
 
 
 def expert_spec(cfg: RunConfig) -> dict:
@@ -252,6 +252,9 @@ def _run(cfg: RunConfig, run_dir: Path, say: Progress, log) -> dict:
         t0 = time.time()
         if cfg.train.compile:
             compile_learner(model)
+        ck = latest_checkpoint(run_dir / "checkpoints" / name)
+        if ck is not None:
+            say.say(f"learner {name}: resuming from {ck}")
         tr = train(model, train_ds, cfg.train, seed=_learner_seed(cfg.seed, name) + 1, test_data=test_ds,
                    checkpoint_dir=run_dir / "checkpoints" / name, run_config=config,
                    progress=say.bar(f"train {name}"),
