@@ -383,7 +383,7 @@ def test_tiny_franka_experiment_end_to_end(tmp_path):
     overrides = ["experiment=franka", "logger=disabled", "env.control_rate=60", "data.train_trajectories=3",
                  "data.test_trajectories=2", "data.points=6", "env.demo_min_duration=0.2",
                  "train.iterations=3", "train.batch_size=8", "train.snapshots=[0,3]", "train.checkpoint_every=3",
-                 "train.log_every=1", "eval.horizon=0.5", "env.render_times=[0.0,0.5]", "env.render_size=[64,48]"]
+                 "train.log_every=1", "eval.horizon=0.5", "eval.compile=false", "env.render_times=[0.0,0.5]", "env.render_size=[64,48]"]
     with initialize_config_dir(config_dir=os.path.join(ROOT, "conf"), version_base="1.3"):
         cfg = compose("config", overrides=overrides)
     run = resolve_and_validate(cfg)

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import logging
 import types
+import warnings
 from dataclasses import dataclass
 from typing import Any, Mapping
 
@@ -255,6 +256,8 @@ class RMPTree(nn.Module):
             dynamic, options = self._compile_args
             # the C++ wrapper calls LU ops through a generic shim and says so at every compile: expected
             logging.getLogger("torch._inductor.ir").setLevel(logging.ERROR)
+            # inductor's own use of a deprecated torch helper warns at every compile: not the user's concern
+            warnings.filterwarnings("ignore", message=r".*torch\._prims_common\.check.*", category=FutureWarning)
             # a private copy of the function's code: torch.compile caches per code object, so trees compiled in one
             # process would otherwise pile their guards onto one cache and each call would check all of them
             fn = types.FunctionType(RMPTree._root_rmp.__code__.replace(), globals(), f"_root_rmp_{id(self):x}")
@@ -274,8 +277,6 @@ class RMPTree(nn.Module):
         """Where the first non-finite value came from: inputs, then nodes in pushforward order, then the leaves'
         and inner nodes' RMPs, then the root. The message names the place and the samples; the returned string
         also carries them as ``where`` and ``samples`` for ``NumericalError``."""
-        import warnings
-
         declared = [k for k in (aux or {}) if k in self.aux_dims]  # aux the tree does not use cannot be the cause
         inputs = [("q", q), ("qd", qd), *((f"aux['{k}']", aux[k]) for k in declared)]
         bad = _first_nonfinite(inputs)
