@@ -102,3 +102,17 @@ def test_copies_of_a_compiled_tree_evaluate_their_own_weights(gen):
         assert not torch.allclose(moved, before)
         torch.testing.assert_close(tree(q, qd, aux).qdd, before, rtol=0, atol=0)
         torch.testing.assert_close(moved, copy.deepcopy(other).uncompile()(q, qd, aux).qdd, rtol=1e-10, atol=1e-10)
+
+
+def test_fixed_structure_compile_still_sees_new_weights(gen):
+    """Skipping the module guards must not freeze the parameters: weights loaded after the first call (as
+    snapshots are during evaluation) give the eager tree's answer with those weights."""
+    eager = rmpfusion.build_tree(TWO_LEVEL)
+    fast = copy.deepcopy(eager).compile(dynamic=False, fixed_structure=True)
+    q, qd, aux = two_level_inputs(8, gen)
+    with torch.no_grad():
+        _assert_same(fast(q, qd, aux), eager(q, qd, aux))
+        for p in eager.parameters():
+            p.add_(0.1 * torch.randn(p.shape, generator=gen, dtype=p.dtype))
+        fast.load_state_dict(eager.state_dict())
+        _assert_same(fast(q, qd, aux), eager(q, qd, aux))

@@ -242,12 +242,21 @@ class RMPTree(nn.Module):
         a, good = lu_solve(r.M, r.f)
         return r.f, r.M, r.G, r.B, r.Phi, r.L, r.V, a, good.all()
 
-    def compile(self, dynamic: bool | None = None, options: dict[str, Any] | None = None) -> "RMPTree":
+    def compile(self, dynamic: bool | None = None, options: dict[str, Any] | None = None,
+                fixed_structure: bool = False) -> "RMPTree":
         """Evaluate through ``torch.compile`` (same code, fused kernels): pays off for small batches in a
         control loop and for training. The first call per input shape compiles (seconds to minutes);
         inductor caches the result on disk for later processes. ``return_nodes`` and the checks stay eager.
-        Copies of a compiled tree (``copy.deepcopy``) compile their own code on their first call."""
-        self._compile_args = (dynamic, {"cpp_wrapper": True, **(options or {})})  # C++ call wrapper: less Python per call
+        Copies of a compiled tree (``copy.deepcopy``) compile their own code on their first call.
+
+        ``fixed_structure=True`` is for a controller whose tree no longer changes: the compiled call skips its
+        checks that the tree's modules and their settings are unchanged (about 0.3 ms of a 1.1 ms Franka call
+        at B = 1). Parameters stay inputs, so loading or training new weights is seen; changing a module or a
+        non-parameter setting after the first call is not (call ``compile`` again)."""
+        opts = {"cpp_wrapper": True, **(options or {})}  # C++ call wrapper: less Python per call
+        if fixed_structure:
+            opts.setdefault("guard_filter_fn", torch.compiler.skip_guard_on_all_nn_modules_unsafe)
+        self._compile_args = (dynamic, opts)
         self._compiled = None
         return self
 
