@@ -22,6 +22,7 @@ Sections:
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import math
 import os
@@ -121,13 +122,28 @@ class Fused2d2level(torch.nn.Module):
         super().__init__()
         tree = learner.tree
         mlps = [tree.weights[e].fn for e in self.EDGES]
-        names = mlps[0].aux_names
-        if any(m.aux_names != names or len(m.layers) != 3 or m.activation != "tanh" or m.positivity != "softplus"
-               for m in mlps):
-            raise ValueError("the fused reference is written for 2-hidden-layer tanh/softplus MLPs on the same inputs")
+        if any(len(m.layers) != 3 or m.activation != "tanh" or m.positivity != "softplus" or not m.use_config
+               or m.layers[0].out_features != mlps[0].layers[0].out_features or m.floor != mlps[0].floor for m in mlps):
+            raise ValueError("the fused reference is written for equal 2-hidden-layer tanh/softplus MLPs on [q, aux]")
+        # every edge reads [q, all the aux any edge reads]: an edge's first layer gets zero columns for the aux it
+        # does not read, so one batched product per layer serves all four (same numbers, a few more FLOPs)
+        names = sorted({a for m in mlps for a in m.aux_names})
+        dims = {a: m.aux_dims[a] for m in mlps for a in m.aux_names}
+        start = dict(zip(names, itertools.accumulate([dims[a] for a in names[:-1]], initial=2)))
+        W0 = []
+        for m in mlps:
+            w = m.layers[0].weight.detach()
+            full = w.new_zeros(w.shape[0], 2 + sum(dims.values()))
+            full[:, :2] = w[:, :2]
+            col = 2
+            for a in m.aux_names:
+                full[:, start[a]:start[a] + dims[a]] = w[:, col:col + dims[a]]
+                col += dims[a]
+            W0.append(full)
         self.aux_names, self.floor = names, mlps[0].floor
         for i in range(3):
-            self.register_parameter(f"W{i}", torch.nn.Parameter(torch.stack([m.layers[i].weight.detach() for m in mlps]).clone()))
+            Ws = W0 if i == 0 else [m.layers[i].weight.detach() for m in mlps]
+            self.register_parameter(f"W{i}", torch.nn.Parameter(torch.stack(Ws).clone()))
             self.register_parameter(f"b{i}", torch.nn.Parameter(torch.stack([m.layers[i].bias.detach() for m in mlps]).clone()))
         g, o = tree.rmps["goal"], tree.rmps["obstacle1"]
         if any(vars(tree.rmps["obstacle2"])[k] != vars(o)[k] for k in ("r_w", "sigma", "epsilon", "alpha", "eta", "min_distance")):
