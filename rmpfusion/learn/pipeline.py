@@ -252,11 +252,11 @@ def _run(cfg: RunConfig, run_dir: Path, say: Progress, log) -> dict:
         t0 = time.time()
         if cfg.train.compile:
             compile_learner(model)
-        ck = latest_checkpoint(run_dir / "checkpoints" / name)
-        if ck is not None:
+        ckdir = run_dir / "checkpoints" / name
+        if (ck := latest_checkpoint(ckdir)) is not None:
             say.say(f"learner {name}: resuming from {ck}")
         tr = train(model, train_ds, cfg.train, seed=_learner_seed(cfg.seed, name) + 1, test_data=test_ds,
-                   checkpoint_dir=run_dir / "checkpoints" / name, run_config=config,
+                   checkpoint_dir=ckdir, run_config=config,
                    progress=say.bar(f"train {name}"),
                    log=(lambda m, _n=name: log({f"{_n}/{k}" if k != "iteration" else k: v for k, v in m.items()}))
                    if log is not None else None)
@@ -266,7 +266,7 @@ def _run(cfg: RunConfig, run_dir: Path, say: Progress, log) -> dict:
         if cfg.eval.compile:
             compile_learner(model)
         atomic_torch_save({"model": model.state_dict(), "learner": blocks[name], "config": config,
-                      "iterations": cfg.train.iterations}, run_dir / "checkpoints" / name / "final.pt")
+                      "iterations": cfg.train.iterations}, ckdir / "final.pt")
         t0 = time.time()
         snaps: dict[str, dict] = {}
         stages = []
