@@ -1,6 +1,6 @@
 """What every entry point shares: where conf/ is, the run directory, and turning config errors into exit codes.
 
-conf/ lives at the repository root (DESIGN.md §2), outside the package, so the apps resolve it from this
+conf/ lives at the repository root (docs/architecture.md §1), outside the package, so the apps resolve it from this
 file's location: that works for a source checkout and an editable install from any working directory.
 ``RMPFUSION_CONF`` points the apps at another conf/ (a wheel install, or a project's own copy).
 """

@@ -73,9 +73,10 @@ class RunConfig(_Frozen):
 
     name: str = "experiment"
     seed: int = 0
-    device: str = "cpu"
+    device: Literal["cpu"] = Field("cpu", description="where the trees run; only the CPU until GPU support lands "
+                                                     "(resolve_and_validate names any other value)")
     env: TypedBlock
-    tree: dict[str, Any] = Field(description="the tree spec (DESIGN.md §3) without learned weights")
+    tree: dict[str, Any] = Field(description="the tree spec (docs/architecture.md §2) without learned weights")
     expert: dict[str, Any] = Field(default_factory=dict, description="node name -> weight spec of the expert")
     learners: dict[str, TypedBlock] = Field(default_factory=dict, description="learner name -> {type: rmp|unstructured, ...}")
     data: DataConfig = DataConfig()

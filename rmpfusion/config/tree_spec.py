@@ -1,4 +1,4 @@
-"""The tree schema (DESIGN.md §3) and its whole-tree checks.
+"""The tree schema (docs/architecture.md §2) and its whole-tree checks.
 
 Validation here is structural and per-entry: every ``type`` must name a registered entry, its other keys
 are validated by that entry's own pydantic model, and the graph must be a tree rooted at ``root``.

@@ -162,6 +162,10 @@ def resolve_and_validate(cfg: DictConfig | Mapping[str, Any]) -> RunConfig:
         for n, nd in data["tree"]["nodes"].items():
             if isinstance(nd, Mapping) and "weight" in nd:
                 nd["weight"] = _weight_shorthand(nd["weight"], f"tree.nodes.{n}.weight", issues)
+    if "device" in data and data["device"] != "cpu":  # accepted and never used would be a silent ignore
+        issues.append(Issue("device", f"{data['device']!r} is not supported yet: rmpfusion runs on the CPU only "
+                                      "(device=cpu); set device=cpu or leave the key out"))
+        data["device"] = "cpu"  # the rest of the config is still checked, so every problem is reported at once
     try:
         run = RunConfig.model_validate(data)
     except ValidationError as e:

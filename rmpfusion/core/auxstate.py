@@ -1,7 +1,11 @@
-"""Parameters that are either constants or named auxiliary state (DESIGN.md §3).
+"""Parameters that are either constants or named auxiliary state (docs/math.md §10).
 
 A YAML value like ``center: [0, 0]`` is a constant; ``center: obstacle_center`` names a per-sample aux
 tensor of shape (B, k) passed at call time. Both resolve to something broadcastable against (B, k).
+
+Constants are built in float64 (``constant``), the precision of the Python numbers they come from, whatever
+torch's default dtype is; ``build_tree`` then casts the whole tree to its dtype (float64 unless asked), so a
+YAML number is rounded at most once, to the dtype the tree computes in.
 """
 from __future__ import annotations
 
@@ -12,6 +16,14 @@ from torch import Tensor, nn
 
 AuxOrValue = Union[str, float, Sequence[float]]
 AuxDict = Mapping[str, Tensor]
+
+CONSTANT_DTYPE = torch.float64  # what every registered class builds its constants in (build_tree casts after)
+
+
+def constant(value) -> Tensor:
+    """A Python number, or nested lists of them, as an exact float64 tensor: the one way a registered map, leaf
+    or weight turns a parameter into a tensor (a buffer the tree's ``.to(dtype)`` then casts)."""
+    return torch.as_tensor(value, dtype=CONSTANT_DTYPE)
 
 
 class AuxParam(nn.Module):
@@ -27,7 +39,7 @@ class AuxParam(nn.Module):
             self.dim = int(aux_dims[value])
             self.register_buffer("const", None)
         else:
-            t = torch.as_tensor(value, dtype=torch.get_default_dtype()).reshape(-1)
+            t = constant(value).reshape(-1)
             self.name = None
             self.dim = t.numel()
             self.register_buffer("const", t)

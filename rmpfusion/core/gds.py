@@ -1,4 +1,4 @@
-"""Leaf RMPs as geometric dynamical systems (G, B, Φ) with M, f, L, V derived per DESIGN.md §1.
+"""Leaf RMPs as geometric dynamical systems (G, B, Φ) with M, f, L, V derived per docs/math.md §3.
 
     Ξ_G = ½ Σ_i ẏ_i ∂_ẏ g_i          (the ½ is part of the definition)
     ξ_G = Ġ_y ẏ − ½ ∇_y(ẏᵀ G ẏ),   Ġ_y = [∂_y g_i ẏ]_i

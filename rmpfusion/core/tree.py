@@ -147,14 +147,18 @@ class RMPTree(nn.Module):
         self._compile_args: tuple | None = None
         self._dtype_cache: tuple | None = None  # (dtype,) once known; see _dtype
 
-    def _normalise_aux(self, aux: AuxDict | None, batch: int) -> dict[str, Tensor] | None:
+    def _normalise_aux(self, aux: AuxDict | None, batch: int, dtype: torch.dtype | None = None) -> dict[str, Tensor] | None:
+        """Declared aux as (batch, dim) tensors; Python numbers become tensors of ``dtype`` (the state's; default
+        the tree's), never of torch's default dtype, so a float64 tree gets its aux in float64."""
         if aux is None:
             return None
         out = dict(aux)
         for name, d in self.aux_dims.items():
             if name not in out:
                 continue
-            t = torch.as_tensor(out[name])
+            t = out[name]
+            if not isinstance(t, Tensor):
+                t = torch.as_tensor(t, dtype=dtype or self._dtype() or torch.get_default_dtype())
             if t.dim() == 1 and d == 1 and t.shape[0] == batch:
                 t = t.unsqueeze(-1)
             elif t.dim() == 1:
@@ -171,7 +175,7 @@ class RMPTree(nn.Module):
         if dtype is not None and (q.dtype != dtype or qd.dtype != dtype):
             raise TypeError(f"q and qd are {q.dtype} and {qd.dtype} but the tree computes in {dtype}; convert the "
                             f"state (q.to({dtype})) or the tree (tree.to({q.dtype}))")
-        aux = self._normalise_aux(aux, q.shape[0])
+        aux = self._normalise_aux(aux, q.shape[0], q.dtype)
         solved = False  # LU solve succeeded with a finite result for every sample
         if return_nodes:
             state, edges, rmp = self._passes(q, qd, aux)
@@ -380,10 +384,15 @@ def build_tree(
     resolve_method: str = "solve",
     check_finite: bool = True,
 ) -> RMPTree:
-    """Validate a tree spec (DESIGN.md §3) and assemble its modules through the registries.
+    """Validate a tree spec (docs/architecture.md §2) and assemble its modules through the registries.
 
     ``aux_dims`` adds to (or overrides) the spec's ``aux`` declarations, e.g. from the environment.
     All problems are reported together in one ConfigError whose lines name YAML paths.
+
+    ``dtype`` is the one floating dtype of the tree's constants and parameters (None: torch's current default).
+    Every registered class builds its constants in float64 from the spec's Python numbers
+    (``rmpfusion.core.auxstate.constant``); the built tree is then cast to ``dtype``, so a constant is rounded
+    at most once, to the dtype the tree computes in.
     """
     ts = validate_tree_spec(spec, where)
     if aux_dims:
@@ -444,6 +453,4 @@ def build_tree(
     if issues:
         raise ConfigError(issues)
     tree = RMPTree(ts, maps, weights, rmps, {k: v[0] for k, v in built_shared.items()}, resolve_method, check_finite)
-    if dtype is not None:
-        tree = tree.to(dtype)
-    return tree
+    return tree.to(torch.get_default_dtype() if dtype is None else dtype)

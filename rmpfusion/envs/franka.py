@@ -434,7 +434,7 @@ class Franka(SeededSampling):
                     user_monitor(i, *rest)
                 progress(i, total)
 
-        aux = {k: torch.as_tensor(v).to(self.dtype) for k, v in aux.items()}
+        aux = {k: torch.as_tensor(v, dtype=self.dtype) for k, v in aux.items()}  # lists: never via float32
         q0, qd0 = q0.to(self.dtype), qd0.to(self.dtype)
         with torch.set_grad_enabled(enable_grad):
             if mode == "torque":

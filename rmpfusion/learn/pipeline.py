@@ -262,7 +262,7 @@ def _run(cfg: RunConfig, run_dir: Path, say: Progress, log) -> dict:
                    if log is not None else None)
         train_s = time.time() - t0
         dtype = next(model.parameters()).dtype
-        model.to(torch.float64)  # rollouts and evaluation in float64 (DESIGN.md §5)
+        model.to(torch.float64)  # rollouts and evaluation in float64 (docs/math.md §11)
         if cfg.eval.compile:
             compile_learner(model)
         atomic_torch_save({"model": model.state_dict(), "learner": blocks[name], "config": config,

@@ -7,7 +7,7 @@ import torch
 from pydantic import Field, field_validator
 from torch import Tensor
 
-from ..core.auxstate import AuxOrValue, AuxParam
+from ..core.auxstate import CONSTANT_DTYPE, AuxOrValue, AuxParam, constant
 from ..core.taskmap import TaskMap
 from ..registry import TASK_MAPS, Params
 
@@ -69,15 +69,15 @@ class Linear(TaskMap):
 
     def __init__(self, params: Params, in_dim: int, aux_dims: Mapping[str, int] | None = None):
         super().__init__(in_dim, aux_dims)
-        A = torch.as_tensor(params.matrix, dtype=torch.get_default_dtype())
+        A = constant(params.matrix)
         if A.dim() != 2 or A.shape[1] != self.in_dim:
             raise ValueError(f"linear.matrix must be (n, {self.in_dim}) for this parent, got {tuple(A.shape)}")
         self.out_dim = A.shape[0]
         self.register_buffer("A", A)
-        b = torch.zeros(self.out_dim) if params.bias is None else torch.as_tensor(params.bias)
+        b = torch.zeros(self.out_dim, dtype=CONSTANT_DTYPE) if params.bias is None else constant(params.bias)
         if b.numel() != self.out_dim:
             raise ValueError(f"linear.bias must have {self.out_dim} entries, got {b.numel()}")
-        self.register_buffer("b", b.to(A.dtype))
+        self.register_buffer("b", b)
 
     def psi(self, x, aux):
         return x @ self.A.T + self.b
@@ -98,7 +98,7 @@ class Select(Linear):
         bad = [i for i in params.indices if not 0 <= i < in_dim]
         if bad:
             raise ValueError(f"select.indices {bad} out of range for a {in_dim}-dimensional parent")
-        A = torch.zeros(len(params.indices), in_dim)
+        A = torch.zeros(len(params.indices), in_dim, dtype=CONSTANT_DTYPE)
         A[torch.arange(len(params.indices)), torch.tensor(params.indices)] = 1.0
         super().__init__(Linear.Params(matrix=A.tolist()), in_dim, aux_dims)
 
@@ -122,7 +122,7 @@ class JointLimit(TaskMap):
         bad = [i for i in idx if not 0 <= i < in_dim]
         if bad:
             raise ValueError(f"joint_limit.joints {bad} out of range for a {in_dim}-dimensional parent")
-        lim = torch.as_tensor(params.limit, dtype=torch.get_default_dtype()).reshape(-1)
+        lim = constant(params.limit).reshape(-1)
         if lim.numel() == 1:
             lim = lim.expand(len(idx)).clone()
         if lim.numel() != len(idx):
@@ -131,7 +131,7 @@ class JointLimit(TaskMap):
         self.out_dim = len(idx)
         self.register_buffer("idx", torch.tensor(idx))
         self.register_buffer("limit", lim)
-        S = torch.zeros(len(idx), in_dim)
+        S = torch.zeros(len(idx), in_dim, dtype=CONSTANT_DTYPE)
         S[torch.arange(len(idx)), torch.tensor(idx)] = self.sign
         self.register_buffer("S", S)
 

@@ -7,7 +7,7 @@ import torch
 from pydantic import Field
 from torch import Tensor
 
-from ..core.auxstate import AuxOrValue, AuxParam
+from ..core.auxstate import CONSTANT_DTYPE, AuxOrValue, AuxParam, constant
 from ..core.taskmap import TaskMap
 from ..registry import TASK_MAPS, Params
 
@@ -68,13 +68,13 @@ class CylinderDistance(TaskMap):
         super().__init__(in_dim, aux_dims)
         self.center = AuxParam(params.center, self.aux_dims, "cylinder_distance.center")
         self.radius = AuxParam(params.radius, self.aux_dims, "cylinder_distance.radius")
-        a = torch.as_tensor(list(params.axis), dtype=torch.get_default_dtype())
+        a = constant(list(params.axis))
         if a.numel() != in_dim or self.center.dim != in_dim:
             raise ValueError(f"cylinder_distance.axis and center need dimension {in_dim}")
         if float(a.norm()) == 0.0:
             raise ValueError("cylinder_distance.axis must be non-zero")
         a = a / a.norm()
-        self.register_buffer("P", torch.eye(in_dim) - torch.outer(a, a))
+        self.register_buffer("P", torch.eye(in_dim, dtype=CONSTANT_DTYPE) - torch.outer(a, a))
         self.out_dim = 1
 
     def psi(self, x, aux):

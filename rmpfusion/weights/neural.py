@@ -13,7 +13,7 @@ import torch.nn.functional as F
 from pydantic import Field
 from torch import Tensor, nn
 
-from ..core.auxstate import AuxDict
+from ..core.auxstate import CONSTANT_DTYPE, AuxDict
 from ..core.weight import WeightFunction, aux_features
 from ..registry import WEIGHTS, Params
 
@@ -72,7 +72,8 @@ class MLPWeight(WeightFunction):
         if n_in == 0:
             raise ValueError("mlp weight has no inputs: set use_config or list aux features")
         sizes = [n_in, *p.hidden, 1]
-        self.layers = nn.ModuleList(nn.Linear(a, b) for a, b in zip(sizes[:-1], sizes[1:]))
+        # float64 like every constant (init_bias exact; one seed, one network, whatever torch's default dtype)
+        self.layers = nn.ModuleList(nn.Linear(a, b, dtype=CONSTANT_DTYPE) for a, b in zip(sizes[:-1], sizes[1:]))
         self.act = _act(p.activation)
         self.activation = p.activation
         self.positivity, self.floor = p.positivity, p.floor
