@@ -5,7 +5,7 @@ PY     := $(VENV)/bin/python
 # CPU machines get the CPU build of torch; a torch already importable in the venv (e.g. CUDA) is kept.
 TORCH_SPEC ?= torch==2.13.0
 
-.PHONY: install demo test bench clean
+.PHONY: install demo test test-all bench clean
 
 $(VENV)/.installed: pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -19,8 +19,11 @@ install: $(VENV)/.installed
 demo: install  ## the main job: the paper's 2d1level experiment with its defaults
 	$(VENV)/bin/rmpfusion-run experiment=2d1level
 
-test: install  ## the fast test suite
+test: install  ## the fast test suite (pyproject deselects the tests marked slow)
 	$(PY) -m pytest
+
+test-all: install  ## every test, the slow ones too: multiruns, kill/resume runs, plugin pip installs (what CI runs)
+	$(PY) -m pytest -m 'slow or not slow'
 
 bench: install
 	$(PY) tools/bench.py

@@ -173,6 +173,7 @@ def test_validate_cli_from_any_cwd_prints_tree(tmp_path):
 
 
 # --------------------------------------------------------------------------- sweeps
+@pytest.mark.slow
 def test_sweep_all_experiments_tiny(tmp_path):
     """-m experiment=glob(*) on tiny sizes runs the whole pipeline once per experiment."""
     r = _cli("rmpfusion.cli.run", "-m", "experiment=glob(*)", *TINY, f"hydra.sweep.dir={tmp_path}", timeout=900)
@@ -181,6 +182,7 @@ def test_sweep_all_experiments_tiny(tmp_path):
     assert len(metrics) == len(EXPERIMENTS), (metrics, r.stderr[-2000:])
 
 
+@pytest.mark.slow
 def test_submitit_local_two_jobs(tmp_path):
     r = _cli("rmpfusion.cli.validate", "-m", "hydra/launcher=submitit_local", "seed=1,2",
              f"hydra.sweep.dir={tmp_path}", "hydra.launcher.timeout_min=5", timeout=600)
@@ -189,6 +191,7 @@ def test_submitit_local_two_jobs(tmp_path):
     assert len(outs) == 2 and len(list(tmp_path.glob("*_2d1level/.hydra/config.yaml"))) == 2
 
 
+@pytest.mark.slow
 def test_optuna_sweep_searches_and_reports_the_best_learning_rate(tmp_path):
     """conf/sweep/optuna_lr.yaml: two tiny trials, each a full run whose returned loss Optuna minimises."""
     r = _cli("rmpfusion.cli.run", "-m", "experiment=2d1level", "sweep=optuna_lr", "data=tiny", "train=tiny", "eval=fast",

@@ -17,6 +17,7 @@ def _assert_same(a, b, tol=1e-10):
         torch.testing.assert_close(getattr(a, k), getattr(b, k), rtol=tol, atol=tol, msg=lambda m, k=k: f"{k}: {m}")
 
 
+@pytest.mark.slow
 def test_compiled_tree_equals_eager_values_and_parameter_gradients(gen):
     """One compile of a depth-2 tree with MLP, rbf and constant weights, a barrier, an attractor and a damper:
     every root quantity and every parameter gradient (through the h_i terms) as in eager mode."""
@@ -56,6 +57,7 @@ def test_shared_forward_kinematics_pass_equals_one_pass_per_control_point():
     aux_dims = dict(spec["aux"])
     shared = rmpfusion.build_tree(spec)
     plain = rmpfusion.build_tree(spec)
+    plain.load_state_dict(shared.state_dict())  # the same (random) weight networks in both
     fk = [m for m in plain.maps.values() if m.shared_key is not None]
     assert len(fk) == 15
     for m in fk:
@@ -88,6 +90,7 @@ def test_maps_flagged_identity_have_identity_jacobians(name, gen):
     torch.testing.assert_close(c, torch.zeros_like(xd))
 
 
+@pytest.mark.slow
 def test_copies_of_a_compiled_tree_evaluate_their_own_weights(gen):
     """Snapshots are evaluated on copies: a copy of a compiled tree must use the copy's weights, not the
     original's (its compiled code is built for the copy on first use)."""

@@ -257,7 +257,9 @@ def test_execution_metrics_match_the_recorded_path(expert):
     m = env.task_metrics(r)
     assert m["time"].item() == pytest.approx(r.time_to_goal.item())
     assert m["ee_length"].item() >= (r.ee[k, 0] - r.ee[0, 0]).norm().item()  # no shorter than the straight line
-    assert m["final_goal_distance"].item() < m["goal_distance"].item()  # it kept converging after the execution
+    assert m["timeout_goal_distance"].item() < m["goal_distance"].item()  # it kept converging after the execution
+    assert m["min_goal_distance"].item() == pytest.approx(r.goal_distance[:, 0].min().item())
+    assert m["min_goal_distance"].item() <= m["timeout_goal_distance"].item()
 
 
 def _fake_rollout(gd, speed, dt=0.1):
@@ -334,6 +336,7 @@ def test_ratios_to_the_expert_are_per_trajectory():
 
 # ---------------------------------------------------------------- several obstacles at run time
 
+@pytest.mark.slow
 def test_a_one_obstacle_tree_runs_in_pybullet_with_two_obstacles(env):
     """Weights learned with one obstacle drive the robot around two: a second cylinder placed on the path the
     one-obstacle execution takes is avoided by the shared per-control-point weights (no collision in pybullet),
@@ -370,9 +373,14 @@ def test_a_one_obstacle_tree_runs_in_pybullet_with_two_obstacles(env):
 
 # ---------------------------------------------------------------- the whole experiment, tiny
 
-def test_tiny_franka_experiment_end_to_end(tmp_path):
+@pytest.mark.parametrize("rate", [60, pytest.param(1000, marks=pytest.mark.slow)])
+def test_tiny_franka_experiment_end_to_end(tmp_path, rate):
     """experiment=franka on tiny sizes: data -> training -> evaluation in pybullet -> Franka metrics, ratios to the
-    expert, collisions, Lyapunov monitor and the figures (ratio chart, V_r, render strip, GIF) in the run dir."""
+    expert, collisions, Lyapunov monitor and the figures (ratio chart, V_r, render strip, GIF) in the run dir.
+
+    At the configured 1 kHz every tree policy's V_r never rises (Theorem 2), trained or not. At 60 Hz (the fast
+    variant) semi-implicit Euler steps of a briefly trained learner can raise V_r (by ~1 %: an integration error,
+    see conf/env/franka.yaml), so there only the expert is held to Theorem 2."""
     import json
 
     from hydra import compose, initialize_config_dir
@@ -380,7 +388,7 @@ def test_tiny_franka_experiment_end_to_end(tmp_path):
     from rmpfusion.config.validate import resolve_and_validate
     from rmpfusion.learn.pipeline import run_experiment
 
-    overrides = ["experiment=franka", "logger=disabled", "env.control_rate=60", "data.train_trajectories=3",
+    overrides = ["experiment=franka", "logger=disabled", f"env.control_rate={rate}", "data.train_trajectories=3",
                  "data.test_trajectories=2", "data.points=6", "env.demo_min_duration=0.2",
                  "train.iterations=3", "train.batch_size=8", "train.snapshots=[0,3]", "train.checkpoint_every=3",
                  "train.log_every=1", "eval.horizon=0.5", "eval.compile=false", "env.render_times=[0.0,0.5]", "env.render_size=[64,48]"]
@@ -389,20 +397,30 @@ def test_tiny_franka_experiment_end_to_end(tmp_path):
     run = resolve_and_validate(cfg)
     run_experiment(run, tmp_path, progress=False)
     m = json.loads((tmp_path / "metrics.json").read_text())
-    keys = {"time", "cspace_length", "ee_length", "goal_distance"}
-    assert keys <= set(m["expert"]["task"]) and m["expert"]["task"]["time"]["n"] == 2
+    keys = {"time", "cspace_length", "ee_length", "timeout_goal_distance", "min_goal_distance"}
+    assert keys | {"goal_distance"} <= set(m["expert"]["task"]) and m["expert"]["task"]["time"]["n"] == 2
     assert m["data"]["train"]["trajectories"] == 3 and m["data"]["test"]["trajectories"] == 2
     assert 0.2 - 1e-9 <= m["data"]["train"]["trajectory_seconds"]["min"] <= 0.5 + 1e-9
     snaps = m["learners"]["rmp"]["snapshots"]
     assert set(snaps) == {"0", "3"}
     for s in snaps.values():
         assert set(s["ratio_to_expert"]) == keys
-        for v in s["ratio_to_expert"].values():
-            assert v["n"] == 2 and v["mean"] > 0 and v["std"] >= 0
-        assert 0.0 <= s["lyapunov"]["monotone_fraction"] <= 1.0
+        for v in s["ratio_to_expert"].values():  # statistics of the 2 per-trajectory ratios
+            assert v["n"] == 2 and 0 < v["min"] <= v["max"]
+            assert v["mean"] == pytest.approx((v["min"] + v["max"]) / 2)
+            assert v["std"] == pytest.approx((v["max"] - v["min"]) / 2**0.5)  # sample std of two values
+        lyap = s["lyapunov"]
+        assert lyap["monotone_fraction"] == s["task"]["lyapunov_monotone"]["mean"]  # the per-trajectory flags
+        # a trajectory that fails the monitor rose by more than eval.lyapunov_rtol = 1e-6, and the report says so
+        assert lyap["monotone_fraction"] == 1.0 or lyap["max_relative_increase"] > 1e-6, lyap
+        if rate == 1000:
+            assert lyap["monotone_fraction"] == 1.0, lyap  # Theorem 2, at every snapshot
     rows = {r["policy"]: r for r in m["task_table"]}
     assert set(rows) == {"expert", "learner-0", "learner-3"}
-    assert all(isinstance(r["collisions"], int) and r["trajectories"] == 2 for r in rows.values())
+    assert rows["expert"]["lyapunov"]["monotone_fraction"] == 1.0  # Theorem 2 for the expert tree
+    for r in rows.values():
+        assert r["trajectories"] == 2 and r["collisions"] == round(2 * r["collided"]["mean"])
+    assert rows["expert"]["collisions"] == 0
     assert rows["learner-3"]["ratio"]["time"]["mean"] == pytest.approx(snaps["3"]["ratio_to_expert"]["time"]["mean"])
     figs = {os.path.basename(f) for f in m["figures"]}
     assert {"franka_ratios.png", "franka_lyapunov.png", "franka_execution.png", "franka_execution.gif",

@@ -1,75 +1,17 @@
-"""Every leaf RMP: M and f against the GDS definitions evaluated by finite differences, and the
-RMPflow ports against an independent transcription of RMPflow's reference code."""
+"""Leaf RMPs beyond the registry-driven finite-difference check of M and f (test_registry_derivatives.py):
+barrier behaviour, and the RMPflow ports against an independent transcription of RMPflow's reference code."""
 import numpy as np
 import pytest
 import torch
 from scipy.integrate import quad
 
 import rmpflow_reference as ref
-from conftest import fd_jacobian
 from rmpfusion.registry import LEAF_RMPS
 
 
 def make(name, dim, **params):
     entry = LEAF_RMPS.get(name)
     return entry.obj(entry.validate(params), dim)
-
-
-def gds_by_finite_differences(leaf, y, yd, eps=1e-6):
-    """M and f from the GDS definitions of DESIGN.md §1 with every derivative by central differences."""
-    n = y.shape[1]
-    G = leaf.metric(y, yd)
-    Xi = torch.zeros_like(G)
-    for k in range(n):
-        e = torch.zeros_like(yd)
-        e[:, k] = eps
-        dG = (leaf.metric(y, yd + e) - leaf.metric(y, yd - e)) / (2 * eps)  # ∂G/∂ẏ_k
-        Xi[:, :, k] = 0.5 * (dG @ yd[..., None])[..., 0]  # ½ Σ_i ẏ_i ∂G[:, i]/∂ẏ_k
-    Gdot = (leaf.metric(y + eps * yd, yd) - leaf.metric(y - eps * yd, yd)) / (2 * eps)
-    quad_y = lambda z: torch.einsum("bi,bij,bj->b", yd, leaf.metric(z, yd), yd)  # noqa: E731
-    grad_quad = fd_jacobian(lambda z: quad_y(z)[:, None], y, eps)[:, 0, :]
-    xi = (Gdot @ yd[..., None])[..., 0] - 0.5 * grad_quad
-    grad_Phi = fd_jacobian(lambda z: leaf.potential(z)[:, None], y, eps)[:, 0, :]
-    f = -grad_Phi - (leaf.damping(y, yd) @ yd[..., None])[..., 0] - xi
-    return G + Xi, f
-
-
-GDS_LEAVES = [
-    ("goal_attractor", 2, {}),
-    ("goal_attractor", 3, {"w_u": 10.0, "w_l": 1.0, "sigma": 0.7, "gain": 2.0, "alpha": 3.0, "eta": 1.0}),
-    ("collision_avoidance", 1, {"r_w": 2.0, "eta": 0.5, "alpha": 0.1}),
-    ("joint_limit", 1, {}),
-    ("damper", 2, {"w": 2.0, "eta": 3.0}),
-    ("identity_metric", 3, {}),
-]
-
-
-@pytest.mark.parametrize("name,dim,params", GDS_LEAVES)
-def test_gds_leaf_matches_finite_difference_definitions(name, dim, params, gen):
-    leaf = make(name, dim, **params)
-    if dim == 1:  # barrier: inside the support, inside the obstacle too; approaching and receding
-        y = -0.3 + 0.6 * torch.rand(8, 1, generator=gen)
-        y[0, 0] = 0.25
-    else:
-        y = torch.randn(8, dim, generator=gen)
-    yd = torch.randn(8, dim, generator=gen)
-    out = leaf(y, yd)
-    M_fd, f_fd = gds_by_finite_differences(leaf, y, yd)
-    torch.testing.assert_close(out.M, M_fd, rtol=1e-6, atol=1e-6)
-    torch.testing.assert_close(out.f, f_fd, rtol=1e-6, atol=1e-6)
-    K = 0.5 * torch.einsum("bi,bij,bj->b", yd, out.G, yd)
-    torch.testing.assert_close(out.V, K + out.Phi)
-    torch.testing.assert_close(out.L, K - out.Phi)
-    # the autodiff curvature of the GDS base agrees with any analytic override
-    from rmpfusion.core.gds import GDS
-    Xi_ad, xi_ad = GDS.curvature(leaf, y, yd)
-    Xi, xi = leaf.curvature(y, yd)
-    torch.testing.assert_close(Xi, Xi_ad, atol=1e-10, rtol=1e-10)
-    torch.testing.assert_close(xi, xi_ad, atol=1e-10, rtol=1e-10)
-    # a fused ``terms`` (one evaluation shared by all six terms) equals the separate definitions exactly
-    plain = (leaf.metric(y, yd), leaf.damping(y, yd), leaf.potential(y), GDS.potential_grad(leaf, y), Xi_ad, xi_ad)
-    for got, want in zip(leaf.terms(y, yd), plain):
-        torch.testing.assert_close(got, want, atol=1e-10, rtol=1e-10)
 
 
 def test_barrier_inside_obstacle_is_finite_and_pushes_out():

@@ -39,6 +39,7 @@ def test_without_plugin_the_name_is_unknown(tmp_path):
     assert r.returncode == 2 and "unknown leaf RMP 'spring'" in r.stderr
 
 
+@pytest.mark.slow
 def test_plugin_preset_from_command_line_reaches_built_tree(plugin_site, tmp_path):
     r = _cli(plugin_site, "rmpfusion.cli.validate", "rmp@tree.nodes.goal.rmp=spring", "tree.nodes.goal.rmp.gain=7",
              f"hydra.run.dir={tmp_path}")
@@ -46,6 +47,7 @@ def test_plugin_preset_from_command_line_reaches_built_tree(plugin_site, tmp_pat
     assert "goal (dim 2)  map=offset  weight=rbf  rmp=spring" in r.stdout
 
 
+@pytest.mark.slow
 def test_plugin_tree_file_trains_a_few_steps(plugin_site, tmp_path):
     """tree=2d1level_spring lives only in the plugin package; the whole pipeline runs on it."""
     r = _cli(plugin_site, "rmpfusion.cli.run", "tree=2d1level_spring", *TINY, f"hydra.run.dir={tmp_path}", timeout=600)
@@ -57,6 +59,7 @@ def test_plugin_tree_file_trains_a_few_steps(plugin_site, tmp_path):
     assert "spring" in (tmp_path / "config.resolved.yaml").read_text()
 
 
+@pytest.mark.slow
 def test_plugin_rmp_in_process(plugin_site, monkeypatch):
     """Loaded lazily on first lookup, from a spec given as a plain dict."""
     monkeypatch.syspath_prepend(str(plugin_site))

@@ -42,6 +42,7 @@ class Row:
     fault: str  # the bad input or fault
     trigger: str  # how the test provokes it
     expect: str  # what must happen
+    shows: str  # the message a user sees, as a template (see ``shows_pattern``); the test full-matches it
     run: Callable  # run(tmp_path, monkeypatch) -> the message a user sees (asserting the expectation on the way)
     gap: str | None = None  # known gap: why it is still wrong and where the fix belongs (strict xfail)
     needs: tuple[str, ...] = field(default_factory=tuple)  # importable modules the row needs
@@ -50,11 +51,40 @@ class Row:
 ROWS: list[Row] = []
 
 
-def row(id: str, fault: str, trigger: str, expect: str, gap: str | None = None, needs: tuple[str, ...] = ()):
+def row(id: str, fault: str, trigger: str, expect: str, *, shows: str, gap: str | None = None,
+        needs: tuple[str, ...] = ()):
     def deco(fn):
-        ROWS.append(Row(id, fault, trigger, expect, fn, gap, needs))
+        ROWS.append(Row(id, fault, trigger, expect, shows, fn, gap, needs))
         return fn
     return deco
+
+
+# A row's ``shows`` is the message verbatim (``<dir>`` is the run directory, as in the README), except for
+# these placeholders for what legitimately varies: <num> a number as Python formats it (2.59, 1.1e+200, -3.5e-18,
+# inf), <hex> a checksum prefix, <text> text that belongs to a library (torch's or pybullet's own error
+# message), <a|b> one of the listed words. Everything else - what failed, which file/key/sample, what to do -
+# must appear exactly.
+_PLACEHOLDERS = {"<num>": r"[-+]?(?:\d+(?:\.\d*)?|\.\d+)(?:e[-+]?\d+)?|[-+]?inf|nan", "<hex>": r"[0-9a-f]+",
+                 "<text>": r".+?"}
+
+
+def shows_pattern(template: str) -> re.Pattern:
+    """The regular expression a row's ``shows`` template stands for (matched against the whole message)."""
+    out = []
+    for part in re.split(r"(<num>|<hex>|<text>|<[^<>|]+(?:\|[^<>|]+)+>)", template):
+        if part in _PLACEHOLDERS:
+            out.append(f"(?:{_PLACEHOLDERS[part]})")
+        elif part.startswith("<") and part.endswith(">") and "|" in part:
+            out.append("(?:" + "|".join(re.escape(w) for w in part[1:-1].split("|")) + ")")
+        else:
+            out.append(re.escape(part))
+    return re.compile("".join(out), re.DOTALL)
+
+
+def check_shows(r: "Row", msg: str) -> None:
+    assert isinstance(msg, str), f"row {r.id} returned {msg!r}, not the message a user sees"
+    assert shows_pattern(r.shows).fullmatch(msg), (
+        f"row {r.id}: the user sees\n    {msg}\nbut the row promises\n    {r.shows}")
 
 
 def raised(exc_type, fn, *args, match: str | None = None, **kwargs) -> str:
@@ -202,11 +232,15 @@ for _which, _value in [("q", float("nan")), ("qd", float("inf")), ("goal", float
     _label = _which if _which in ("q", "qd") else f"aux['{_which}']"
     _shown = {"nan": "NaN", "inf": "+inf", "-inf": "-inf"}[str(_value)]
     row(f"input-{_which}", f"{_shown} in {_label}", f"tree(q, qd, aux) with sample 1's {_label} set to {_shown}",
-        "NumericalError naming the input and the sample")(_bad_input(_which, _value))
+        "NumericalError naming the input and the sample",
+        shows=f"non-finite input {_label} in sample 1; check the state or aux state passed to the tree "
+              "(a NaN here must not become a command)")(_bad_input(_which, _value))
 
 
 @row("weight-nan", "a weight function producing NaN", "NaN in the first layer of node 'goal''s mlp weight",
-     "NumericalError naming the node and the weight")
+     "NumericalError naming the node and the weight",
+     shows="non-finite weight at node 'goal' (weight mlp) in samples 0, 1, 2, 3; inputs were finite "
+           "(max |q| = <num>, max |qd| = <num>)")
 def _weight_nan(tmp_path, monkeypatch):
     tree = make_tree()
     with torch.no_grad():
@@ -216,7 +250,9 @@ def _weight_nan(tmp_path, monkeypatch):
 
 
 @row("map-nan", "a task map producing NaN", "custom map that returns NaN where x₀ > 3.2, sample 1 at x₀ = 3.5",
-     "NumericalError naming the node and the map")
+     "NumericalError naming the node and the map",
+     shows="non-finite y at node 'bad' (map test_nan_map) in sample 1; inputs were finite "
+           "(max |q| = 3.5, max |qd| = <num>)")
 def _map_nan(tmp_path, monkeypatch):
     tree = make_tree(bad={"parent": "q", "map": {"type": "test_nan_map", "limit": 3.2}, "rmp": {"type": "goal_attractor"}})
     q, qd, aux = states()
@@ -229,7 +265,9 @@ def _map_nan(tmp_path, monkeypatch):
 
 
 @row("leaf-nan", "a leaf RMP producing NaN", "custom leaf whose f is NaN where y₀ > 3.2, sample 1 at y₀ = 3.5",
-     "NumericalError naming the node and the leaf")
+     "NumericalError naming the node and the leaf",
+     shows="non-finite f in the RMP of node 'bad' (leaf test_nan_beyond) in sample 1; inputs were finite "
+           "(max |q| = 3.5, max |qd| = <num>)")
 def _leaf_nan(tmp_path, monkeypatch):
     tree = make_tree(bad={"parent": "q", "map": {"type": "identity"}, "rmp": {"type": "test_nan_beyond", "limit": 3.2}})
     q, qd, aux = states()
@@ -240,7 +278,9 @@ def _leaf_nan(tmp_path, monkeypatch):
 
 @row("map-singular-point", "a state at a distance map's singular point",
      "q exactly at the obstacle's centre (|q − c| = 0, the gradient is undefined)",
-     "NumericalError naming the node and the map")
+     "NumericalError naming the node and the map",
+     shows="non-finite <ydot|J> at node 'obstacle' (map sphere_distance) in sample 1; inputs were finite "
+           "(max |q| = <num>, max |qd| = <num>)")
 def _centre(tmp_path, monkeypatch):
     tree = make_tree()
     q, qd, aux = states()
@@ -261,7 +301,10 @@ SINGULAR_STATES = (torch.tensor([[1.5, 0.3], [0.7, 1.2], [1.2, -0.4]], dtype=F64
 
 @row("inertia-singular", "singular root inertia M_r",
      "the only leaf sits on joint 0 of a 2-D root (M_r = diag(m, 0))",
-     "q̈ = M⁺f (Moore–Penrose), SingularInertiaWarning, counted in RESOLVE_EVENTS")
+     "q̈ = M⁺f (Moore–Penrose), SingularInertiaWarning, counted in RESOLVE_EVENTS",
+     shows="resolve: the root inertia M is singular in 3 of 3 samples (samples [0, 1, 2]); used the Moore–Penrose "
+           "pseudo-inverse there (q̈ = M⁺f has no component along M's null space). Add an identity_metric leaf "
+           "on the root to keep M invertible.")
 def _singular(tmp_path, monkeypatch):
     tree = rmpfusion.build_tree(SINGLE_JOINT)
     q, qd = SINGULAR_STATES
@@ -280,18 +323,22 @@ def _singular(tmp_path, monkeypatch):
 
 @row("inertia-numerically-singular", "numerically singular M_r (rank-deficient up to rounding)",
      "the only leaf is on a 1-D distance map of a 2-D root: LU finds a ~1e-17 pivot instead of 0",
-     "q̈ = M⁺f like the exactly singular case: a negligible LU pivot counts as singular, so resolve falls back")
+     "q̈ = M⁺f like the exactly singular case: a negligible LU pivot counts as singular, so resolve falls back",
+     shows="resolve: the root inertia M is singular in 3 of 3 samples (samples [0, 1, 2]); used the Moore–Penrose "
+           "pseudo-inverse there (q̈ = M⁺f has no component along M's null space). Add an identity_metric leaf "
+           "on the root to keep M invertible.")
 def _numerically_singular(tmp_path, monkeypatch):
     tree = rmpfusion.build_tree(DISTANCE_ONLY)
     q, qd = SINGULAR_STATES
-    out = tree(q, qd)
+    with pytest.warns(SingularInertiaWarning) as rec:
+        out = tree(q, qd)
     torch.testing.assert_close(out.qdd, resolve(out.f, out.M, "pinv"), rtol=1e-6, atol=1e-6)
-    return "q̈ = M⁺f"
+    return str(rec[0].message)
 
 
 @row("certificate-singular", "numerically singular M_r, checked with the certificate",
      "certify(tree, q, qd) on the distance-only tree above",
-     "the certificate fails M_r ≻ 0 and lists the states")
+     "the certificate fails M_r ≻ 0 and lists the states", shows="[FAIL] M_r positive definite    (min eig = <num>)")
 def _certificate_singular(tmp_path, monkeypatch):
     tree = rmpfusion.build_tree(DISTANCE_ONLY)
     cert = certify(tree, *SINGULAR_STATES)
@@ -300,7 +347,8 @@ def _certificate_singular(tmp_path, monkeypatch):
 
 
 @row("inertia-indefinite", "indefinite root inertia M_r", "a custom leaf with M = diag(1, −2) on the root",
-     "resolve stays defined; certify reports M_r not positive definite (min eig < 0)")
+     "resolve stays defined; certify reports M_r not positive definite (min eig < 0)",
+     shows="[FAIL] M_r positive definite    (min eig = -2.000e+00)")
 def _indefinite(tmp_path, monkeypatch):
     spec = {"root": {"name": "q", "dim": 2}, "nodes": {
         "bad": {"parent": "q", "map": {"type": "identity"}, "rmp": {"type": "test_indefinite"}}}}
@@ -315,7 +363,8 @@ def _indefinite(tmp_path, monkeypatch):
 
 # ------------------------------------------------------------------------------------------------ rows: barriers
 @row("inside-obstacle", "a state inside an obstacle", "q at depths 0.01R … 0.999R inside the sphere, moving inwards",
-     "finite q̈ that points outward")
+     "finite q̈ that points outward",
+     shows="finite q̈ with outward component q̈·n = <num>, <num>, <num>, <num> (moving inwards at 1 m/s)")
 def _inside(tmp_path, monkeypatch):
     spec = {"root": {"name": "q", "dim": 2}, "nodes": {k: v for k, v in tree_spec()["nodes"].items()
                                                       if k in ("obstacle", "regulariser")}, "aux": AUX_DIMS}
@@ -336,7 +385,8 @@ def _inside(tmp_path, monkeypatch):
 
 
 @row("beyond-joint-limit", "a state beyond a joint limit", "q₀ = 4.5 and −4.7 with limits ±4, moving further out",
-     "finite q̈ that points back inside")
+     "finite q̈ that points back inside",
+     shows="finite q̈₀ = <num> (above the upper limit), <num> (below the lower limit)")
 def _beyond(tmp_path, monkeypatch):
     tree = make_tree()
     q = torch.tensor([[4.5, 0.0], [-4.7, 0.3]], dtype=F64)
@@ -349,7 +399,7 @@ def _beyond(tmp_path, monkeypatch):
 
 
 @row("extreme-velocity", "extreme velocities", "|q̇| scaled to 1e3 and 1e6",
-     "finite q̈ (float64)")
+     "finite q̈ (float64)", shows="finite: max |q̈| = <num> at |q̇| = 1e3, <num> at |q̇| = 1e6")
 def _extreme(tmp_path, monkeypatch):
     tree = make_tree()
     q, qd, aux = states()
@@ -362,7 +412,9 @@ def _extreme(tmp_path, monkeypatch):
 
 
 @row("overflow-velocity", "velocities that overflow float64", "|q̇| = 1e200",
-     "NumericalError naming the node where it overflowed and the input sizes, never a silent NaN")
+     "NumericalError naming the node where it overflowed and the input sizes, never a silent NaN",
+     shows="non-finite Jdot_xdot at node 'obstacle' (map sphere_distance) in samples 0, 1, 2, 3; inputs were finite "
+           "(max |q| = <num>, max |qd| = <num>e+200)")
 def _overflow(tmp_path, monkeypatch):
     tree = make_tree()
     q, qd, aux = states()
@@ -370,7 +422,7 @@ def _overflow(tmp_path, monkeypatch):
 
 
 @row("float32", "float32 instead of float64", "the same tree and weights in float32 vs float64, 64 ordinary states",
-     "q̈ agrees to 1e-4 relative (to max|q̈| + 1)")
+     "q̈ agrees to 1e-4 relative (to max|q̈| + 1)", shows="max relative difference <num> (tolerance 1e-4)")
 def _float32(tmp_path, monkeypatch):
     t64 = make_tree()
     t32 = make_tree(dtype=torch.float32)
@@ -385,7 +437,9 @@ def _float32(tmp_path, monkeypatch):
 
 
 @row("mixed-dtype", "a float32 state passed to a float64 tree", "tree(q.float(), qd.float(), aux) on a float64 tree",
-     "a clear error naming the dtypes")
+     "a clear error naming the dtypes",
+     shows="q and qd are torch.float32 and torch.float32 but the tree computes in torch.float64; convert the state "
+           "(q.to(torch.float64)) or the tree (tree.to(torch.float32))")
 def _mixed(tmp_path, monkeypatch):
     tree = make_tree()
     q, qd, aux = states()
@@ -439,18 +493,27 @@ def _dataset_row(case: str):
     return run
 
 
-for _case, _fault, _trigger in [
-        ("missing", "dataset file missing", "load_dataset on a path that does not exist"),
-        ("truncated", "dataset file truncated", "the file cut after 700 bytes"),
-        ("flipped", "dataset tampered (one bit of the data)", "one bit flipped inside the stored labels"),
-        ("flipped-header", "dataset damaged (one bit of the structure)", "one bit flipped in the pickled header"),
-        ("foreign", "dataset made with a different config", "a file whose stored config hash differs from the run's")]:
-    row(f"dataset-{_case}", _fault, _trigger, "DatasetError naming the file and what to do")(_dataset_row(_case))
+_DS, _AGAIN = "dataset file <dir>/train-0123abcd.pt", "delete <dir>/train-0123abcd.pt to have it collected again"
+for _case, _fault, _trigger, _shows in [
+        ("missing", "dataset file missing", "load_dataset on a path that does not exist",
+         "dataset file <dir>/nope.pt does not exist; run the experiment (it collects the data) or point data.cache_dir "
+         "at the directory that holds it"),
+        ("truncated", "dataset file truncated", "the file cut after 700 bytes",
+         f"{_DS} is unreadable or truncated (RuntimeError: PytorchStreamReader <text>); {_AGAIN}"),
+        ("flipped", "dataset tampered (one bit of the data)", "one bit flipped inside the stored labels",
+         f"{_DS} fails its checksum (stored <hex>…, content <hex>…): it was modified or damaged; {_AGAIN}"),
+        ("flipped-header", "dataset damaged (one bit of the structure)", "one bit flipped in the pickled header",
+         f"{_DS} is unreadable or truncated (UnpicklingError: Unsupported global: <text>); {_AGAIN}"),
+        ("foreign", "dataset made with a different config", "a file whose stored config hash differs from the run's",
+         f"{_DS} was made with a different configuration (config_hash: file '0123abcd' vs expected '99999999'); {_AGAIN}")]:
+    row(f"dataset-{_case}", _fault, _trigger, "DatasetError naming the file and what to do",
+        shows=_shows)(_dataset_row(_case))
 
 
 @row("collect-expert-fails", "the expert fails on one trajectory while collecting data",
      "collect() on particle2d, 2 trajectories, the expert returns NaN for trajectory 1",
-     "trajectory 1 is left out of the dataset with a RuntimeWarning saying why; no NaN reaches the data")
+     "trajectory 1 is left out of the dataset with a RuntimeWarning saying why; no NaN reaches the data",
+     shows="expert failed on 1 of 2 trajectories, left out of the dataset (trajectory 1: non-finite record)")
 def _collect(tmp_path, monkeypatch):
     from rmpfusion.envs.particle2d import Particle2D
     from rmpfusion.learn.demonstrations import collect
@@ -470,7 +533,9 @@ def _collect(tmp_path, monkeypatch):
 
 
 @row("dataset-non-finite", "a dataset with a NaN label about to be saved", "save_dataset on data whose qdd has a NaN in row 13",
-     "DatasetError before anything is written: NaN never becomes training data")
+     "DatasetError before anything is written: NaN never becomes training data",
+     shows="refusing to write dataset <dir>/d.pt: qdd is non-finite in 1 rows (first rows [13], trajectories [1]); "
+           "the expert failed there: drop those records (or fix the expert) before saving")
 def _save_nan(tmp_path, monkeypatch):
     ds = tiny_dataset()
     ds.qdd[13, 1] = float("nan")
@@ -524,13 +589,26 @@ def _checkpoint_row(case: str):
     return run
 
 
-for _case, _fault, _trigger in [
-        ("missing", "checkpoint file missing", "load_checkpoint on a path that does not exist"),
-        ("truncated", "checkpoint truncated", "the latest checkpoint cut after 900 bytes, then training resumed"),
-        ("flipped", "checkpoint tampered (one bit of a weight)", "one bit flipped in a stored weight, then training resumed"),
-        ("other-model", "checkpoint of a different model", "resume with a learner of another width"),
-        ("other-settings", "checkpoint made with different training settings", "resume with another learning rate")]:
-    row(f"checkpoint-{_case}", _fault, _trigger, "an error naming the file and what to do")(_checkpoint_row(_case))
+_CK = "<dir>/checkpoints/learner-rmp/ckpt-00000004.pt"
+_RESUME = (f"delete {_CK} (training then resumes from the previous checkpoint in <dir>/checkpoints/learner-rmp if there "
+           "is one, else starts over)")
+for _case, _fault, _trigger, _shows in [
+        ("missing", "checkpoint file missing", "load_checkpoint on a path that does not exist",
+         "checkpoint file <dir>/checkpoints/learner-rmp/ckpt-00000099.pt does not exist; run rmpfusion-train first "
+         "(it writes checkpoints/<learner>/ in the run directory)"),
+        ("truncated", "checkpoint truncated", "the latest checkpoint cut after 900 bytes, then training resumed",
+         f"checkpoint file {_CK} is unreadable or truncated (RuntimeError: PytorchStreamReader <text>); {_RESUME}"),
+        ("flipped", "checkpoint tampered (one bit of a weight)", "one bit flipped in a stored weight, then training resumed",
+         f"checkpoint file {_CK} fails its checksum (stored <hex>…, content <hex>…): it was modified or damaged; {_RESUME}"),
+        ("other-model", "checkpoint of a different model", "resume with a learner of another width",
+         f"checkpoint file {_CK} holds the weights of a different model (net.0.bias: file (4,) vs model (8,), "
+         "net.0.weight: file (4, 4) vs model (8, 4), net.2.weight: file (2, 4) vs model (2, 8)); it was made by another "
+         f"configuration of this learner: use the run directory that made it, or {_RESUME}"),
+        ("other-settings", "checkpoint made with different training settings", "resume with another learning rate",
+         f"checkpoint {_CK} was made with different training settings (lr: 0.001 vs 0.01); "
+         "delete <dir>/checkpoints/learner-rmp to start over")]:
+    row(f"checkpoint-{_case}", _fault, _trigger, "an error naming the file and what to do",
+        shows=_shows)(_checkpoint_row(_case))
 
 
 # ------------------------------------------------------------------------------------------------ rows: environment
@@ -578,7 +656,8 @@ def _recording_scenes(monkeypatch) -> list:
 
 @row("pybullet-disconnect", "pybullet connection lost mid-rollout",
      "torque mode, B = 2: the policy disconnects sample 1's pybullet client at its 3rd call",
-     "sample 1 ends with a recorded reason, sample 0 completes", needs=("pybullet",))
+     "sample 1 ends with a recorded reason, sample 0 completes", needs=("pybullet",),
+     shows="error[1] = 'pybullet error at t=0.0333s: Not connected to physics server.'; sample 0 completes (error[0] = None)")
 def _disconnect(tmp_path, monkeypatch):
     import pybullet
     env, q0, qd0, aux = franka_setup()
@@ -598,7 +677,8 @@ def _disconnect(tmp_path, monkeypatch):
 
 
 @row("pybullet-step-fails", "a simulator step raising", "torque mode, B = 2: stepSimulation raises for sample 1 at t = 0.05 s",
-     "sample 1 ends with a recorded reason, sample 0 completes", needs=("pybullet",))
+     "sample 1 ends with a recorded reason, sample 0 completes", needs=("pybullet",),
+     shows="error[1] = 'pybullet error at t=0.0500s: simulated step failure'; sample 0 completes (error[0] = None)")
 def _step_fails(tmp_path, monkeypatch):
     import pybullet
     env, q0, qd0, aux = franka_setup()
@@ -633,17 +713,22 @@ def _tree_fault_row(mode: str):
     return run
 
 
+_TRAP_SHOWS = ("error[1] = \"non-finite {what} at t=<num>s: policy raised NumericalError: non-finite f in the RMP of node "
+               "'trap' (leaf test_nan_beyond) in sample 1; inputs were finite (max |q| = <num>, max |qd| = <num>)\"; "
+               "sample 0 completes (error[0] = None)")
 row("rollout-tree-fault-kinematic", "the tree raises NumericalError for one sample of a kinematic rollout",
     "kinematic mode, B = 2: sample 1 moves joint 0 into a leaf that returns NaN",
-    "sample 1 ends with the tree's diagnosis as reason, sample 0 completes", needs=("pybullet",))(_tree_fault_row("kinematic"))
+    "sample 1 ends with the tree's diagnosis as reason, sample 0 completes", needs=("pybullet",),
+    shows=_TRAP_SHOWS.format(what="state"))(_tree_fault_row("kinematic"))
 row("rollout-tree-fault-torque", "the tree raises NumericalError for one sample of a torque rollout",
     "torque mode, same tree and states", "sample 1 ends with the tree's diagnosis as reason, sample 0 completes",
-    needs=("pybullet",))(_tree_fault_row("torque"))
+    needs=("pybullet",), shows=_TRAP_SHOWS.format(what="acceleration"))(_tree_fault_row("torque"))
 
 
 @row("rollout-nonfinite-state", "a kinematic rollout producing a non-finite state",
      "kinematic mode, B = 2: a plain policy returns NaN for sample 1",
-     "sample 1 ends with a recorded reason, sample 0 completes", needs=("pybullet",))
+     "sample 1 ends with a recorded reason, sample 0 completes", needs=("pybullet",),
+     shows="error[1] = 'non-finite state at t=0.0167s'; sample 0 completes (error[0] = None)")
 def _nonfinite_state(tmp_path, monkeypatch):
     env, q0, qd0, aux = franka_setup()
 
@@ -661,7 +746,7 @@ def _nonfinite_state(tmp_path, monkeypatch):
 @row("metrics-with-failure", "evaluation metrics over a batch with a failed sample",
      "online_loss + rollout_rates of the trap tree (sample 1 fails) against a sound expert, kinematic mode",
      "finite online loss over the records before the failure, failed = 0.5, no success for the failed sample",
-     needs=("pybullet",))
+     needs=("pybullet",), shows="online_loss = <num>, success = 0.0, failed = 0.5, lyapunov_monotone_fraction = 1.0")
 def _metrics(tmp_path, monkeypatch):
     from rmpfusion.evaluate.metrics import online_loss, rollout_rates
     env, q0, qd0, aux = franka_setup()
@@ -672,15 +757,22 @@ def _metrics(tmp_path, monkeypatch):
     rates = rollout_rates(res.rollout)
     env.close()
     assert math.isfinite(res.loss) and res.loss > 0
+    # the loss is the mean over sample 0's records and sample 1's records before its failure, and only those
+    scored = res.rollout.qdd.isfinite().all(-1)
+    assert scored[:, 0].all() and 0 < int(scored[:, 1].sum()) < scored.shape[0]
+    assert res.loss == pytest.approx(float(((res.rollout.qdd - res.expert_qdd) ** 2)[scored].mean()), rel=1e-12)
     assert rates["failed"] == 0.5 and not bool(res.rollout.success[1])
     assert res.expert_qdd[:, 0].isfinite().all() and res.expert_qdd[-1, 1].isnan().all()
     assert rates["lyapunov_monotone_fraction"] == 1.0  # V before the failure did not rise
-    return f"online_loss = {res.loss:.3g}, rollout_rates = {rates}"
+    # the keys this row is about, by name: rollout_rates and online_loss may report more
+    return (f"online_loss = {res.loss:.3g}, success = {rates['success']}, failed = {rates['failed']}, "
+            f"lyapunov_monotone_fraction = {rates['lyapunov_monotone_fraction']}")
 
 
 @row("metrics-diverged-learner", "evaluation metrics of a learner that diverges",
      "particle2d, B = 2: a plain learner returns NaN for sample 1; the expert is a tree",
-     "online loss inf (a diverged learner; the pipeline writes null), the expert is never asked at a NaN state")
+     "online loss inf (a diverged learner; the pipeline writes null), the expert is never asked at a NaN state",
+     shows="online_loss = inf, success = 0.0, collision = 0.0")
 def _diverged(tmp_path, monkeypatch):
     from rmpfusion.envs.particle2d import Particle2D
     from rmpfusion.evaluate.metrics import online_loss, rollout_rates
@@ -699,7 +791,7 @@ def _diverged(tmp_path, monkeypatch):
     res = online_loss(learner, expert, env, q0, qd0, aux, horizon=0.2, interval=0.1)
     rates = rollout_rates(res.rollout, with_lyapunov=False)
     assert res.loss == float("inf") and res.expert_qdd[:, 0].isfinite().all() and res.expert_qdd[1:, 1].isnan().all()
-    return f"online_loss = {res.loss}, rollout_rates = {rates}"
+    return f"online_loss = {res.loss}, success = {rates['success']}, collision = {rates['collision']}"
 
 
 # ------------------------------------------------------------------------------------------------ the tests
@@ -719,9 +811,9 @@ def _param(r: Row):
 def test_fault_table(r: Row, tmp_path, monkeypatch):
     for mod in r.needs:
         pytest.importorskip(mod)
-    msg = r.run(tmp_path, monkeypatch)
-    assert isinstance(msg, str) and msg.strip()
-    MESSAGES[r.id] = _normalise(msg, tmp_path)
+    msg = _normalise(r.run(tmp_path, monkeypatch), tmp_path)
+    check_shows(r, msg)
+    MESSAGES[r.id] = msg
 
 
 def markdown_table(messages: dict[str, str]) -> str:
@@ -744,7 +836,7 @@ def test_readme_documents_every_row():
 def test_table_rows_are_unique_and_described():
     ids = [r.id for r in ROWS]
     assert len(ids) == len(set(ids))
-    assert all(r.fault and r.trigger and r.expect for r in ROWS)
+    assert all(r.fault and r.trigger and r.expect and r.shows for r in ROWS)
 
 
 # ------------------------------------------------------------------------------------------------ properties

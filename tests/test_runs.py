@@ -148,6 +148,7 @@ def reference(outdir, background) -> dict:
 
 
 # ------------------------------------------------------------------------------------- kill and resume
+@pytest.mark.slow
 def test_sigkill_mid_training_then_rerun_ends_at_the_uninterrupted_weights(background, tmp_path, request):
     run_dir = tmp_path / "run"
     ck = run_dir / "checkpoints" / "rmp"
@@ -169,6 +170,7 @@ def test_sigkill_mid_training_then_rerun_ends_at_the_uninterrupted_weights(backg
     assert cfg.train.iterations == ITERS and cfg.learners["rmp"].type == "rmp"
 
 
+@pytest.mark.slow
 def test_sigterm_writes_a_checkpoint_at_once_and_the_rerun_resumes_from_it(outdir, reference, tmp_path):
     """SLURM preemption / ``kill``: the step in progress finishes, a checkpoint is written, the process exits
     143. Periodic checkpoints are off here (checkpoint_every > iterations), so the only checkpoint on disk is
@@ -277,6 +279,7 @@ train()
 '''
 
 
+@pytest.mark.slow
 def test_sigkill_during_a_checkpoint_write_leaves_no_half_written_checkpoint(outdir, reference, tmp_path):
     """The second checkpoint's bytes stall half-way (a hook in the child's file writes); SIGKILL then. The
     first checkpoint stays complete, no ckpt file is half-written, and the rerun ignores and removes the
@@ -310,6 +313,7 @@ def test_sigkill_during_a_checkpoint_write_leaves_no_half_written_checkpoint(out
 
 
 # ------------------------------------------------------------------------------------- one run per dir
+@pytest.mark.slow
 def test_rerun_with_another_config_is_refused_and_changes_nothing(outdir, reference):
     run_dir = outdir / "uninterrupted"
     watched = [run_dir / ".hydra" / n for n in ("config.yaml", "overrides.yaml", "hydra.yaml")]
@@ -351,6 +355,7 @@ def sweep(outdir, background) -> Path:
     return outdir / "sweep"
 
 
+@pytest.mark.slow
 def test_submitit_local_multirun_two_complete_runs_and_two_offline_wandb_runs(sweep):
     jobs = sorted(p for p in sweep.iterdir() if p.is_dir() and not p.name.startswith("."))
     assert [j.name for j in jobs] == ["0_2d1level", "1_2d1level"]
@@ -380,6 +385,7 @@ def test_submitit_local_multirun_two_complete_runs_and_two_offline_wandb_runs(sw
     assert len(ids) == 2
 
 
+@pytest.mark.slow
 def test_package_versions_are_recorded(sweep):
     import hydra
     import numpy
@@ -403,6 +409,7 @@ def test_package_versions_are_recorded(sweep):
         assert rec["git"]["repo"] == str(source)
 
 
+@pytest.mark.slow
 def test_same_seed_same_dataset_and_losses_in_another_process_and_directory(sweep, tmp_path):
     """Job 0's exact overrides, rerun here in-process in a fresh directory: byte-identical datasets (checksums),
     identical losses and weights. Seed 1 differs, so the equality is not vacuous."""
@@ -438,6 +445,7 @@ def _summarize(*args: str) -> subprocess.CompletedProcess:
                           text=True, timeout=120, env=_env())
 
 
+@pytest.mark.slow
 def test_summarize_sweep_table_and_figure(sweep, tmp_path):
     r = _summarize(str(sweep), "--out", str(tmp_path / "report"))
     assert r.returncode == 0, r.stderr
@@ -455,6 +463,7 @@ def test_summarize_sweep_table_and_figure(sweep, tmp_path):
     assert f"{statistics.fmean(losses):.4g} ± {statistics.stdev(losses):.4g}" in line
 
 
+@pytest.mark.slow
 def test_summarize_sweep_groups_by_setting_and_reports_unfinished_jobs(sweep, tmp_path):
     """Jobs of two settings x two seeds (the real job's metrics with other numbers), one job unfinished."""
     base = json.loads((sweep / "0_2d1level" / "metrics.json").read_text())

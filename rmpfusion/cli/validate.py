@@ -8,6 +8,8 @@ from __future__ import annotations
 import hydra
 from omegaconf import DictConfig
 
+from ..evaluate.weights import learned_edges
+from ..learn.learners import RMPLearner
 from ._common import CONF_DIR, config_errors_exit
 
 
@@ -23,12 +25,12 @@ def summary(run, env, expert, learners) -> str:
         lines.append("expert weights: " + ", ".join(f"{n}={(w.get('type') if isinstance(w, dict) else w)}"
                                                       for n, w in run.expert.items()))
     for name, model in learners.items():
-        extra = f", learns edges {model.edges}" if hasattr(model, "edges") else ""
+        extra = f", learns the weights of edges {learned_edges(model.tree)}" if isinstance(model, RMPLearner) else ""
         lines.append(f"learner {name}: {run.learners[name].type}, {model.num_parameters()} parameters{extra}")
     d, t = run.data, run.train
     lines += [
         f"data: {d.train_envs} envs x {d.train_trajectories} trajectories x {d.points} points (test "
-        f"{d.test_envs} x {d.test_trajectories}), every {d.interval}s",
+        f"{d.test_envs} x {d.test_trajectories}, validation {d.val_envs} x {d.val_trajectories}), every {d.interval}s",
         f"train: {t.optimizer} lr={t.lr} batch={t.batch_size} iterations={t.iterations} snapshots={t.snapshots}",
         f"logger: wandb {run.logger.mode}",
         "OK: the configuration is valid and builds; nothing was run.",

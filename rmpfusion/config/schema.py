@@ -22,6 +22,9 @@ class DataConfig(_Frozen):
     train_trajectories: int = Field(50, gt=0, description="per environment, from unique initial states")
     test_envs: int = Field(5, gt=0)
     test_trajectories: int = Field(10, gt=0)
+    val_envs: int = Field(0, ge=0, description="validation environments, drawn like the training ones (never "
+                                               "trained on): settings are chosen on this split, never on the test set")
+    val_trajectories: int = Field(10, gt=0)
     points: int = Field(60, gt=1, description="recorded points per trajectory")
     interval: float = Field(1.0, gt=0, description="seconds between recorded points")
     cache_dir: str | None = Field(None, description="shared, checksummed dataset cache; default: the run directory")

@@ -39,6 +39,7 @@ class Rollout:
     reached: Tensor  # (B,) bool: within goal_tolerance at any integration step
     success: Tensor  # (B,) bool: within goal_tolerance at the final time and never collided
     min_clearance: Tensor  # (B,) closest approach to any obstacle surface (negative = penetration)
+    first_collision_time: Tensor | None = None  # (B,) first integration time inside an obstacle (s), inf if never
     V: Tensor | None = None  # (T, B)
     dissipation: Tensor | None = None  # (T, B)
 
@@ -263,6 +264,7 @@ class Particle2D(SeededSampling):
         qs, qds, qdds, Vs, Ds, ts = [], [], [], [], [], []
         clear = self.clearance(q, aux)
         min_clear = clear
+        first_hit = torch.where(clear < 0, 0.0, float("inf")).to(q0.dtype)
         reached = self.success(q, aux)
 
         def accel(x, xd):
@@ -289,6 +291,7 @@ class Particle2D(SeededSampling):
             q, qd = step(accel, q, qd, dt, a)
             clear = self.clearance(q, aux)
             min_clear = torch.minimum(min_clear, clear)
+            first_hit = torch.where((clear < 0) & first_hit.isinf(), (k + 1) * dt, first_hit)
             reached = reached | self.success(q, aux)
         collided = min_clear < 0
         return Rollout(
@@ -300,6 +303,7 @@ class Particle2D(SeededSampling):
             reached=reached,
             success=self.success(q, aux) & ~collided,
             min_clearance=min_clear,
+            first_collision_time=first_hit,
             V=torch.stack(Vs) if Vs else None,
             dissipation=torch.stack(Ds) if Ds else None,
         )

@@ -22,10 +22,11 @@ import torch
 from ..config.schema import RunConfig
 from ..core.tree import build_tree
 from ..files import atomic_torch_save, atomic_write_json
-from ..evaluate.metrics import StageResult, evaluate_learner, online_loss, rollout_rates, task_stage
+from ..evaluate.metrics import StageResult, batch_loss, evaluate_learner, online_loss, rollout_rates, task_stage
+from ..evaluate.weights import edge_weights, learned_edges, summarize_weights
 from ..registry import ENVS
 from .demonstrations import Dataset, collect, load_dataset, save_dataset
-from .learners import build_learner, build_order, compile_learner
+from .learners import RMPLearner, build_learner, build_order, compile_learner
 from .train import latest_checkpoint, load_snapshot, train
 
 
@@ -142,8 +143,16 @@ def _trajectory_seconds(ds: Dataset) -> dict[str, float]:
     return {"min": float(last.min()), "mean": float(last.mean()), "max": float(last.max())}
 
 
+#: Each split's generator seed is the run's seed plus its offset: three disjoint draws of environments and starts.
+SPLIT_SEED_OFFSET = {"train": 0, "test": 1_000_003, "val": 2_000_003}
+
+
 def load_or_collect(cfg: RunConfig, env, expert, run_dir: Path, split: str, say: Progress) -> tuple[Dataset, dict]:
-    """The split's dataset from the cache when present and valid, else collected and saved (then reused)."""
+    """The split's dataset from the cache when present and valid, else collected and saved (then reused).
+
+    ``val`` is drawn like ``train`` (the training environments' distribution, for Franka the training obstacle
+    placement) from its own seed: the split settings are chosen on, never trained on.
+    """
     d = cfg.data
     h = data_hash(cfg)
     cache = Path(d.cache_dir) if d.cache_dir else run_dir / "data"
@@ -158,8 +167,9 @@ def load_or_collect(cfg: RunConfig, env, expert, run_dir: Path, split: str, say:
                         expert_success=float(ds.success.double().mean()),
                         expert_collision=float(ds.collided.double().mean()))
         return ds, info
-    n_envs, n_traj = (d.train_envs, d.train_trajectories) if split == "train" else (d.test_envs, d.test_trajectories)
-    gen = torch.Generator().manual_seed(cfg.seed if split == "train" else cfg.seed + 1_000_003)
+    n_envs, n_traj = {"train": (d.train_envs, d.train_trajectories), "val": (d.val_envs, d.val_trajectories),
+                      "test": (d.test_envs, d.test_trajectories)}[split]
+    gen = torch.Generator().manual_seed(cfg.seed + SPLIT_SEED_OFFSET[split])
     hook = getattr(env, "collect_demonstrations", None)  # an env with its own protocol (Franka: 5-10 s, split obstacles)
     say.say(f"data: collecting {split} set, {n_envs} envs x {n_traj} trajectories x {'up to ' if hook else ''}"
             f"{d.points} points")
@@ -176,6 +186,37 @@ def load_or_collect(cfg: RunConfig, env, expert, run_dir: Path, split: str, say:
         info["trajectories"] = int(ds.traj_id.unique().numel())
         info["trajectory_seconds"] = _trajectory_seconds(ds)
     return ds, info
+
+
+class WeightReport:
+    """The weights of learner-rmp's learned edges over the test states at every snapshot, beside the expert's on
+    the same states (an edge the expert leaves unweighted has w = 1 there): summaries for metrics.json, values
+    along one test trajectory for the figure."""
+
+    def __init__(self, expert, model: RMPLearner, test_ds: Dataset):
+        self.edges = learned_edges(model.tree)
+        self.states = (test_ds.q, test_ds.qd, test_ds.aux)
+        self.along = test_ds.traj_id == test_ds.traj_id[0]  # the first test trajectory
+        self.times = test_ds.t[self.along]
+        weighted = [e for e in self.edges if e in expert.weights]
+        values = edge_weights(expert, *self.states, weighted)
+        ones = torch.ones(len(test_ds), dtype=test_ds.q.dtype)
+        self.expert = {e: values.get(e, ones) for e in self.edges}
+        self.traces: dict[str, dict[str, torch.Tensor]] = {}
+
+    def expert_summary(self) -> dict:
+        return summarize_weights(self.expert)
+
+    def snapshot(self, label: str, model: RMPLearner) -> dict:
+        values = edge_weights(model.tree, *self.states, self.edges)
+        self.traces[label] = {e: w[self.along] for e, w in values.items()}
+        return summarize_weights(values)
+
+    def figure(self, path: Path, title: str) -> Path:
+        from ..plots import plot_weights
+
+        return plot_weights(path, self.times, {e: w[self.along] for e, w in self.expert.items()}, self.traces,
+                            title=title)
 
 
 def _learner_seed(seed: int, name: str) -> int:
@@ -209,8 +250,10 @@ def _run(cfg: RunConfig, run_dir: Path, say: Progress, log) -> dict:
     env_figures = getattr(env, "figures", None)
 
     t0 = time.time()
+    d = cfg.data
     train_ds, train_info = load_or_collect(cfg, env, expert, run_dir, "train", say)
     test_ds, test_info = load_or_collect(cfg, env, expert, run_dir, "test", say)
+    val_ds, val_info = load_or_collect(cfg, env, expert, run_dir, "val", say) if d.val_envs else (None, None)
     timing["data_s"] = time.time() - t0
 
     d, ev = cfg.data, cfg.eval
@@ -256,7 +299,7 @@ def _run(cfg: RunConfig, run_dir: Path, say: Progress, log) -> dict:
         if (ck := latest_checkpoint(ckdir)) is not None:
             say.say(f"learner {name}: resuming from {ck}")
         tr = train(model, train_ds, cfg.train, seed=_learner_seed(cfg.seed, name) + 1, test_data=test_ds,
-                   checkpoint_dir=ckdir, run_config=config,
+                   val_data=val_ds, checkpoint_dir=ckdir, run_config=config,
                    progress=say.bar(f"train {name}"),
                    log=(lambda m, _n=name: log({f"{_n}/{k}" if k != "iteration" else k: v for k, v in m.items()}))
                    if log is not None else None)
@@ -270,6 +313,9 @@ def _run(cfg: RunConfig, run_dir: Path, say: Progress, log) -> dict:
         t0 = time.time()
         snaps: dict[str, dict] = {}
         stages = []
+        weights = WeightReport(expert, model, test_ds) if isinstance(model, RMPLearner) else None
+        if weights is not None:
+            expert_metrics.setdefault("weights", {}).update(weights.expert_summary())
         final_metrics, final_online = None, None
 
         def with_task(met: dict, ro, it: int) -> dict:
@@ -288,6 +334,10 @@ def _run(cfg: RunConfig, run_dir: Path, say: Progress, log) -> dict:
                                         ev.lyapunov_atol, fine, say.bar(f"eval {name}@{it}"))
             ro = onl.rollout
             met = with_task(met, ro, it)
+            if val_ds is not None:
+                met["val_loss"] = batch_loss(m_it, val_ds)
+            if weights is not None:
+                met["weights"] = weights.snapshot(f"{name} @ {it}", m_it)
             snaps[str(it)] = _clean(met)
             stages.append({"label": f"{name} @ {it}", "q": ro.q[:, plot_idx], "times": ro.times,
                            "V": ro.V[:, plot_idx] if ro.V is not None else None})
@@ -301,6 +351,8 @@ def _run(cfg: RunConfig, run_dir: Path, say: Progress, log) -> dict:
                                                            ev.lyapunov_rtol, ev.lyapunov_atol, fine,
                                                            say.bar(f"eval {name}"))
             final_metrics = with_task(final_metrics, final_online.rollout, cfg.train.iterations)
+            if val_ds is not None:
+                final_metrics["val_loss"] = batch_loss(model, val_ds)
         eval_s = time.time() - t0
         model.to(dtype)
         res = _clean(final_metrics)
@@ -311,7 +363,7 @@ def _run(cfg: RunConfig, run_dir: Path, say: Progress, log) -> dict:
         if hasattr(model, "hidden"):
             res["hidden"] = list(model.hidden)
         results[name] = res
-        curves[name] = {"train": tr.curve, "test": tr.test_curve}
+        curves[name] = {"train": tr.curve, "val": tr.val_curve, "test": tr.test_curve}
         say.say(f"learner {name}: " + ", ".join(f"{k}={v:.4g}" for k, v in res.items()
                                                  if isinstance(v, float) and k not in ("train_seconds", "eval_seconds")))
         if ev.figures:
@@ -327,6 +379,10 @@ def _run(cfg: RunConfig, run_dir: Path, say: Progress, log) -> dict:
                                                      title=f"{name}: $V_r(t)$, test environment 0")))
             figures.append(str(plot_learning_curves(fig_dir / f"learning_curve_{name}.png", {name: curves[name]},
                                                     {name: sorted(tr.snapshots)})))
+            if weights is not None and weights.traces:
+                figures.append(str(weights.figure(fig_dir / f"weights_{name}.png",
+                                                  f"{cfg.name}: {name}'s weights vs the expert's (dashed) "
+                                                  "along test trajectory 0")))
             if state_space:
                 if stages:
                     figures.append(str(plot_progression(fig_dir / f"progression_{name}.png", aux_plot,
@@ -341,7 +397,7 @@ def _run(cfg: RunConfig, run_dir: Path, say: Progress, log) -> dict:
         timing["figures_s"] = time.time() - t0
     timing["total_s"] = time.time() - t_start
     metrics = {"name": cfg.name, "seed": cfg.seed, "config_hash": data_hash(cfg),
-               "data": {"train": train_info, "test": test_info}, "expert": _clean(expert_metrics),
+               "data": {"train": train_info, "test": test_info, **({"val": val_info} if val_info else {})}, "expert": _clean(expert_metrics),
                "learners": results, "figures": figures, "timing": timing}
     if expert_stage is not None:
         metrics["task_table"] = _clean(_task_table(expert_stage, task_stages, getattr(env, "ratio_metrics", ())))

@@ -38,6 +38,7 @@ class TrainResult:
     snapshots: dict[int, dict[str, torch.Tensor]]  # iteration -> state_dict copy (0 = before training)
     curve: list[tuple[int, float]]  # (iteration, minibatch train loss)
     test_curve: list[tuple[int, float]] = field(default_factory=list)  # (iteration, test batch-loss)
+    val_curve: list[tuple[int, float]] = field(default_factory=list)  # (iteration, validation batch-loss)
     resumed_from: int | None = None
 
 
@@ -224,18 +225,20 @@ class _StopOnSignal:
 
 
 def train(model: nn.Module, data: Dataset, cfg: TrainConfig, seed: int, test_data: Dataset | None = None,
-          checkpoint_dir: str | os.PathLike | None = None, run_config: Mapping[str, Any] | None = None,
+          val_data: Dataset | None = None, checkpoint_dir: str | os.PathLike | None = None, run_config: Mapping[str, Any] | None = None,
           progress: Callable[[int, int], Any] | None = None,
           log: Callable[[dict[str, float]], Any] | None = None, keep_checkpoints: int = 2) -> TrainResult:
     """Train ``model`` in place for ``cfg.iterations`` minibatch steps, resuming from ``checkpoint_dir`` if it holds one.
 
-    ``log`` receives ``{"iteration", "train_loss"[, "test_loss"]}`` every ``cfg.log_every`` steps;
+    ``log`` receives ``{"iteration", "train_loss"[, "val_loss", "test_loss"]}`` every ``cfg.log_every`` steps
+    (the validation loss is the one to choose settings by; the test loss is only reported);
     ``progress(done, total)`` is called after every step.
     """
     dtype = _DTYPES[cfg.dtype]
     model.to(dtype)
     data = data.to(dtype)
     test_data = test_data.to(dtype) if test_data is not None else None
+    val_data = val_data.to(dtype) if val_data is not None else None
     opt = make_optimizer(model.parameters(), cfg)
     gen = torch.Generator().manual_seed(int(seed))
     snaps_at = sorted(set(cfg.snapshots))
@@ -259,7 +262,7 @@ def train(model: nn.Module, data: Dataset, cfg: TrainConfig, seed: int, test_dat
         start = int(state["iteration"])
         res = TrainResult(snapshots={int(k): v for k, v in state["snapshots"].items()},
                           curve=[tuple(c) for c in state["curve"]], test_curve=[tuple(c) for c in state["test_curve"]],
-                          resumed_from=start)
+                          val_curve=[tuple(c) for c in state.get("val_curve", [])], resumed_from=start)
     if start > cfg.iterations:
         raise RuntimeError(f"checkpoint in {ckdir} is at iteration {start}, beyond iterations={cfg.iterations}")
 
@@ -270,7 +273,7 @@ def train(model: nn.Module, data: Dataset, cfg: TrainConfig, seed: int, test_dat
         path = ckdir / f"ckpt-{it:08d}.pt"
         save_checkpoint({"model": model.state_dict(), "optimizer": opt.state_dict(), "rng": gen.get_state(),
                       "iteration": it, "snapshots": res.snapshots, "curve": res.curve, "test_curve": res.test_curve,
-                      "train_config": cfg.model_dump(), "config": dict(run_config or {})}, path)
+                      "val_curve": res.val_curve, "train_config": cfg.model_dump(), "config": dict(run_config or {})}, path)
         olds = sorted((int(m.group(1)), p) for p in ckdir.iterdir() if (m := _CKPT.match(p.name)))
         for _, p in olds[:-keep_checkpoints]:
             p.unlink(missing_ok=True)
@@ -278,9 +281,12 @@ def train(model: nn.Module, data: Dataset, cfg: TrainConfig, seed: int, test_dat
 
     if start == 0 and 0 in snaps_at:
         res.snapshots[0] = _state_copy(model)
-    if start == 0 and test_data is not None:
+    if start == 0:
         model.eval()
-        res.test_curve.append((0, dataset_loss(model, test_data)))
+        if val_data is not None:
+            res.val_curve.append((0, dataset_loss(model, val_data)))
+        if test_data is not None:
+            res.test_curve.append((0, dataset_loss(model, test_data)))
     N = len(data)
     model.train()
     with _StopOnSignal() as stop:
@@ -301,6 +307,10 @@ def train(model: nn.Module, data: Dataset, cfg: TrainConfig, seed: int, test_dat
             res.curve.append((done, lv))
             if done % cfg.log_every == 0 or done == cfg.iterations:
                 metrics = {"iteration": float(done), "train_loss": lv}
+                if val_data is not None:
+                    vl = dataset_loss(model, val_data)
+                    res.val_curve.append((done, vl))
+                    metrics["val_loss"] = vl
                 if test_data is not None:
                     tl = dataset_loss(model, test_data)
                     res.test_curve.append((done, tl))

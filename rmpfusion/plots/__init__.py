@@ -4,5 +4,6 @@ from .figures import (  # noqa: F401
     plot_lyapunov,
     plot_progression,
     plot_trajectories,
+    plot_weights,
     save_figure,
 )

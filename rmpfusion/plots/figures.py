@@ -89,9 +89,10 @@ def plot_lyapunov(path, times, V, title: str = "") -> Path:
 
 def plot_learning_curves(path, curves: Mapping[str, Mapping[str, Sequence]], snapshots: Mapping[str, Sequence[int]] | None = None,
                          smooth: int = 50) -> Path:
-    """Train loss (smoothed) and test batch-loss per learner on a log scale, snapshot iterations marked in red.
+    """Train loss (smoothed), validation (dashed) and test batch-loss per learner on a log scale, snapshot
+    iterations marked in red.
 
-    ``curves[name] = {"train": [(it, loss)...], "test": [(it, loss)...]}``.
+    ``curves[name] = {"train": [(it, loss)...], "val": [...], "test": [(it, loss)...]}`` ("val" optional).
     """
     fig, ax = plt.subplots(figsize=(6, 3.6))
     for (name, c), colour in zip(curves.items(), plt.rcParams["axes.prop_cycle"].by_key()["color"]):
@@ -100,6 +101,9 @@ def plot_learning_curves(path, curves: Mapping[str, Mapping[str, Sequence]], sna
             k = max(1, min(smooth, len(tr) // 10 or 1))
             y = np.convolve(tr[:, 1], np.ones(k) / k, mode="valid")
             ax.plot(tr[k - 1:, 0], y, color=colour, alpha=0.6, lw=1, label=f"{name} train")
+        va = np.asarray(c.get("val") or [], dtype=float).reshape(-1, 2)
+        if len(va):
+            ax.plot(va[:, 0], va[:, 1], "--", color=colour, lw=1.4, label=f"{name} validation")
         te = np.asarray(c.get("test") or [], dtype=float).reshape(-1, 2)
         if len(te):
             ax.plot(te[:, 0], te[:, 1], color=colour, lw=1.8, label=f"{name} test")
@@ -141,4 +145,45 @@ def plot_progression(path, aux: Mapping[str, torch.Tensor], expert_q, stages: Se
                 axv.axis("off")
     if has_v:
         axes[1, 0].set_ylabel("$V_r$")
+    return save_figure(fig, path)
+
+
+def plot_weights(path, times, expert: Mapping[str, Sequence], learned: Mapping[str, Mapping[str, Sequence]],
+                 title: str = "") -> Path:
+    """One panel per learned edge: the expert's weight (thick dashed black) and each learner snapshot's weight
+    (coloured) at the same states along a test trajectory, on a log scale when the weights span a decade.
+
+    ``expert[edge]`` and ``learned[label][edge]`` are (T,) values at ``times`` (T,).
+    """
+    edges = list(expert) or sorted({e for w in learned.values() for e in w})
+    n = max(len(edges), 1)
+    cols = min(n, 5)
+    rows = (n + cols - 1) // cols
+    fig, axes = plt.subplots(rows, cols, figsize=(2.9 * cols, 2.4 * rows), squeeze=False, sharex=True)
+    t = _np(times)
+    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for ax, e in zip(axes.flat, edges):
+        span = []
+        for (label, w), colour in zip(learned.items(), colours):
+            if e in w:
+                ax.plot(t, _np(w[e]), color=colour, lw=1.3, label=label)
+                span.append(_np(w[e]))
+        if e in expert:
+            ax.plot(t, _np(expert[e]), "--", color="k", lw=2.0, label="expert", zorder=5)
+            span.append(_np(expert[e]))
+        values = np.concatenate(span) if span else np.ones(1)
+        if values.min() > 0 and values.max() / values.min() > 10:
+            ax.set_yscale("log")
+        ax.set_title(e, fontsize=8)
+        ax.tick_params(labelsize=7)
+    for ax in axes.flat[len(edges):]:
+        ax.axis("off")
+    for ax in axes[-1]:
+        ax.set_xlabel("t [s]", fontsize=8)
+    for ax in axes[:, 0]:
+        ax.set_ylabel("weight $w$", fontsize=8)
+    handles, labels = axes.flat[0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="upper right", fontsize=7, ncol=min(len(labels), 6))
+    fig.suptitle(title or "weights along a test trajectory: expert (dashed) vs learner", fontsize=9)
+    fig.tight_layout(rect=(0, 0, 1, 0.93))
     return save_figure(fig, path)

@@ -18,7 +18,8 @@ from ..files import atomic_path  # noqa: E402
 from .figures import _np, save_figure  # noqa: E402
 
 METRIC_LABELS = {"time": "time", "cspace_length": "conf length", "ee_length": "end eff length",
-                 "goal_distance": "goal distance"}
+                 "goal_distance": "goal distance", "timeout_goal_distance": "goal distance\nat time-out",
+                 "min_goal_distance": "closest\ngoal distance"}
 _STAGE_COLOURS = ("tab:red", "tab:orange", "tab:green", "tab:blue", "tab:purple", "tab:brown", "tab:pink")
 
 
