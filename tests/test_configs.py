@@ -75,6 +75,26 @@ def test_every_experiment_validates_and_builds(experiment):
     assert expert.describe().startswith(run.tree["root"]["name"])
 
 
+def test_without_an_experiment_the_run_is_named_default():
+    """conf/config.yaml's own configuration is not labelled as one of the experiments (issue 14, item 5)."""
+    assert resolve_and_validate(compose_cfg()).name == "default"
+    assert resolve_and_validate(compose_cfg(["tree=2d2level", "env=particle2d_2obstacles", "expert=2d2level"])).name \
+        == "default"
+
+
+def test_sweep_job_directories_carry_the_jobs_overrides(tmp_path):
+    """hydra.sweep.subdir is <job number>_<name>_<overrides>: readable, unique, and without the keys that change
+    where or how a job runs and logs (conf/config.yaml's exclude_keys) or that the name already says."""
+    r = _cli("rmpfusion.cli.validate", "-m", "experiment=2d2level", "seed=0,1", "train.lr=3e-3", "logger=disabled",
+             f"data.cache_dir={tmp_path / 'cache'}", f"hydra.sweep.dir={tmp_path / 'sweep'}")
+    assert r.returncode == 0, r.stderr[-3000:]
+    jobs = sorted(p.name for p in (tmp_path / "sweep").iterdir() if p.is_dir())
+    assert jobs == ["0_2d2level_seed=0,train.lr=0.003", "1_2d2level_seed=1,train.lr=0.003"]  # as the sweeper writes it
+    cfg = compose_cfg(["experiment=2d1level", "seed=2", "name=mine", "logger.mode=online", "launcher=joblib",
+                       "sweep=seeds", "+data.cache_dir=/shared/cache", "train=tiny"], hydra_cfg=True)
+    assert cfg.hydra.job.override_dirname == "seed=2,train=tiny"
+
+
 def test_paper_sizes_are_the_defaults():
     run = resolve_and_validate(compose_cfg(["experiment=2d2level_unstructured"]))
     assert (run.train.optimizer, run.train.batch_size, run.train.iterations) == ("rmsprop", 200, 20000)
@@ -188,7 +208,8 @@ def test_submitit_local_two_jobs(tmp_path):
              f"hydra.sweep.dir={tmp_path}", "hydra.launcher.timeout_min=5", timeout=600)
     assert r.returncode == 0, r.stderr[-3000:]
     outs = sorted(tmp_path.glob(".submitit/*/*_result.pkl"))
-    assert len(outs) == 2 and len(list(tmp_path.glob("*_2d1level/.hydra/config.yaml"))) == 2
+    assert len(outs) == 2 and sorted(p.parent.parent.name for p in tmp_path.glob("*/.hydra/config.yaml")) == [
+        "0_default_seed=1", "1_default_seed=2"]  # no experiment=: the default config, and each job's override
 
 
 @pytest.mark.slow
@@ -199,4 +220,4 @@ def test_optuna_sweep_searches_and_reports_the_best_learning_rate(tmp_path):
     assert r.returncode == 0, r.stderr[-3000:]
     best = (tmp_path / "optimization_results.yaml").read_text()
     assert "train.lr" in best and "best_value" in best
-    assert len(list(tmp_path.glob("*_2d1level/metrics.json"))) == 2
+    assert len(list(tmp_path.glob("*_2d1level_*train.lr=*/metrics.json"))) == 2  # each trial's values in its name

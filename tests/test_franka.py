@@ -334,41 +334,7 @@ def test_ratios_to_the_expert_are_per_trajectory():
     assert s["time"]["mean"] == pytest.approx(7 / 3) and s["time"]["max"] == 4.0 and s["time"]["n"] == 3
 
 
-# ---------------------------------------------------------------- several obstacles at run time
-
-@pytest.mark.slow
-def test_a_one_obstacle_tree_runs_in_pybullet_with_two_obstacles(env):
-    """Weights learned with one obstacle drive the robot around two: a second cylinder placed on the path the
-    one-obstacle execution takes is avoided by the shared per-control-point weights (no collision in pybullet),
-    the goal is still reached and V_r still decreases."""
-    learner1 = rmpfusion.build_tree(franka_tree_spec(None, 1), aux_dims=env.aux_dims())
-    g = torch.Generator().manual_seed(5)
-    with torch.no_grad():  # stand-in for training: move every parameter away from its initialisation
-        for p in learner1.parameters():
-            p.add_(0.05 * torch.randn(p.shape, generator=g, dtype=p.dtype))
-    env2 = Franka(control_rate=60.0, obstacles=[{"center": (0.55, 0.0, 0.3), "radius": 0.05, "height": 0.6}] * 2)
-    learner2 = rmpfusion.build_tree(franka_tree_spec(None, 2), aux_dims=env2.aux_dims())
-    copy_weights(learner1, learner2)
-    q0 = torch.tensor([[0.8, -0.3, 0.0, -2.2, 0.0, 2.0, 0.785]], dtype=F64)
-    goal = [0.38, -0.3, 0.35]
-    first = [0.55, 0.0, 0.3]
-    with torch.no_grad():
-        r1 = env2.rollout(learner2, q0, torch.zeros_like(q0), make_aux(goal, [first, [5.0, 5.0, 0.3]], [0.05, 0.05]),
-                          horizon=5.0, record_every=0.1, mode="kinematic")
-        # the second cylinder stands where the end effector passed at t = 0.6 s
-        x, y, _ = r1.ee[6, 0].tolist()
-        two = make_aux(goal, [first, [x, y, 0.3]], [0.05, 0.04])
-        assert env2.clearance(q0, two).item() > 0.1  # the start is clear of it
-        r2 = env2.rollout(learner2, q0, torch.zeros_like(q0), two, horizon=5.0, record_every=0.1, mode="torque")
-    env2.close()
-    assert r1.error == [None] and r2.error == [None] and bool(r1.success[0])
-    d = (r2.ee[:, 0, :2] - torch.tensor([x, y], dtype=F64)).norm(dim=-1).min()
-    print(f"two obstacles: min clearance {r2.min_clearance.item():.3f} m, end effector passes {d:.3f} m from the "
-          f"second axis, reached in {r2.time_to_goal.item():.2f} s (one obstacle: {r1.time_to_goal.item():.2f} s)")
-    assert not r2.collided.any() and r2.min_clearance[0] > 0.01
-    assert d > 0.04 + 0.05  # the hand went around the new cylinder rather than through its old path
-    assert bool(r2.success[0]) and r2.time_to_goal[0] > r1.time_to_goal[0]
-    assert bool(lyapunov_monotone(r2.V, rtol=1e-6).all()), max_relative_increase(r2.V)
+# (a learner trained with one obstacle, run with three: tests/test_franka_trained.py)
 
 
 # ---------------------------------------------------------------- the whole experiment, tiny

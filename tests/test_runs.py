@@ -118,6 +118,10 @@ def outdir(tmp_path_factory) -> Path:
 
 SWEEP = ["-m", "launcher=submitit_local", "seed=0,1", "data=tiny", "train=tiny", "eval=fast", "eval.figures=true",
          "logger=offline", "hydra.launcher.timeout_min=10"]
+#: the sweep's job directories: <job number>_<name>_<the job's overrides> (conf/config.yaml hydra.sweep.subdir;
+#: no experiment= so the name is "default"; launcher, logger and hydra.* overrides are left out of the name; the
+#: sweeper writes each job's booleans as True/False)
+JOBS = [f"{n}_default_data=tiny,eval.figures=True,eval=fast,seed={n},train=tiny" for n in (0, 1)]
 
 
 @pytest.fixture(scope="module")
@@ -348,6 +352,31 @@ def test_a_busy_run_directory_is_refused(tmp_path):
     assert r.stdout.strip() == "acquired", r.stdout + r.stderr
 
 
+def test_run_log_holds_the_jobs_lines_and_how_it_ended(tmp_path):
+    """Hydra's log of the job (``<job name>.log``: run.log for the rmpfusion-run app, whose stages share it) holds
+    every line the job printed, time-stamped in Hydra's format (stdout INFO, stderr WARNING), and how the job
+    ended; the console shows each line once."""
+    run_dir = tmp_path / "run"
+    args = ["data=tiny", "logger=disabled", f"hydra.run.dir={run_dir}"]
+    r = subprocess.run(_app("collect") + args, capture_output=True, text=True, timeout=300, env=_env(), cwd=tmp_path)
+    assert r.returncode == 0, r.stderr[-3000:]
+    lines = (run_dir / "run.log").read_text().splitlines()
+    stamp = r"^\[\d{4}-\d\d-\d\d \d\d:\d\d:\d\d,\d{3}\]\[rmpfusion\]\[(INFO|WARNING|ERROR)\] - "
+    assert lines and all(re.match(stamp, ln) for ln in lines), lines[:5]
+    assert re.search(r"\[INFO\] - job started in .*run \(pid \d+\): ", lines[0]), lines[0]
+    for printed in ("data: collecting train set", "collect train [", "train: 12 points in"):
+        # as often as on the console, which shows it once (Hydra's console handler does not print it again)
+        assert sum(printed in ln for ln in lines) == r.stdout.count(printed) == (3 if "[" in printed else 1), printed
+    assert lines[-1].endswith("[INFO] - job finished")
+    assert len([ln for ln in lines if "[INFO] - " in ln]) - 2 == len(r.stdout.strip().splitlines())
+
+    r = subprocess.run(_app("evaluate") + args, capture_output=True, text=True, timeout=300, env=_env(), cwd=tmp_path)
+    assert r.returncode == 1 and "no fully trained checkpoints" in r.stderr
+    lines = (run_dir / "run.log").read_text().splitlines()
+    assert any("[WARNING] - error: no fully trained checkpoints" in ln for ln in lines)
+    assert lines[-1].endswith("[ERROR] - job stopped with exit status 1") and sum("job started" in ln for ln in lines) == 2
+
+
 # ---------------------------------------------------------------------------------------------- sweeps
 @pytest.fixture(scope="module")
 def sweep(outdir, background) -> Path:
@@ -358,7 +387,7 @@ def sweep(outdir, background) -> Path:
 @pytest.mark.slow
 def test_submitit_local_multirun_two_complete_runs_and_two_offline_wandb_runs(sweep):
     jobs = sorted(p for p in sweep.iterdir() if p.is_dir() and not p.name.startswith("."))
-    assert [j.name for j in jobs] == ["0_2d1level", "1_2d1level"]
+    assert [j.name for j in jobs] == JOBS  # the directories say what each job ran
     assert len(list(sweep.glob(".submitit/*/*_result.pkl"))) == 2  # really two submitit jobs
     for seed, job in enumerate(jobs):
         metrics = json.loads((job / "metrics.json").read_text())
@@ -394,7 +423,7 @@ def test_package_versions_are_recorded(sweep):
     import wandb
     from importlib.metadata import version
 
-    rec = json.loads((sweep / "0_2d1level" / "versions.json").read_text())
+    rec = json.loads((sweep / JOBS[0] / "versions.json").read_text())
     assert rec["python"] == platform.python_version()
     want = {"torch": torch.__version__, "numpy": numpy.__version__, "hydra-core": hydra.__version__,
             "omegaconf": omegaconf.__version__, "pydantic": pydantic.VERSION, "wandb": wandb.__version__,
@@ -419,7 +448,7 @@ def test_same_seed_same_dataset_and_losses_in_another_process_and_directory(swee
     from rmpfusion.config.validate import resolve_and_validate
     from rmpfusion.learn.pipeline import run_experiment
 
-    job0, job1 = sweep / "0_2d1level", sweep / "1_2d1level"
+    job0, job1 = sweep / JOBS[0], sweep / JOBS[1]
     overrides = yaml.safe_load((job0 / ".hydra" / "overrides.yaml").read_text())
     with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
         run = resolve_and_validate(compose("config", overrides=overrides + ["eval.figures=false"]))
@@ -455,7 +484,7 @@ def test_summarize_sweep_table_and_figure(sweep, tmp_path):
     rmp = next(row for row in rows if row["learner"] == "rmp")
     assert rmp["setting"] == "(all jobs)" and sorted(rmp["seeds"]) == ["0", "1"]
     losses = [json.loads((sweep / j / "metrics.json").read_text())["learners"]["rmp"]["batch_loss"]
-              for j in ("0_2d1level", "1_2d1level")]
+              for j in JOBS]
     assert rmp["batch_loss"]["n"] == 2
     assert rmp["batch_loss"]["mean"] == pytest.approx(statistics.fmean(losses), rel=1e-12)
     assert rmp["batch_loss"]["std"] == pytest.approx(statistics.stdev(losses), rel=1e-12)
@@ -466,7 +495,7 @@ def test_summarize_sweep_table_and_figure(sweep, tmp_path):
 @pytest.mark.slow
 def test_summarize_sweep_groups_by_setting_and_reports_unfinished_jobs(sweep, tmp_path):
     """Jobs of two settings x two seeds (the real job's metrics with other numbers), one job unfinished."""
-    base = json.loads((sweep / "0_2d1level" / "metrics.json").read_text())
+    base = json.loads((sweep / JOBS[0] / "metrics.json").read_text())
     d = tmp_path / "lr_sweep"
     losses = {("0.001", 0): 1.0, ("0.001", 1): 3.0, ("0.01", 0): 10.0, ("0.01", 1): 20.0}
     for n, ((lr, seed), loss) in enumerate(losses.items()):

@@ -104,12 +104,18 @@ def main(argv=None) -> int:
     ap.add_argument("--lr", type=float, default=None, help="override train.lr (default: conf/train/bc_rmsprop.yaml)")
     ap.add_argument("overrides", nargs="*", help="further Hydra overrides, e.g. weights@learners.rmp.weights=mlp_small")
     ap.add_argument("--cache", default=None, help="shared dataset cache directory")
+    ap.add_argument("--table-only", action="store_true",
+                    help="run nothing: write the table from the metrics.json already in <out>/<experiment>/")
     a = ap.parse_args(argv)
     if not 0 < a.scale <= 1:
         ap.error("--scale must be in (0, 1]")
     results = {}
     t0 = time.time()
     for exp in a.only:
+        if a.table_only:
+            if (a.out / exp / "metrics.json").exists():
+                results[exp] = json.loads((a.out / exp / "metrics.json").read_text())
+            continue
         results[exp] = run_experiment(config(exp, a.scale, a.seed, a.lr, a.cache, a.overrides), a.out / exp)
     md = (f"# 2D experiments (scale {a.scale}, seed {a.seed}, {time.time() - t0:.0f} s)\n\n" + table(results))
     a.out.mkdir(parents=True, exist_ok=True)

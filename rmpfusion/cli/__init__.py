@@ -1,1 +1,14 @@
-"""Hydra entry points (console scripts): validate, run the whole pipeline, or one stage of it."""
+"""Hydra entry points (console scripts): validate, run the whole pipeline, or one stage of it.
+
+``rmpfusion.cli.CONF_DIR`` is the conf/ directory the commands compose from, for composing the same configs from
+Python: ``$RMPFUSION_CONF`` if set, else the conf/ of the source checkout rmpfusion is imported from (a clone or an
+editable install; see ``_common.conf_dir``). It is looked up on first use, so importing a submodule never needs it.
+"""
+
+
+def __getattr__(name: str):
+    if name == "CONF_DIR":
+        from ._common import CONF_DIR
+
+        return CONF_DIR
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

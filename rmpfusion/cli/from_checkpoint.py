@@ -20,7 +20,7 @@ def evaluate_checkpoint(path: str | Path, out: str | Path | None = None, figures
     """Metrics of the learner in checkpoint ``path`` on its run's test set (see the module docstring)."""
     import torch
 
-    from ..config.schema import RunConfig
+    from ..config.schema import RunConfig, upgrade_run_config
     from ..core.tree import build_tree
     from ..evaluate.metrics import evaluate_learner
     from ..files import atomic_write_json
@@ -33,7 +33,7 @@ def evaluate_checkpoint(path: str | Path, out: str | Path | None = None, figures
     if not state.get("config"):
         raise CheckpointError(f"checkpoint file {path} carries no run config (it was written outside an experiment); "
                               "evaluate it with rmpfusion-evaluate and the run's overrides instead")
-    cfg = RunConfig.model_validate(state["config"])
+    cfg = RunConfig.model_validate(upgrade_run_config(state["config"]))  # renamed keys of older checkpoints
     name = path.parent.name
     if name not in cfg.learners:
         raise CheckpointError(f"checkpoint file {path} lies in checkpoints/{name}/ but its config has learners "

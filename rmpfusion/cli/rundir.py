@@ -11,6 +11,7 @@ from __future__ import annotations
 import contextlib
 import datetime as _dt
 import errno
+import logging
 import os
 import platform
 import re
@@ -71,6 +72,9 @@ def check_same_config(resolved: Mapping[str, Any], run_dir: Path) -> None:
     except Exception as e:  # noqa: BLE001 - any unreadable file gets the same advice
         raise RunDirError(f"{run_dir} holds a run whose saved configuration {saved} is unreadable "
                           f"({type(e).__name__}: {e}); nothing was changed. {fix}") from e
+    from ..config.schema import upgrade_run_config
+
+    old = upgrade_run_config(old)  # a run saved before a key was renamed (train.lr_final) still resumes
     strip = lambda c: {k: v for k, v in c.items() if k not in MAY_DIFFER}  # noqa: E731
     diffs = config_diff(strip(old), strip(dict(resolved)))
     if diffs:
@@ -270,21 +274,69 @@ def _alive(pid: int) -> bool:
 
 
 # --------------------------------------------------------------------------------------------- console
+class JobLog:
+    """The job's lines in Hydra's log file (``run.log`` for ``rmpfusion-run``; Hydra's job logging writes
+    ``<run dir>/<job name>.log``): every line the job prints, as a record of the logger ``rmpfusion`` (stdout
+    INFO, stderr WARNING), beside whatever libraries log through Python's ``logging``.
+
+    The job's messages are printed, not logged (progress bars redraw a terminal line), so without this the file
+    stays empty. Records go straight to the file handlers Hydra attached to the root logger for this run
+    directory, not through a logger, so the console does not show each line twice; with Hydra's job logging
+    disabled (``hydra/job_logging=disabled``) there is no such handler and nothing is written."""
+
+    NAME = "rmpfusion"
+
+    def __init__(self, run_dir: Path):
+        self.handlers = job_log_handlers(run_dir)
+        self._busy = False
+
+    def record(self, level: int, msg: str, exc_info=None) -> None:
+        if self._busy or not self.handlers:
+            return
+        self._busy = True  # a handler that fails reports on stderr, which comes back here: not again
+        try:
+            rec = logging.LogRecord(self.NAME, level, __file__, 0, msg, None, exc_info)
+            for h in self.handlers:
+                if rec.levelno >= h.level:
+                    h.handle(rec)
+        finally:
+            self._busy = False
+
+    def sink(self, level: int):
+        return lambda line: self.record(level, line) if line.strip() else None
+
+
+def job_log_handlers(run_dir: Path) -> list[logging.Handler]:
+    """The file handlers of the root logger that write into ``run_dir`` (Hydra's job logging)."""
+    out = []
+    here = Path(run_dir).resolve()
+    for h in logging.getLogger().handlers:
+        if isinstance(h, logging.FileHandler) and Path(h.baseFilename).resolve().parent == here:
+            out.append(h)
+    return out
+
+
 class _Tee:
     """A text stream that also appends what it is given to a log file, one clean line per line: terminal
-    redraws (``\\r`` and erase-line codes of progress bars) keep only their final state in the file."""
+    redraws (``\\r`` and erase-line codes of progress bars) keep only their final state in the file. Each
+    finished line is also given to ``sink`` (the job's log)."""
 
     _ANSI = re.compile(r"\x1b\[[0-9;]*[A-Za-z]")
 
-    def __init__(self, stream, fh):
-        self._stream, self._fh, self._partial = stream, fh, ""
+    def __init__(self, stream, fh, sink=None):
+        self._stream, self._fh, self._partial, self._sink = stream, fh, "", sink
+
+    def _line(self, line: str) -> None:
+        self._fh.write(line + "\n")
+        if self._sink is not None:
+            self._sink(line)
 
     def write(self, s: str) -> int:
         n = self._stream.write(s)
         text = self._partial + s
         *lines, self._partial = text.split("\n")
         for line in lines:
-            self._fh.write(self._ANSI.sub("", line.rsplit("\r", 1)[-1]) + "\n")
+            self._line(self._ANSI.sub("", line.rsplit("\r", 1)[-1]))
         self._partial = self._partial.rsplit("\r", 1)[-1]
         if lines:
             self._fh.flush()
@@ -296,7 +348,7 @@ class _Tee:
 
     def close_file(self) -> None:
         if self._partial:
-            self._fh.write(self._ANSI.sub("", self._partial) + "\n")
+            self._line(self._ANSI.sub("", self._partial))
             self._partial = ""
         self._fh.flush()
 
@@ -309,17 +361,29 @@ class _Tee:
 
 @contextlib.contextmanager
 def console_log(run_dir: Path) -> Iterator[None]:
-    """Copy everything the job prints (stdout and stderr, progress included) into ``run_dir/console.log``."""
+    """Copy everything the job prints (stdout and stderr, progress included) into ``run_dir/console.log``, and
+    the same lines, time-stamped, into Hydra's log file there (``JobLog``), which also says how the job ended."""
     run_dir.mkdir(parents=True, exist_ok=True)
+    log = JobLog(run_dir)
     with open(run_dir / CONSOLE, "a", encoding="utf-8", errors="replace") as fh:
         fh.write(f"==== {_dt.datetime.now().astimezone().isoformat(timespec='seconds')} pid {os.getpid()}: "
                  f"{' '.join(sys.argv)}\n")
+        log.record(logging.INFO, f"job started in {run_dir} (pid {os.getpid()}): {' '.join(sys.argv)}")
         old_out, old_err = sys.stdout, sys.stderr
-        out, err = _Tee(old_out, fh), _Tee(old_err, fh)
+        out, err = _Tee(old_out, fh, log.sink(logging.INFO)), _Tee(old_err, fh, log.sink(logging.WARNING))
         sys.stdout, sys.stderr = out, err
+        ending: tuple = (logging.INFO, "job finished", None)
         try:
             yield
+        except SystemExit as e:
+            if e.code not in (None, 0):
+                ending = (logging.ERROR, f"job stopped with exit status {e.code}", None)
+            raise
+        except BaseException as e:
+            ending = (logging.ERROR, f"job stopped by {type(e).__name__}: {e}", sys.exc_info())
+            raise
         finally:
             sys.stdout, sys.stderr = old_out, old_err
             out.close_file()
             err.close_file()
+            log.record(*ending)

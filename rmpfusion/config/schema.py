@@ -6,7 +6,7 @@ entry's own model in ``validate_run_config``, so errors name paths like ``learne
 """
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Any, Literal, Mapping
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
@@ -33,8 +33,10 @@ class DataConfig(_Frozen):
 class TrainConfig(_Frozen):
     optimizer: Literal["rmsprop", "adam", "sgd"] = "rmsprop"
     lr: float = Field(1e-3, gt=0)
-    lr_schedule: Literal["constant", "cosine"] = Field("constant", description="cosine: anneal lr to lr·lr_final")
-    lr_final: float = Field(0.01, ge=0, le=1, description="final step size as a fraction of lr (cosine schedule)")
+    lr_schedule: Literal["constant", "cosine"] = Field("constant",
+                                                       description="cosine: anneal lr to lr·lr_final_fraction")
+    lr_final_fraction: float = Field(0.01, ge=0, le=1, description="the final step size as a fraction of lr (cosine "
+                                                                   "schedule): 0.01 ends at lr/100")
     batch_size: int = Field(200, gt=0)
     iterations: int = Field(20000, ge=0)
     snapshots: list[int] = Field(default_factory=lambda: [0, 1000, 5000, 20000],
@@ -45,6 +47,35 @@ class TrainConfig(_Frozen):
     grad_clip: float | None = Field(None, gt=0)
     compile: bool = Field(False, description="train learner trees through torch.compile: a one-off compile "
                                              "(seconds), then about twice as fast per step (tools/bench.py)")
+
+
+#: keys renamed since configs were first stored in checkpoints and run directories: {block: {old: new}}
+RENAMED_KEYS: dict[str, dict[str, str]] = {"train": {"lr_final": "lr_final_fraction"}}
+
+
+def _renamed(block: Mapping[str, Any], names: Mapping[str, str]) -> dict[str, Any]:
+    out = dict(block)
+    for old, new in names.items():
+        if old in out:
+            value = out.pop(old)
+            out.setdefault(new, value)  # a block that holds both names keeps the new one
+    return out
+
+
+def upgrade_train_config(train: Mapping[str, Any]) -> dict[str, Any]:
+    """A stored ``train`` block (a checkpoint's ``train_config``) with renamed keys under their current names
+    (``RENAMED_KEYS``), so files written before a rename still resume."""
+    return _renamed(train, RENAMED_KEYS["train"])
+
+
+def upgrade_run_config(run: Mapping[str, Any]) -> dict[str, Any]:
+    """A stored run config (a checkpoint's ``config``, a run directory's config.resolved.yaml) with renamed keys
+    under their current names (``RENAMED_KEYS``); anything else is returned unchanged."""
+    out = dict(run)
+    for block, names in RENAMED_KEYS.items():
+        if isinstance(out.get(block), Mapping):
+            out[block] = _renamed(out[block], names)
+    return out
 
 
 class EvalConfig(_Frozen):

@@ -20,7 +20,7 @@ from pydantic import ValidationError
 
 from ..registry import ENVS, LEAF_RMPS, LEARNERS, TASK_MAPS, WEIGHTS, Registry
 from .errors import ConfigError, Issue, allowed_keys_hint, issues_from_pydantic
-from .schema import RunConfig
+from .schema import RENAMED_KEYS, RunConfig
 from .tree_spec import check_typed, validate_tree_spec
 
 #: Weight-spec keys whose string values (or lists of strings) name aux state.
@@ -162,6 +162,12 @@ def resolve_and_validate(cfg: DictConfig | Mapping[str, Any]) -> RunConfig:
         for n, nd in data["tree"]["nodes"].items():
             if isinstance(nd, Mapping) and "weight" in nd:
                 nd["weight"] = _weight_shorthand(nd["weight"], f"tree.nodes.{n}.weight", issues)
+    for block, names in RENAMED_KEYS.items():  # an old name gets the new one, not "unknown key"
+        for old, new in names.items():
+            if isinstance(data.get(block), Mapping) and old in data[block]:
+                issues.append(Issue(f"{block}.{old}", f"was renamed {block}.{new}; write {block}.{new}="
+                                                      f"{data[block][old]!r} instead"))
+                data[block] = {k: v for k, v in data[block].items() if k != old}
     if "device" in data and data["device"] != "cpu":  # accepted and never used would be a silent ignore
         issues.append(Issue("device", f"{data['device']!r} is not supported yet: rmpfusion runs on the CPU only "
                                       "(device=cpu); set device=cpu or leave the key out"))

@@ -24,13 +24,13 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from ..config.schema import TrainConfig
+from ..config.schema import TrainConfig, upgrade_train_config
 from ..files import atomic_torch_save
 from .demonstrations import Dataset
 
 _DTYPES = {"float32": torch.float32, "float64": torch.float64}
 #: TrainConfig fields that change the optimisation path; a checkpoint made with other values is not resumed.
-_PATH_KEYS = ("optimizer", "lr", "lr_schedule", "lr_final", "batch_size", "dtype", "grad_clip")
+_PATH_KEYS = ("optimizer", "lr", "lr_schedule", "lr_final_fraction", "batch_size", "dtype", "grad_clip")
 
 
 @dataclass
@@ -44,11 +44,11 @@ class TrainResult:
 
 def learning_rate(cfg: TrainConfig, it: int) -> float:
     """The step size of step ``it`` (0-based): a function of the iteration alone, so a resumed run follows the
-    same schedule. ``cosine`` anneals from ``lr`` to ``lr · lr_final`` over ``iterations``."""
+    same schedule. ``cosine`` anneals from ``lr`` to ``lr · lr_final_fraction`` over ``iterations``."""
     if cfg.lr_schedule == "constant" or cfg.iterations <= 1:
         return cfg.lr
     frac = min(it, cfg.iterations - 1) / (cfg.iterations - 1)
-    return cfg.lr * (cfg.lr_final + (1.0 - cfg.lr_final) * 0.5 * (1.0 + math.cos(math.pi * frac)))
+    return cfg.lr * (cfg.lr_final_fraction + (1.0 - cfg.lr_final_fraction) * 0.5 * (1.0 + math.cos(math.pi * frac)))
 
 
 def make_optimizer(params, cfg: TrainConfig) -> torch.optim.Optimizer:
@@ -249,7 +249,7 @@ def train(model: nn.Module, data: Dataset, cfg: TrainConfig, seed: int, test_dat
         _remove_stale_temporaries(ckdir)
     if ckdir is not None and (ck := latest_checkpoint(ckdir)) is not None:
         state = load_checkpoint(ck, model)  # damaged, tampered or foreign files raise, naming the file
-        old = state["train_config"]
+        old = upgrade_train_config(state["train_config"])  # a checkpoint from before a key was renamed resumes
         keys = _PATH_KEYS + (("iterations",) if cfg.lr_schedule != "constant" else ())  # the schedule spans them
         bad = [k for k in keys if old.get(k, TrainConfig.model_fields[k].default) != getattr(cfg, k)]
         if bad:

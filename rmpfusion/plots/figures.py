@@ -172,7 +172,7 @@ def plot_weights(path, times, expert: Mapping[str, Sequence], learned: Mapping[s
             ax.plot(t, _np(expert[e]), "--", color="k", lw=2.0, label="expert", zorder=5)
             span.append(_np(expert[e]))
         values = np.concatenate(span) if span else np.ones(1)
-        if values.min() > 0 and values.max() / values.min() > 10:
+        if values.min() > 0 and values.max() / values.min() > 50:  # e.g. Franka's 1-200 obstacle weights
             ax.set_yscale("log")
         ax.set_title(e, fontsize=8)
         ax.tick_params(labelsize=7)
@@ -183,7 +183,7 @@ def plot_weights(path, times, expert: Mapping[str, Sequence], learned: Mapping[s
     for ax in axes[:, 0]:
         ax.set_ylabel("weight $w$", fontsize=8)
     handles, labels = axes.flat[0].get_legend_handles_labels()
-    fig.legend(handles, labels, loc="upper right", fontsize=7, ncol=min(len(labels), 6))
+    fig.legend(handles, labels, loc="lower center", fontsize=7, ncol=min(len(labels), 6), frameon=False)
     fig.suptitle(title or "weights along a test trajectory: expert (dashed) vs learner", fontsize=9)
-    fig.tight_layout(rect=(0, 0, 1, 0.93))
+    fig.tight_layout(rect=(0, 0.1 if rows == 1 else 0.05, 1, 0.93))
     return save_figure(fig, path)

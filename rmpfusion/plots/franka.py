@@ -41,11 +41,43 @@ def plot_ratio_bars(path, ratios: Mapping[str, Mapping[str, Mapping[str, float]]
         ax.bar(x + (i - (n - 1) / 2) * width, mean, width * 0.9, yerr=std, capsize=3, label=lab,
                color=_STAGE_COLOURS[(i + 1) % len(_STAGE_COLOURS)], alpha=0.85, error_kw={"lw": 1})
     ax.axhline(1.0, color="k", ls=":", lw=1.2, label="expert")
+    tops = [ratios[lab].get(m, {}).get("mean") for lab in labels for m in metrics]
+    if any(t is not None and np.isfinite(t) and t > 10 for t in tops):  # e.g. an untrained learner's goal distance
+        ax.set_yscale("log")
     ax.set_xticks(x)
     ax.set_xticklabels([METRIC_LABELS.get(m, m) for m in metrics])
     ax.set_ylabel("learner / expert")
     ax.set_title(title, fontsize=9)
     ax.legend(fontsize=7, ncol=2)
+    return save_figure(fig, path)
+
+
+#: The paper's Fig. 5b ratios. The goal distances are drawn in metres instead (``plot_goal_distances``): a policy
+#: at rest at the goal is a fraction of a millimetre from it, where a ratio of two such distances is noise.
+PATH_RATIOS = ("time", "cspace_length", "ee_length")
+
+
+def plot_goal_distances(path, policies: Sequence[Any], title: str = "") -> Path:
+    """Per policy (``StageResult``s, the expert first), the end effector's distance to the goal at the 10 s time-out
+    and the closest it came, mean ± std over the test trajectories, on a log scale, with the 0.05 m precision
+    at which an execution counts as reached."""
+    keys = (("timeout_goal_distance", "at the time-out"), ("min_goal_distance", "closest"))
+    fig, ax = plt.subplots(figsize=(1.8 + 1.1 * len(policies), 3.4))
+    width = 0.8 / len(keys)
+    x = np.arange(len(policies))
+    for j, (key, label) in enumerate(keys):
+        mean = np.array([p.summary.get(key, {}).get("mean", np.nan) for p in policies], dtype=float)
+        std = np.array([p.summary.get(key, {}).get("std", np.nan) for p in policies], dtype=float)
+        lower = np.minimum(std, mean * 0.999)  # a log axis cannot show mean − std ≤ 0
+        ax.bar(x + (j - 0.5) * width, mean, width * 0.9, yerr=[lower, std], capsize=3, label=label,
+               color=("tab:blue", "tab:orange")[j], alpha=0.85, error_kw={"lw": 1})
+    ax.axhline(0.05, color="k", ls=":", lw=1.2, label="0.05 m precision")
+    ax.set_yscale("log")
+    ax.set_xticks(x)
+    ax.set_xticklabels([p.label for p in policies], fontsize=8)
+    ax.set_ylabel("end effector – goal [m]")
+    ax.set_title(title, fontsize=9)
+    ax.legend(fontsize=7)
     return save_figure(fig, path)
 
 
@@ -179,8 +211,10 @@ def franka_figures(env, fig_dir, expert, stages, aux: Mapping[str, torch.Tensor]
     out: list[Path] = []
     ratios = {st.label: st.ratios for st in stages if st.ratios}
     if ratios:
-        out.append(plot_ratio_bars(fig_dir / "franka_ratios.png", ratios, env.ratio_metrics,
+        out.append(plot_ratio_bars(fig_dir / "franka_ratios.png", ratios, PATH_RATIOS,
                                    title=f"{title}: learner / expert on the test set (mean ± std over trajectories)"))
+    out.append(plot_goal_distances(fig_dir / "franka_goal_distances.png", [expert, *stages],
+                                   title=f"{title}: goal distance on the test set (mean ± std over trajectories)"))
     b = _example(env, expert)
     policies = [expert, *stages]
     panels = [{"label": st.label, "times": st.rollout.times, "V": st.rollout.V, "highlight": b}
@@ -242,5 +276,6 @@ def _draw_trail(img: np.ndarray, trail, goal) -> np.ndarray:
     return np.asarray(im)
 
 
-__all__ = ["franka_figures", "plot_ee_paths", "plot_lyapunov_stages", "plot_ratio_bars", "plot_render_strip",
+__all__ = ["franka_figures", "plot_ee_paths", "plot_goal_distances", "plot_lyapunov_stages", "plot_ratio_bars",
+           "plot_render_strip",
            "save_gif"]

@@ -1,0 +1,59 @@
+#!/usr/bin/env python
+"""The Franka experiment's table (paper Fig. 5b as numbers) from the metrics.json of one or more runs.
+
+    python tools/franka_table.py outputs/franka/metrics.json outputs/franka_unit_start/metrics.json
+
+One row per policy (the expert, then every learner snapshot): time to 0.05 m, fraction reached, the ratios
+learner / expert per test trajectory (mean ± std), the goal distance at the 10 s time-out, collisions and the
+Lyapunov monitor. Rows of a second run are labelled with its name (e.g. the unit-start ablation).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+RATIOS = ("time", "cspace_length", "ee_length", "timeout_goal_distance", "min_goal_distance")
+HEADER = ("| run | policy | time to 0.05 m (s) | reached | ratio time | ratio c-space length | ratio e-e length "
+          "| ratio goal distance at time-out | ratio closest goal distance | goal distance at time-out (mm) "
+          "| collisions | V_r monotone |")
+
+
+def _pm(d: dict | None, scale: float = 1.0, digits: int = 2) -> str:
+    if not d or d.get("mean") is None:
+        return "–"
+    std = d.get("std")
+    return f"{scale * d['mean']:.{digits}f} ± {scale * std:.{digits}f}" if std is not None else f"{scale * d['mean']:.{digits}f}"
+
+
+def rows(metrics: dict, with_expert: bool) -> list[str]:
+    out = []
+    for r in metrics["task_table"]:
+        if r["policy"] == "expert" and not with_expert:
+            continue
+        ratio = r.get("ratio") or {}
+        lyap = r.get("lyapunov") or {}
+        mono = lyap.get("monotone_fraction")
+        n = r["trajectories"]
+        out.append(" | ".join([
+            f"| {metrics['name']}", r["policy"], _pm(r.get("time")), _pm(r.get("reached")),
+            *("1" if r["policy"] == "expert" else _pm(ratio.get(k)) for k in RATIOS),
+            _pm(r.get("timeout_goal_distance"), 1000.0, 1), f"{r['collisions']} / {n}",
+            f"{round(mono * n) if mono is not None else '–'} / {n}"]) + " |")
+    return out
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("metrics", nargs="+", type=Path, help="metrics.json of a Franka run")
+    a = ap.parse_args(argv)
+    lines = [HEADER, "|" + "---|" * (HEADER.count("|") - 1)]
+    for i, path in enumerate(a.metrics):
+        lines += rows(json.loads(path.read_text()), with_expert=(i == 0))
+    print("\n".join(lines))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
