@@ -503,7 +503,7 @@ def test_summarize_sweep_groups_by_setting_and_reports_unfinished_jobs(sweep, tm
         (job / ".hydra").mkdir(parents=True)
         (job / ".hydra" / "overrides.yaml").write_text(yaml.safe_dump([f"train.lr={lr}", f"seed={seed}", "data=tiny"]))
         m = json.loads(json.dumps(base))
-        m["seed"], m["learners"]["rmp"]["batch_loss"] = seed, loss
+        m["seed"], m["learners"]["rmp"]["batch_loss"], m["learners"]["rmp"]["val_loss"] = seed, loss, loss / 2
         (job / "metrics.json").write_text(json.dumps(m))
     late = d / "4_2d1level" / ".hydra"
     late.mkdir(parents=True)
@@ -514,7 +514,8 @@ def test_summarize_sweep_groups_by_setting_and_reports_unfinished_jobs(sweep, tm
     rows = {(row["setting"], row["learner"]): row for row in json.loads((d / "summary.json").read_text())["rows"]}
     assert rows[("train.lr=0.001", "rmp")]["batch_loss"] == {"n": 2, "mean": 2.0, "std": pytest.approx(2 ** 0.5)}
     assert rows[("train.lr=0.01", "rmp")]["batch_loss"] == {"n": 2, "mean": 15.0, "std": pytest.approx(50 ** 0.5)}
-    assert "| train.lr=0.01 | rmp | 2 | 0, 1 | 15 ± 7.071 |" in (d / "summary.md").read_text()
+    assert rows[("train.lr=0.01", "rmp")]["val_loss"] == {"n": 2, "mean": 7.5, "std": pytest.approx(12.5 ** 0.5)}
+    assert "| train.lr=0.01 | rmp | 2 | 0, 1 | 7.5 ± 3.536 | 15 ± 7.071 |" in (d / "summary.md").read_text()
 
     shutil.rmtree(d)
     late.mkdir(parents=True)

@@ -14,10 +14,9 @@ import json
 import sys
 from pathlib import Path
 
-RATIOS = ("time", "cspace_length", "ee_length", "timeout_goal_distance", "min_goal_distance")
+RATIOS = ("time", "cspace_length", "ee_length")
 HEADER = ("| run | policy | time to 0.05 m (s) | reached | ratio time | ratio c-space length | ratio e-e length "
-          "| ratio goal distance at time-out | ratio closest goal distance | goal distance at time-out (mm) "
-          "| collisions | V_r monotone |")
+          "| goal distance at time-out (mm) | ratio goal distance at time-out | collisions | V_r monotone |")
 
 
 def _pm(d: dict | None, scale: float = 1.0, digits: int = 2) -> str:
@@ -36,11 +35,13 @@ def rows(metrics: dict, with_expert: bool) -> list[str]:
         lyap = r.get("lyapunov") or {}
         mono = lyap.get("monotone_fraction")
         n = r["trajectories"]
+        expert = r["policy"] == "expert"
         out.append(" | ".join([
-            f"| {metrics['name']}", r["policy"], _pm(r.get("time")), _pm(r.get("reached")),
-            *("1" if r["policy"] == "expert" else _pm(ratio.get(k)) for k in RATIOS),
-            _pm(r.get("timeout_goal_distance"), 1000.0, 1), f"{r['collisions']} / {n}",
-            f"{round(mono * n) if mono is not None else '–'} / {n}"]) + " |")
+            f"| {metrics['name']}", r["policy"], _pm(r.get("time")), f"{round(r['reached']['mean'] * n)} / {n}",
+            *("1" if expert else _pm(ratio.get(k)) for k in RATIOS),
+            _pm(r.get("timeout_goal_distance"), 1000.0, 1),
+            "1" if expert else _pm(ratio.get("timeout_goal_distance"), digits=2),
+            f"{r['collisions']} / {n}", f"{round(mono * n) if mono is not None else '–'} / {n}"]) + " |")
     return out
 
 

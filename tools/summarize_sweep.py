@@ -26,8 +26,8 @@ from pathlib import Path
 from typing import Any
 
 #: (metrics.json key, column title); the expert has no losses
-METRICS = (("batch_loss", "batch-loss"), ("online_loss", "online-loss"), ("success", "success"),
-           ("collision", "collision"), ("lyapunov_monotone_fraction", "V_r monotone"))
+METRICS = (("val_loss", "validation loss"), ("batch_loss", "batch-loss"), ("online_loss", "online-loss"),
+           ("success", "success"), ("collision", "collision"), ("lyapunov_monotone_fraction", "V_r monotone"))
 SEED_KEYS = ("seed", "+seed", "++seed")
 
 
