@@ -42,9 +42,8 @@ def _collect(run, run_dir: Path, say):
 
     env = pipeline.make_env(run)
     expert = build_tree(expert_spec(run), aux_dims=env.aux_dims())
-    train_ds, info_tr = pipeline.load_or_collect(run, env, expert, run_dir, "train", say)
-    test_ds, info_te = pipeline.load_or_collect(run, env, expert, run_dir, "test", say)
-    return env, expert, train_ds, test_ds, {"train": info_tr, "test": info_te}
+    data = pipeline.load_splits(run, env, expert, run_dir, say)
+    return env, expert, {s: ds for s, (ds, _) in data.items()}, {s: info for s, (_, info) in data.items()}
 
 
 def _experiment(j: Job) -> float | None:
@@ -95,7 +94,7 @@ def train(cfg: DictConfig) -> None:
     with job(cfg, THREADS) as j:
         run, run_dir, log = j.run, j.dir, j.logger.log
         say = pipeline.Progress(True)
-        env, expert, train_ds, test_ds, _ = _collect(run, run_dir, say)
+        env, expert, data, _ = _collect(run, run_dir, say)
         blocks = {n: b.model_dump() for n, b in run.learners.items()}
         built: dict = {}
         for name in build_order(blocks):  # the pipeline's seeds, so rmpfusion-evaluate resumes the same runs
@@ -106,8 +105,8 @@ def train(cfg: DictConfig) -> None:
         summary: dict = {}
         for name in run.learners:
             ckdir = run_dir / "checkpoints" / name
-            tr = train_model(built[name], train_ds, run.train, seed=pipeline._learner_seed(run.seed, name) + 1,
-                             test_data=test_ds, checkpoint_dir=ckdir,
+            tr = train_model(built[name], data["train"], run.train, seed=pipeline._learner_seed(run.seed, name) + 1,
+                             test_data=data["test"], val_data=data.get("val"), checkpoint_dir=ckdir,
                              run_config=run.model_dump(), progress=say.bar(f"train {name}"),
                              log=(lambda m, _n=name: log({f"{_n}/{k}": v for k, v in m.items()})) if log else None)
             if tr.resumed_from is not None:

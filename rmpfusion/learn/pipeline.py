@@ -188,6 +188,13 @@ def load_or_collect(cfg: RunConfig, env, expert, run_dir: Path, split: str, say:
     return ds, info
 
 
+def load_splits(cfg: RunConfig, env, expert, run_dir: Path, say: Progress) -> dict[str, tuple[Dataset, dict]]:
+    """``{split: (dataset, info)}`` for every split the run uses: train, test, and val when ``data.val_envs`` > 0.
+    The one place that decides the splits, for ``rmpfusion-run`` and the stage commands alike."""
+    names = ("train", "test", "val") if cfg.data.val_envs else ("train", "test")
+    return {s: load_or_collect(cfg, env, expert, run_dir, s, say) for s in names}
+
+
 class WeightReport:
     """The weights of learner-rmp's learned edges over the test states at every snapshot, beside the expert's on
     the same states (an edge the expert leaves unweighted has w = 1 there): summaries for metrics.json, values
@@ -250,10 +257,9 @@ def _run(cfg: RunConfig, run_dir: Path, say: Progress, log) -> dict:
     env_figures = getattr(env, "figures", None)
 
     t0 = time.time()
-    d = cfg.data
-    train_ds, train_info = load_or_collect(cfg, env, expert, run_dir, "train", say)
-    test_ds, test_info = load_or_collect(cfg, env, expert, run_dir, "test", say)
-    val_ds, val_info = load_or_collect(cfg, env, expert, run_dir, "val", say) if d.val_envs else (None, None)
+    data = load_splits(cfg, env, expert, run_dir, say)
+    (train_ds, _), (test_ds, _) = data["train"], data["test"]
+    val_ds = data["val"][0] if "val" in data else None
     timing["data_s"] = time.time() - t0
 
     d, ev = cfg.data, cfg.eval
@@ -397,7 +403,7 @@ def _run(cfg: RunConfig, run_dir: Path, say: Progress, log) -> dict:
         timing["figures_s"] = time.time() - t0
     timing["total_s"] = time.time() - t_start
     metrics = {"name": cfg.name, "seed": cfg.seed, "config_hash": data_hash(cfg),
-               "data": {"train": train_info, "test": test_info, **({"val": val_info} if val_info else {})}, "expert": _clean(expert_metrics),
+               "data": {s: info for s, (_, info) in data.items()}, "expert": _clean(expert_metrics),
                "learners": results, "figures": figures, "timing": timing}
     if expert_stage is not None:
         metrics["task_table"] = _clean(_task_table(expert_stage, task_stages, getattr(env, "ratio_metrics", ())))
