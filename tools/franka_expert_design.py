@@ -1,6 +1,7 @@
 #!/usr/bin/env python
 """Do the Franka expert's weights matter? The expert of conf/expert/franka.yaml beside the same tree with
-unit weights (RMPflow) and with its attractor weight but unit obstacle weights, from the test starts.
+unit weights (RMPflow) and with its attractor weight but unit obstacle weights, from the validation split's
+starts (the obstacle in its training placement): designing the expert never looks at the test set.
 
     python tools/franka_expert_design.py                       # kinematic rollouts at 250 Hz (a few minutes)
     python tools/franka_expert_design.py --rate 1000 --mode torque
@@ -45,8 +46,8 @@ def main(argv=None) -> int:
     with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
         run = resolve_and_validate(compose("config", overrides=over))
     env, _, _ = build_all(run)
-    gen = torch.Generator().manual_seed(run.seed + SPLIT_SEED_OFFSET["test"])
-    q0, qd0, aux = env.sample_initial_states(env.sample_envs(1, gen, split="test"), a.trajectories, gen)
+    gen = torch.Generator().manual_seed(run.seed + SPLIT_SEED_OFFSET["val"])
+    q0, qd0, aux = env.sample_initial_states(env.sample_envs(1, gen, split="val"), a.trajectories, gen)
     print(f"{'policy':24s} {'time (s)':>11s} {'reached':>8s} {'c-space':>8s} {'e-e (m)':>8s} "
           f"{'dist@10s':>9s} {'collisions':>10s} {'clearance':>10s}")
     for label, weights in variants(dict(run.expert)).items():
