@@ -9,8 +9,8 @@ from pathlib import Path
 import pytest
 from hydra import compose, initialize_config_dir
 
-from rmpfusion.config.errors import ConfigError
-from rmpfusion.config.validate import build_all, resolve_and_validate
+from rmpfusion.build.errors import ConfigError
+from rmpfusion.pipeline.validate import build_all, resolve_and_validate
 from rmpfusion.registry import LEAF_RMPS
 
 CONF = Path(__file__).resolve().parents[1] / "conf"
@@ -156,7 +156,7 @@ BAD = {
 @pytest.mark.parametrize("case", sorted(BAD))
 def test_bad_config_is_rejected_with_its_path(case, monkeypatch):
     overrides, path, hint = BAD[case]
-    import rmpfusion.learn.pipeline as pipeline
+    import rmpfusion.pipeline.run as pipeline
 
     monkeypatch.setattr(pipeline, "run_experiment", lambda *a, **k: pytest.fail("an invalid config was run"))
     with pytest.raises(ConfigError) as err:

@@ -10,9 +10,9 @@ import pytest
 from hydra import compose, initialize_config_dir
 from pydantic import ValidationError
 
-from rmpfusion.config.errors import ConfigError
-from rmpfusion.config.schema import RunConfig
-from rmpfusion.config.validate import resolve_and_validate
+from rmpfusion.build.errors import ConfigError
+from rmpfusion.pipeline.config import RunConfig
+from rmpfusion.pipeline.validate import resolve_and_validate
 
 CONF = Path(__file__).resolve().parents[1] / "conf"
 MESSAGE = ("device: 'cuda' is not supported yet: rmpfusion runs on the CPU only (device=cpu); "

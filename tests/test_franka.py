@@ -351,8 +351,8 @@ def test_tiny_franka_experiment_end_to_end(tmp_path, rate):
 
     from hydra import compose, initialize_config_dir
 
-    from rmpfusion.config.validate import resolve_and_validate
-    from rmpfusion.learn.pipeline import run_experiment
+    from rmpfusion.pipeline.validate import resolve_and_validate
+    from rmpfusion.pipeline.run import run_experiment
 
     overrides = ["experiment=franka", "logger=disabled", f"env.control_rate={rate}", "data.train_trajectories=3",
                  "data.test_trajectories=2", "data.points=6", "env.demo_min_duration=0.2",

@@ -13,7 +13,7 @@ import yaml
 pytest.importorskip("pybullet")
 
 import rmpfusion  # noqa: E402
-from rmpfusion.config.schema import TrainConfig  # noqa: E402
+from rmpfusion.learn.config import TrainConfig  # noqa: E402
 from rmpfusion.envs.franka import Franka  # noqa: E402
 from rmpfusion.envs.franka_tree import copy_weights, franka_tree_spec, with_weights  # noqa: E402
 from rmpfusion.evaluate import lyapunov_monotone, max_relative_increase  # noqa: E402

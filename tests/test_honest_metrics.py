@@ -82,8 +82,8 @@ def test_edge_weights_are_the_weight_functions_at_the_parent_states():
 def test_tiny_run_reports_validation_loss_weights_and_online_loss_variants(tmp_path):
     from hydra import compose, initialize_config_dir
 
-    from rmpfusion.config.validate import resolve_and_validate
-    from rmpfusion.learn.pipeline import run_experiment
+    from rmpfusion.pipeline.validate import resolve_and_validate
+    from rmpfusion.pipeline.run import run_experiment
 
     with initialize_config_dir(config_dir=os.path.join(ROOT, "conf"), version_base="1.3"):
         cfg = compose("config", overrides=["experiment=2d2level", "data=tiny", "train=tiny", "logger=disabled",

@@ -7,14 +7,16 @@ import os
 import pytest
 import torch
 
-from rmpfusion.config.errors import ConfigError
-from rmpfusion.config.schema import RunConfig, TrainConfig
-from rmpfusion.core.tree import build_tree
+from rmpfusion.build.errors import ConfigError
+from rmpfusion.learn.config import TrainConfig
+from rmpfusion.pipeline.config import RunConfig
+from rmpfusion.build.tree import build_tree
 from rmpfusion.envs import Particle2D
 from rmpfusion.learn import (DatasetError, RMPLearner, collect, load_dataset, save_dataset,
-                             train, tree_with_weights, width_for_parameters)
+                             train, width_for_parameters)
+from rmpfusion.build import tree_with_weights
 from rmpfusion.learn.learners import build_learner, mlp_parameters
-from rmpfusion.learn.pipeline import run_experiment
+from rmpfusion.pipeline.run import run_experiment
 from rmpfusion.registry import LEARNERS
 
 
@@ -289,7 +291,7 @@ def test_a_checkpoint_that_stored_lr_final_still_resumes(tmp_path, small_data):
     """``train.lr_final`` was renamed ``lr_final_fraction``: a checkpoint written under the old name resumes to
     the weights of an uninterrupted run, its embedded config still validates (rmpfusion-evaluate-checkpoint),
     and its old value is still compared with the new setting."""
-    from rmpfusion.config.schema import upgrade_run_config
+    from rmpfusion.pipeline.config import upgrade_run_config
     from rmpfusion.learn.train import load_checkpoint
 
     _, _, ds = small_data
@@ -330,7 +332,7 @@ def test_the_old_name_lr_final_is_reported_with_the_new_one(tmp_path):
     import yaml
 
     from rmpfusion.cli.rundir import RESOLVED, check_same_config
-    from rmpfusion.config.validate import resolve_and_validate
+    from rmpfusion.pipeline.validate import resolve_and_validate
 
     data = tiny_config().model_dump(mode="json")
     data["train"]["lr_final"] = data["train"].pop("lr_final_fraction")

@@ -555,7 +555,7 @@ class TinyLearner(nn.Module):
 
 
 def _train(ckdir: Path, hidden: int = 4, lr: float = 1e-3, iterations: int = 4):
-    from rmpfusion.config.schema import TrainConfig
+    from rmpfusion.learn.config import TrainConfig
     cfg = TrainConfig(iterations=iterations, batch_size=8, checkpoint_every=2, snapshots=[0, iterations], log_every=2, lr=lr)
     torch.manual_seed(0)
     return train(TinyLearner(hidden), tiny_dataset(), cfg, seed=0, checkpoint_dir=ckdir)

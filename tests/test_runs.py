@@ -168,7 +168,7 @@ def test_sigkill_mid_training_then_rerun_ends_at_the_uninterrupted_weights(backg
     assert "data: reusing train set" in again.stdout  # the killed run's demonstrations, not new ones
     _assert_same_weights(run_dir, request.getfixturevalue("reference"))
     # the checkpoint alone rebuilds the run: it embeds the resolved config
-    from rmpfusion.config.schema import RunConfig
+    from rmpfusion.pipeline.config import RunConfig
 
     cfg = RunConfig.model_validate(_ckpt(ck / FINAL)["config"])
     assert cfg.train.iterations == ITERS and cfg.learners["rmp"].type == "rmp"
@@ -205,8 +205,8 @@ def test_signals_during_training_in_process_checkpoint_then_defer_to_the_install
     """Under a job manager that handles SIGTERM itself (submitit keeps the job alive until its requeue), the
     signal still writes a checkpoint at once, the manager's handler runs, and training goes on; Ctrl-C with
     Python's default handler checkpoints, then raises KeyboardInterrupt. Handlers are restored afterwards."""
-    from rmpfusion.config.schema import TrainConfig
-    from rmpfusion.core.tree import build_tree
+    from rmpfusion.learn.config import TrainConfig
+    from rmpfusion.build.tree import build_tree
     from rmpfusion.envs import Particle2D
     from rmpfusion.learn import collect, train
 
@@ -445,8 +445,8 @@ def test_same_seed_same_dataset_and_losses_in_another_process_and_directory(swee
     from hydra import compose, initialize_config_dir
 
     from rmpfusion.cli._common import CONF_DIR
-    from rmpfusion.config.validate import resolve_and_validate
-    from rmpfusion.learn.pipeline import run_experiment
+    from rmpfusion.pipeline.validate import resolve_and_validate
+    from rmpfusion.pipeline.run import run_experiment
 
     job0, job1 = sweep / JOBS[0], sweep / JOBS[1]
     overrides = yaml.safe_load((job0 / ".hydra" / "overrides.yaml").read_text())

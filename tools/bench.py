@@ -82,7 +82,7 @@ def compose(experiment: str):
     from hydra import compose as hcompose, initialize_config_dir
 
     from rmpfusion.cli._common import CONF_DIR
-    from rmpfusion.config.validate import resolve_and_validate
+    from rmpfusion.pipeline.validate import resolve_and_validate
 
     with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
         return resolve_and_validate(hcompose("config", overrides=[f"experiment={experiment}", "logger=disabled"]))
@@ -90,7 +90,7 @@ def compose(experiment: str):
 
 def learner_2d2level(seed: int = 0):
     from rmpfusion.learn.learners import build_learner
-    from rmpfusion.learn.pipeline import make_env
+    from rmpfusion.pipeline.run import make_env
 
     cfg = compose("2d2level")
     env = make_env(cfg)
@@ -101,8 +101,8 @@ def learner_2d2level(seed: int = 0):
 
 
 def franka_expert():
-    from rmpfusion.config.validate import expert_spec
-    from rmpfusion.learn.pipeline import make_env
+    from rmpfusion.pipeline.validate import expert_spec
+    from rmpfusion.pipeline.run import make_env
 
     cfg = compose("franka")
     env = make_env(cfg)

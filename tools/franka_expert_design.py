@@ -21,9 +21,9 @@ import torch
 from hydra import compose, initialize_config_dir
 
 from rmpfusion.cli._common import CONF_DIR
-from rmpfusion.config.validate import build_all, expert_spec, resolve_and_validate
-from rmpfusion.core.tree import build_tree
-from rmpfusion.learn.pipeline import SPLIT_SEED_OFFSET
+from rmpfusion.pipeline.validate import build_all, expert_spec, resolve_and_validate
+from rmpfusion.build.tree import build_tree
+from rmpfusion.pipeline.run import SPLIT_SEED_OFFSET
 
 
 def variants(expert: dict) -> dict[str, dict]:

@@ -18,8 +18,8 @@ import sys
 import time
 from pathlib import Path
 
-from rmpfusion.config.schema import RunConfig
-from rmpfusion.learn.pipeline import run_experiment
+from rmpfusion.pipeline.config import RunConfig
+from rmpfusion.pipeline.run import run_experiment
 
 PAPER = {  # (experiment, learner): batch, online, success, collision   (None = not reported)
     ("2d1level", "learner-rmp"): (5.42e-5, 5.82e-5, None, None),
@@ -40,7 +40,7 @@ def config(exp: str, scale: float, seed: int, lr: float | None, cache: str | Non
     from hydra import compose, initialize_config_dir
 
     from rmpfusion.cli._common import CONF_DIR
-    from rmpfusion.config.validate import resolve_and_validate
+    from rmpfusion.pipeline.validate import resolve_and_validate
 
     it = max(10, round(20000 * scale))
     snaps = sorted({0, it // 20, it // 4, it})

@@ -35,7 +35,7 @@ CONF_DIR = conf_dir()
 @contextlib.contextmanager
 def config_errors_exit() -> Iterator[None]:
     """Print configuration problems as the user should read them (paths and fixes), no traceback."""
-    from ..config.errors import ConfigError
+    from ..build.errors import ConfigError
     from ..registry import RegistryError
 
     try:
@@ -89,7 +89,7 @@ def job(cfg, threads: int = 1, log: bool = True) -> Iterator[Job]:
     """
     import torch
 
-    from ..config.validate import resolve_and_validate
+    from ..pipeline.validate import resolve_and_validate
     from . import logger as wandb_logger
     from .rundir import (HydraFiles, RunDirError, check_same_config, console_log, exclusive, record_environment,
                          remove_stale_temporaries)

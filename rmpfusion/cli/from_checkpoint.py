@@ -20,11 +20,11 @@ def evaluate_checkpoint(path: str | Path, out: str | Path | None = None, figures
     """Metrics of the learner in checkpoint ``path`` on its run's test set (see the module docstring)."""
     import torch
 
-    from ..config.schema import RunConfig, upgrade_run_config
-    from ..core.tree import build_tree
+    from ..pipeline.config import RunConfig, upgrade_run_config
+    from ..build.tree import build_tree
     from ..evaluate.metrics import evaluate_learner
     from ..files import atomic_write_json
-    from ..learn import pipeline
+    from ..pipeline import run as pipeline
     from ..learn.learners import build_learner, build_order
     from ..learn.train import CheckpointError, load_checkpoint
 

@@ -17,7 +17,7 @@ from omegaconf import DictConfig
 
 from ._common import CONF_DIR, Job, config_errors_exit, job
 
-#: torch intra-op threads per job: the batches are small, extra threads only contend (see learn/pipeline.py)
+#: torch intra-op threads per job: the batches are small, extra threads only contend (see pipeline/run.py)
 THREADS = 1
 
 
@@ -36,9 +36,9 @@ def _objective(result) -> float | None:
 
 
 def _collect(run, run_dir: Path, say):
-    from ..core.tree import build_tree
-    from ..learn import pipeline
-    from ..config.validate import expert_spec
+    from ..build.tree import build_tree
+    from ..pipeline import run as pipeline
+    from ..pipeline.validate import expert_spec
 
     env = pipeline.make_env(run)
     expert = build_tree(expert_spec(run), aux_dims=env.aux_dims())
@@ -47,7 +47,7 @@ def _collect(run, run_dir: Path, say):
 
 
 def _experiment(j: Job) -> float | None:
-    from ..learn.pipeline import run_experiment
+    from ..pipeline.run import run_experiment
 
     with config_errors_exit():
         result = run_experiment(j.run, j.dir, progress=True, log=j.logger.log, threads=THREADS)
@@ -71,7 +71,7 @@ def main(cfg: DictConfig) -> float | None:
 @hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="config")
 def collect(cfg: DictConfig) -> None:
     """Stage 1: the expert's demonstrations, written (checksummed) into the run directory."""
-    from ..learn.pipeline import Progress
+    from ..pipeline.run import Progress
 
     with job(cfg, THREADS, log=False) as j:
         *_, info = _collect(j.run, j.dir, Progress(True))
@@ -87,7 +87,7 @@ def train(cfg: DictConfig) -> None:
     Ctrl-C write a checkpoint before stopping)."""
     import torch
 
-    from ..learn import pipeline
+    from ..pipeline import run as pipeline
     from ..learn.learners import build_learner, build_order
     from ..learn.train import train as train_model
 

@@ -72,7 +72,7 @@ def check_same_config(resolved: Mapping[str, Any], run_dir: Path) -> None:
     except Exception as e:  # noqa: BLE001 - any unreadable file gets the same advice
         raise RunDirError(f"{run_dir} holds a run whose saved configuration {saved} is unreadable "
                           f"({type(e).__name__}: {e}); nothing was changed. {fix}") from e
-    from ..config.schema import upgrade_run_config
+    from ..pipeline.config import upgrade_run_config
 
     old = upgrade_run_config(old)  # a run saved before a key was renamed (train.lr_final) still resumes
     strip = lambda c: {k: v for k, v in c.items() if k not in MAY_DIFFER}  # noqa: E731

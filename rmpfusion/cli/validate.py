@@ -40,7 +40,7 @@ def summary(run, env, expert, learners) -> str:
 
 @hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="config")
 def main(cfg: DictConfig) -> None:
-    from ..config.validate import build_all, resolve_and_validate
+    from ..pipeline.validate import build_all, resolve_and_validate
 
     with config_errors_exit():
         run = resolve_and_validate(cfg)

@@ -14,9 +14,6 @@ from typing import Any, Mapping
 import torch
 from torch import Tensor, nn
 
-from ..config.errors import ConfigError, Issue
-from ..config.tree_spec import TreeSpec, validate_tree_spec
-from ..registry import LEAF_RMPS, TASK_MAPS, WEIGHTS
 from .algebra import Edge, NodeRMP, lu_solve, pullback_star, resolve
 from .auxstate import AuxDict
 
@@ -369,88 +366,3 @@ class RMPTree(nn.Module):
 
         walk(self.root_name, "")
         return "\n".join(lines)
-
-
-def _build(entry, spec: Mapping[str, Any], *args):
-    params = entry.validate({k: v for k, v in spec.items() if k != "type"})
-    return entry.obj(params, *args)
-
-
-def build_tree(
-    spec: Mapping[str, Any] | TreeSpec,
-    aux_dims: Mapping[str, int] | None = None,
-    dtype: torch.dtype | None = torch.float64,
-    where: str = "tree",
-    resolve_method: str = "solve",
-    check_finite: bool = True,
-) -> RMPTree:
-    """Validate a tree spec (docs/architecture.md §2) and assemble its modules through the registries.
-
-    ``aux_dims`` adds to (or overrides) the spec's ``aux`` declarations, e.g. from the environment.
-    All problems are reported together in one ConfigError whose lines name YAML paths.
-
-    ``dtype`` is the one floating dtype of the tree's constants and parameters (None: torch's current default).
-    Every registered class builds its constants in float64 from the spec's Python numbers
-    (``rmpfusion.core.auxstate.constant``); the built tree is then cast to ``dtype``, so a constant is rounded
-    at most once, to the dtype the tree computes in.
-    """
-    ts = validate_tree_spec(spec, where)
-    if aux_dims:
-        ts = ts.model_copy(update={"aux": {**ts.aux, **dict(aux_dims)}})
-    aux = dict(ts.aux)
-    issues: list[Issue] = []
-    dims = {ts.root.name: ts.root.dim}
-    maps, weights, rmps, shared = {}, {}, {}, {}
-    for name, wspec in ts.shared_weights.items():
-        # a shared weight's parent dimension is that of the first edge using it
-        users = [n for n, nd in ts.nodes.items() if (nd.weight == name or (isinstance(nd.weight, Mapping) and nd.weight.get("shared") == name))]
-        if not users:
-            issues.append(Issue(f"{where}.shared_weights.{name}", "declared but used by no edge; remove it"))
-            continue
-        shared[name] = (wspec, users)
-    children: dict[str, list[str]] = {}
-    for n, nd in ts.nodes.items():
-        children.setdefault(nd.parent, []).append(n)
-    order = breadth_first(children, ts.root.name)
-    built_shared: dict[str, tuple[nn.Module, int]] = {}
-    for n in order:
-        nd, p = ts.nodes[n], f"{where}.nodes.{n}"
-        in_dim = dims[nd.parent]
-        try:
-            maps[n] = _build(TASK_MAPS.get(nd.map["type"]), nd.map, in_dim, aux)
-            dims[n] = maps[n].out_dim
-        except Exception as e:  # noqa: BLE001 - reported with its path
-            issues.append(Issue(f"{p}.map", str(e)))
-            continue
-        if nd.weight is not None:
-            try:
-                if isinstance(nd.weight, str) or "shared" in nd.weight:
-                    ref = nd.weight if isinstance(nd.weight, str) else nd.weight["shared"]
-                    bind = {} if isinstance(nd.weight, str) else dict(nd.weight.get("bind", {}))
-                    bad = [v for v in bind.values() if v not in aux]
-                    if bad:
-                        raise ValueError(f"bind refers to undeclared aux {bad} (declared: {sorted(aux)})")
-                    if ref not in built_shared:
-                        built_shared[ref] = (_build(WEIGHTS.get(shared[ref][0]["type"]), shared[ref][0], in_dim, aux), in_dim)
-                    fn, d = built_shared[ref]
-                    if d != in_dim:
-                        raise ValueError(f"shared weight '{ref}' is used on parents of dimension {d} and {in_dim}")
-                    weights[n] = BoundWeight(fn, bind)
-                else:
-                    weights[n] = BoundWeight(_build(WEIGHTS.get(nd.weight["type"]), nd.weight, in_dim, aux))
-            except Exception as e:  # noqa: BLE001
-                issues.append(Issue(f"{p}.weight", str(e)))
-        if nd.rmp is not None:
-            entry = LEAF_RMPS.get(nd.rmp["type"])
-            fixed = getattr(entry.obj, "dim", None)
-            if fixed is not None and fixed != dims[n]:
-                issues.append(Issue(f"{p}.rmp", f"'{nd.rmp['type']}' is {fixed}-dimensional but the map gives dimension {dims[n]}; change the map or the rmp"))
-                continue
-            try:
-                rmps[n] = _build(entry, nd.rmp, dims[n])
-            except Exception as e:  # noqa: BLE001
-                issues.append(Issue(f"{p}.rmp", str(e)))
-    if issues:
-        raise ConfigError(issues)
-    tree = RMPTree(ts, maps, weights, rmps, {k: v[0] for k, v in built_shared.items()}, resolve_method, check_finite)
-    return tree.to(torch.get_default_dtype() if dtype is None else dtype)

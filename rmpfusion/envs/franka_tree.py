@@ -16,7 +16,7 @@ from typing import Any, Mapping, Sequence
 
 from ..maps.urdf import PANDA_ARM_JOINTS, load_panda_urdf_path, parse_urdf
 
-from ..learn.weighting import tree_with_weights as with_weights  # noqa: F401  (expert configs: node or shared-weight names)
+from ..build.weighting import tree_with_weights as with_weights  # noqa: F401  (expert configs: node or shared-weight names)
 
 # Spheres covering the Panda's collision meshes from link3 to the closed fingers, in each link's frame:
 # a k-means fit of the mesh vertices, each radius covering its cluster (rounded up by ~5 mm).

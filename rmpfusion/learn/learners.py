@@ -13,11 +13,12 @@ import torch
 from pydantic import Field
 from torch import Tensor, nn
 
-from ..config.errors import ConfigError, Issue
-from ..core.tree import RMPTree, build_tree
+from ..build.errors import ConfigError, Issue
+from ..build.tree import build_tree
+from ..core.tree import RMPTree
 from ..core.weight import aux_features
 from ..registry import LEARNERS, Params
-from .weighting import expand_aux, tree_with_weights
+from ..build.weighting import expand_aux, tree_with_weights
 
 #: Leaf types that only condition or damp the root; learning a weight on them adds nothing the expert has.
 REGULARISER_LEAVES = frozenset({"identity_metric", "damper", "rmpflow_damper"})

@@ -24,7 +24,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from ..config.schema import TrainConfig, upgrade_train_config
+from .config import TrainConfig, upgrade_train_config
 from ..files import atomic_torch_save
 from .demonstrations import Dataset
 

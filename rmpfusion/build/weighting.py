@@ -5,7 +5,7 @@ from __future__ import annotations
 import copy
 from typing import Any, Mapping
 
-from ..config.errors import ConfigError, Issue
+from ..build.errors import ConfigError, Issue
 
 
 def tree_with_weights(tree_spec: Mapping[str, Any], weights: Mapping[str, Any], where: str = "weights") -> dict:

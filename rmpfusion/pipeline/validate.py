@@ -19,9 +19,9 @@ from omegaconf.errors import OmegaConfBaseException
 from pydantic import ValidationError
 
 from ..registry import ENVS, LEAF_RMPS, LEARNERS, TASK_MAPS, WEIGHTS, Registry
-from .errors import ConfigError, Issue, allowed_keys_hint, issues_from_pydantic
-from .schema import RENAMED_KEYS, RunConfig
-from .tree_spec import check_typed, validate_tree_spec
+from ..build.errors import ConfigError, Issue, allowed_keys_hint, issues_from_pydantic
+from .config import RENAMED_KEYS, RunConfig
+from ..build.spec import check_typed, validate_tree_spec
 
 #: Weight-spec keys whose string values (or lists of strings) name aux state.
 _AUX_LIST_KEYS = ("aux",)
@@ -263,14 +263,14 @@ def resolve_and_validate(cfg: DictConfig | Mapping[str, Any]) -> RunConfig:
 
 def expert_spec(run: RunConfig) -> dict:
     """The tree with the expert's weights: on edges by node name, or replacing a shared weight by its name."""
-    from ..learn.weighting import tree_with_weights
+    from ..build.weighting import tree_with_weights
 
     return tree_with_weights(run.tree, run.expert, where="expert")
 
 
 def _build_issues(run: RunConfig, aux_dims: Mapping[str, int]) -> list[Issue]:
     """Build the expert tree and the learners once, turning build errors into path-named issues."""
-    from ..core.tree import build_tree
+    from ..build.tree import build_tree
 
     issues: list[Issue] = []
     try:
@@ -318,7 +318,7 @@ def _build_learners(run: RunConfig, aux_dims: Mapping[str, int]) -> dict:
 
 def build_all(run: RunConfig):
     """``(env, expert_tree, learners)`` for a validated config: everything an experiment runs on."""
-    from ..core.tree import build_tree
+    from ..build.tree import build_tree
 
     entry = ENVS.get(run.env.type)
     block = run.env.model_dump()

@@ -19,20 +19,20 @@ from typing import Any, Callable, Mapping
 
 import torch
 
-from ..config.schema import RunConfig
-from ..core.tree import build_tree
+from .config import RunConfig
+from ..build.tree import build_tree
 from ..files import atomic_torch_save, atomic_write_json
 from ..evaluate.metrics import StageResult, batch_loss, evaluate_learner, online_loss, rollout_rates, task_stage
 from ..evaluate.weights import edge_weights, learned_edges, summarize_weights
 from ..registry import ENVS
-from .demonstrations import Dataset, collect, load_dataset, save_dataset
-from .learners import RMPLearner, build_learner, build_order, compile_learner
-from .train import latest_checkpoint, load_snapshot, train
+from ..learn.demonstrations import Dataset, collect, load_dataset, save_dataset
+from ..learn.learners import RMPLearner, build_learner, build_order, compile_learner
+from ..learn.train import latest_checkpoint, load_snapshot, train
 
 
 def expert_spec(cfg: RunConfig) -> dict:
     """The tree with the expert's weights; the validator's version also places weights on shared-weight names."""
-    from ..config.validate import expert_spec as spec
+    from ..pipeline.validate import expert_spec as spec
 
     return spec(cfg)
 

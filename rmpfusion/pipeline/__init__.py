@@ -1,0 +1,1 @@
+"""An experiment as stages (collect, fit, evaluate, report) over a validated run configuration."""
