@@ -1,9 +1,13 @@
-"""Atomic file writes: a crash or a kill leaves the old file or the new one, never half of one."""
+"""Files this package writes and reads back: atomic writes (a crash or a kill leaves the old file or the new one,
+never half of one), and reading a torch payload of ours so that every way it can fail (missing, truncated,
+tampered, foreign) is one error naming the file and the fix, whatever kind of file (dataset, checkpoint) it is."""
 from __future__ import annotations
 
 import io
 import json
 import os
+import re
+import warnings
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Iterator
@@ -40,3 +44,74 @@ def atomic_torch_save(obj: Any, path: str | os.PathLike) -> None:
 
 def atomic_write_json(path: str | os.PathLike, obj: Any) -> None:
     atomic_write_bytes(path, (json.dumps(obj, indent=2, default=str) + "\n").encode())
+
+
+_TMP = re.compile(r"^\..+\.tmp(\d+)")  # atomic_path's temporaries: .<name>.tmp<pid>[suffix]
+
+
+def remove_stale_temporaries(directory: Path, recursive: bool = True) -> list[Path]:
+    """Delete the temporaries of atomic writes (``.<name>.tmp<pid>...``) whose writer is no longer running;
+    returns them.
+
+    They only exist when a process was killed mid-write; no reader ever picks them up (readers open finished
+    names only), this only frees the space. A live writer's temporary (another process on the same directory)
+    is left alone, and so is anything under a ``wandb`` directory, which is not ours."""
+    removed: list[Path] = []
+    if not directory.is_dir():
+        return removed
+    found = directory.rglob(".*.tmp*") if recursive else directory.glob(".*.tmp*")
+    for p in found:
+        m = _TMP.match(p.name)
+        if not m or not p.is_file() or "wandb" in p.relative_to(directory).parts:
+            continue
+        pid = int(m.group(1))
+        if pid != os.getpid() and not _alive(pid):
+            p.unlink(missing_ok=True)
+            removed.append(p)
+    return removed
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # someone else's live process
+        return True
+    return True
+
+
+def load_error_cause(e: BaseException) -> str:
+    """A one-line cause for a file torch could not load: torch's own messages run to paragraphs (and suggest
+    ``weights_only=False``, which is the wrong advice for a damaged or tampered file)."""
+    msg = str(e)
+    if "WeightsUnpickler error:" in msg:
+        msg = msg.split("WeightsUnpickler error:", 1)[1]
+    lines = [ln.strip() for ln in msg.strip().splitlines() if ln.strip()]
+    first = lines[0] if lines else {EOFError: "the file ends early"}.get(type(e), "no detail")
+    for cut in (" This is an internal", ". Please use", " was not an allowed global"):
+        first = first.split(cut, 1)[0]
+    if len(first) > 160:
+        first = first[:157] + "..."
+    return f"{type(e).__name__}: {first}"
+
+
+def read_torch_file(path: Path, what: str, fix: str, error: type[Exception], fmt: str | None = None,
+                    missing: str | None = None) -> dict:
+    """``torch.load`` (weights only) of a file this package wrote, every failure as ``error`` naming the file.
+
+    ``fmt`` is the ``format`` tag the payload must carry; ``missing`` the advice when the file does not exist.
+    """
+    import torch
+
+    if not path.is_file():
+        raise error(f"{what} file {path} does not exist" + (f"; {missing}" if missing else ""))
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # torch's warnings about odd pickles: the error below says it all
+            payload = torch.load(path, map_location="cpu", weights_only=True)
+        if not isinstance(payload, dict) or (fmt is not None and payload.get("format") != fmt):
+            raise ValueError(f"not a {fmt or 'rmpfusion'} file")
+    except Exception as e:  # noqa: BLE001 - any unreadable file gets the same advice
+        raise error(f"{what} file {path} is unreadable or truncated ({load_error_cause(e)}); {fix}") from e
+    return payload

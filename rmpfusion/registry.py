@@ -1,14 +1,14 @@
 """Registries: how names in YAML become classes.
 
 One registry per kind (leaf RMP, task map, weight, env, ...). Built-ins and plugins register with the
-same decorator; plugins declared under the ``rmpfusion.plugins`` entry-point group are imported on the
-first lookup, never at ``import rmpfusion``. Every entry carries a pydantic model of its parameters so
-YAML is validated by the entry that will consume it.
+same decorator: a built-in when its package is imported (``import rmpfusion`` imports them all), a plugin
+declared under the ``rmpfusion.plugins`` entry-point group on the first lookup, never at ``import
+rmpfusion``. Every entry carries a pydantic model of its parameters, so YAML is validated by the entry that
+will consume it (and the run config's schema is generated from the registries, ``build.spec``).
 """
 from __future__ import annotations
 
 import difflib
-import importlib
 from dataclasses import dataclass
 from importlib.metadata import entry_points
 from typing import Any, Callable, Generic, TypeVar
@@ -46,10 +46,18 @@ def _owner_of(obj: Any) -> str:
 
 
 class Registry(Generic[T]):
-    """Name -> entry for one kind of building block."""
+    """Name -> entry for one kind of building block.
 
-    def __init__(self, kind: str):
+    A registry is a plain instance: tests and embedding applications can build an isolated one and pass it
+    where the defaults would be used. ``plugins`` is called before the first lookup (the default registries
+    import the ``rmpfusion.plugins`` entry points there); an isolated registry has none unless given one.
+    ``version`` counts registrations, so schemas generated from a registry know when to regenerate.
+    """
+
+    def __init__(self, kind: str, plugins: "PluginLoader | None" = None):
         self.kind = kind
+        self.plugins = plugins
+        self.version = 0
         self._entries: dict[str, Entry[T]] = {}
 
     def register(self, name: str, params: type[Params] | None = None) -> Callable[[T], T]:
@@ -68,12 +76,21 @@ class Registry(Generic[T]):
                     f"rename one of them"
                 )
             self._entries[name] = Entry(name, obj, model, _owner_of(obj))
+            self.version += 1
             return obj
 
         return deco
 
+    def _load(self) -> None:
+        if self.plugins is not None:
+            self.plugins.load()
+
+    def entries(self) -> list[Entry[T]]:
+        self._load()
+        return [self._entries[n] for n in sorted(self._entries)]
+
     def names(self) -> list[str]:
-        load_plugins()
+        self._load()
         return sorted(self._entries)
 
     def suggest(self, name: str, n: int = 3) -> list[str]:
@@ -85,11 +102,11 @@ class Registry(Generic[T]):
         return f"unknown {self.kind} '{name}'; {hint}registered: {', '.join(self.names())}"
 
     def __contains__(self, name: str) -> bool:
-        load_plugins()
+        self._load()
         return name in self._entries
 
     def get(self, name: str) -> Entry[T]:
-        load_plugins()
+        self._load()
         try:
             return self._entries[name]
         except KeyError:
@@ -97,46 +114,40 @@ class Registry(Generic[T]):
 
     def unregister(self, name: str) -> None:
         """Remove an entry (tests and interactive sessions that redefine a class)."""
-        self._entries.pop(name, None)
+        if self._entries.pop(name, None) is not None:
+            self.version += 1
 
 
-LEAF_RMPS: Registry = Registry("leaf RMP")
-TASK_MAPS: Registry = Registry("task map")
-WEIGHTS: Registry = Registry("weight function")
-ENVS: Registry = Registry("environment")
-LEARNERS: Registry = Registry("learner")
+class PluginLoader:
+    """Imports every module named in an entry-point group, once, on the first lookup of a registry using it.
 
-_plugins_loaded = False
-_builtins_loaded = False
+    Never at ``import rmpfusion``: a broken plugin then fails the run that needs a name, naming the plugin."""
 
+    def __init__(self, group: str = PLUGIN_GROUP):
+        self.group = group
+        self.loaded = False
 
-def load_builtins() -> None:
-    """Import the modules that register rmpfusion's own entries."""
-    global _builtins_loaded
-    if _builtins_loaded:
-        return
-    _builtins_loaded = True
-    for mod in ("rmpfusion.maps", "rmpfusion.rmps", "rmpfusion.weights"):
-        importlib.import_module(mod)
-    for mod in ("rmpfusion.envs", "rmpfusion.learn"):
-        try:
-            importlib.import_module(mod)
-        except ModuleNotFoundError as e:  # optional layers may be absent in a minimal install
-            if e.name is None or not e.name.startswith("rmpfusion"):
+    def load(self) -> None:
+        if self.loaded:
+            return
+        self.loaded = True
+        for ep in entry_points(group=self.group):
+            try:
+                ep.load()
+            except RegistryError:
                 raise
+            except Exception as e:  # a broken plugin must say which one it is
+                raise ImportError(f"rmpfusion plugin '{ep.name}' ({ep.value}) failed to load: {e}") from e
 
 
-def load_plugins() -> None:
-    """Import every module named in the ``rmpfusion.plugins`` entry-point group, once."""
-    global _plugins_loaded
-    if _plugins_loaded:
-        return
-    _plugins_loaded = True
-    load_builtins()
-    for ep in entry_points(group=PLUGIN_GROUP):
-        try:
-            ep.load()
-        except RegistryError:
-            raise
-        except Exception as e:  # a broken plugin must say which one it is
-            raise ImportError(f"rmpfusion plugin '{ep.name}' ({ep.value}) failed to load: {e}") from e
+#: The plugins of the default registries (``rmpfusion.plugins`` entry points).
+PLUGINS = PluginLoader()
+
+LEAF_RMPS: Registry = Registry("leaf RMP", PLUGINS)
+TASK_MAPS: Registry = Registry("task map", PLUGINS)
+WEIGHTS: Registry = Registry("weight function", PLUGINS)
+ENVS: Registry = Registry("environment", PLUGINS)
+LEARNERS: Registry = Registry("learner", PLUGINS)
+OBJECTIVES: Registry = Registry("objective", PLUGINS)
+OPTIMIZERS: Registry = Registry("optimizer", PLUGINS)
+TREE_GENERATORS: Registry = Registry("tree generator", PLUGINS)

@@ -59,7 +59,7 @@ def test_every_config_file_composes_validates_builds(group, option):
     cfg = compose_cfg(_overrides_for(group, option), hydra_cfg=group in ("sweep", "launcher"))
     run = resolve_and_validate(cfg)
     env, expert, learners = build_all(run)
-    assert expert.dim == run.tree["root"]["dim"] and learners
+    assert expert.dim == run.tree.root.dim and learners
     if group == "sweep":
         assert cfg.hydra.sweeper.params, "a sweep recipe must set hydra.sweeper.params"
     if group == "launcher":
@@ -72,7 +72,7 @@ def test_every_experiment_validates_and_builds(experiment):
     assert run.name == experiment
     env, expert, learners = build_all(run)
     assert set(learners) == set(run.learners)
-    assert expert.describe().startswith(run.tree["root"]["name"])
+    assert expert.describe().startswith(run.tree.root.name)
 
 
 def test_without_an_experiment_the_run_is_named_default():

@@ -17,8 +17,9 @@ from rmpfusion.learn.config import TrainConfig  # noqa: E402
 from rmpfusion.envs.franka import Franka  # noqa: E402
 from rmpfusion.envs.franka_tree import copy_weights, franka_tree_spec, with_weights  # noqa: E402
 from rmpfusion.evaluate import lyapunov_monotone, max_relative_increase  # noqa: E402
-from rmpfusion.learn.learners import RMPLearner  # noqa: E402
-from rmpfusion.learn.train import dataset_loss, train  # noqa: E402
+from rmpfusion.learn.rmp_learner import RMPLearner  # noqa: E402
+from rmpfusion.learn.objectives import dataset_loss  # noqa: E402
+from rmpfusion.learn.train import train  # noqa: E402
 
 F64 = torch.float64
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -42,7 +43,7 @@ def test_a_trained_learner_runs_with_three_obstacles_without_collision():
     weights = _conf("expert")
     expert1 = rmpfusion.build_tree(with_weights(franka_tree_spec(None, 1), weights), aux_dims=env1.aux_dims())
     g = torch.Generator().manual_seed(0)
-    data = env1.collect_demonstrations(expert1, 1, 24, 51, 0.1, g, split="train")
+    data = env1.demonstrations(expert1, 1, 24, 51, 0.1, g, split="train")
     spec1 = franka_tree_spec(None, 1)
     learner = RMPLearner(RMPLearner.Params(weights={"type": "mlp", "hidden": [32, 32], "aux": ["goal"],
                                                    "positivity": "exp"}),  # as conf/experiment/franka.yaml

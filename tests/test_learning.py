@@ -11,11 +11,11 @@ from rmpfusion.build.errors import ConfigError
 from rmpfusion.learn.config import TrainConfig
 from rmpfusion.pipeline.config import RunConfig
 from rmpfusion.build.tree import build_tree
-from rmpfusion.envs import Particle2D
-from rmpfusion.learn import (DatasetError, RMPLearner, collect, load_dataset, save_dataset,
-                             train, width_for_parameters)
+from rmpfusion.envs import DatasetError, Particle2D, collect, load_dataset, save_dataset
+from rmpfusion.learn import RMPLearner, train, width_for_parameters
 from rmpfusion.build import tree_with_weights
-from rmpfusion.learn.learners import build_learner, mlp_parameters
+from rmpfusion.learn.learners import build_learner
+from rmpfusion.learn.unstructured import mlp_parameters
 from rmpfusion.pipeline.run import run_experiment
 from rmpfusion.registry import LEARNERS
 
@@ -197,6 +197,77 @@ def test_unstructured_matches_parameter_count():
     assert un(q, qd, a).shape == (3, 2)
 
 
+def _every_tensor(model: torch.nn.Module) -> dict[str, torch.Tensor]:
+    """Parameters, buffers and plain tensor attributes of every submodule (constants included)."""
+    out = {}
+    for name, mod in model.named_modules():
+        for k, v in [*vars(mod).items(), *mod._parameters.items(), *mod._buffers.items()]:
+            if isinstance(v, torch.Tensor):
+                out[f"{name}.{k}"] = v.detach().clone()
+    return out
+
+
+_BLOCKS = {"rmp": RMP_LEARNER,
+           "rmp_bias": {"type": "rmp", "weights": {"type": "mlp", "hidden": [8], "aux": "all", "init_bias": 1.5,
+                                                   "activation": "softplus"}},
+           "un": {"type": "unstructured", "hidden": [4, 4], "match_parameters_of": "rmp"},
+           "un_relu": {"type": "unstructured", "hidden": [5, 3], "activation": "relu"}}
+
+
+def _build_all(default_dtype: torch.dtype) -> dict[str, dict[str, torch.Tensor]]:
+    old = torch.get_default_dtype()
+    torch.set_default_dtype(default_dtype)
+    try:
+        aux, built = Particle2D(n_obstacles=2).aux_dims(), {}
+        for name, block in _BLOCKS.items():
+            torch.manual_seed(7)
+            built[name] = build_learner(block, TREE_2LEVEL, aux, 2, expert=EXPERT_2LEVEL, built=built)
+        return {name: _every_tensor(m) for name, m in built.items()}
+    finally:
+        torch.set_default_dtype(old)
+
+
+def test_initial_weights_are_float64_and_the_same_whatever_the_default_dtype():
+    """Learners build every layer in float64 themselves: under torch's float32 default a seed draws exactly the
+    weights (and constants) it drew when construction ran under a float64 default (as build_learner once forced)."""
+    got, reference = _build_all(torch.float32), _build_all(torch.float64)
+    for name, tensors in reference.items():
+        assert got[name].keys() == tensors.keys(), name
+        for k, v in tensors.items():
+            assert got[name][k].dtype == v.dtype and torch.equal(got[name][k], v), f"{name}: {k}"
+    params = [v for name in reference for k, v in reference[name].items() if "weight" in k or "bias" in k]
+    assert params and all(v.dtype == torch.float64 for v in params)
+
+
+def test_learners_state_what_they_offer():
+    """What callers used to probe for is part of every learner: its tree (or None), what metrics.json reports
+    about it, and compiling it; a registered class that is no Learner is refused by name."""
+    from rmpfusion.core.tree import RMPTree
+    from rmpfusion.learn import Learner, UnstructuredLearner
+    from rmpfusion.registry import Params as NoParams
+
+    aux = Particle2D(n_obstacles=2).aux_dims()
+    rmp = build_learner(RMP_LEARNER, TREE_2LEVEL, aux, 2, expert=EXPERT_2LEVEL)
+    un = build_learner({"type": "unstructured", "hidden": [4, 3]}, TREE_2LEVEL, aux, 2)
+    assert isinstance(rmp, Learner) and isinstance(un, UnstructuredLearner)
+    assert isinstance(rmp.tree, RMPTree) and un.tree is None
+    assert rmp.describe() == {} and un.describe() == {"hidden": [4, 3]}
+    assert any(k.startswith("tree.weights.goal.fn.") for k in rmp.state_dict())  # checkpoints keep their keys
+    q, qd, a = Particle2D(n_obstacles=2).sample(1, 3, seed=0)
+    assert torch.is_tensor(un.policy(q, qd, a)) and rmp.policy(q, qd, a).V.shape == (3,)
+    assert un.compile() is un and rmp.compile() is rmp and rmp.tree._compile_args is not None  # compiles on use
+
+    @LEARNERS.register("not_a_learner")
+    class Plain(torch.nn.Module):
+        Params = NoParams
+
+    try:
+        with pytest.raises(TypeError, match="'not_a_learner'.*not a subclass of rmpfusion.learn.learner.Learner"):
+            build_learner({"type": "not_a_learner"}, TREE_2LEVEL, aux, 2)
+    finally:
+        LEARNERS.unregister("not_a_learner")
+
+
 # ------------------------------------------------------------------------------------------ training
 def _learner(seed=0):
     torch.manual_seed(seed)
@@ -347,6 +418,95 @@ def test_the_old_name_lr_final_is_reported_with_the_new_one(tmp_path):
         check_same_config(changed, tmp_path)
 
 
+def test_a_registered_objective_and_optimiser_train_without_editing_train(small_data):
+    """A plugin's objective and optimiser are named in the training block like the built-in ones."""
+    from rmpfusion.learn.objectives import Objective, dataset_loss
+    from rmpfusion.registry import OBJECTIVES, OPTIMIZERS, Params
+
+    _, _, ds = small_data
+    calls = {"objective": 0, "optimizer": 0}
+
+    @OBJECTIVES.register("test_l1")
+    class L1(Objective):
+        def __call__(self, pred, target):
+            calls["objective"] += 1
+            return (pred - target).abs().mean()
+
+        def total(self, pred, target):
+            return (pred - target).abs().sum()
+
+    @OPTIMIZERS.register("test_momentum", params=Params)
+    def momentum(parameters, lr):
+        calls["optimizer"] += 1
+        return torch.optim.SGD(parameters, lr=lr, momentum=0.9)
+
+    try:
+        cfg = TrainConfig(optimizer="test_momentum", objective="test_l1", iterations=2, batch_size=8,
+                          snapshots=[0, 2], log_every=1)
+        model = _learner()
+        before = dataset_loss(model, ds, "test_l1")
+        res = train(model, ds, cfg, seed=0, test_data=ds)
+        assert calls == {"objective": 2, "optimizer": 1} and len(res.curve) == 2
+        assert res.test_curve[0] == (0, before)  # the held-out curve is the run's own objective
+        assert res.test_curve[-1][1] == dataset_loss(model, ds, L1())
+    finally:
+        OBJECTIVES.unregister("test_l1")
+        OPTIMIZERS.unregister("test_momentum")
+
+
+def test_an_unknown_optimiser_or_objective_names_the_registered_ones():
+    from pydantic import ValidationError
+
+    from rmpfusion.pipeline.validate import resolve_and_validate
+
+    with pytest.raises(ValidationError, match=r"unknown optimizer 'adamm'; did you mean 'adam'\? "
+                                              r"registered: adam, rmsprop, sgd"):
+        TrainConfig(optimizer="adamm")
+    with pytest.raises(ValidationError, match=r"unknown objective 'mes'; did you mean 'mse'\? registered: mse"):
+        TrainConfig(objective="mes")
+    data = tiny_config().model_dump(mode="json")
+    data["train"]["optimizer"] = "rmsprob"
+    with pytest.raises(ConfigError) as err:
+        resolve_and_validate(data)
+    assert [i.path for i in err.value.issues] == ["train.optimizer"]
+    assert "did you mean 'rmsprop'?" in err.value.issues[0].message
+
+
+def test_files_stored_before_train_objective_existed_still_resume(tmp_path, small_data):
+    """A checkpoint (and a run directory) written before ``train.objective`` existed trained the MSE: it resumes
+    to the weights of an uninterrupted run, and its embedded config still validates."""
+    import yaml
+
+    from rmpfusion.cli.rundir import RESOLVED, check_same_config
+    from rmpfusion.learn.train import load_checkpoint, save_checkpoint
+    from rmpfusion.pipeline.config import upgrade_run_config
+
+    _, _, ds = small_data
+    cfg = TrainConfig(iterations=40, batch_size=8, snapshots=[0, 40], checkpoint_every=20, log_every=10)
+    run_config = tiny_config(iterations=40).model_copy(update={"train": cfg}).model_dump(mode="json")
+    a = _learner()
+    train(a, ds, cfg, seed=5, checkpoint_dir=tmp_path / "a")
+    with pytest.raises(_Interrupted):
+        train(_learner(), ds, cfg, seed=5, checkpoint_dir=tmp_path / "b", run_config=run_config,
+              progress=lambda done, total: _interrupt_at(done, 25))
+    ck = tmp_path / "b" / "ckpt-00000020.pt"
+    state = load_checkpoint(ck)
+    payload = {k: v for k, v in state.items() if k not in ("sha256", "format")}
+    payload["train_config"] = {k: v for k, v in payload["train_config"].items() if k != "objective"}
+    old_run = json.loads(json.dumps(payload["config"]))
+    del old_run["train"]["objective"]
+    payload["config"] = old_run
+    save_checkpoint(payload, ck)
+    assert RunConfig.model_validate(upgrade_run_config(load_checkpoint(ck)["config"])).train.objective == "mse"
+    b = _learner(seed=99)
+    rb = train(b, ds, cfg, seed=5, checkpoint_dir=tmp_path / "b", run_config=run_config)
+    assert rb.resumed_from == 20
+    for k, v in a.state_dict().items():
+        assert torch.equal(v, b.state_dict()[k]), k
+    (tmp_path / RESOLVED).write_text(yaml.safe_dump({**run_config, "train": old_run["train"]}))
+    check_same_config(run_config, tmp_path)  # the same run: no RunDirError
+
+
 # ------------------------------------------------------------------------------------------ pipeline
 @pytest.mark.slow
 def test_pipeline_end_to_end_2d1level(tmp_path, capsys):
@@ -408,6 +568,24 @@ def test_pipeline_2d2level_structured_and_unstructured(tmp_path):
     assert (tmp_path / "run2" / "figures" / "progression_learner-un.png").exists()
 
 
+def _final_is_a_checksummed_checkpoint(final: Path, last: Path) -> None:
+    """``final.pt`` holds the trained learner in the format of every checkpoint: read back through the checksum
+    check (an edited weight is refused), with the last checkpoint's weights and the run config."""
+    from rmpfusion.learn.train import CheckpointError, load_checkpoint
+
+    state, ckpt = load_checkpoint(final), load_checkpoint(last)
+    assert state["iteration"] == ckpt["iteration"] and state["config"] == ckpt["config"]
+    assert state["model"].keys() == ckpt["model"].keys()
+    assert all(torch.equal(v, ckpt["model"][k]) for k, v in state["model"].items())
+    raw = torch.load(final, weights_only=True)
+    next(iter(raw["model"].values())).view(-1)[0] += 1e-9
+    edited = final.with_name("edited.pt")
+    torch.save(raw, edited)
+    with pytest.raises(CheckpointError, match="fails its checksum"):
+        load_checkpoint(edited)
+    edited.unlink()
+
+
 def test_evaluation_from_a_checkpoint_alone(tmp_path):
     """A training checkpoint carries the run config: rebuilding everything from it alone gives exactly the
     pipeline's final metrics, and a damaged checkpoint is refused with the file named (exit code 2)."""
@@ -417,6 +595,7 @@ def test_evaluation_from_a_checkpoint_alone(tmp_path):
     m = run_experiment(cfg, tmp_path / "run", progress=False)
     ck = tmp_path / "run" / "checkpoints" / "learner-rmp" / "ckpt-00000020.pt"
     assert ck.exists()
+    _final_is_a_checksummed_checkpoint(ck.parent / "final.pt", ck)
     res = evaluate_checkpoint(ck, tmp_path / "eval", progress=False)
     want = m["learners"]["learner-rmp"]
     for k in ("batch_loss", "online_loss", "success", "collision", "lyapunov_monotone_fraction"):

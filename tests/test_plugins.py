@@ -67,7 +67,7 @@ def test_plugin_rmp_in_process(plugin_site, monkeypatch):
 
     import rmpfusion.registry as registry
 
-    monkeypatch.setattr(registry, "_plugins_loaded", False)
+    monkeypatch.setattr(registry.PLUGINS, "loaded", False)
     importlib.invalidate_caches()
     import torch
 

@@ -208,7 +208,8 @@ def test_signals_during_training_in_process_checkpoint_then_defer_to_the_install
     from rmpfusion.learn.config import TrainConfig
     from rmpfusion.build.tree import build_tree
     from rmpfusion.envs import Particle2D
-    from rmpfusion.learn import collect, train
+    from rmpfusion.envs import collect
+    from rmpfusion.learn import train
 
     env = Particle2D(n_obstacles=1, dt=0.05)
     expert = build_tree({"root": {"name": "q", "dim": 2}, "nodes": {"goal": {
@@ -444,7 +445,7 @@ def test_same_seed_same_dataset_and_losses_in_another_process_and_directory(swee
     identical losses and weights. Seed 1 differs, so the equality is not vacuous."""
     from hydra import compose, initialize_config_dir
 
-    from rmpfusion.cli._common import CONF_DIR
+    from rmpfusion.cli import CONF_DIR
     from rmpfusion.pipeline.validate import resolve_and_validate
     from rmpfusion.pipeline.run import run_experiment
 

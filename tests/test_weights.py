@@ -26,7 +26,7 @@ def test_constant_weight_has_no_gradient_term():
 
 def test_non_positive_constant_rejected():
     from pydantic import ValidationError
-    with pytest.raises(ValidationError, match="greater than 0"):
+    with pytest.raises(ValidationError, match="constant weight must be > 0"):
         make("constant", value=0.0)
 
 

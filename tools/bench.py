@@ -81,7 +81,7 @@ def row(section: str, what: str, value: str, reference: str = "", ratio: str = "
 def compose(experiment: str):
     from hydra import compose as hcompose, initialize_config_dir
 
-    from rmpfusion.cli._common import CONF_DIR
+    from rmpfusion.cli import CONF_DIR
     from rmpfusion.pipeline.validate import resolve_and_validate
 
     with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):

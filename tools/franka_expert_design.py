@@ -20,7 +20,7 @@ import time
 import torch
 from hydra import compose, initialize_config_dir
 
-from rmpfusion.cli._common import CONF_DIR
+from rmpfusion.cli import CONF_DIR
 from rmpfusion.pipeline.validate import build_all, expert_spec, resolve_and_validate
 from rmpfusion.build.tree import build_tree
 from rmpfusion.pipeline.run import SPLIT_SEED_OFFSET

@@ -39,7 +39,7 @@ def config(exp: str, scale: float, seed: int, lr: float | None, cache: str | Non
     """The paper experiment as composed from conf/ (the same YAML `rmpfusion-run experiment=...` uses)."""
     from hydra import compose, initialize_config_dir
 
-    from rmpfusion.cli._common import CONF_DIR
+    from rmpfusion.cli import CONF_DIR
     from rmpfusion.pipeline.validate import resolve_and_validate
 
     it = max(10, round(20000 * scale))

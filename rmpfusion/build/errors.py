@@ -2,9 +2,11 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Iterable
+import difflib
+from types import UnionType
+from typing import Annotated, Any, Iterable, Literal, Mapping, Sequence, Union, get_args, get_origin
 
-from pydantic import ValidationError
+from pydantic import BaseModel, Tag, ValidationError
 
 
 @dataclass(frozen=True)
@@ -31,26 +33,120 @@ def _show(value: Any) -> str:
     return s if len(s) <= 80 else s[:77] + "..."
 
 
-def issues_from_pydantic(err: ValidationError, prefix: str) -> list[Issue]:
-    """Turn a pydantic error into path-named issues (``prefix.key.sub``), with the value given."""
+#: Joins a union's tag (``task map`` + ``sphere_distance``) in pydantic's error locations; parts holding it are
+#: the schema's bookkeeping, not YAML keys, and never appear in a message.
+TAG_SEPARATOR = "\x1f"
+
+
+def _strip_annotated(ann: Any) -> tuple[Any, tuple]:
+    meta: tuple = ()
+    while get_origin(ann) is Annotated:
+        meta += ann.__metadata__
+        ann = get_args(ann)[0]
+    return ann, meta
+
+
+def _step(ann: Any, part: Any) -> Any:
+    """The annotation one location part below ``ann`` (a model field, a dict value, a list item, a union member)."""
+    ann, _ = _strip_annotated(ann)
+    origin = get_origin(ann)
+    if origin in (Union, UnionType):
+        members = get_args(ann)
+        for m in members:
+            if any(isinstance(x, Tag) and x.tag == part for x in _strip_annotated(m)[1]):
+                return m
+        found = [r for m in members if m is not type(None) and (r := _step(m, part)) is not None]
+        return found[0] if found else None
+    if isinstance(ann, type) and issubclass(ann, BaseModel):
+        field = ann.model_fields.get(part) if isinstance(part, str) else None
+        return None if field is None else field.annotation
+    if origin in (dict, Mapping) or ann is dict:
+        args = get_args(ann)
+        return args[1] if args else None
+    if origin in (list, tuple, Sequence) and isinstance(part, int):
+        args = get_args(ann)
+        return args[0] if args else None
+    return None
+
+
+def model_at(model: type | None, loc: Sequence[Any]) -> type[BaseModel] | None:
+    """The pydantic model that validated location ``loc`` of ``model``'s input, or None if not a model."""
+    ann: Any = model
+    for part in loc:
+        if ann is None:
+            return None
+        ann = _step(ann, part)
+    while True:  # a location can end on a tagged member or an Optional: unwrap to the model
+        ann, _ = _strip_annotated(ann)
+        if get_origin(ann) in (Union, UnionType):
+            models = [m for m in get_args(ann) if isinstance(_strip_annotated(m)[0], type)
+                      and issubclass(_strip_annotated(m)[0], BaseModel)]
+            if len(models) != 1:
+                return None
+            ann = models[0]
+            continue
+        return ann if isinstance(ann, type) and issubclass(ann, BaseModel) else None
+
+
+def _is_tag(key: str, field: Any) -> bool:
+    """The ``type`` of a registry-typed block: the union's tag, said by the block, not one of its parameters."""
+    return key == "type" and get_origin(field.annotation) is Literal
+
+
+def _unknown_key(e: Mapping[str, Any], model: type | None) -> str:
+    """'unknown key', with the allowed keys of the model that refused it and the closest of them."""
+    owner = model_at(model, e["loc"][:-1]) if model is not None else None
+    msg = "unknown key (misspelt?); remove it or use one of the allowed keys"
+    if owner is None:
+        return msg
+    allowed = [k for k, f in owner.model_fields.items() if not _is_tag(k, f)]
+    msg += f" (allowed: {', '.join(allowed) or 'none'})"
+    close = difflib.get_close_matches(str(e["loc"][-1]), allowed, n=3, cutoff=0.5)
+    return msg + (f"; did you mean {', '.join(map(repr, close))}?" if close else "")
+
+
+def _unknown_type(e: Mapping[str, Any]) -> tuple[str, str]:
+    """(path suffix, message) for a block whose ``type`` names no entry of its registry, or has none."""
+    registry, given = e["ctx"]["registry"], e.get("input")
+    if not isinstance(given, Mapping):
+        return "", f"expected a mapping with a 'type' key, got {_show(given)}"
+    if "type" not in given:
+        return ".type", f"required key is missing; one of: {', '.join(registry.names())}"
+    return ".type", registry.unknown_message(given["type"])
+
+
+def _message(e: Mapping[str, Any], model: type | None) -> tuple[str, str]:
+    """(path suffix, message) of one pydantic error, said the way a YAML author needs it."""
+    kind = e["type"]
+    if kind == "extra_forbidden":
+        return "", _unknown_key(e, model)
+    if kind == "missing":
+        return "", "required key is missing"
+    if kind == "registry_type":
+        return _unknown_type(e)
+    msg = e["msg"]
+    if kind == "value_error" and msg.startswith("Value error, "):
+        msg = msg[len("Value error, "):]
+    if "given" in msg or "input" not in e:
+        return "", msg
+    return "", f"{msg} (given: {_show(e['input'])})"
+
+
+def issues_from_pydantic(err: ValidationError, prefix: str, model: type | None = None) -> list[Issue]:
+    """Turn a pydantic error into path-named issues (``prefix.key.sub``), with the value given.
+
+    ``model`` (the model that was validated) lets an unknown key list the keys allowed where it was found."""
     out = []
     for e in err.errors():
-        loc = ".".join(str(p) for p in e["loc"])
-        path = f"{prefix}.{loc}" if loc else prefix
-        msg = e["msg"]
-        if e["type"] == "extra_forbidden":
-            msg = "unknown key (misspelt?); remove it or use one of the allowed keys"
-        elif e["type"] == "missing":
-            msg = "required key is missing"
-        elif "input" in e and e["type"] not in ("missing",):
-            msg = f"{msg} (given: {_show(e['input'])})"
-        out.append(Issue(path, msg))
+        loc = ".".join(str(p) for p in e["loc"] if not (isinstance(p, str) and TAG_SEPARATOR in p))
+        suffix, msg = _message(e, model)
+        path = (f"{prefix}.{loc}" if prefix else loc) if loc else prefix
+        out.append(Issue((path + suffix).lstrip(".") or "<config>", msg))
     return out
 
 
 def allowed_keys_hint(model: type, path: str, issues: list[Issue]) -> list[Issue]:
-    """Append the model's allowed keys to its 'unknown key' issues."""
+    """Append the model's allowed keys to its 'unknown key' issues that do not list them yet."""
     allowed = ", ".join(model.model_fields)
-    return [
-        Issue(i.path, f"{i.message} (allowed: {allowed or 'none'})") if "unknown key" in i.message else i for i in issues
-    ]
+    return [Issue(i.path, f"{i.message} (allowed: {allowed or 'none'})")
+            if "unknown key" in i.message and "(allowed:" not in i.message else i for i in issues]

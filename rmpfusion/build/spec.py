@@ -1,26 +1,113 @@
-"""The tree schema (docs/architecture.md §2) and its whole-tree checks.
+"""The tree schema (docs/architecture.md §2): typed, generated from the registries, plus whole-tree checks.
 
-Validation here is structural and per-entry: every ``type`` must name a registered entry, its other keys
-are validated by that entry's own pydantic model, and the graph must be a tree rooted at ``root``.
-Dimension checks need the built maps and happen in ``build_tree``; both report through ConfigError.
+A node's ``map``, ``weight`` and ``rmp`` are discriminated unions over the registered entries: the ``type``
+key picks the entry, whose own pydantic model validates the other keys. The unions are generated from the
+registries when first needed and again whenever an entry is added (plugins included), so a validated tree
+holds each block as its entry's parameter model, ready for the builder. Graph checks (a tree rooted at
+``root``, leaves carrying rmps) follow the schema; dimension checks need the built maps and happen in
+``build_tree``. Everything reports through ConfigError, every problem at once.
 """
 from __future__ import annotations
 
-from typing import Any, Mapping, Union
+import difflib
+from typing import Annotated, Any, Literal, Mapping, Union
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import (BaseModel, BeforeValidator, ConfigDict, Discriminator, Field, Tag, ValidationError,
+                      create_model)
+from pydantic_core import PydanticCustomError
 
-from ..registry import LEAF_RMPS, TASK_MAPS, WEIGHTS, Registry
-from .errors import ConfigError, Issue, allowed_keys_hint, issues_from_pydantic
+from ..registry import LEAF_RMPS, TASK_MAPS, WEIGHTS, Params, Registry
+from .errors import TAG_SEPARATOR, ConfigError, Issue, issues_from_pydantic
 
 
 class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
 
+class TypedBlock(BaseModel):
+    """``{type: name, **params}`` before its entry is known: the loose form the static schemas carry."""
+
+    model_config = ConfigDict(extra="allow", frozen=True)
+    type: str
+
+
+# ------------------------------------------------------------------ unions generated from a registry
+_SPEC_MODELS: dict[tuple[int, str], type[Params]] = {}
+_UNIONS: dict[tuple[int, int], Any] = {}
+
+
+def spec_model(registry: Registry, name: str) -> type[Params]:
+    """The entry's parameter model with its ``type`` tag: what a validated block of that type is."""
+    entry = registry.get(name)
+    key = (id(entry.params), name)
+    if key not in _SPEC_MODELS:
+        _SPEC_MODELS[key] = create_model(f"{entry.params.__name__}Spec", __base__=entry.params,
+                                         type=(Literal[name], name))
+    return _SPEC_MODELS[key]
+
+
+def registry_tag(registry: Registry, name: str) -> str:
+    """The union tag of an entry; it appears in pydantic's error locations and is stripped from messages."""
+    return f"{registry.kind}{TAG_SEPARATOR}{name}"
+
+
+class _RegistryDiscriminator(Discriminator):
+    """A discriminator whose error context carries the registry (for its did-you-mean message); compared and
+    hashed by identity, since typing hashes annotations and its context dict is not hashable."""
+
+    def __hash__(self) -> int:
+        return id(self)
+
+    def __eq__(self, other: object) -> bool:
+        return self is other
+
+
+def typed_union(registry: Registry) -> Any:
+    """``{type: name, ...}`` validated by the named entry of ``registry``: a discriminated union of every entry,
+    regenerated when the registry changes. An unknown or missing type is a ``registry_type`` error that the
+    error formatter turns into the registry's did-you-mean message."""
+    key = (id(registry), registry.version)
+    if key not in _UNIONS:
+        names = registry.names()  # loads plugins first, so they are part of the union
+        key = (id(registry), registry.version)
+        members = tuple(Annotated[spec_model(registry, n), Tag(registry_tag(registry, n))] for n in names)
+
+        def tag_of(value: Any) -> str | None:
+            t = value.get("type") if isinstance(value, Mapping) else getattr(value, "type", None)
+            return registry_tag(registry, t) if isinstance(t, str) and t in names else None
+
+        union = Union[members] if members else Literal["<nothing registered>"]  # type: ignore[valid-type]
+        _UNIONS[key] = Annotated[union, _RegistryDiscriminator(tag_of, custom_error_type="registry_type",
+                                                               custom_error_message=f"unknown {registry.kind}",
+                                                               custom_error_context={"registry": registry})]
+    return _UNIONS[key]
+
+
+def check_typed(spec: Any, registry: Registry, path: str) -> tuple[Any, list[Issue]]:
+    """Validate one ``{type: name, **params}`` block on its own; returns (the validated block or None, issues)."""
+    model = create_model("Block", __config__=ConfigDict(frozen=True), block=(typed_union(registry), ...))
+    try:
+        return model.model_validate({"block": spec}).block, []
+    except ValidationError as e:
+        return None, [Issue(path + i.path[len("block"):], i.message) for i in issues_from_pydantic(e, "", model)
+                      if i.path.startswith("block")]
+
+
+# ------------------------------------------------------------------ the tree's static parts
+def _constant_shorthand(value: Any) -> Any:
+    """A bare number is a constant weight (``weight: 2.0``); Theorem 2 needs it strictly positive."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return value
+    if not value > 0:
+        raise PydanticCustomError("positive_weight", "constant weight must be > 0 (positive weights are what keep "
+                                                     "the policy Lyapunov-stable, Theorem 2); given {value}",
+                                  {"value": value})
+    return {"type": "constant", "value": float(value)}
+
+
 class RootSpec(_Strict):
     name: str = "q"
-    dim: int = Field(gt=0)
+    dim: int = Field(gt=0, description="configuration-space dimension")
 
 
 class SharedWeightRef(_Strict):
@@ -30,52 +117,89 @@ class SharedWeightRef(_Strict):
     bind: dict[str, str] = Field(default_factory=dict)
 
 
+def shared_ref(weight: Any) -> SharedWeightRef | None:
+    """The shared-weight reference a node's weight is (``"name"`` or ``{shared: name}``), else None."""
+    if isinstance(weight, str):
+        return SharedWeightRef(shared=weight)
+    return weight if isinstance(weight, SharedWeightRef) else None
+
+
+def weight_label(weight: Any) -> str | None:
+    """How messages and ``describe`` name a node's weight: its type, or ``shared:<name>``."""
+    ref = shared_ref(weight)
+    if ref is not None:
+        return f"shared:{ref.shared}"
+    return None if weight is None else weight.type
+
+
+def weight_field() -> Any:
+    """A node's or expert's weight: a typed block, a shared-weight reference, or a positive number."""
+
+    typed, shared, name = (f"weight{TAG_SEPARATOR}{k}" for k in ("typed", "shared", "name"))
+
+    def kind(value: Any) -> str:
+        if isinstance(value, str):
+            return name
+        if isinstance(value, SharedWeightRef) or (isinstance(value, Mapping) and "shared" in value):
+            return shared
+        return typed
+
+    return Annotated[Union[Annotated[typed_union(WEIGHTS), Tag(typed)],
+                           Annotated[SharedWeightRef, Tag(shared)],
+                           Annotated[str, Tag(name)]],
+                     Discriminator(kind), BeforeValidator(_constant_shorthand)]
+
+
 class NodeSpec(_Strict):
     parent: str
-    map: dict[str, Any] = Field(default_factory=lambda: {"type": "identity"})
-    weight: Union[dict[str, Any], str, None] = None
-    rmp: Union[dict[str, Any], None] = None
+    map: TypedBlock = Field(default_factory=lambda: TypedBlock(type="identity"))
+    weight: Any = None
+    rmp: TypedBlock | None = None
 
 
 class TreeSpec(_Strict):
+    """A tree (docs/architecture.md §2). Validated through ``tree_spec_model`` its blocks are entry models."""
+
     root: RootSpec
     aux: dict[str, int] = Field(default_factory=dict, description="aux state names and their dimensions")
-    shared_weights: dict[str, dict[str, Any]] = Field(default_factory=dict)
+    shared_weights: dict[str, Any] = Field(default_factory=dict)
     nodes: dict[str, NodeSpec] = Field(min_length=1)
     description: str = ""
 
 
-def check_typed(spec: Any, registry: Registry, path: str) -> tuple[Any, list[Issue]]:
-    """Validate ``{type: name, **params}`` against the named entry; returns (entry, issues)."""
-    if not isinstance(spec, Mapping):
-        return None, [Issue(path, f"expected a mapping with a 'type' key, got {spec!r}")]
-    if "type" not in spec:
-        return None, [Issue(f"{path}.type", f"required key is missing; one of: {', '.join(registry.names())}")]
-    name = spec["type"]
-    if name not in registry:
-        return None, [Issue(f"{path}.type", registry.unknown_message(name))]
-    entry = registry.get(name)
-    params = {k: v for k, v in spec.items() if k != "type"}
-    try:
-        entry.validate(params)
-    except ValidationError as e:
-        return entry, allowed_keys_hint(entry.params, path, issues_from_pydantic(e, path))
-    return entry, []
+_TREE_MODELS: dict[tuple, type[TreeSpec]] = {}
+
+
+def tree_spec_model() -> type[TreeSpec]:
+    """``TreeSpec`` with every block typed by the registries as they are now (regenerated when they change)."""
+    key = tuple((id(r), r.version) for r in (TASK_MAPS, WEIGHTS, LEAF_RMPS))
+    if key not in _TREE_MODELS:
+        weight = weight_field()
+        node = create_model("TypedNodeSpec", __base__=NodeSpec,
+                            map=(typed_union(TASK_MAPS), Field(default_factory=lambda: {"type": "identity"},
+                                                               validate_default=True)),
+                            weight=(Union[weight, None], None),
+                            rmp=(Union[typed_union(LEAF_RMPS), None], None))
+        _TREE_MODELS[key] = create_model("TypedTreeSpec", __base__=TreeSpec,
+                                         shared_weights=(dict[str, typed_union(WEIGHTS)], Field(default_factory=dict)),
+                                         nodes=(dict[str, node], Field(min_length=1)))
+    return _TREE_MODELS[key]
 
 
 def parse_spec(spec: Mapping[str, Any] | TreeSpec, where: str = "tree") -> TreeSpec:
-    if isinstance(spec, TreeSpec):
+    """The typed tree; a spec already validated through ``tree_spec_model`` is returned as it is."""
+    model = tree_spec_model()
+    if isinstance(spec, model):
         return spec
+    data = spec.model_dump() if isinstance(spec, BaseModel) else dict(spec)
     try:
-        return TreeSpec.model_validate(dict(spec))
+        return model.model_validate(data)
     except ValidationError as e:
-        raise ConfigError(issues_from_pydantic(e, where)) from None
+        raise ConfigError(issues_from_pydantic(e, where, model)) from None
 
 
-def validate_tree_spec(spec: Mapping[str, Any] | TreeSpec, where: str = "tree") -> TreeSpec:
-    """Every structural and per-entry problem of a tree spec, raised together as one ConfigError."""
-    ts = parse_spec(spec, where)
-    issues: list[Issue] = []
+# ------------------------------------------------------------------ whole-tree checks
+def _children(ts: TreeSpec, where: str, issues: list[Issue]) -> dict[str, list[str]]:
     root = ts.root.name
     if root in ts.nodes:
         issues.append(Issue(f"{where}.nodes.{root}", f"'{root}' is the root's name; a node cannot reuse it"))
@@ -83,22 +207,26 @@ def validate_tree_spec(spec: Mapping[str, Any] | TreeSpec, where: str = "tree") 
     for name, node in ts.nodes.items():
         p = f"{where}.nodes.{name}"
         if node.parent not in children:
-            from difflib import get_close_matches
-
-            close = get_close_matches(node.parent, list(children), n=3)
+            close = difflib.get_close_matches(node.parent, list(children), n=3)
             hint = f"; did you mean {', '.join(map(repr, close))}?" if close else ""
             issues.append(Issue(f"{p}.parent", f"parent '{node.parent}' is not a node of this tree{hint}"))
         elif node.parent == name:
             issues.append(Issue(f"{p}.parent", "a node cannot be its own parent"))
         else:
             children[node.parent].append(name)
-    # cycles and orphans: everything must be reachable from the root
+    return children
+
+
+def _unreachable(ts: TreeSpec, children: Mapping[str, list[str]], where: str) -> list[Issue]:
+    """Cycles and orphans: everything must lead back to the root."""
+    root = ts.root.name
     seen, stack = {root}, [root]
     while stack:
         for c in children[stack.pop()]:
             if c not in seen:
                 seen.add(c)
                 stack.append(c)
+    issues = []
     for name, node in ts.nodes.items():
         if name in seen or node.parent not in children:
             continue
@@ -109,11 +237,18 @@ def validate_tree_spec(spec: Mapping[str, Any] | TreeSpec, where: str = "tree") 
             cur = ts.nodes[cur].parent
         if cur in path:
             cyc = path[path.index(cur):] + [cur]
-            issues.append(Issue(f"{where}.nodes.{name}.parent", f"cycle: {' -> '.join(cyc)}; a tree needs every node to lead back to '{root}'"))
+            issues.append(Issue(f"{where}.nodes.{name}.parent", f"cycle: {' -> '.join(cyc)}; a tree needs every "
+                                                                 f"node to lead back to '{root}'"))
         else:
             issues.append(Issue(f"{where}.nodes.{name}", f"orphan: not connected to the root '{root}'"))
     if not children[root]:
         issues.append(Issue(f"{where}.root", f"the root '{root}' has no children"))
+    return issues
+
+
+def _node_issues(ts: TreeSpec, children: Mapping[str, list[str]], where: str) -> list[Issue]:
+    """Leaves carry rmps, inner nodes do not; shared-weight references name declared weights."""
+    issues = []
     for name, node in ts.nodes.items():
         p = f"{where}.nodes.{name}"
         is_leaf = not children.get(name)
@@ -121,23 +256,21 @@ def validate_tree_spec(spec: Mapping[str, Any] | TreeSpec, where: str = "tree") 
             issues.append(Issue(f"{p}.rmp", "a leaf needs an 'rmp' (it has no children)"))
         if not is_leaf and node.rmp is not None:
             issues.append(Issue(f"{p}.rmp", f"only leaves carry an rmp; this node has children {children[name]}"))
-        issues += check_typed(node.map, TASK_MAPS, f"{p}.map")[1]
-        if node.rmp is not None:
-            issues += check_typed(node.rmp, LEAF_RMPS, f"{p}.rmp")[1]
-        if isinstance(node.weight, str) or (isinstance(node.weight, Mapping) and "shared" in node.weight):
-            ref = node.weight if isinstance(node.weight, str) else node.weight.get("shared")
-            if isinstance(node.weight, Mapping):
-                try:
-                    SharedWeightRef.model_validate(dict(node.weight))
-                except ValidationError as e:
-                    issues += issues_from_pydantic(e, f"{p}.weight")
-            if ref not in ts.shared_weights:
-                known = ", ".join(ts.shared_weights) or "none declared"
-                issues.append(Issue(f"{p}.weight", f"shared weight '{ref}' is not declared under shared_weights (declared: {known})"))
-        elif node.weight is not None:
-            issues += check_typed(node.weight, WEIGHTS, f"{p}.weight")[1]
-    for name, w in ts.shared_weights.items():
-        issues += check_typed(w, WEIGHTS, f"{where}.shared_weights.{name}")[1]
+        ref = shared_ref(node.weight)
+        if ref is not None and ref.shared not in ts.shared_weights:
+            known = ", ".join(ts.shared_weights) or "none declared"
+            issues.append(Issue(f"{p}.weight", f"shared weight '{ref.shared}' is not declared under shared_weights "
+                                               f"(declared: {known})"))
+    return issues
+
+
+def validate_tree_spec(spec: Mapping[str, Any] | TreeSpec, where: str = "tree") -> TreeSpec:
+    """The typed tree, or one ConfigError with every structural and per-entry problem."""
+    ts = parse_spec(spec, where)
+    issues: list[Issue] = []
+    children = _children(ts, where, issues)
+    issues += _unreachable(ts, children, where)
+    issues += _node_issues(ts, children, where)
     if issues:
         raise ConfigError(issues)
     return ts

@@ -5,7 +5,16 @@ from __future__ import annotations
 import copy
 from typing import Any, Mapping
 
-from ..build.errors import ConfigError, Issue
+from pydantic import BaseModel
+
+from .errors import ConfigError, Issue
+
+
+def _plain(value: Any) -> Any:
+    """A deep, plain-data copy of a spec or block, validated (a pydantic model) or not."""
+    if isinstance(value, BaseModel):
+        return value.model_dump()
+    return copy.deepcopy(dict(value) if isinstance(value, Mapping) else value)
 
 
 def tree_with_weights(tree_spec: Mapping[str, Any], weights: Mapping[str, Any], where: str = "weights") -> dict:
@@ -15,7 +24,7 @@ def tree_with_weights(tree_spec: Mapping[str, Any], weights: Mapping[str, Any], 
     ``shared_weights`` (the shared function is replaced, so one entry covers every edge that uses it, e.g.
     all obstacles on a Franka control point). All unknown names are reported together.
     """
-    spec = copy.deepcopy(dict(tree_spec))
+    spec = _plain(tree_spec)
     nodes = spec.get("nodes") or {}
     shared = dict(spec.get("shared_weights") or {})
     unknown = [n for n in weights if n not in nodes and n not in shared]
@@ -27,7 +36,7 @@ def tree_with_weights(tree_spec: Mapping[str, Any], weights: Mapping[str, Any], 
             issues.append(Issue(f"{where}.{n}", f"'{n}' {why}; nodes: {', '.join(nodes)}"))
         raise ConfigError(issues)
     for n, w in weights.items():
-        w = copy.deepcopy(w if w is None or isinstance(w, str) else dict(w))
+        w = _plain(w)
         if n in nodes:
             node = dict(nodes[n])
             node.pop("weight", None)

@@ -8,7 +8,7 @@ editable install; see ``_common.conf_dir``). It is looked up on first use, so im
 
 def __getattr__(name: str):
     if name == "CONF_DIR":
-        from ._common import CONF_DIR
+        from ._common import conf_dir
 
-        return CONF_DIR
+        return conf_dir()
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

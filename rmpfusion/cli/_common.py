@@ -7,11 +7,14 @@ file's location: that works for a source checkout and an editable install from a
 from __future__ import annotations
 
 import contextlib
+import functools
 import os
 import sys
 from pathlib import Path
 from dataclasses import dataclass
-from typing import Any, Iterator
+from typing import Any, Callable, Iterator
+
+import hydra
 
 #: Exit code of a command whose configuration is invalid (nothing was run).
 CONFIG_ERROR_EXIT = 2
@@ -29,7 +32,20 @@ def conf_dir() -> str:
     raise FileNotFoundError(f"rmpfusion: no conf/config.yaml found (tried {tried}); set RMPFUSION_CONF to your conf/ directory")
 
 
-CONF_DIR = conf_dir()
+def hydra_app(task: Callable[[Any], Any]) -> Callable[[], Any]:
+    """A console script running ``task(cfg)`` as a Hydra app over conf/. The directory is looked up when the
+    command runs, never on import, and a missing one is said in one line (exit 2) instead of a traceback."""
+
+    @functools.wraps(task)
+    def entry() -> Any:
+        try:
+            path = conf_dir()
+        except FileNotFoundError as e:
+            print(f"error: {e}", file=sys.stderr)
+            sys.exit(CONFIG_ERROR_EXIT)
+        return hydra.main(version_base="1.3", config_path=path, config_name="config")(task)()
+
+    return entry
 
 
 @contextlib.contextmanager
@@ -91,8 +107,8 @@ def job(cfg, threads: int = 1, log: bool = True) -> Iterator[Job]:
 
     from ..pipeline.validate import resolve_and_validate
     from . import logger as wandb_logger
-    from .rundir import (HydraFiles, RunDirError, check_same_config, console_log, exclusive, record_environment,
-                         remove_stale_temporaries)
+    from ..files import remove_stale_temporaries
+    from .rundir import HydraFiles, RunDirError, check_same_config, console_log, exclusive, record_environment
 
     run_dir = hydra_run_dir()
     hydra_files = HydraFiles(run_dir)

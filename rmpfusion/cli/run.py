@@ -9,13 +9,15 @@ checkpoints; point a later stage at an earlier run with ``hydra.run.dir=outputs/
 """
 from __future__ import annotations
 
+import contextlib
 import sys
-from pathlib import Path
 
-import hydra
 from omegaconf import DictConfig
 
-from ._common import CONF_DIR, Job, config_errors_exit, job
+from ..pipeline.collect import collect as collect_stage
+from ..pipeline.fit import NotTrainedError, fit
+from ..pipeline.run import run_experiment, start
+from ._common import Job, config_errors_exit, hydra_app, job
 
 #: torch intra-op threads per job: the batches are small, extra threads only contend (see pipeline/run.py)
 THREADS = 1
@@ -35,22 +37,10 @@ def _objective(result) -> float | None:
     return None
 
 
-def _collect(run, run_dir: Path, say):
-    from ..build.tree import build_tree
-    from ..pipeline import run as pipeline
-    from ..pipeline.validate import expert_spec
-
-    env = pipeline.make_env(run)
-    expert = build_tree(expert_spec(run), aux_dims=env.aux_dims())
-    data = pipeline.load_splits(run, env, expert, run_dir, say)
-    return env, expert, {s: ds for s, (ds, _) in data.items()}, {s: info for s, (_, info) in data.items()}
-
-
-def _experiment(j: Job) -> float | None:
-    from ..pipeline.run import run_experiment
-
-    with config_errors_exit():
-        result = run_experiment(j.run, j.dir, progress=True, log=j.logger.log, threads=THREADS)
+def _experiment(j: Job, require_trained: bool = False) -> float | None:
+    with config_errors_exit(), not_trained_exit():
+        result = run_experiment(j.run, j.dir, progress=True, log=j.logger.log, threads=THREADS,
+                                require_trained=require_trained)
     for name, res in (result.get("learners") or {}).items():
         if res.get("resumed_from") is not None:
             print(f"learner {name}: resumed from the checkpoint at iteration {res['resumed_from']}")
@@ -58,7 +48,17 @@ def _experiment(j: Job) -> float | None:
     return _objective(result)
 
 
-@hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="config")
+@contextlib.contextmanager
+def not_trained_exit():
+    """``rmpfusion-evaluate`` before ``rmpfusion-train`` finished: say what to run, exit 1."""
+    try:
+        yield
+    except NotTrainedError as e:
+        print(f"error: {e}", file=sys.stderr)
+        sys.exit(1)
+
+
+@hydra_app
 def main(cfg: DictConfig) -> float | None:
     """The whole experiment: demonstrations, training, evaluation, figures, metrics.json.
 
@@ -68,80 +68,42 @@ def main(cfg: DictConfig) -> float | None:
         return _experiment(j)
 
 
-@hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="config")
+@hydra_app
 def collect(cfg: DictConfig) -> None:
     """Stage 1: the expert's demonstrations, written (checksummed) into the run directory."""
-    from ..pipeline.run import Progress
-
-    with job(cfg, THREADS, log=False) as j:
-        *_, info = _collect(j.run, j.dir, Progress(True))
-        for split, i in info.items():
+    with job(cfg, THREADS, log=False) as j, config_errors_exit():
+        splits = collect_stage(start(j.run, j.dir))
+        for split, i in splits.info.items():
             print(f"{split}: {i['points']} points in {i['path']}{' (reused)' if i.get('reused') else ''} "
                   f"sha256 {i['sha256']}")
 
 
-@hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="config")
+@hydra_app
 def train(cfg: DictConfig) -> None:
     """Stage 2: train every learner on the run directory's demonstrations (collected first if absent);
     checkpoints go to checkpoints/<learner>/, and a rerun resumes from them (also after SIGKILL; SIGTERM and
     Ctrl-C write a checkpoint before stopping)."""
-    import torch
-
-    from ..pipeline import run as pipeline
-    from ..learn.learners import build_learner, build_order
-    from ..learn.train import train as train_model
-
-    with job(cfg, THREADS) as j:
-        run, run_dir, log = j.run, j.dir, j.logger.log
-        say = pipeline.Progress(True)
-        env, expert, data, _ = _collect(run, run_dir, say)
-        blocks = {n: b.model_dump() for n, b in run.learners.items()}
-        built: dict = {}
-        for name in build_order(blocks):  # the pipeline's seeds, so rmpfusion-evaluate resumes the same runs
-            with torch.random.fork_rng():
-                torch.manual_seed(pipeline._learner_seed(run.seed, name))
-                built[name] = build_learner(blocks[name], run.tree, env.aux_dims(), expert.dim, expert=run.expert,
-                                            built=built, where=f"learners.{name}")
+    with job(cfg, THREADS) as j, config_errors_exit():
+        exp = start(j.run, j.dir, log=j.logger.log)
+        fitted = fit(exp, collect_stage(exp))
         summary: dict = {}
-        for name in run.learners:
-            ckdir = run_dir / "checkpoints" / name
-            tr = train_model(built[name], data["train"], run.train, seed=pipeline._learner_seed(run.seed, name) + 1,
-                             test_data=data["test"], val_data=data.get("val"), checkpoint_dir=ckdir,
-                             run_config=run.model_dump(), progress=say.bar(f"train {name}"),
-                             log=(lambda m, _n=name: log({f"{_n}/{k}": v for k, v in m.items()})) if log else None)
-            if tr.resumed_from is not None:
-                print(f"learner {name}: resumed from iteration {tr.resumed_from} ({ckdir})")
-            last = tr.curve[-1][1] if tr.curve else float("nan")
-            print(f"learner {name}: {run.train.iterations} iterations, final train loss {last:.4g}")
-            summary[name] = {"final_train_loss": last, "resumed_from": tr.resumed_from}
+        for name, f in fitted.items():
+            if f.result.resumed_from is not None:
+                print(f"learner {name}: resumed from iteration {f.result.resumed_from} ({j.dir / 'checkpoints' / name})")
+            last = f.result.curve[-1][1] if f.result.curve else float("nan")
+            print(f"learner {name}: {j.run.train.iterations} iterations, final train loss {last:.4g}")
+            summary[name] = {"final_train_loss": last, "resumed_from": f.result.resumed_from}
         j.logger.finish({"learners": summary})
 
 
-@hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="config")
+@hydra_app
 def evaluate(cfg: DictConfig) -> float | None:
     """Stage 3: evaluate trained learners (rollouts, Lyapunov monitor, figures, metrics.json).
 
     Needs the checkpoints rmpfusion-train left in the same run directory; nothing is retrained.
     """
-    from ..learn.train import latest_checkpoint
-
     with job(cfg, THREADS) as j:
-        missing = []
-        for name in j.run.learners:
-            ck = latest_checkpoint(j.dir / "checkpoints" / name)
-            if ck is None or int(torch_load_iteration(ck)) < j.run.train.iterations:
-                missing.append(name)
-        if missing:
-            print(f"error: no fully trained checkpoints for {missing} in {j.dir / 'checkpoints'}; run rmpfusion-train "
-                  f"with the same overrides and hydra.run.dir={j.dir} first", file=sys.stderr)
-            sys.exit(1)
-        return _experiment(j)
-
-
-def torch_load_iteration(path: Path) -> int:
-    import torch
-
-    return int(torch.load(path, map_location="cpu", weights_only=True)["iteration"])
+        return _experiment(j, require_trained=True)
 
 
 if __name__ == "__main__":

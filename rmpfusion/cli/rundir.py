@@ -240,39 +240,6 @@ def record_environment(run_dir: Path, threads: int | None = None) -> dict[str, A
     return rec
 
 
-# ------------------------------------------------------------------------------------------ stale files
-_TMP = re.compile(r"^\..+\.tmp(\d+)")
-
-
-def remove_stale_temporaries(directory: Path, recursive: bool = True) -> list[Path]:
-    """Delete the temporaries of atomic writes (``.<name>.tmp<pid>...``) whose writer is no longer running.
-
-    They only exist when a process was killed mid-write; no reader ever picks them up, this only frees the space."""
-    removed: list[Path] = []
-    if not directory.is_dir():
-        return removed
-    it = directory.rglob(".*.tmp*") if recursive else directory.glob(".*.tmp*")
-    for p in it:
-        m = _TMP.match(p.name)
-        if not m or not p.is_file() or "wandb" in p.relative_to(directory).parts:
-            continue
-        pid = int(m.group(1))
-        if pid != os.getpid() and not _alive(pid):
-            p.unlink(missing_ok=True)
-            removed.append(p)
-    return removed
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
-
-
 # --------------------------------------------------------------------------------------------- console
 class JobLog:
     """The job's lines in Hydra's log file (``run.log`` for ``rmpfusion-run``; Hydra's job logging writes

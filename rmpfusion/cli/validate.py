@@ -5,12 +5,10 @@ Exits 0 and prints a summary with the tree drawn as text, or exits 2 listing eve
 """
 from __future__ import annotations
 
-import hydra
 from omegaconf import DictConfig
 
 from ..evaluate.weights import learned_edges
-from ..learn.learners import RMPLearner
-from ._common import CONF_DIR, config_errors_exit
+from ._common import config_errors_exit, hydra_app
 
 
 def summary(run, env, expert, learners) -> str:
@@ -25,7 +23,7 @@ def summary(run, env, expert, learners) -> str:
         lines.append("expert weights: " + ", ".join(f"{n}={(w.get('type') if isinstance(w, dict) else w)}"
                                                       for n, w in run.expert.items()))
     for name, model in learners.items():
-        extra = f", learns the weights of edges {learned_edges(model.tree)}" if isinstance(model, RMPLearner) else ""
+        extra = f", learns the weights of edges {learned_edges(model.tree)}" if model.tree is not None else ""
         lines.append(f"learner {name}: {run.learners[name].type}, {model.num_parameters()} parameters{extra}")
     d, t = run.data, run.train
     lines += [
@@ -38,7 +36,7 @@ def summary(run, env, expert, learners) -> str:
     return "\n".join(lines)
 
 
-@hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="config")
+@hydra_app
 def main(cfg: DictConfig) -> None:
     from ..pipeline.validate import build_all, resolve_and_validate
 

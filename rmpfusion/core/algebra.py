@@ -6,7 +6,6 @@ the curvature term c = J̇ẋ is (B, n). Scalars (Phi, L, V, weights) are (B,).
 from __future__ import annotations
 
 import warnings
-from collections import Counter
 from dataclasses import dataclass, fields
 from typing import Iterable, MutableMapping, NamedTuple
 
@@ -121,15 +120,10 @@ def pullback_star(xd: Tensor, children: Iterable[tuple[Edge, NodeRMP]]) -> NodeR
 class SingularInertiaWarning(RuntimeWarning):
     """``resolve`` met a singular root inertia M and answered with the Moore–Penrose pseudo-inverse there.
 
-    Shown once per calling line by Python's default warning filter; every occurrence is counted in
-    ``RESOLVE_EVENTS``. A controller that must never act on such a state turns it into an exception with
+    Shown once per calling line by Python's default warning filter; every occurrence is counted in the
+    ``events`` counter passed to ``resolve`` (each ``RMPTree`` keeps its own, ``tree.resolve_events``). A controller that must never act on such a state turns it into an exception with
     ``warnings.simplefilter("error", SingularInertiaWarning)``.
     """
-
-
-#: Process-wide counts of resolve's fallbacks, in samples: ``pinv_fallback`` (singular M, M⁺f used) and
-#: ``unsolvable`` (non-finite M or f, left non-finite for the caller to report). ``RESOLVE_EVENTS.clear()`` resets.
-RESOLVE_EVENTS: Counter = Counter()
 
 
 def lu_solve(M: Tensor, f: Tensor) -> tuple[Tensor, Tensor]:
@@ -149,9 +143,10 @@ def resolve(f: Tensor, M: Tensor, method: str = "solve", events: MutableMapping[
 
     ``pinv``: the Moore–Penrose inverse, always defined. ``solve``: an LU solve, which equals the
     Moore–Penrose answer whenever M is invertible; samples whose M is singular (or whose solve is not
-    finite) fall back to the pseudo-inverse, so the result is always M⁺ f. Each fallback is counted in
-    ``RESOLVE_EVENTS`` (and in ``events`` when given, e.g. a per-tree counter) and reported by a
-    ``SingularInertiaWarning`` naming the samples.
+    finite) fall back to the pseudo-inverse, so the result is always M⁺ f. Each fallback is reported by a
+    ``SingularInertiaWarning`` naming the samples and, when ``events`` is given (a tree passes its own
+    counter), counted there in samples: ``pinv_fallback`` (singular M, M⁺f used) and ``unsolvable``
+    (non-finite M or f, left non-finite for the caller to report). Nothing is counted process-wide.
     """
     if method == "pinv":
         return (torch.linalg.pinv(M) @ f.unsqueeze(-1)).squeeze(-1)
@@ -165,10 +160,9 @@ def resolve(f: Tensor, M: Tensor, method: str = "solve", events: MutableMapping[
         a = a.clone()
         a[bad] = float("nan")
         n_fix, n_bad = int(fix.sum()), int(bad.sum())
-        for counter in (RESOLVE_EVENTS, events):
-            if counter is not None:
-                counter["pinv_fallback"] = counter.get("pinv_fallback", 0) + n_fix
-                counter["unsolvable"] = counter.get("unsolvable", 0) + n_bad - n_fix
+        if events is not None:
+            events["pinv_fallback"] = events.get("pinv_fallback", 0) + n_fix
+            events["unsolvable"] = events.get("unsolvable", 0) + n_bad - n_fix
         if n_fix:
             a[fix] = (torch.linalg.pinv(M[fix]) @ f[fix].unsqueeze(-1)).squeeze(-1)
             idx = fix.nonzero().flatten().tolist()

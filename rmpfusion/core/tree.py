@@ -1,4 +1,7 @@
-"""RMPTree: a tree spec made into a torch module that evaluates RMPfusion's policy.
+"""RMPTree: built modules arranged as a tree, evaluating RMPfusion's policy.
+
+The tree knows its shape (``TreeLayout``) and its modules, nothing of YAML or registries: ``build/`` turns
+a validated spec into both.
 
 Forward pass: pushforward from the root to the leaves. Backward pass: pullback* from the leaves to the
 root. Then resolve. Gradients reach every weight-function parameter, including through the h_i terms.
@@ -8,6 +11,7 @@ from __future__ import annotations
 import logging
 import types
 import warnings
+from collections import Counter
 from dataclasses import dataclass
 from typing import Any, Mapping
 
@@ -16,6 +20,27 @@ from torch import Tensor, nn
 
 from .algebra import Edge, NodeRMP, lu_solve, pullback_star, resolve
 from .auxstate import AuxDict
+
+
+@dataclass(frozen=True)
+class NodeLabel:
+    """What a node is made of, by registered name, for messages and ``describe``: map, weight, leaf RMP."""
+
+    map: str
+    weight: str | None = None  # a weight type, or ``shared:<name>`` for a shared weight
+    rmp: str | None = None
+
+
+@dataclass(frozen=True)
+class TreeLayout:
+    """The shape of a tree: root name and dimension, the aux state it reads, each node's parent (in declaration
+    order) and what it is made of."""
+
+    root: str
+    dim: int
+    aux_dims: Mapping[str, int]
+    parents: Mapping[str, str]
+    labels: Mapping[str, NodeLabel]
 
 
 @dataclass
@@ -111,26 +136,28 @@ class BoundWeight(nn.Module):
 class RMPTree(nn.Module):
     """An RMP-tree*: ``tree(q, qd, aux)`` returns the root's qdd, f, M, G, B, Phi, V (and L)."""
 
-    def __init__(self, spec: TreeSpec, maps, weights, rmps, shared, resolve_method: str = "solve", check_finite: bool = True):
+    def __init__(self, layout: TreeLayout, maps, weights, rmps, shared, resolve_method: str = "solve",
+                 check_finite: bool = True):
         super().__init__()
-        self.spec = spec
-        self.root_name = spec.root.name
-        self.dim = spec.root.dim
-        self.aux_dims = dict(spec.aux)
+        self.layout = layout
+        self.root_name = layout.root
+        self.dim = layout.dim
+        self.aux_dims = dict(layout.aux_dims)
         self.maps = nn.ModuleDict(maps)
         self.weights = nn.ModuleDict(weights)
         self.rmps = nn.ModuleDict(rmps)
         self.shared = nn.ModuleDict(shared)
         self.resolve_method = resolve_method
         self.check_finite = check_finite  # a NaN must never become a command silently
+        self.resolve_events: Counter = Counter()  # resolve's fallbacks met by this tree, in samples
         self.children_of: dict[str, list[str]] = {self.root_name: []}
-        for n in spec.nodes:
+        for n in layout.parents:
             self.children_of[n] = []
-        for n, node in spec.nodes.items():
-            self.children_of[node.parent].append(n)
+        for n, parent in layout.parents.items():
+            self.children_of[parent].append(n)
         self.order = breadth_first(self.children_of, self.root_name)
-        self.parent_of = {n: node.parent for n, node in spec.nodes.items()}
-        self.node_dims = {self.root_name: self.dim, **{n: maps[n].out_dim for n in spec.nodes}}
+        self.parent_of = dict(layout.parents)
+        self.node_dims = {self.root_name: self.dim, **{n: maps[n].out_dim for n in layout.parents}}
         first: dict[tuple, str] = {}
         for n in self.order:  # maps that share a computation also share its modules
             key = getattr(self.maps[n], "shared_key", None)
@@ -183,7 +210,7 @@ class RMPTree(nn.Module):
             r = NodeRMP(*fields)
             solved = self.resolve_method == "solve" and bool(ok)
         if not solved:  # singular or non-finite samples, or pinv asked for: the full treatment
-            qdd = resolve(r.f, r.M, self.resolve_method)
+            qdd = resolve(r.f, r.M, self.resolve_method, self.resolve_events)
         if self.check_finite and not solved and not bool(torch.isfinite(qdd).all()):
             raise NumericalError(self._diagnose(q, qd, aux))
         nodes = {"state": state, "edge": edges, "rmp": rmp} if return_nodes else None
@@ -314,9 +341,8 @@ class RMPTree(nn.Module):
             where = _first_nonfinite(named)
             if where:
                 samples = _nonfinite_samples(dict(named)[where])
-                node = self.spec.nodes[name]
-                origin = (f"weight {node.weight.get('type') if isinstance(node.weight, Mapping) else node.weight}"
-                          if where.startswith("weight") else f"map {node.map.get('type')}")
+                label = self.layout.labels[name]
+                origin = f"weight {label.weight}" if where.startswith("weight") else f"map {label.map}"
                 return _Diagnosis.make(f"non-finite {where} at node '{name}' ({origin}){_samples_text(samples)}{scale()}",
                                        f"{where} at node '{name}'", samples)
         for name in reversed(self.order):
@@ -324,8 +350,8 @@ class RMPTree(nn.Module):
             where = _first_nonfinite(items)
             if where:
                 samples = _nonfinite_samples(dict(items)[where])
-                rmp = self.spec.nodes[name].rmp
-                kind = f"leaf {rmp.get('type')}" if rmp else "pullback* of its children"
+                rmp = self.layout.labels[name].rmp
+                kind = f"leaf {rmp}" if rmp else "pullback* of its children"
                 return _Diagnosis.make(f"non-finite {where} in the RMP of node '{name}' ({kind}){_samples_text(samples)}"
                                        f"{scale()}", f"{where} in the RMP of node '{name}'", samples)
         items = list(n["rmp"][self.root_name].items())
@@ -348,13 +374,12 @@ class RMPTree(nn.Module):
         lines = [f"{self.root_name} (dim {self.dim})"]
 
         def label(n: str) -> str:
-            node = self.spec.nodes[n]
-            parts = [f"{n} (dim {self.node_dims[n]})", f"map={node.map.get('type')}"]
+            node = self.layout.labels[n]
+            parts = [f"{n} (dim {self.node_dims[n]})", f"map={node.map}"]
             if node.weight is not None:
-                wt = node.weight if isinstance(node.weight, str) else node.weight.get("type") or f"shared:{node.weight.get('shared')}"
-                parts.append(f"weight={wt}")
+                parts.append(f"weight={node.weight}")
             if node.rmp is not None:
-                parts.append(f"rmp={node.rmp.get('type')}")
+                parts.append(f"rmp={node.rmp}")
             return "  ".join(parts)
 
         def walk(p: str, prefix: str) -> None:

@@ -1,3 +1,6 @@
 """Environments; importing this package registers them in ``rmpfusion.registry.ENVS``."""
-from .franka import Franka, FrankaRollout  # noqa: F401
-from .particle2d import Particle2D, Rollout  # noqa: F401
+from .demonstrations import Dataset, DatasetError, collect, dataset_meta, load_dataset, save_dataset  # noqa: F401
+from .franka import Franka  # noqa: F401
+from .particle2d import Particle2D  # noqa: F401
+from .protocol import Env, HasRatioMetrics, HasTaskMetrics, PlanarWorkspace, RenderSettings, Renders  # noqa: F401
+from .rollout import Rollout  # noqa: F401

@@ -1,4 +1,5 @@
-"""What every environment shares: closed-loop integrators, sampling by seed, rejection sampling of starts."""
+"""What every environment shares: closed-loop integrators, the record grid, policy evaluation with its
+monitoring quantities, sampling by seed, rejection sampling."""
 from __future__ import annotations
 
 from typing import Any, Callable, Mapping
@@ -6,10 +7,76 @@ from typing import Any, Callable, Mapping
 import torch
 from torch import Tensor
 
+from ..core.gds import quad
+
+#: The ``dtype`` setting of an environment's Params as a torch dtype.
+DTYPES = {"float64": torch.float64, "float32": torch.float32}
+
 
 def qdd_of(out: Any) -> Tensor:
     """The acceleration of a policy's answer: a tensor, or a TreeOutput."""
     return out if isinstance(out, Tensor) else out.qdd
+
+
+def obstacle_aux_dims(space: int, n_obstacles: int) -> dict[str, int]:
+    """The aux layout of a goal among obstacles: ``goal`` (space,), then ``obstacle{k}_center`` (space,) and
+    ``obstacle{k}_radius`` (1,) for k = 1..K. Tree specs name these keys, so every environment spells them alike."""
+    dims = {"goal": space}
+    for k in range(1, n_obstacles + 1):
+        dims[f"obstacle{k}_center"] = space
+        dims[f"obstacle{k}_radius"] = 1
+    return dims
+
+
+def obstacle_aux(goal: Tensor, centers: Tensor, radii: Tensor) -> dict[str, Tensor]:
+    """The aux dict of goals (n, space), centres (n, K, space) and radii (n, K), laid out as ``obstacle_aux_dims``."""
+    aux = {"goal": goal}
+    for k in range(centers.shape[1]):
+        aux[f"obstacle{k + 1}_center"] = centers[:, k].contiguous()
+        aux[f"obstacle{k + 1}_radius"] = radii[:, k : k + 1].contiguous()
+    return aux
+
+
+def stack_obstacles(aux: Mapping[str, Tensor], n_obstacles: int) -> tuple[Tensor, Tensor]:
+    """Centres (n, K, space) and radii (n, K) stacked from an aux dict laid out as ``obstacle_aux_dims``."""
+    if n_obstacles == 0:
+        g = aux["goal"]
+        return g.new_zeros(g.shape[0], 0, g.shape[-1]), g.new_zeros(g.shape[0], 0)
+    c = torch.stack([aux[f"obstacle{k}_center"] for k in range(1, n_obstacles + 1)], 1)
+    r = torch.stack([aux[f"obstacle{k}_radius"].reshape(-1) for k in range(1, n_obstacles + 1)], 1)
+    return c, r
+
+
+def evaluate_policy(policy: Callable[..., Any], q: Tensor, qd: Tensor,
+                    aux: Mapping[str, Tensor]) -> tuple[Tensor, Tensor | None, Tensor | None]:
+    """(q̈, V, q̇ᵀBq̇) of one policy evaluation: a tree's V and dissipation come from the same evaluation that gives
+    the recorded q̈, so monitoring them costs nothing; a plain callable's tensor has neither (None, None)."""
+    out = policy(q, qd, aux)
+    if isinstance(out, Tensor):
+        return out, None, None
+    Bm = getattr(out, "B", None)
+    return out.qdd, getattr(out, "V", None), quad(qd, Bm) if Bm is not None else None
+
+
+def time_grid(horizon: float, record_every: float, dt: float, step: str = "dt") -> tuple[int, int]:
+    """(integration steps, steps between records) of a rollout on the fixed step ``dt`` (named ``step`` in errors).
+
+    Records and the horizon must fall on the step grid: rounding them silently would record other times than
+    asked and compare rollouts of different lengths.
+    """
+    n_steps = int(round(horizon / dt))
+    every = int(round(record_every / dt))
+    if every < 1 or abs(every * dt - record_every) > 1e-9 * max(1.0, record_every):
+        raise ValueError(f"record_every={record_every} must be a positive multiple of {step}={dt}")
+    if abs(n_steps * dt - horizon) > 1e-9 * max(1.0, horizon):
+        raise ValueError(f"horizon={horizon} must be a multiple of {step}={dt}")
+    return n_steps, every
+
+
+def check_initial_states(q0: Tensor, qd0: Tensor, dim: int) -> None:
+    """Refuse initial states that are not a (B, dim) batch, before any integration step is spent on them."""
+    if q0.dim() != 2 or q0.shape[-1] != dim or qd0.shape != q0.shape:
+        raise ValueError(f"q0 and qd0 must both be (B, {dim}); got {tuple(q0.shape)} and {tuple(qd0.shape)}")
 
 
 def semi_implicit_euler(accel, q, qd, dt, a=None):
@@ -38,8 +105,10 @@ def redraw_until_ok(draw: Callable[[], tuple[Tensor, ...]], ok: Callable[[tuple[
                     aux: Mapping[str, Tensor], max_tries: int, failure: Callable[[int], str]) -> tuple[Tensor, ...]:
     """Rejection sampling of a batch: redraw every rejected sample until ``ok`` accepts it.
 
-    ``ok`` is only asked about the samples still rejected (with their aux rows), so expensive checks
-    (pybullet clearance) run on few samples; ``failure(n_left)`` is the error after ``max_tries`` rounds.
+    Every round draws the whole batch, so the random stream (and with it every sample) does not depend on how
+    many were rejected before. ``ok`` is only asked about the samples still rejected (with their aux rows), so
+    expensive checks (pybullet clearance) run on few samples; ``failure(n_left)`` is the error after
+    ``max_tries`` rounds.
     """
     vals = draw()
     bad = ~ok(vals, aux)

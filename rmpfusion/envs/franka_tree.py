@@ -5,18 +5,25 @@ obstacle adds one distance node under every control point. Generating the spec (
 YAML) keeps those nodes consistent, and lets a tree trained with one obstacle be rebuilt for several: the
 obstacle weight on a control point is one entry of ``shared_weights`` used by all of that point's
 distance edges, each edge binding the generic aux names ``obstacle_center``/``obstacle_radius`` to its
-own obstacle. ``conf/tree/franka.yaml`` is ``franka_tree_spec(DEFAULT_CONTROL_POINTS, 1)`` written out.
+own obstacle. The generator is registered as the tree generator ``franka_fig1b``, so
+``conf/tree/franka.yaml`` declares it and its parameters (``build.generated.expand_tree``) instead of
+holding ~400 lines of its output that would have to be kept in step with it.
 """
 from __future__ import annotations
 
 import copy
+import difflib
+import functools
+from typing import Any, Literal, Mapping, Sequence
 
 import torch
-from typing import Any, Mapping, Sequence
-
-from ..maps.urdf import PANDA_ARM_JOINTS, load_panda_urdf_path, parse_urdf
+from pydantic import Field, field_validator
 
 from ..build.weighting import tree_with_weights as with_weights  # noqa: F401  (expert configs: node or shared-weight names)
+from ..maps.urdf import PANDA_ARM_JOINTS, load_panda_urdf_path, parse_urdf
+from ..registry import TREE_GENERATORS, Params
+from ..rmps.gds_leaves import CollisionAvoidance, Damper, GoalAttractor, IdentityMetric, JointLimitBarrier
+from ..weights.neural import MLPWeight
 
 # Spheres covering the Panda's collision meshes from link3 to the closed fingers, in each link's frame:
 # a k-means fit of the mesh vertices, each radius covering its cluster (rounded up by ~5 mm).
@@ -60,39 +67,93 @@ ATTRACTOR_WEIGHT = {"type": "mlp", "hidden": [32, 32], "aux": ["goal"], "positiv
 OBSTACLE_WEIGHT = {"type": "mlp", "hidden": [32, 32], "aux": ["obstacle_center", "obstacle_radius"], "positivity": "exp"}
 
 
-def _cp_fields(cp: Mapping[str, Any], i: int) -> tuple[str, list[float], float]:
-    if "link" not in cp:
-        raise ValueError(f"control point {i} needs a 'link' (got keys {sorted(cp)})")
-    extra = set(cp) - {"link", "offset", "radius"}
-    if extra:
-        raise ValueError(f"control point {i} has unknown keys {sorted(extra)}; allowed: link, offset, radius")
-    offset = [float(v) for v in cp.get("offset", [0.0, 0.0, 0.0])]
-    if len(offset) != 3:
-        raise ValueError(f"control point {i}: offset needs 3 numbers, got {offset}")
-    radius = float(cp.get("radius", 0.0))
-    if radius < 0:
-        raise ValueError(f"control point {i}: radius must be ≥ 0, got {radius}")
-    return str(cp["link"]), offset, radius
+_LEAVES: dict[str, Mapping[str, Any]] = {
+    "attractor_rmp": ATTRACTOR_RMP, "obstacle_rmp": OBSTACLE_RMP, "joint_limit_rmp": JOINT_LIMIT_RMP,
+    "damper_rmp": DAMPER_RMP, "identity_rmp": IDENTITY_RMP,
+    "attractor_weight": ATTRACTOR_WEIGHT, "obstacle_weight": OBSTACLE_WEIGHT,
+}
 
 
-def franka_tree_spec(
-    control_points: Sequence[Mapping[str, Any]] | None = None,
-    n_obstacles: int = 1,
-    obstacle_distance: str = "cylinder_distance",
-) -> dict[str, Any]:
-    """The Panda tree spec (docs/architecture.md §2) for these control points and this many obstacles.
+def _tuned(field: str) -> dict[str, Any]:
+    return {k: copy.deepcopy(v) for k, v in _LEAVES[field].items() if k != "type"}
+
+
+def _tuned_field(model: type[Params], field: str, what: str) -> Any:
+    """A leaf's (or weight's) settings, checked by that entry's own parameter model, defaulting to the tuned ones."""
+    return Field(default_factory=lambda: model(**_tuned(field)),
+                 description=f"{what} ({_LEAVES[field]['type']}); keys given replace the tuned values one by one")
+
+
+@functools.lru_cache(maxsize=1)
+def _panda_links() -> tuple[str, ...]:
+    return tuple(parse_urdf(load_panda_urdf_path()).link_names())
+
+
+class ControlPoint(Params):
+    """A sphere fixed to a Panda link; its surface is what the obstacle barriers keep away from obstacles."""
+
+    link: str
+    offset: tuple[float, float, float] = Field((0.0, 0.0, 0.0), description="sphere centre in the link frame (m)")
+    radius: float = Field(gt=0, description="sphere radius (m): distances to obstacles are taken from its surface")
+
+    @field_validator("link")
+    @classmethod
+    def _a_panda_link(cls, v: str) -> str:
+        links = _panda_links()
+        if v not in links:
+            close = difflib.get_close_matches(v, links, n=3, cutoff=0.5)
+            hint = f"did you mean {', '.join(map(repr, close))}? " if close else ""
+            raise ValueError(f"the Panda has no link {v!r}; {hint}links: {', '.join(links)}")
+        return v
+
+
+class FrankaTreeParams(Params):
+    """Parameters of the Fig. 1b Panda tree; the defaults are the tree of the paper's experiment.
+
+    The end-effector point (``EE_LINK``/``EE_OFFSET``) is not a parameter: the environment measures
+    reaching and success at that same point, so the two cannot be allowed to differ.
+    """
+
+    control_points: list[ControlPoint] = Field(
+        default_factory=lambda: [ControlPoint(**cp) for cp in DEFAULT_CONTROL_POINTS],
+        description="spheres approximating the arm; each gets one distance node per obstacle")
+    n_obstacles: int = Field(1, ge=0, description="obstacles present at run time (aux obstacle<k>_center/_radius)")
+    obstacle_distance: Literal["cylinder_distance", "sphere_distance"] = Field(
+        "cylinder_distance", description="vertical infinite cylinder (conservative for a standing one) or sphere")
+    attractor_rmp: GoalAttractor.Params = _tuned_field(GoalAttractor.Params, "attractor_rmp", "end-effector attractor")
+    obstacle_rmp: CollisionAvoidance.Params = _tuned_field(CollisionAvoidance.Params, "obstacle_rmp",
+                                                           "barrier on every control point's obstacle distance")
+    joint_limit_rmp: JointLimitBarrier.Params = _tuned_field(JointLimitBarrier.Params, "joint_limit_rmp",
+                                                             "barrier on each of the 14 joint limits")
+    damper_rmp: Damper.Params = _tuned_field(Damper.Params, "damper_rmp", "damper on the root")
+    identity_rmp: IdentityMetric.Params = _tuned_field(IdentityMetric.Params, "identity_rmp",
+                                                       "identity metric on the root")
+    attractor_weight: MLPWeight.Params = _tuned_field(MLPWeight.Params, "attractor_weight",
+                                                      "learnable weight of the ee -> attractor edge")
+    obstacle_weight: MLPWeight.Params = _tuned_field(MLPWeight.Params, "obstacle_weight",
+                                                     "learnable weight shared by one control point's obstacle edges")
+
+    @field_validator(*_LEAVES, mode="before")
+    @classmethod
+    def _onto_tuned(cls, v: Any, info: Any) -> Any:
+        # a partial block ({gain: 3}) changes those keys only, not the rest back to the entry's generic defaults
+        return {**_tuned(info.field_name), **v} if isinstance(v, Mapping) else v
+
+
+def _entry(p: FrankaTreeParams, field: str) -> dict[str, Any]:
+    """``{type, **settings}`` as written in a tree spec; only keys that were set, so defaults stay the entry's."""
+    return {"type": _LEAVES[field]["type"], **getattr(p, field).model_dump(exclude_unset=True)}
+
+
+@TREE_GENERATORS.register("franka_fig1b", params=FrankaTreeParams)
+def franka_fig1b(p: FrankaTreeParams) -> dict[str, Any]:
+    """The Panda tree spec (docs/architecture.md §2) of paper Fig. 1b, from validated parameters.
 
     Weighted edges (learnable, MLPs): ee→attractor and every control point→distance edge, the latter
     shared across obstacles per control point. Joint limits, the damper and the identity metric carry
-    no weight, as in the paper. ``obstacle_distance`` is ``cylinder_distance`` (vertical, infinite:
-    conservative for a standing cylinder) or ``sphere_distance``.
+    no weight, as in the paper.
     """
-    if control_points is None:
-        control_points = DEFAULT_CONTROL_POINTS
-    if n_obstacles < 0:
-        raise ValueError(f"n_obstacles must be ≥ 0, got {n_obstacles}")
-    if obstacle_distance not in ("cylinder_distance", "sphere_distance"):
-        raise ValueError(f"obstacle_distance must be cylinder_distance or sphere_distance, got {obstacle_distance!r}")
+    n_obstacles = p.n_obstacles
     lower, upper = (t.tolist() for t in _panda_limits())
     aux: dict[str, int] = {"goal": 3}
     for k in range(1, n_obstacles + 1):
@@ -106,45 +167,62 @@ def franka_tree_spec(
         "ee": {"parent": "q", "map": {"type": "forward_kinematics", "robot": "panda", "link": EE_LINK,
                                       "offset": list(EE_OFFSET)}},
         "attractor": {"parent": "ee", "map": {"type": "offset", "origin": "goal"},
-                      "weight": copy.deepcopy(ATTRACTOR_WEIGHT), "rmp": dict(ATTRACTOR_RMP)},
+                      "weight": _entry(p, "attractor_weight"), "rmp": _entry(p, "attractor_rmp")},
     }
     for j in range(7):
         for side, lim in (("upper", upper[j]), ("lower", lower[j])):
             nodes[f"jl{j + 1}_{side}"] = {
                 "parent": "q", "map": {"type": "joint_limit", "side": side, "limit": float(lim), "joints": j},
-                "rmp": dict(JOINT_LIMIT_RMP),
+                "rmp": _entry(p, "joint_limit_rmp"),
             }
     shared: dict[str, Any] = {}
-    for i, cp in enumerate(control_points, start=1):
-        link, offset, radius = _cp_fields(cp, i)
+    for i, cp in enumerate(p.control_points, start=1):
         cp_name = f"cp{i}"
-        nodes[cp_name] = {"parent": "q", "map": {"type": "forward_kinematics", "robot": "panda", "link": link,
-                                                  "offset": offset}}
+        nodes[cp_name] = {"parent": "q", "map": {"type": "forward_kinematics", "robot": "panda", "link": cp.link,
+                                                  "offset": [float(v) for v in cp.offset]}}
         if n_obstacles:
-            shared[f"{cp_name}_obstacle"] = copy.deepcopy(OBSTACLE_WEIGHT)
+            shared[f"{cp_name}_obstacle"] = _entry(p, "obstacle_weight")
         for k in range(1, n_obstacles + 1):
-            dist = {"type": obstacle_distance, "center": f"obstacle{k}_center", "radius": f"obstacle{k}_radius"}
+            dist = {"type": p.obstacle_distance, "center": f"obstacle{k}_center", "radius": f"obstacle{k}_radius"}
             nodes[f"{cp_name}_obstacle{k}"] = {
                 "parent": cp_name,
                 # the control point is a sphere: subtract its radius so 0 means touching
-                "map": {"type": "compose", "maps": [dist, {"type": "offset", "origin": [radius]}]},
+                "map": {"type": "compose", "maps": [dist, {"type": "offset", "origin": [float(cp.radius)]}]},
                 "weight": {"shared": f"{cp_name}_obstacle",
                            "bind": {"obstacle_center": f"obstacle{k}_center", "obstacle_radius": f"obstacle{k}_radius"}},
-                "rmp": dict(OBSTACLE_RMP),
+                "rmp": _entry(p, "obstacle_rmp"),
             }
         if not n_obstacles:  # a control point without obstacles would be a leaf without an RMP
             del nodes[cp_name]
-    nodes["damper"] = {"parent": "q", "map": {"type": "identity"}, "rmp": dict(DAMPER_RMP)}
-    nodes["identity_metric"] = {"parent": "q", "map": {"type": "identity"}, "rmp": dict(IDENTITY_RMP)}
+    nodes["damper"] = {"parent": "q", "map": {"type": "identity"}, "rmp": _entry(p, "damper_rmp")}
+    nodes["identity_metric"] = {"parent": "q", "map": {"type": "identity"}, "rmp": _entry(p, "identity_rmp")}
     return {
         "description": (f"Franka Panda (paper Fig. 1b): end-effector attractor, 14 joint-limit barriers, "
-                        f"{len(control_points)} control points x {n_obstacles} obstacle(s) with weights shared "
+                        f"{len(p.control_points)} control points x {n_obstacles} obstacle(s) with weights shared "
                         f"across obstacles, damper and identity metric on the root"),
         "root": {"name": "q", "dim": 7},
         "aux": aux,
         "shared_weights": shared,
         "nodes": nodes,
     }
+
+
+def franka_tree_spec(
+    control_points: Sequence[Mapping[str, Any] | ControlPoint] | None = None,
+    n_obstacles: int = 1,
+    obstacle_distance: str = "cylinder_distance",
+    **settings: Any,
+) -> dict[str, Any]:
+    """The Panda tree spec for these control points and this many obstacles (Python callers' entry).
+
+    ``settings`` are the other :class:`FrankaTreeParams` keys (``attractor_rmp``, ``obstacle_weight``, ...).
+    Everything is checked by the same model as ``generator: franka_fig1b`` in YAML, so a bad value raises
+    pydantic's ValidationError (a ValueError) naming the key.
+    """
+    given: dict[str, Any] = {"n_obstacles": n_obstacles, "obstacle_distance": obstacle_distance, **settings}
+    if control_points is not None:
+        given["control_points"] = list(control_points)
+    return franka_fig1b(FrankaTreeParams.model_validate(given))
 
 
 def _panda_limits():
@@ -171,14 +249,3 @@ def copy_weights(src: torch.nn.Module, dst: torch.nn.Module) -> list[str]:
             copied.append(name)
     return copied
 
-
-def write_default_yaml(path: str) -> None:
-    """Write ``franka_tree_spec(DEFAULT_CONTROL_POINTS, 1)`` as the YAML tree config."""
-    import yaml
-
-    header = ("# Generated by rmpfusion.envs.franka_tree.write_default_yaml: franka_tree_spec(DEFAULT_CONTROL_POINTS, 1).\n"
-              "# Edit the generator (or call it with other control points / obstacle counts), not this file;\n"
-              "# tests/test_franka.py checks the two agree.\n")
-    with open(path, "w", encoding="utf-8") as f:
-        f.write(header)
-        yaml.safe_dump(franka_tree_spec(DEFAULT_CONTROL_POINTS, 1), f, sort_keys=False, default_flow_style=None, width=120)

@@ -7,7 +7,6 @@ the segment joining them, so a policy has to deal with the obstacle to reach the
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Any, Callable, Literal, Mapping
 
 import torch
@@ -15,37 +14,13 @@ from pydantic import Field, model_validator
 from torch import Tensor
 
 from ..registry import ENVS, Params
-from .common import SeededSampling, qdd_of, redraw_until_ok, rk4, semi_implicit_euler
+from .common import (DTYPES, SeededSampling, check_initial_states, evaluate_policy, obstacle_aux, obstacle_aux_dims,
+                     qdd_of, redraw_until_ok, rk4, semi_implicit_euler, stack_obstacles, time_grid)
+from .demonstrations import Dataset, collect
+from .rollout import Rollout
 
 Range = tuple[float, float]
 Box = tuple[tuple[float, float], tuple[float, float]]  # ((x_low, x_high), (y_low, y_high))
-
-_DTYPES = {"float64": torch.float64, "float32": torch.float32}
-
-
-@dataclass
-class Rollout:
-    """A batch of closed-loop trajectories sampled at the record times.
-
-    ``V`` and ``dissipation`` (q̇ᵀ B q̇ at the root, so dV/dt should equal −dissipation) exist only when
-    the policy returns a TreeOutput (an RMPTree); for a plain callable they are None.
-    """
-
-    times: Tensor  # (T,)
-    q: Tensor  # (T, B, 2)
-    qd: Tensor  # (T, B, 2)
-    qdd: Tensor  # (T, B, 2)
-    collided: Tensor  # (B,) bool: inside an obstacle at any integration step
-    reached: Tensor  # (B,) bool: within goal_tolerance at any integration step
-    success: Tensor  # (B,) bool: within goal_tolerance at the final time and never collided
-    min_clearance: Tensor  # (B,) closest approach to any obstacle surface (negative = penetration)
-    first_collision_time: Tensor | None = None  # (B,) first integration time inside an obstacle (s), inf if never
-    V: Tensor | None = None  # (T, B)
-    dissipation: Tensor | None = None  # (T, B)
-
-    @property
-    def batch_size(self) -> int:
-        return self.q.shape[1]
 
 
 def _check_range(name: str, r: Range) -> None:
@@ -55,7 +30,13 @@ def _check_range(name: str, r: Range) -> None:
 
 @ENVS.register("particle2d")
 class Particle2D(SeededSampling):
-    """Goal reaching around 1 (2d1level) or 2 (2d2level) circular obstacles in a [-5, 5]² workspace."""
+    """Goal reaching around 1 (2d1level) or 2 (2d2level) circular obstacles in a [-5, 5]² workspace.
+
+    A ``rollout`` records collisions (strictly inside an obstacle) and success (within ``goal_tolerance`` at the
+    final time); it never ends a sample early, so its ``Rollout.error`` stays empty.
+    """
+
+    dim = 2
 
     class Params(Params):
         n_obstacles: int = Field(1, ge=0, description="1 for 2d1level, 2 for 2d2level")
@@ -98,30 +79,25 @@ class Particle2D(SeededSampling):
             params = params.model_copy(update=overrides)
             params = self.Params.model_validate(params.model_dump())
         self.params = params
-        self.dtype = _DTYPES[params.dtype]
+        self.dtype = DTYPES[params.dtype]
 
     # ------------------------------------------------------------------ auxiliary state
+    @property
+    def dt(self) -> float:
+        """The integration step (s), ``params.dt``."""
+        return self.params.dt
+
     @property
     def n_obstacles(self) -> int:
         return self.params.n_obstacles
 
     def aux_dims(self) -> dict[str, int]:
         """Names and sizes of the per-sample aux state; pass to ``build_tree(..., aux_dims=...)``."""
-        dims = {"goal": 2}
-        for k in range(1, self.n_obstacles + 1):
-            dims[f"obstacle{k}_center"] = 2
-            dims[f"obstacle{k}_radius"] = 1
-        return dims
+        return obstacle_aux_dims(self.dim, self.n_obstacles)
 
     def obstacles(self, aux: Mapping[str, Tensor]) -> tuple[Tensor, Tensor]:
         """Centres (B, K, 2) and radii (B, K) stacked from the aux dict."""
-        K = self.n_obstacles
-        if K == 0:
-            g = aux["goal"]
-            return g.new_zeros(g.shape[0], 0, 2), g.new_zeros(g.shape[0], 0)
-        c = torch.stack([aux[f"obstacle{k}_center"] for k in range(1, K + 1)], 1)
-        r = torch.stack([aux[f"obstacle{k}_radius"].reshape(-1) for k in range(1, K + 1)], 1)
-        return c, r
+        return stack_obstacles(aux, self.n_obstacles)
 
     def clearance(self, q: Tensor, aux: Mapping[str, Tensor]) -> Tensor:
         """(B,) signed distance to the nearest obstacle surface (+inf without obstacles)."""
@@ -174,33 +150,20 @@ class Particle2D(SeededSampling):
                 ok &= gap >= p.obstacle_gap
         return ok
 
-    def sample_envs(self, n_envs: int, generator: torch.Generator | None = None) -> dict[str, Tensor]:
+    def sample_envs(self, n_envs: int, generator: torch.Generator | None = None,
+                    split: str = "train") -> dict[str, Tensor]:
         """``n_envs`` environments as an aux dict of (n_envs, k) tensors; reproducible given the generator.
 
-        Rejection sampling: every environment is redrawn until its goal clears every obstacle by
-        ``clearance``, obstacles stay inside the workspace and apart by ``obstacle_gap``.
+        Every split (``train``, ``val``, ``test``) is drawn from the same distribution: the splits differ only by
+        their generators. Rejection sampling: every environment is redrawn until its goal clears every obstacle
+        by ``clearance``, obstacles stay inside the workspace and apart by ``obstacle_gap``.
         """
-        goal, centre, radius = self._draw_envs(n_envs, generator)
-        bad = ~self._env_ok(goal, centre, radius)
-        tries = 1
-        while bool(bad.any()):
-            if tries >= self.params.max_tries:
-                raise RuntimeError(
-                    f"particle2d: could not sample {int(bad.sum())} environments in {tries} rounds; "
-                    "widen the sampling ranges or lower clearance/obstacle_gap"
-                )
-            g2, c2, r2 = self._draw_envs(n_envs, generator)  # fixed-size draws keep the stream deterministic
-            take = bad & self._env_ok(g2, c2, r2)
-            goal = torch.where(take[:, None], g2, goal)
-            centre = torch.where(take[:, None, None], c2, centre)
-            radius = torch.where(take[:, None], r2, radius)
-            bad &= ~take
-            tries += 1
-        aux = {"goal": goal}
-        for k in range(self.n_obstacles):
-            aux[f"obstacle{k + 1}_center"] = centre[:, k].contiguous()
-            aux[f"obstacle{k + 1}_radius"] = radius[:, k : k + 1].contiguous()
-        return aux
+        max_tries = self.params.max_tries
+        goal, centre, radius = redraw_until_ok(
+            lambda: self._draw_envs(n_envs, generator), lambda v, _: self._env_ok(*v), {}, max_tries,
+            lambda left: f"particle2d: could not sample {left} environments in {max_tries} rounds; "
+                         "widen the sampling ranges or lower clearance/obstacle_gap")
+        return obstacle_aux(goal, centre, radius)
 
     def sample_initial_states(
         self, envs_aux: Mapping[str, Tensor], n_per_env: int, generator: torch.Generator | None = None
@@ -246,15 +209,9 @@ class Particle2D(SeededSampling):
         ``monitor(i, t, q, qd, qdd, V)`` is called at each record; ``progress(step, total)`` after each
         record with integration steps done. Runs under ``torch.no_grad()`` unless ``enable_grad``.
         """
-        dt = self.params.dt
-        n_steps = int(round(horizon / dt))
-        every = int(round(record_every / dt))
-        if every < 1 or abs(every * dt - record_every) > 1e-9 * max(1.0, record_every):
-            raise ValueError(f"record_every={record_every} must be a positive multiple of dt={dt}")
-        if abs(n_steps * dt - horizon) > 1e-9 * max(1.0, horizon):
-            raise ValueError(f"horizon={horizon} must be a multiple of dt={dt}")
-        if q0.dim() != 2 or q0.shape[-1] != 2 or qd0.shape != q0.shape:
-            raise ValueError(f"q0 and qd0 must both be (B, 2); got {tuple(q0.shape)} and {tuple(qd0.shape)}")
+        dt = self.dt
+        n_steps, every = time_grid(horizon, record_every, dt)
+        check_initial_states(q0, qd0, self.dim)
         step = semi_implicit_euler if self.params.integrator == "semi_implicit_euler" else rk4
         with torch.set_grad_enabled(enable_grad):
             return self._rollout(policy, step, q0, qd0, dict(aux), dt, n_steps, every, monitor, progress)
@@ -273,15 +230,12 @@ class Particle2D(SeededSampling):
         for k in range(n_steps + 1):
             a = None
             if k % every == 0:
-                out = policy(q, qd, aux)
-                a = qdd_of(out)
-                V = None if isinstance(out, Tensor) else getattr(out, "V", None)
+                a, V, D = evaluate_policy(policy, q, qd, aux)
                 qs.append(q), qds.append(qd), qdds.append(a), ts.append(k * dt)
                 if V is not None:
                     Vs.append(V)
-                    Bm = getattr(out, "B", None)
-                    if Bm is not None:
-                        Ds.append(torch.einsum("bi,bij,bj->b", qd, Bm, qd))
+                    if D is not None:
+                        Ds.append(D)
                 if monitor is not None:
                     monitor(len(ts) - 1, k * dt, q, qd, a, V)
             if progress is not None and (k % every == 0 or k == n_steps):
@@ -307,3 +261,12 @@ class Particle2D(SeededSampling):
             V=torch.stack(Vs) if Vs else None,
             dissipation=torch.stack(Ds) if Ds else None,
         )
+
+    # ------------------------------------------------------------------ demonstrations
+    def demonstrations(self, expert: Callable[..., Any], n_envs: int, n_traj: int, n_points: int, interval: float,
+                       generator: torch.Generator | None = None, split: str = "train",
+                       progress: Callable[[int, int], Any] | None = None) -> Dataset:
+        """The expert's demonstrations (paper §4.1 "Data"): ``collect`` of ``n_points`` records ``interval`` s
+        apart from ``n_traj`` starts in each of ``n_envs`` environments. Every split is drawn from the same
+        distribution (``sample_envs``), so ``split`` changes nothing; the caller's generator tells splits apart."""
+        return collect(self, expert, n_envs, n_traj, n_points, interval, generator, progress=progress)

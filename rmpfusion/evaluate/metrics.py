@@ -10,26 +10,9 @@ from typing import Any, Callable, Mapping
 import torch
 from torch import Tensor, nn
 
+from ..envs.protocol import HasRatioMetrics, HasTaskMetrics
+from ..envs.rollout import Rollout
 from .lyapunov import lyapunov_monotone
-
-
-def _policy_of(learner: Any) -> Callable:
-    """The callable whose output a rollout records: a TreeOutput (so V_r is monitored) for trees and learner-rmp."""
-    from ..core.tree import RMPTree
-
-    return learner if isinstance(learner, RMPTree) else getattr(learner, "policy", learner)
-
-
-@torch.no_grad()
-def batch_loss(learner: nn.Module, data, chunk: int = 4096) -> float:
-    """MSE of learner vs expert q̈ over the whole dataset (same reduction as the training loss)."""
-    n = len(data)
-    total = 0.0
-    for s in range(0, n, chunk):
-        idx = torch.arange(s, min(n, s + chunk))
-        q, qd, aux, qdd = data.select(idx)
-        total += float(((learner(q, qd, aux) - qdd) ** 2).sum())
-    return total / (n * data.qdd.shape[1])
 
 
 @dataclass
@@ -40,7 +23,7 @@ class OnlineResult:
     "collides" with "drifts"; the other two separate them."""
 
     loss: float
-    rollout: Any  # envs.Rollout of the learner
+    rollout: Rollout  # of the learner
     expert_qdd: Tensor  # (T, B, d): the expert's action at the learner's states every ``interval``
     median: float = float("nan")
     before_collision: float = float("nan")
@@ -51,10 +34,13 @@ class OnlineResult:
 
 
 @torch.no_grad()
-def online_loss(learner: nn.Module, expert: Callable, env, q0: Tensor, qd0: Tensor, aux: Mapping[str, Tensor],
+def online_loss(policy: Callable, expert: Callable, env, q0: Tensor, qd0: Tensor, aux: Mapping[str, Tensor],
                 horizon: float, interval: float, record_every: float | None = None,
                 progress: Callable | None = None) -> OnlineResult:
-    """Roll the learner out from (q0, qd0); every ``interval`` seconds compare its q̈ with the expert's q̈ at that same state.
+    """Roll ``policy`` out from (q0, qd0); every ``interval`` seconds compare its q̈ with the expert's q̈ at that same state.
+
+    ``policy`` is rolled out as given: a tree, or a learner's ``policy``, answers with a TreeOutput, whose V_r the
+    rollout records; any other (q, q̇, aux) -> q̈ callable is rolled out without it.
 
     ``record_every`` (a divisor of ``interval``) records the rollout more finely for figures and the Lyapunov
     monitor at no extra policy evaluations; the loss still uses only the ``interval`` records.
@@ -63,7 +49,7 @@ def online_loss(learner: nn.Module, expert: Callable, env, q0: Tensor, qd0: Tens
     stride = int(round(interval / fine))
     if stride < 1 or abs(stride * fine - interval) > 1e-9 * max(1.0, interval):
         raise ValueError(f"record_every={record_every} must divide interval={interval}")
-    ro = env.rollout(_policy_of(learner), q0, qd0, aux, horizon=horizon, record_every=fine, progress=progress)
+    ro = env.rollout(policy, q0, qd0, aux, horizon=horizon, record_every=fine, progress=progress)
     qs, qds, qdds = ro.q[::stride], ro.qd[::stride], ro.qdd[::stride]
     T, B, d = qs.shape
     rep = {k: v.repeat(T, *([1] * (v.dim() - 1))) for k, v in aux.items()}  # time-major flat, matches reshape below
@@ -81,7 +67,7 @@ def online_loss(learner: nn.Module, expert: Callable, env, q0: Tensor, qd0: Tens
         eq[flat] = out if isinstance(out, Tensor) else out.qdd
     eq = eq.reshape(T, B, d)
     err = ((qdds - eq) ** 2).mean(-1)  # (T, B): squared error per record, averaged over coordinates
-    before = valid & (ro.times[::stride][:, None] < _first_collision(ro, B, ro.times.dtype)[None, :])
+    before = valid & (ro.times[::stride][:, None] < ro.first_collision_time[None, :])
     per_traj = torch.stack([_finite_mean(err[:, b][valid[:, b]]) for b in range(B)]) if B else err.new_zeros(0)
     return OnlineResult(loss=_finite_mean(err[valid]).item(), rollout=ro, expert_qdd=eq,
                         median=float(per_traj.median()) if B else float("inf"),
@@ -94,18 +80,12 @@ def _finite_mean(x: Tensor) -> Tensor:
     return m if bool(m.isfinite()) else x.new_tensor(float("inf"))
 
 
-def _first_collision(ro, B: int, dtype) -> Tensor:
-    """(B,) each rollout's first collision time; inf where it never collided (or the env does not record it)."""
-    t = ro.first_collision_time
-    return t if t is not None else torch.full((B,), float("inf"), dtype=dtype)
-
-
-def _ended(ro) -> list[int]:
+def _ended(ro: Rollout) -> list[int]:
     """Samples whose rollout ended early with a recorded reason (``ro.error``, e.g. Franka: pybullet or non-finite)."""
-    return [b for b, e in enumerate(getattr(ro, "error", None) or []) if e is not None]
+    return [b for b, e in enumerate(ro.error) if e is not None]
 
 
-def rollout_rates(ro, rtol: float = 1e-6, atol: float = 1e-9, with_lyapunov: bool = True) -> dict[str, float]:
+def rollout_rates(ro: Rollout, rtol: float = 1e-6, atol: float = 1e-9, with_lyapunov: bool = True) -> dict[str, float]:
     """success / collision rates of a rollout, and the fraction of trajectories whose V_r never rises (if recorded).
 
     Rollouts that record errors also give ``failed``: the fraction of samples that ended early (they never
@@ -113,7 +93,7 @@ def rollout_rates(ro, rtol: float = 1e-6, atol: float = 1e-9, with_lyapunov: boo
     """
     out = {"success": float(ro.success.double().mean()), "collision": float(ro.collided.double().mean())}
     ended = _ended(ro)
-    if getattr(ro, "error", None) is not None and len(ro.error):
+    if ro.error:
         out["failed"] = len(ended) / len(ro.error)
     if with_lyapunov and ro.V is not None:
         V = ro.V
@@ -129,25 +109,29 @@ def rollout_rates(ro, rtol: float = 1e-6, atol: float = 1e-9, with_lyapunov: boo
 
 def evaluate_learner(learner: nn.Module, expert: Callable, env, test_data, horizon: float, interval: float,
                      rtol: float = 1e-6, atol: float = 1e-9, record_every: float | None = None,
-                     progress: Callable | None = None
+                     progress: Callable | None = None, *, loss: Callable[[nn.Module, Any], float]
                      ) -> tuple[dict[str, float], OnlineResult]:
-    """All metrics of one learner as a flat dict of floats, plus the online rollout (for figures).
+    """All metrics of one learner (a ``rmpfusion.learn.Learner``) as a flat dict of floats, plus the online
+    rollout (for figures).
 
-    ``lyapunov_monotone_fraction`` is present only for learners with a Lyapunov function (learner-rmp).
+    ``loss(learner, dataset)`` is the batch-loss: the learning layer's dataset loss under the run's training
+    objective, handed in so this layer does not depend on that one. The learner's ``policy`` is what is rolled
+    out, so ``lyapunov_monotone_fraction`` is present only for learners whose policy is a tree (learner-rmp).
     """
     was_training = learner.training
     learner.eval()
     q0, qd0, aux = test_data.initial_states()
-    online = online_loss(learner, expert, env, q0, qd0, aux, horizon, interval, record_every, progress)
-    m = {"batch_loss": batch_loss(learner, test_data), **online.metrics()}
-    m.update(rollout_rates(online.rollout, rtol, atol, with_lyapunov=bool(getattr(learner, "has_lyapunov", False))))
+    online = online_loss(learner.policy, expert, env, q0, qd0, aux, horizon, interval, record_every, progress)
+    m = {"batch_loss": loss(learner, test_data), **online.metrics()}
+    m.update(rollout_rates(online.rollout, rtol, atol))
     learner.train(was_training)
     return m, online
 
 
 # ---------------------------------------------------------------------------------------------- task metrics
-# Environments may define per-trajectory task metrics (``env.task_metrics(rollout) -> {name: (B,)}``) and name
-# those compared with the expert as ratios (``env.ratio_metrics``), as the Franka experiment does (paper Fig. 5b).
+# Environments may define per-trajectory task metrics (``HasTaskMetrics``: ``env.task_metrics(rollout) -> {name:
+# (B,)}``) and name those compared with the expert as ratios (``HasRatioMetrics``: ``env.ratio_metrics``), as the
+# Franka experiment does (paper Fig. 5b).
 
 def _stats(x: Tensor) -> dict[str, float | int]:
     """mean, std (sample, n−1), min, max over the finite entries, and their count n."""
@@ -182,7 +166,7 @@ class StageResult:
     """One policy evaluated on the test initial states: the expert, or a learner at a training snapshot."""
 
     label: str
-    rollout: Any
+    rollout: Rollout
     per_trajectory: dict[str, Tensor]
     summary: dict[str, dict]
     ratios: dict[str, dict] | None = None
@@ -191,7 +175,7 @@ class StageResult:
     lyapunov: dict[str, float] | None = None
 
 
-def task_stage(label: str, rollout, env, expert: "StageResult | None" = None, rtol: float = 1e-6,
+def task_stage(label: str, rollout: Rollout, env: HasTaskMetrics, expert: "StageResult | None" = None, rtol: float = 1e-6,
                atol: float = 1e-9, learner: str | None = None, iteration: int | None = None) -> StageResult:
     """The env's task metrics of ``rollout`` summarised, the ratios to ``expert`` if given, and the Lyapunov
     monitor per trajectory (fraction monotone, worst relative increase) when the rollout recorded V_r."""
@@ -200,9 +184,10 @@ def task_stage(label: str, rollout, env, expert: "StageResult | None" = None, rt
     per = {k: v.detach() for k, v in env.task_metrics(rollout).items()}
     ratios = None
     if expert is not None:
-        ratios = ratios_to_expert(per, expert.per_trajectory, getattr(env, "ratio_metrics", ()))
+        keys = env.ratio_metrics if isinstance(env, HasRatioMetrics) else ()
+        ratios = ratios_to_expert(per, expert.per_trajectory, keys)
     lyap = None
-    if getattr(rollout, "V", None) is not None:
+    if rollout.V is not None:
         mono = lyapunov_monotone(rollout.V, rtol=rtol, atol=atol)
         per["lyapunov_monotone"] = mono.double()
         lyap = {"monotone_fraction": float(mono.double().mean()),

@@ -1,17 +1,29 @@
-"""The training block of a run config: optimiser, schedule, batches, snapshots, checkpoints."""
+"""The training block of a run config: objective and optimiser (by their registered names), schedule, batches,
+snapshots, checkpoints."""
 from __future__ import annotations
 
 from typing import Any, Literal, Mapping
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic_core import PydanticCustomError
+
+from ..registry import OBJECTIVES, OPTIMIZERS, Registry
+from . import objectives, optimizers  # noqa: F401  (the built-in names are registered before any is checked)
 
 
 class _Frozen(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
 
+def _registered(registry: Registry, name: str) -> str:
+    if name not in registry:
+        raise PydanticCustomError("registry_name", "{message}", {"message": registry.unknown_message(name)})
+    return name
+
+
 class TrainConfig(_Frozen):
-    optimizer: Literal["rmsprop", "adam", "sgd"] = "rmsprop"
+    optimizer: str = Field("rmsprop", description="a name registered in OPTIMIZERS: rmsprop, adam, sgd or a plugin's")
+    objective: str = Field("mse", description="a name registered in OBJECTIVES: mse or a plugin's")
     lr: float = Field(1e-3, gt=0)
     lr_schedule: Literal["constant", "cosine"] = Field("constant",
                                                        description="cosine: anneal lr to lr·lr_final_fraction")
@@ -28,6 +40,16 @@ class TrainConfig(_Frozen):
     compile: bool = Field(False, description="train learner trees through torch.compile: a one-off compile "
                                              "(seconds), then about twice as fast per step (tools/bench.py)")
 
+    @field_validator("optimizer")
+    @classmethod
+    def _optimizer_registered(cls, name: str) -> str:
+        return _registered(OPTIMIZERS, name)
+
+    @field_validator("objective")
+    @classmethod
+    def _objective_registered(cls, name: str) -> str:
+        return _registered(OBJECTIVES, name)
+
 
 #: keys renamed since configs were first stored in checkpoints and run directories: {block: {old: new}}
 RENAMED_KEYS: dict[str, dict[str, str]] = {"train": {"lr_final": "lr_final_fraction"}}
@@ -42,9 +64,17 @@ def _renamed(block: Mapping[str, Any], names: Mapping[str, str]) -> dict[str, An
     return out
 
 
+#: keys added since configs were first stored, with the value that reproduces a file stored without them
+ADDED_KEYS: dict[str, dict[str, Any]] = {"train": {"objective": "mse"}}
+
+
 def upgrade_train_config(train: Mapping[str, Any]) -> dict[str, Any]:
-    """A stored ``train`` block (a checkpoint's ``train_config``) with renamed keys under their current names
-    (``RENAMED_KEYS``), so files written before a rename still resume."""
-    return _renamed(train, RENAMED_KEYS["train"])
+    """A stored ``train`` block (a checkpoint's ``train_config``, a run config's ``train``) with renamed keys
+    under their current names (``RENAMED_KEYS``) and keys added since at the values it was made with
+    (``ADDED_KEYS``), so files written before either change still resume."""
+    out = _renamed(train, RENAMED_KEYS["train"])
+    for key, value in ADDED_KEYS["train"].items():
+        out.setdefault(key, value)
+    return out
 
 

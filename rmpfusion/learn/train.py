@@ -1,4 +1,5 @@
-"""Behavior cloning: minimise the MSE between learner and expert accelerations (paper §3.4, §4.1).
+"""Behavior cloning: minimise the objective (the paper's MSE unless ``train.objective`` names another) between
+learner and expert accelerations (paper §3.4, §4.1), with the optimiser ``train.optimizer`` names.
 
 Everything random comes from one torch.Generator seeded by the run seed, and checkpoints carry it with the
 model and optimizer, so a run resumed from a checkpoint ends at exactly the weights of an uninterrupted one.
@@ -21,16 +22,17 @@ from pathlib import Path
 from typing import Any, Callable, Mapping
 
 import torch
-import torch.nn.functional as F
 from torch import nn
 
+from ..envs.demonstrations import Dataset
+from ..files import atomic_torch_save, read_torch_file, remove_stale_temporaries
 from .config import TrainConfig, upgrade_train_config
-from ..files import atomic_torch_save
-from .demonstrations import Dataset
+from .objectives import Objective, dataset_loss, make_objective
+from .optimizers import make_optimizer
 
 _DTYPES = {"float32": torch.float32, "float64": torch.float64}
 #: TrainConfig fields that change the optimisation path; a checkpoint made with other values is not resumed.
-_PATH_KEYS = ("optimizer", "lr", "lr_schedule", "lr_final_fraction", "batch_size", "dtype", "grad_clip")
+_PATH_KEYS = ("optimizer", "objective", "lr", "lr_schedule", "lr_final_fraction", "batch_size", "dtype", "grad_clip")
 
 
 @dataclass
@@ -49,30 +51,6 @@ def learning_rate(cfg: TrainConfig, it: int) -> float:
         return cfg.lr
     frac = min(it, cfg.iterations - 1) / (cfg.iterations - 1)
     return cfg.lr * (cfg.lr_final_fraction + (1.0 - cfg.lr_final_fraction) * 0.5 * (1.0 + math.cos(math.pi * frac)))
-
-
-def make_optimizer(params, cfg: TrainConfig) -> torch.optim.Optimizer:
-    if cfg.optimizer == "rmsprop":
-        return torch.optim.RMSprop(params, lr=cfg.lr, foreach=True)  # one fused update for all tensors (CPU defaults to a loop)
-    if cfg.optimizer == "adam":
-        return torch.optim.Adam(params, lr=cfg.lr, foreach=True)
-    return torch.optim.SGD(params, lr=cfg.lr, foreach=True)
-
-
-def mse(model: nn.Module, q, qd, aux, qdd) -> torch.Tensor:
-    """Mean over samples and coordinates of (q̈_learner − q̈_expert)²: the paper's loss and batch-loss."""
-    return F.mse_loss(model(q, qd, aux), qdd)
-
-
-@torch.no_grad()
-def dataset_loss(model: nn.Module, data: Dataset, chunk: int = 4096) -> float:
-    """MSE over a whole dataset, in chunks to bound memory."""
-    total, n = 0.0, len(data)
-    for s in range(0, n, chunk):
-        idx = torch.arange(s, min(n, s + chunk))
-        q, qd, aux, qdd = data.select(idx)
-        total += float(((model(q, qd, aux) - qdd) ** 2).sum())
-    return total / (n * data.qdd.shape[1])
 
 
 def _state_copy(model: nn.Module) -> dict[str, torch.Tensor]:
@@ -133,8 +111,6 @@ def save_checkpoint(payload: Mapping[str, Any], path: str | os.PathLike) -> None
 def load_checkpoint(path: str | os.PathLike, model: nn.Module | None = None) -> dict[str, Any]:
     """Read a checkpoint written by ``save_checkpoint``; refuse (CheckpointError naming the file and the fix) one
     that is missing, unreadable, truncated, fails its checksum, or (given ``model``) holds another model's weights."""
-    from .demonstrations import read_torch_file
-
     path = Path(path)
     fix = (f"delete {path} (training then resumes from the previous checkpoint in {path.parent} if there is one, "
            "else starts over)")
@@ -155,24 +131,6 @@ def load_checkpoint(path: str | os.PathLike, model: nn.Module | None = None) -> 
                                   f"{', …' if len(diff) > 5 else ''}); it was made by another configuration of this "
                                   f"learner: use the run directory that made it, or {fix}")
     return state
-
-
-_TMP = re.compile(r"^\.ckpt-\d+\.pt\.tmp(\d+)")
-
-
-def _remove_stale_temporaries(directory: Path) -> None:
-    """Temporaries of checkpoint writes whose process died mid-write: never loaded (``latest_checkpoint`` only
-    matches finished names); removed so they do not pile up."""
-    for p in directory.iterdir():
-        m = _TMP.match(p.name)
-        if m and int(m.group(1)) != os.getpid():
-            try:
-                os.kill(int(m.group(1)), 0)
-                continue  # its writer is alive (another process on this directory): not ours to delete
-            except ProcessLookupError:
-                p.unlink(missing_ok=True)
-            except PermissionError:
-                continue
 
 
 class _StopOnSignal:
@@ -224,9 +182,145 @@ class _StopOnSignal:
         raise SystemExit(128 + signum)
 
 
+@dataclass
+class _Session:
+    """One call of ``train``: what every step reads and writes."""
+
+    model: nn.Module
+    cfg: TrainConfig
+    data: Dataset
+    test_data: Dataset | None
+    val_data: Dataset | None
+    opt: torch.optim.Optimizer
+    objective: Objective
+    gen: torch.Generator
+    ckdir: Path | None
+    run_config: Mapping[str, Any] | None
+    keep_checkpoints: int
+    progress: Callable[[int, int], Any] | None
+    log: Callable[[dict[str, float]], Any] | None
+    snaps_at: list[int] = field(default_factory=list)
+    res: TrainResult = field(default_factory=lambda: TrainResult(snapshots={}, curve=[]))
+    start: int = 0
+
+
+def _resume(s: _Session) -> None:
+    """Continue from the latest checkpoint in ``s.ckdir``, if any: the model, optimiser, generator and every
+    curve so far, so the rest of the run is the one an uninterrupted run would have done."""
+    ckdir = s.ckdir
+    if ckdir is not None and ckdir.is_dir():
+        remove_stale_temporaries(ckdir, recursive=False)
+    if ckdir is not None and (ck := latest_checkpoint(ckdir)) is not None:
+        state = load_checkpoint(ck, s.model)  # damaged, tampered or foreign files raise, naming the file
+        _check_same_path(ck, upgrade_train_config(state["train_config"]), s.cfg)
+        s.model.load_state_dict(state["model"])
+        s.opt.load_state_dict(state["optimizer"])
+        s.gen.set_state(state["rng"])
+        s.start = int(state["iteration"])
+        s.res = TrainResult(snapshots={int(k): v for k, v in state["snapshots"].items()},
+                            curve=[tuple(c) for c in state["curve"]],
+                            test_curve=[tuple(c) for c in state["test_curve"]],
+                            val_curve=[tuple(c) for c in state.get("val_curve", [])], resumed_from=s.start)
+    if s.start > s.cfg.iterations:
+        raise RuntimeError(f"checkpoint in {ckdir} is at iteration {s.start}, beyond iterations={s.cfg.iterations}")
+
+
+def _check_same_path(ck: Path, old: Mapping[str, Any], cfg: TrainConfig) -> None:
+    """Refuse a checkpoint made with settings that change the optimisation path (``old``: its upgraded
+    ``train_config``; a key it lacks has the default it was made with)."""
+    keys = _PATH_KEYS + (("iterations",) if cfg.lr_schedule != "constant" else ())  # the schedule spans them
+    bad = [k for k in keys if old.get(k, TrainConfig.model_fields[k].default) != getattr(cfg, k)]
+    if bad:
+        raise RuntimeError(f"checkpoint {ck} was made with different training settings "
+                           f"({', '.join(f'{k}: {old.get(k)!r} vs {getattr(cfg, k)!r}' for k in bad)}); "
+                           f"delete {ck.parent} to start over")
+
+
+def _checkpoint(s: _Session, it: int) -> Path | None:
+    """Write the checkpoint of iteration ``it`` (nothing without a checkpoint directory) and keep only the
+    newest ``keep_checkpoints``."""
+    if s.ckdir is None:
+        return None
+    s.ckdir.mkdir(parents=True, exist_ok=True)
+    path = s.ckdir / f"ckpt-{it:08d}.pt"
+    res = s.res
+    save_checkpoint({"model": s.model.state_dict(), "optimizer": s.opt.state_dict(), "rng": s.gen.get_state(),
+                     "iteration": it, "snapshots": res.snapshots, "curve": res.curve, "test_curve": res.test_curve,
+                     "val_curve": res.val_curve, "train_config": s.cfg.model_dump(),
+                     "config": dict(s.run_config or {})}, path)
+    olds = sorted((int(m.group(1)), p) for p in s.ckdir.iterdir() if (m := _CKPT.match(p.name)))
+    for _, p in olds[:-s.keep_checkpoints]:
+        p.unlink(missing_ok=True)
+    return path
+
+
+def _record_start(s: _Session) -> None:
+    """Iteration 0 of a fresh run: the untrained snapshot and the first points of the held-out curves."""
+    if 0 in s.snaps_at:
+        s.res.snapshots[0] = _state_copy(s.model)
+    s.model.eval()
+    if s.val_data is not None:
+        s.res.val_curve.append((0, dataset_loss(s.model, s.val_data, s.objective)))
+    if s.test_data is not None:
+        s.res.test_curve.append((0, dataset_loss(s.model, s.test_data, s.objective)))
+
+
+def _step(s: _Session, it: int) -> float:
+    """Minibatch step ``it`` (0-based); returns its loss."""
+    cfg, opt, N = s.cfg, s.opt, len(s.data)
+    idx = torch.randint(N, (min(cfg.batch_size, N),), generator=s.gen)
+    q, qd, aux, qdd = s.data.select(idx)
+    if cfg.lr_schedule != "constant":
+        for group in opt.param_groups:
+            group["lr"] = learning_rate(cfg, it)
+    opt.zero_grad(set_to_none=True)
+    loss = s.objective(s.model(q, qd, aux), qdd)
+    loss.backward()
+    if cfg.grad_clip is not None:
+        nn.utils.clip_grad_norm_(s.model.parameters(), cfg.grad_clip)
+    opt.step()
+    return float(loss.detach())
+
+
+def _log(s: _Session, done: int, lv: float) -> None:
+    """The held-out losses after ``done`` steps, appended to their curves and handed to ``s.log``."""
+    metrics = {"iteration": float(done), "train_loss": lv}
+    if s.val_data is not None:
+        vl = dataset_loss(s.model, s.val_data, s.objective)
+        s.res.val_curve.append((done, vl))
+        metrics["val_loss"] = vl
+    if s.test_data is not None:
+        tl = dataset_loss(s.model, s.test_data, s.objective)
+        s.res.test_curve.append((done, tl))
+        metrics["test_loss"] = tl
+    if s.log is not None:
+        s.log(metrics)
+
+
+def _after_step(s: _Session, done: int, lv: float, stop: "_StopOnSignal") -> None:
+    """Everything due after ``done`` steps: curves and logs, snapshot, checkpoint, progress, and a stop that a
+    signal asked for (after a checkpoint, so a rerun resumes here)."""
+    cfg = s.cfg
+    s.res.curve.append((done, lv))
+    if done % cfg.log_every == 0 or done == cfg.iterations:
+        _log(s, done, lv)
+    if done in s.snaps_at:
+        s.res.snapshots[done] = _state_copy(s.model)
+    saved = None
+    if done % cfg.checkpoint_every == 0 or done == cfg.iterations:
+        saved = _checkpoint(s, done)
+    if s.progress is not None:
+        s.progress(done, cfg.iterations)
+    if stop.signum is not None:
+        saved = saved or _checkpoint(s, done)
+        stop.stop(f"checkpoint at iteration {done}/{cfg.iterations} written to {saved}; run the same command "
+                  "again (same run directory) to resume" if saved else
+                  f"stopped at iteration {done}/{cfg.iterations} (no checkpoint_dir, nothing saved)")
+
+
 def train(model: nn.Module, data: Dataset, cfg: TrainConfig, seed: int, test_data: Dataset | None = None,
-          val_data: Dataset | None = None, checkpoint_dir: str | os.PathLike | None = None, run_config: Mapping[str, Any] | None = None,
-          progress: Callable[[int, int], Any] | None = None,
+          val_data: Dataset | None = None, checkpoint_dir: str | os.PathLike | None = None,
+          run_config: Mapping[str, Any] | None = None, progress: Callable[[int, int], Any] | None = None,
           log: Callable[[dict[str, float]], Any] | None = None, keep_checkpoints: int = 2) -> TrainResult:
     """Train ``model`` in place for ``cfg.iterations`` minibatch steps, resuming from ``checkpoint_dir`` if it holds one.
 
@@ -239,98 +333,21 @@ def train(model: nn.Module, data: Dataset, cfg: TrainConfig, seed: int, test_dat
     data = data.to(dtype)
     test_data = test_data.to(dtype) if test_data is not None else None
     val_data = val_data.to(dtype) if val_data is not None else None
-    opt = make_optimizer(model.parameters(), cfg)
-    gen = torch.Generator().manual_seed(int(seed))
-    snaps_at = sorted(set(cfg.snapshots))
-    res = TrainResult(snapshots={}, curve=[])
-    start = 0
-    ckdir = Path(checkpoint_dir) if checkpoint_dir is not None else None
-    if ckdir is not None and ckdir.is_dir():
-        _remove_stale_temporaries(ckdir)
-    if ckdir is not None and (ck := latest_checkpoint(ckdir)) is not None:
-        state = load_checkpoint(ck, model)  # damaged, tampered or foreign files raise, naming the file
-        old = upgrade_train_config(state["train_config"])  # a checkpoint from before a key was renamed resumes
-        keys = _PATH_KEYS + (("iterations",) if cfg.lr_schedule != "constant" else ())  # the schedule spans them
-        bad = [k for k in keys if old.get(k, TrainConfig.model_fields[k].default) != getattr(cfg, k)]
-        if bad:
-            raise RuntimeError(f"checkpoint {ck} was made with different training settings "
-                               f"({', '.join(f'{k}: {old.get(k)!r} vs {getattr(cfg, k)!r}' for k in bad)}); "
-                               f"delete {ckdir} to start over")
-        model.load_state_dict(state["model"])
-        opt.load_state_dict(state["optimizer"])
-        gen.set_state(state["rng"])
-        start = int(state["iteration"])
-        res = TrainResult(snapshots={int(k): v for k, v in state["snapshots"].items()},
-                          curve=[tuple(c) for c in state["curve"]], test_curve=[tuple(c) for c in state["test_curve"]],
-                          val_curve=[tuple(c) for c in state.get("val_curve", [])], resumed_from=start)
-    if start > cfg.iterations:
-        raise RuntimeError(f"checkpoint in {ckdir} is at iteration {start}, beyond iterations={cfg.iterations}")
-
-    def checkpoint(it: int) -> Path | None:
-        if ckdir is None:
-            return None
-        ckdir.mkdir(parents=True, exist_ok=True)
-        path = ckdir / f"ckpt-{it:08d}.pt"
-        save_checkpoint({"model": model.state_dict(), "optimizer": opt.state_dict(), "rng": gen.get_state(),
-                      "iteration": it, "snapshots": res.snapshots, "curve": res.curve, "test_curve": res.test_curve,
-                      "val_curve": res.val_curve, "train_config": cfg.model_dump(), "config": dict(run_config or {})}, path)
-        olds = sorted((int(m.group(1)), p) for p in ckdir.iterdir() if (m := _CKPT.match(p.name)))
-        for _, p in olds[:-keep_checkpoints]:
-            p.unlink(missing_ok=True)
-        return path
-
-    if start == 0 and 0 in snaps_at:
-        res.snapshots[0] = _state_copy(model)
-    if start == 0:
-        model.eval()
-        if val_data is not None:
-            res.val_curve.append((0, dataset_loss(model, val_data)))
-        if test_data is not None:
-            res.test_curve.append((0, dataset_loss(model, test_data)))
-    N = len(data)
+    s = _Session(model=model, cfg=cfg, data=data, test_data=test_data, val_data=val_data,
+                 opt=make_optimizer(model.parameters(), cfg.optimizer, cfg.lr), objective=make_objective(cfg.objective),
+                 gen=torch.Generator().manual_seed(int(seed)), snaps_at=sorted(set(cfg.snapshots)),
+                 ckdir=Path(checkpoint_dir) if checkpoint_dir is not None else None, run_config=run_config,
+                 keep_checkpoints=keep_checkpoints, progress=progress, log=log)
+    _resume(s)
+    if s.start == 0:
+        _record_start(s)
     model.train()
     with _StopOnSignal() as stop:
-        for it in range(start, cfg.iterations):
-            idx = torch.randint(N, (min(cfg.batch_size, N),), generator=gen)
-            q, qd, aux, qdd = data.select(idx)
-            if cfg.lr_schedule != "constant":
-                for group in opt.param_groups:
-                    group["lr"] = learning_rate(cfg, it)
-            opt.zero_grad(set_to_none=True)
-            loss = mse(model, q, qd, aux, qdd)
-            loss.backward()
-            if cfg.grad_clip is not None:
-                nn.utils.clip_grad_norm_(model.parameters(), cfg.grad_clip)
-            opt.step()
-            done = it + 1
-            lv = float(loss.detach())
-            res.curve.append((done, lv))
-            if done % cfg.log_every == 0 or done == cfg.iterations:
-                metrics = {"iteration": float(done), "train_loss": lv}
-                if val_data is not None:
-                    vl = dataset_loss(model, val_data)
-                    res.val_curve.append((done, vl))
-                    metrics["val_loss"] = vl
-                if test_data is not None:
-                    tl = dataset_loss(model, test_data)
-                    res.test_curve.append((done, tl))
-                    metrics["test_loss"] = tl
-                if log is not None:
-                    log(metrics)
-            if done in snaps_at:
-                res.snapshots[done] = _state_copy(model)
-            saved = None
-            if done % cfg.checkpoint_every == 0 or done == cfg.iterations:
-                saved = checkpoint(done)
-            if progress is not None:
-                progress(done, cfg.iterations)
-            if stop.signum is not None:
-                saved = saved or checkpoint(done)
-                stop.stop(f"checkpoint at iteration {done}/{cfg.iterations} written to {saved}; run the same command "
-                          "again (same run directory) to resume" if saved else
-                          f"stopped at iteration {done}/{cfg.iterations} (no checkpoint_dir, nothing saved)")
+        for it in range(s.start, cfg.iterations):
+            lv = _step(s, it)
+            _after_step(s, it + 1, lv, stop)
     model.eval()
-    return res
+    return s.res
 
 
 def load_snapshot(model: nn.Module, state: Mapping[str, torch.Tensor]) -> nn.Module:

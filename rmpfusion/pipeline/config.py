@@ -8,7 +8,10 @@ from __future__ import annotations
 
 from typing import Any, Literal, Mapping
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, create_model, model_validator
+
+from ..build.spec import TreeSpec, TypedBlock, tree_spec_model, typed_union, weight_field
+from ..registry import ENVS, LEAF_RMPS, LEARNERS, TASK_MAPS, WEIGHTS
 
 from ..learn.config import RENAMED_KEYS, TrainConfig, _renamed, upgrade_train_config  # noqa: F401
 
@@ -34,11 +37,14 @@ class DataConfig(_Frozen):
 
 def upgrade_run_config(run: Mapping[str, Any]) -> dict[str, Any]:
     """A stored run config (a checkpoint's ``config``, a run directory's config.resolved.yaml) with renamed keys
-    under their current names (``RENAMED_KEYS``); anything else is returned unchanged."""
+    under their current names (``RENAMED_KEYS``) and training keys added since at the values it was made with
+    (``upgrade_train_config``); anything else is returned unchanged."""
     out = dict(run)
     for block, names in RENAMED_KEYS.items():
         if isinstance(out.get(block), Mapping):
             out[block] = _renamed(out[block], names)
+    if isinstance(out.get("train"), Mapping):
+        out["train"] = upgrade_train_config(out["train"])
     return out
 
 
@@ -59,23 +65,20 @@ class LoggerConfig(_Frozen):
     group: str | None = None
 
 
-class TypedBlock(BaseModel):
-    """``{type: name, **params}``: params are validated by the named registry entry."""
-
-    model_config = ConfigDict(extra="allow", frozen=True)
-    type: str
-
-
 class RunConfig(_Frozen):
-    """A whole experiment: environment, tree, expert weights, learners, data, training, evaluation."""
+    """A whole experiment: environment, tree, expert weights, learners, data, training, evaluation.
+
+    This is the static form (registry-typed blocks as ``{type: name, ...}``); ``run_config_model`` is the same
+    schema with every such block a discriminated union over its registry, and validated configs are
+    instances of it."""
 
     name: str = "experiment"
     seed: int = 0
     device: Literal["cpu"] = Field("cpu", description="where the trees run; only the CPU until GPU support lands "
                                                      "(resolve_and_validate names any other value)")
     env: TypedBlock
-    tree: dict[str, Any] = Field(description="the tree spec (docs/architecture.md §2) without learned weights")
-    expert: dict[str, Any] = Field(default_factory=dict, description="node name -> weight spec of the expert")
+    tree: TreeSpec = Field(description="the tree spec (docs/architecture.md §2) without learned weights")
+    expert: dict[str, Any] = Field(default_factory=dict, description="node or shared-weight name -> weight spec")
     learners: dict[str, TypedBlock] = Field(default_factory=dict, description="learner name -> {type: rmp|unstructured, ...}")
     data: DataConfig = DataConfig()
     train: TrainConfig = TrainConfig()
@@ -88,3 +91,20 @@ class RunConfig(_Frozen):
         if bad:
             raise ValueError(f"train.snapshots {bad} lie outside 0..train.iterations={self.train.iterations}")
         return self
+
+
+_RUN_MODELS: dict[tuple, type[RunConfig]] = {}
+
+
+def run_config_model() -> type[RunConfig]:
+    """``RunConfig`` typed by the registries as they are now: env, tree blocks, expert weights and learners are
+    validated by their entries' own models (regenerated when an entry is registered, plugins included)."""
+    key = tuple((id(r), r.version) for r in (ENVS, LEARNERS, TASK_MAPS, WEIGHTS, LEAF_RMPS))
+    if key not in _RUN_MODELS:
+        _RUN_MODELS[key] = create_model(
+            "TypedRunConfig", __base__=RunConfig,
+            env=(typed_union(ENVS), ...),
+            tree=(tree_spec_model(), Field(description="the tree spec without learned weights")),
+            expert=(dict[str, weight_field()], Field(default_factory=dict)),
+            learners=(dict[str, typed_union(LEARNERS)], Field(default_factory=dict)))
+    return _RUN_MODELS[key]

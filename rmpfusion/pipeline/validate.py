@@ -1,27 +1,33 @@
 """From a composed Hydra config to validated, built objects, with every problem reported at once.
 
-Hydra only merges YAML; nothing it composes is trusted. ``resolve_and_validate`` resolves the config
-once, checks it against :class:`RunConfig`, re-checks every registry-typed block with its entry's own
-model, and runs the cross-field checks that need several blocks together (aux names against the chosen
-environment, expert nodes against the tree, map dimensions against RMP dimensions by building the
-tree). All issues are collected into one :class:`ConfigError` whose lines name config paths, so a user
-fixes a config in one pass and nothing is ever run on a config that would fail later.
+Hydra only merges YAML; nothing it composes is trusted. ``resolve_and_validate`` resolves the config once,
+validates it against the run schema generated from the registries (``run_config_model``: every registry-
+typed block by its entry's own model), then runs the cross-field checks that need several blocks together:
+aux names against the chosen environment, expert names against the tree, learners against each other and
+the tree, map dimensions against RMP dimensions by building the trees. All issues are collected into one
+:class:`ConfigError` whose lines name config paths, so a user fixes a config in one pass and nothing is ever
+run on a config that would fail later.
 """
 from __future__ import annotations
 
-import copy
 import difflib
-import re
+from contextlib import nullcontext
 from typing import Any, Mapping, Sequence
 
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
-from pydantic import ValidationError
+from pydantic import BaseModel, ValidationError
 
-from ..registry import ENVS, LEAF_RMPS, LEARNERS, TASK_MAPS, WEIGHTS, Registry
-from ..build.errors import ConfigError, Issue, allowed_keys_hint, issues_from_pydantic
-from .config import RENAMED_KEYS, RunConfig
-from ..build.spec import check_typed, validate_tree_spec
+from ..build.errors import ConfigError, Issue, issues_from_pydantic
+from ..build.generated import expand_tree
+from ..build.spec import check_typed, shared_ref, validate_tree_spec
+from ..build.tree import build_tree
+from ..build.weighting import tree_with_weights
+from ..core.auxstate import AuxOrValue
+from ..core.tree import RMPTree
+from ..learn.learners import build_learner, build_order
+from ..registry import ENVS, LEAF_RMPS, TASK_MAPS, WEIGHTS, Registry
+from .config import RENAMED_KEYS, RunConfig, run_config_model
 
 #: Weight-spec keys whose string values (or lists of strings) name aux state.
 _AUX_LIST_KEYS = ("aux",)
@@ -40,44 +46,147 @@ def _close(name: str, options: Sequence[str]) -> str:
 
 def _to_container(cfg: DictConfig | Mapping[str, Any]) -> dict[str, Any]:
     if not isinstance(cfg, DictConfig):
-        return copy.deepcopy(dict(cfg))
+        return OmegaConf.to_container(OmegaConf.create(dict(cfg)), resolve=True)  # a deep, plain copy
     if "hydra" in cfg:  # Hydra's own node (composed with return_hydra_config) is not the experiment's
         cfg = OmegaConf.masked_copy(cfg, [k for k in cfg if k != "hydra"])
     try:
-        data = OmegaConf.to_container(cfg, resolve=True, throw_on_missing=True)
+        return OmegaConf.to_container(cfg, resolve=True, throw_on_missing=True)
     except OmegaConfBaseException as e:
         key = getattr(e, "full_key", None) or "<config>"
         raise ConfigError([Issue(str(key), f"cannot resolve: {getattr(e, 'msg', None) or e}")]) from None
-    return data
 
 
-def _weight_shorthand(spec: Any, path: str, issues: list[Issue]) -> Any:
-    """A bare number is a constant weight; Theorem 2 needs it strictly positive."""
-    if isinstance(spec, bool) or not isinstance(spec, (int, float)):
-        return spec
-    if spec <= 0:
-        issues.append(Issue(path, f"constant weight must be > 0 (positive weights are what keep the policy "
-                                  f"Lyapunov-stable, Theorem 2); given {spec}"))
-    return {"type": "constant", "value": float(spec)}
+# ------------------------------------------------------------------ before the schema
+def _upgrade_issues(data: dict[str, Any]) -> list[Issue]:
+    """Renamed keys get their new name (not "unknown key"); an unsupported device is named, never ignored.
+    Both are removed from ``data`` so the rest of the config is still checked and every problem reported."""
+    issues = []
+    for block, names in RENAMED_KEYS.items():
+        for old, new in names.items():
+            if isinstance(data.get(block), Mapping) and old in data[block]:
+                issues.append(Issue(f"{block}.{old}", f"was renamed {block}.{new}; write {block}.{new}="
+                                                      f"{data[block][old]!r} instead"))
+                data[block] = {k: v for k, v in data[block].items() if k != old}
+    if "device" in data and data["device"] != "cpu":  # accepted and never used would be a silent ignore
+        issues.append(Issue("device", f"{data['device']!r} is not supported yet: rmpfusion runs on the CPU only "
+                                      "(device=cpu); set device=cpu or leave the key out"))
+        data["device"] = "cpu"
+    return issues
 
 
-def _positive_constant(spec: Any, path: str) -> list[Issue]:
-    """A friendlier message than pydantic's for the most common weight mistake."""
-    if isinstance(spec, Mapping) and spec.get("type") == "constant":
-        v = spec.get("value", 1.0)
-        if isinstance(v, (int, float)) and not isinstance(v, bool) and v <= 0:
-            return [Issue(f"{path}.value", f"constant weight must be > 0 (positive weights are what keep the "
-                                           f"policy Lyapunov-stable, Theorem 2); given {v}")]
+def _expanded_tree(data: dict[str, Any]) -> list[Issue]:
+    """A tree declared as a generator and its parameters becomes the tree it generates."""
+    if not isinstance(data.get("tree"), Mapping):
+        return []
+    try:
+        data["tree"] = expand_tree(data["tree"])
+    except ConfigError as e:
+        return e.issues
     return []
 
 
-def _aux_refs(spec: Any, registry: Registry, path: str) -> list[tuple[str, str]]:
-    """(path, aux name) for every parameter of a typed block that names aux state rather than a constant."""
-    if not isinstance(spec, Mapping) or spec.get("type") not in registry:
+def _dedupe(issues: list[Issue]) -> list[Issue]:
+    """One issue per place: a problem found again inside one already reported is left out."""
+    out: list[Issue] = []
+    for i in issues:
+        if any(i.path == o.path or i.path.startswith(o.path + ".") for o in out):
+            continue
+        out.append(i)
+    return out
+
+
+def parse_run_config(data: Mapping[str, Any]) -> RunConfig:
+    """The typed run config of plain data (a checkpoint's or run directory's stored config, or a resolved
+    Hydra config), or one ConfigError naming every schema problem."""
+    model = run_config_model()
+    try:
+        return model.model_validate(dict(data))
+    except ValidationError as e:
+        found = issues_from_pydantic(e, "", model)
+        found = [Issue(i.path, f"{i.message} (allowed: {', '.join(RunConfig.model_fields)})")
+                 if "unknown key" in i.message and "." not in i.path else i for i in found]
+        raise ConfigError(_dedupe(found)) from None
+
+
+def typed(run: RunConfig) -> RunConfig:
+    """``run`` with every registry-typed block its entry's model: a config built in Python as the static
+    ``RunConfig`` is validated by the registries here, before anything is built from it."""
+    return run if isinstance(run, run_config_model()) else parse_run_config(run.model_dump())
+
+
+# ------------------------------------------------------------------ cross-field checks
+def make_env(run: RunConfig):
+    """The run's environment, built from its validated block."""
+    return ENVS.get(run.env.type).obj(run.env)
+
+
+def _env_aux_dims(data: Mapping[str, Any]) -> tuple[dict[str, int] | None, list[Issue]]:
+    """The aux state the config's environment provides (None if it cannot be made: its problems are reported
+    by the schema, or here when creating it fails)."""
+    block, issues = check_typed(data.get("env"), ENVS, "env")
+    if block is None:
+        return None, []
+    try:
+        return dict(ENVS.get(block.type).obj(block).aux_dims()), []
+    except Exception as e:  # noqa: BLE001 - reported with its path
+        return None, [Issue("env", f"could not be created: {e}")]
+
+
+def _expert_issues(run: RunConfig) -> list[Issue]:
+    """Expert names are edges (nodes) or shared weights of the tree."""
+    nodes, shared, root = run.tree.nodes, run.tree.shared_weights, run.tree.root.name
+    issues = []
+    for n in run.expert:
+        if n not in nodes and n not in shared:
+            why = "is the root, which has no incoming edge to weight" if n == root else "is not a node of the tree"
+            names = [*nodes, *shared]
+            issues.append(Issue(f"expert.{n}", f"'{n}' {why}; {_close(n, names)}nodes and shared weights: "
+                                               f"{_listing(names)}"))
+    return issues
+
+
+def _learner_weight_blocks(name: str, learner: Any) -> list[tuple[str, Any]]:
+    """Weight specs a learner will put on the tree: validated against WEIGHTS like the tree's own."""
+    w = learner.get("weights") if isinstance(learner, Mapping) else getattr(learner, "weights", None)
+    if isinstance(w, Mapping) and w.get("aux") == "all":  # the learner expands it to every env aux name
+        w = {**w, "aux": []}
+    return [(f"learners.{name}.weights", w)] if isinstance(w, Mapping) else []
+
+
+def _learner_issues(run: RunConfig) -> list[Issue]:
+    """Learners' weight specs, ``match_parameters_of`` targets and edge names."""
+    nodes = run.tree.nodes
+    issues = []
+    for name, learner in run.learners.items():
+        for path, w in _learner_weight_blocks(name, learner):
+            issues += check_typed(w, WEIGHTS, path)[1]
+        ref = getattr(learner, "match_parameters_of", None)
+        if ref is not None and ref not in run.learners:
+            issues.append(Issue(f"learners.{name}.match_parameters_of",
+                                f"no learner named '{ref}'; {_close(ref, list(run.learners))}"
+                                f"learners: {_listing(run.learners)}"))
+        for i, e in enumerate(getattr(learner, "edges", None) or []):
+            if e not in nodes:
+                issues.append(Issue(f"learners.{name}.edges[{i}]", f"'{e}' is not a node of the tree; "
+                                                                    f"{_close(e, list(nodes))}nodes: {_listing(nodes)}"))
+    return issues
+
+
+def _accepts_aux(annotation: Any) -> bool:
+    return annotation == AuxOrValue or annotation == (AuxOrValue | None)
+
+
+def _aux_refs(block: Any, registry: Registry, path: str) -> list[tuple[str, str]]:
+    """(path, aux name) for every parameter of a ``{type: ..., ...}`` block that names aux state rather than a
+    constant, read from the entry's own parameter model (raw data: these checks also run when the schema
+    found other problems, so every problem is reported at once)."""
+    if isinstance(block, BaseModel):
+        block = block.model_dump()
+    if not isinstance(block, Mapping) or block.get("type") not in registry:
         return []
-    fields = registry.get(spec["type"]).params.model_fields
+    fields = registry.get(block["type"]).params.model_fields
     out = []
-    for key, value in spec.items():
+    for key, value in block.items():
         if key == "type" or key not in fields:
             continue
         if key in _AUX_LIST_KEYS and isinstance(value, list):
@@ -90,225 +199,85 @@ def _aux_refs(spec: Any, registry: Registry, path: str) -> list[tuple[str, str]]
     return out
 
 
-def _accepts_aux(annotation: Any) -> bool:
-    from ..core.auxstate import AuxOrValue
-
-    return annotation == AuxOrValue or annotation == (AuxOrValue | None)
+def _mapping(x: Any) -> Mapping:
+    return x if isinstance(x, Mapping) else {}
 
 
-def _check_aux(refs: list[tuple[str, str]], aux_dims: Mapping[str, int], env_type: str) -> list[Issue]:
+def _tree_aux_refs(data: Mapping[str, Any]) -> list[tuple[str, str]]:
+    refs = []
+    for n, nd in _mapping(_mapping(data.get("tree")).get("nodes")).items():
+        for part, registry in (("map", TASK_MAPS), ("rmp", LEAF_RMPS), ("weight", WEIGHTS)):
+            refs += _aux_refs(_mapping(nd).get(part), registry, f"tree.nodes.{n}.{part}")
+    for n, w in _mapping(data.get("expert")).items():
+        refs += _aux_refs(w, WEIGHTS, f"expert.{n}")
+    for name, learner in _mapping(data.get("learners")).items():
+        for path, w in _learner_weight_blocks(name, _mapping(learner)):
+            refs += _aux_refs(w, WEIGHTS, path)
+    return refs
+
+
+def _bind_placeholders(data: Mapping[str, Any]) -> set[str]:
+    """Aux names a shared weight reads that each edge renames (``bind``): declared, never provided."""
+    nodes = _mapping(_mapping(data.get("tree")).get("nodes")).values()
+    return {k for nd in nodes for k in _mapping(_mapping(_mapping(nd).get("weight")).get("bind"))}
+
+
+def _aux_issues(data: Mapping[str, Any], env_type: str, aux_dims: Mapping[str, int]) -> list[Issue]:
+    """Every aux name the tree, the expert and the learners read is one the environment provides."""
+    binds, declared = _bind_placeholders(data), _mapping(_mapping(data.get("tree")).get("aux"))
     issues = []
-    for path, name in refs:
-        if name == "all" and path.endswith(".aux"):
+    for name, d in declared.items():
+        if name in binds and name not in aux_dims:
             continue
         if name not in aux_dims:
+            issues.append(Issue(f"tree.aux.{name}", f"the environment '{env_type}' does not provide aux '{name}'; "
+                                                    f"{_close(name, list(aux_dims))}it provides: {', '.join(aux_dims)}"))
+        elif int(d) != aux_dims[name]:
+            issues.append(Issue(f"tree.aux.{name}", f"declared with dimension {d}, the environment gives {aux_dims[name]}"))
+    known = {**aux_dims, **{n: d for n, d in declared.items() if n in binds}}
+    for path, name in _tree_aux_refs(data):
+        if name == "all" and path.endswith(".aux"):
+            continue
+        if name not in known:
             issues.append(Issue(path, f"aux name '{name}' is not provided by the environment '{env_type}'; "
-                                      f"{_close(name, list(aux_dims))}it provides: {', '.join(aux_dims) or 'none'}"))
+                                      f"{_close(name, list(known))}it provides: {', '.join(known) or 'none'}"))
     return issues
 
 
-def _suggest_key(i: Issue) -> Issue:
-    """A misspelt key gets the closest allowed key, like an unknown type gets the closest name."""
-    m = re.search(r"\(allowed: ([^)]*)\)", i.message)
-    if "unknown key" not in i.message or not m:
-        return i
-    hint = _close(i.path.rsplit(".", 1)[-1], [k.strip() for k in m.group(1).split(",")])
-    return Issue(i.path, f"{i.message}; {hint.strip()}") if hint else i
-
-
-def _dedupe(issues: list[Issue]) -> list[Issue]:
-    out: list[Issue] = []
-    for i in map(_suggest_key, issues):
-        if any(i.path == o.path or i.path.startswith(o.path + ".") for o in out):
-            continue
-        out.append(i)
-    return out
-
-
-def _env_aux_dims(run: RunConfig, issues: list[Issue]) -> tuple[Any, dict[str, int] | None]:
-    block = run.env.model_dump()
-    entry, env_issues = check_typed(block, ENVS, "env")
-    issues += env_issues
-    if entry is None or env_issues:
-        return None, None
-    try:
-        env = entry.obj(entry.validate({k: v for k, v in block.items() if k != "type"}))
-        return env, dict(env.aux_dims())
-    except Exception as e:  # noqa: BLE001 - reported with its path
-        issues.append(Issue("env", f"could not be created: {e}"))
-        return None, None
-
-
-def _learner_weight_blocks(name: str, block: Mapping[str, Any]) -> list[tuple[str, Any]]:
-    """Weight specs a learner will put on the tree: validated against WEIGHTS like the tree's own."""
-    w = block.get("weights")
-    if isinstance(w, Mapping) and w.get("aux") == "all":  # the learner expands it to every env aux name
-        w = {**w, "aux": []}
-    return [(f"learners.{name}.weights", w)] if isinstance(w, Mapping) else []
-
-
-def resolve_and_validate(cfg: DictConfig | Mapping[str, Any]) -> RunConfig:
-    """Resolve a composed config once and check everything that can be checked without running.
-
-    Raises one ConfigError listing every problem, each with its config path; returns the frozen
-    RunConfig otherwise. Building the trees is part of the check (dimensions are only known then).
-    """
-    data = _to_container(cfg)
-    issues: list[Issue] = []
-    # bare-number weights in the expert are shorthand for constants
-    if isinstance(data.get("expert"), Mapping):
-        data["expert"] = {k: _weight_shorthand(v, f"expert.{k}", issues) for k, v in data["expert"].items()}
-    if isinstance(data.get("tree"), Mapping) and isinstance(data["tree"].get("nodes"), Mapping):
-        for n, nd in data["tree"]["nodes"].items():
-            if isinstance(nd, Mapping) and "weight" in nd:
-                nd["weight"] = _weight_shorthand(nd["weight"], f"tree.nodes.{n}.weight", issues)
-    for block, names in RENAMED_KEYS.items():  # an old name gets the new one, not "unknown key"
-        for old, new in names.items():
-            if isinstance(data.get(block), Mapping) and old in data[block]:
-                issues.append(Issue(f"{block}.{old}", f"was renamed {block}.{new}; write {block}.{new}="
-                                                      f"{data[block][old]!r} instead"))
-                data[block] = {k: v for k, v in data[block].items() if k != old}
-    if "device" in data and data["device"] != "cpu":  # accepted and never used would be a silent ignore
-        issues.append(Issue("device", f"{data['device']!r} is not supported yet: rmpfusion runs on the CPU only "
-                                      "(device=cpu); set device=cpu or leave the key out"))
-        data["device"] = "cpu"  # the rest of the config is still checked, so every problem is reported at once
-    try:
-        run = RunConfig.model_validate(data)
-    except ValidationError as e:
-        found = [Issue(i.path.lstrip(".") or "<config>", i.message) for i in issues_from_pydantic(e, "")]
-        found = [Issue(i.path, f"{i.message} (allowed: {', '.join(RunConfig.model_fields)})")
-                 if "unknown key" in i.message and "." not in i.path else i for i in found]
-        raise ConfigError(_dedupe(issues + found)) from None
-
-    env, aux_dims = _env_aux_dims(run, issues)
-    env_type = run.env.type
-
-    # the tree alone: structure and per-entry parameters
-    tree_ok = True
-    try:
-        validate_tree_spec(run.tree, "tree")
-    except ConfigError as e:
-        issues += e.issues
-        tree_ok = False
-    nodes = run.tree.get("nodes") if isinstance(run.tree.get("nodes"), Mapping) else {}
-    root = (run.tree.get("root") or {}).get("name", "q") if isinstance(run.tree.get("root"), Mapping) else "q"
-
-    # expert: names are edges (nodes) or shared weights of the tree; weights valid
-    shared = run.tree.get("shared_weights") if isinstance(run.tree.get("shared_weights"), Mapping) else {}
-    for n, w in run.expert.items():
-        p = f"expert.{n}"
-        if n not in nodes and n not in shared:
-            why = "is the root, which has no incoming edge to weight" if n == root else "is not a node of the tree"
-            names = [*nodes, *shared]
-            issues.append(Issue(p, f"'{n}' {why}; {_close(n, names)}nodes and shared weights: {_listing(names)}"))
-            continue
-        const = _positive_constant(w, p)
-        issues += const or check_typed(w, WEIGHTS, p)[1]
-
-    # learners: each by its own entry's model, plus the weight specs they carry
-    for name, block in run.learners.items():
-        b = block.model_dump()
-        entry, li = check_typed(b, LEARNERS, f"learners.{name}")
-        issues += li
-        if entry is None or li:
-            continue
-        for path, w in _learner_weight_blocks(name, b):
-            issues += _positive_constant(w, path) or check_typed(w, WEIGHTS, path)[1]
-        ref = b.get("match_parameters_of")
-        if ref is not None and ref not in run.learners:
-            issues.append(Issue(f"learners.{name}.match_parameters_of",
-                                f"no learner named '{ref}'; {_close(ref, list(run.learners))}"
-                                f"learners: {_listing(run.learners)}"))
-        edges = b.get("edges")
-        for i, e in enumerate(edges or []):
-            if e not in nodes:
-                issues.append(Issue(f"learners.{name}.edges[{i}]", f"'{e}' is not a node of the tree; "
-                                                                    f"{_close(e, list(nodes))}nodes: {_listing(nodes)}"))
-
-    # aux names against the environment
-    if aux_dims is not None:
-        refs: list[tuple[str, str]] = []
-        bind_names = {k for nd in nodes.values() if isinstance(nd, Mapping) and isinstance(nd.get("weight"), Mapping)
-                      for k in (nd["weight"].get("bind") or {})}
-        for name, d in (run.tree.get("aux") or {}).items() if isinstance(run.tree.get("aux"), Mapping) else []:
-            if name in bind_names and name not in aux_dims:  # a shared weight's placeholder, renamed per edge
-                continue
-            if name not in aux_dims:
-                issues.append(Issue(f"tree.aux.{name}", f"the environment '{env_type}' does not provide aux '{name}'; "
-                                                        f"{_close(name, list(aux_dims))}it provides: {', '.join(aux_dims)}"))
-            elif int(d) != aux_dims[name]:
-                issues.append(Issue(f"tree.aux.{name}", f"declared with dimension {d}, the environment gives {aux_dims[name]}"))
-        for n, nd in nodes.items():
-            if not isinstance(nd, Mapping):
-                continue
-            p = f"tree.nodes.{n}"
-            refs += _aux_refs(nd.get("map"), TASK_MAPS, f"{p}.map")
-            refs += _aux_refs(nd.get("rmp"), LEAF_RMPS, f"{p}.rmp")
-            refs += _aux_refs(nd.get("weight"), WEIGHTS, f"{p}.weight")
-        for n, w in run.expert.items():
-            refs += _aux_refs(w, WEIGHTS, f"expert.{n}")
-        for name, block in run.learners.items():
-            for path, w in _learner_weight_blocks(name, block.model_dump()):
-                refs += _aux_refs(w, WEIGHTS, path)
-        placeholders = {n: d for n, d in (run.tree.get("aux") or {}).items() if n in bind_names}
-        issues += _check_aux(refs, {**aux_dims, **placeholders}, env_type)
-
-    # dimensions: only knowable by building (maps report their output dimension)
-    if tree_ok and aux_dims is not None and not issues:
-        issues += _build_issues(run, aux_dims)
-    if issues:
-        raise ConfigError(_dedupe(issues))
-    return run
-
-
+# ------------------------------------------------------------------ building
 def expert_spec(run: RunConfig) -> dict:
     """The tree with the expert's weights: on edges by node name, or replacing a shared weight by its name."""
-    from ..build.weighting import tree_with_weights
-
     return tree_with_weights(run.tree, run.expert, where="expert")
 
 
-def _build_issues(run: RunConfig, aux_dims: Mapping[str, int]) -> list[Issue]:
-    """Build the expert tree and the learners once, turning build errors into path-named issues."""
-    from ..build.tree import build_tree
-
-    issues: list[Issue] = []
+def build_expert(run: RunConfig, aux_dims: Mapping[str, int]) -> RMPTree:
+    """The expert tree; a problem with one of the expert's weights is reported at ``expert.<name>``."""
     try:
-        build_tree(expert_spec(run), aux_dims=aux_dims)
+        return build_tree(expert_spec(run), aux_dims=aux_dims)
     except ConfigError as e:
-        for i in e.issues:  # an expert weight's problem belongs to expert.<node>, not the tree
-            head = i.path.split(".weight")[0]
-            if i.path.startswith("tree.nodes.") and i.path.endswith(".weight") and head[len("tree.nodes."):] in run.expert:
-                issues.append(Issue(f"expert.{head[len('tree.nodes.'):]}", i.message))
-            else:
-                issues.append(i)
-    if issues:
-        return issues
-    try:
-        _build_learners(run, aux_dims)
-    except ConfigError as e:
-        issues += e.issues
-    return issues
+        issues = []
+        for i in e.issues:
+            head = i.path.split(".weight")[0][len("tree.nodes."):]
+            own = i.path.startswith("tree.nodes.") and i.path.endswith(".weight") and head in run.expert
+            issues.append(Issue(f"expert.{head}", i.message) if own else i)
+        raise ConfigError(issues) from None
 
 
-def _build_learners(run: RunConfig, aux_dims: Mapping[str, int]) -> dict:
-    from ..learn.learners import build_learner, build_order
-
+def build_learners(run: RunConfig, aux_dims: Mapping[str, int], seeded=None) -> dict:
+    """Every learner, in an order where ``match_parameters_of`` targets come first. ``seeded(name)`` is a
+    context entered around each construction (the pipeline draws each learner's initial weights from its
+    own seed); problems are reported at ``learners.<name>``."""
     blocks = {n: b.model_dump() for n, b in run.learners.items()}
+    tree, expert = run.tree.model_dump(), {k: _plain(w) for k, w in run.expert.items()}
     built: dict = {}
     issues: list[Issue] = []
-    dim = int(run.tree["root"]["dim"])
     for n in build_order(blocks):
         try:
-            built[n] = build_learner(blocks[n], run.tree, aux_dims, dim, expert=run.expert, built=built,
-                                     where=f"learners.{n}")
+            with (seeded(n) if seeded is not None else nullcontext()):
+                built[n] = build_learner(blocks[n], tree, aux_dims, run.tree.root.dim, expert=expert,
+                                         built=built, where=f"learners.{n}")
         except ConfigError as e:
-            for i in e.issues:  # the learner's weights on an edge: name the learner's own key
-                if i.path.startswith("tree.nodes.") and i.path.endswith(".weight"):
-                    edge = i.path[len("tree.nodes."):-len(".weight")]
-                    issues.append(Issue(f"learners.{n}.weights", f"on edge '{edge}': {i.message}"))
-                else:
-                    issues.append(i)
+            issues += [_learner_issue(n, i) for i in e.issues]
         except (ValueError, KeyError, TypeError) as e:
             issues.append(Issue(f"learners.{n}", str(e)))
     if issues:
@@ -316,15 +285,67 @@ def _build_learners(run: RunConfig, aux_dims: Mapping[str, int]) -> dict:
     return built
 
 
+def _plain(w: Any) -> Any:
+    return w.model_dump() if isinstance(w, BaseModel) else w
+
+
+def _learner_issue(name: str, i: Issue) -> Issue:
+    """The learner's weights on an edge: name the learner's own key."""
+    if i.path.startswith("tree.nodes.") and i.path.endswith(".weight"):
+        edge = i.path[len("tree.nodes."):-len(".weight")]
+        return Issue(f"learners.{name}.weights", f"on edge '{edge}': {i.message}")
+    return i
+
+
+def _build_issues(run: RunConfig, aux_dims: Mapping[str, int]) -> list[Issue]:
+    """Build the expert tree and the learners once: dimensions are only known then."""
+    try:
+        build_expert(run, aux_dims)
+        build_learners(run, aux_dims)
+    except ConfigError as e:
+        return e.issues
+    return []
+
+
+def resolve_and_validate(cfg: DictConfig | Mapping[str, Any]) -> RunConfig:
+    """Resolve a composed config once and check everything that can be checked without running.
+
+    Raises one ConfigError listing every problem, each with its config path; returns the typed RunConfig
+    otherwise. Building the trees is part of the check (dimensions are only known then).
+    """
+    data = _to_container(cfg)
+    generation = _expanded_tree(data)
+    issues = _upgrade_issues(data) + generation
+    aux_dims, env_issues = _env_aux_dims(data)
+    issues += env_issues
+    if aux_dims is not None:
+        issues += _aux_issues(data, _mapping(data.get("env")).get("type"), aux_dims)
+    try:
+        run = parse_run_config(data)
+    except ConfigError as e:
+        found = e.issues
+        if generation:  # a tree that could not be generated: the schema's view of its declaration is noise
+            found = [i for i in found if not (i.path == "tree" or i.path.startswith("tree."))]
+        raise ConfigError(_dedupe(issues + found)) from None
+    try:
+        validate_graph(run)
+    except ConfigError as e:
+        issues += e.issues
+    issues += _expert_issues(run) + _learner_issues(run)
+    if aux_dims is not None and not issues:
+        issues += _build_issues(run, aux_dims)
+    if issues:
+        raise ConfigError(_dedupe(issues))
+    return run
+
+
+def validate_graph(run: RunConfig) -> None:
+    """The tree's graph checks (rooted, leaves carry rmps, shared weights declared)."""
+    validate_tree_spec(run.tree, "tree")
+
+
 def build_all(run: RunConfig):
     """``(env, expert_tree, learners)`` for a validated config: everything an experiment runs on."""
-    from ..build.tree import build_tree
-
-    entry = ENVS.get(run.env.type)
-    block = run.env.model_dump()
-    env = entry.obj(entry.validate({k: v for k, v in block.items() if k != "type"}))
+    env = make_env(run)
     aux_dims = dict(env.aux_dims())
-    expert = build_tree(expert_spec(run), aux_dims=aux_dims)
-    learners = _build_learners(run, aux_dims)
-    return env, expert, learners
-
+    return env, build_expert(run, aux_dims), build_learners(run, aux_dims)

@@ -8,25 +8,31 @@ from pathlib import Path
 from typing import Mapping, Sequence
 
 import matplotlib
+import numpy as np
+import torch
+from matplotlib.figure import Figure
+from matplotlib.patches import Circle
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import torch  # noqa: E402
-from matplotlib.patches import Circle  # noqa: E402
-
-from ..files import atomic_path  # noqa: E402
+from ..files import atomic_path
 
 _OBSTACLE_COLOURS = ("tab:red", "tab:blue", "tab:purple", "tab:brown")
 
 
+def subplots(*grid, figsize: tuple[float, float], **kwargs):
+    """A figure and its axes, drawn off-screen: a ``Figure`` renders to a file without pyplot, so importing
+    the plots never selects a matplotlib backend for the whole process (an interactive session keeps its own)."""
+    fig = Figure(figsize=figsize)
+    return fig, fig.subplots(*grid, **kwargs)
+
+
+def colour_cycle() -> list[str]:
+    return matplotlib.rcParams["axes.prop_cycle"].by_key()["color"]
+
+
 def save_figure(fig, path: str | os.PathLike, dpi: int = 110) -> Path:
     path = Path(path)
-    try:
-        with atomic_path(path, suffix=".png") as tmp:
-            fig.savefig(tmp, dpi=dpi, format="png", bbox_inches="tight")
-    finally:
-        plt.close(fig)
+    with atomic_path(path, suffix=".png") as tmp:
+        fig.savefig(tmp, dpi=dpi, format="png", bbox_inches="tight")
     return path
 
 
@@ -63,7 +69,7 @@ def _trajectories(ax, q, style: str, colour: str, label: str | None) -> None:
 def plot_trajectories(path, aux: Mapping[str, torch.Tensor], expert_q, learner_q: Mapping[str, object] | None = None,
                       q0=None, qd0=None, title: str = "", limits: Sequence[float] = (-5, 5)) -> Path:
     """Expert (dashed) and learners (solid) from the same initial states in one environment."""
-    fig, ax = plt.subplots(figsize=(5, 5))
+    fig, ax = subplots(figsize=(5, 5))
     draw_environment(ax, aux, q0, qd0)
     if expert_q is not None:
         _trajectories(ax, expert_q, "--", "0.35", "expert")
@@ -78,7 +84,7 @@ def plot_trajectories(path, aux: Mapping[str, torch.Tensor], expert_q, learner_q
 
 def plot_lyapunov(path, times, V, title: str = "") -> Path:
     """V_r(t) of every trajectory; Theorem 2 says each curve is non-increasing."""
-    fig, ax = plt.subplots(figsize=(5, 3.2))
+    fig, ax = subplots(figsize=(5, 3.2))
     t, v = _np(times), _np(V)
     ax.plot(t, v, lw=1)
     ax.set_xlabel("t [s]")
@@ -94,8 +100,8 @@ def plot_learning_curves(path, curves: Mapping[str, Mapping[str, Sequence]], sna
 
     ``curves[name] = {"train": [(it, loss)...], "val": [...], "test": [(it, loss)...]}`` ("val" optional).
     """
-    fig, ax = plt.subplots(figsize=(6, 3.6))
-    for (name, c), colour in zip(curves.items(), plt.rcParams["axes.prop_cycle"].by_key()["color"]):
+    fig, ax = subplots(figsize=(6, 3.6))
+    for (name, c), colour in zip(curves.items(), colour_cycle()):
         tr = np.asarray(c.get("train") or [], dtype=float).reshape(-1, 2)
         if len(tr):
             k = max(1, min(smooth, len(tr) // 10 or 1))
@@ -126,7 +132,7 @@ def plot_progression(path, aux: Mapping[str, torch.Tensor], expert_q, stages: Se
     n = len(stages)
     has_v = any(s.get("V") is not None for s in stages)
     rows = 2 if has_v else 1
-    fig, axes = plt.subplots(rows, n, figsize=(3 * n, 3 * rows), squeeze=False)
+    fig, axes = subplots(rows, n, figsize=(3 * n, 3 * rows), squeeze=False)
     for j, s in enumerate(stages):
         ax = axes[0, j]
         draw_environment(ax, aux, q0, qd0)
@@ -159,9 +165,9 @@ def plot_weights(path, times, expert: Mapping[str, Sequence], learned: Mapping[s
     n = max(len(edges), 1)
     cols = min(n, 5)
     rows = (n + cols - 1) // cols
-    fig, axes = plt.subplots(rows, cols, figsize=(2.9 * cols, 2.4 * rows), squeeze=False, sharex=True)
+    fig, axes = subplots(rows, cols, figsize=(2.9 * cols, 2.4 * rows), squeeze=False, sharex=True)
     t = _np(times)
-    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    colours = colour_cycle()
     for ax, e in zip(axes.flat, edges):
         span = []
         for (label, w), colour in zip(learned.items(), colours):

@@ -14,6 +14,7 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 from matplotlib.patches import Circle  # noqa: E402
 
+from ..envs.protocol import Renders  # noqa: E402
 from ..files import atomic_path  # noqa: E402
 from .figures import _np, save_figure  # noqa: E402
 
@@ -188,10 +189,10 @@ def save_gif(path, frames: Sequence[np.ndarray], fps: float = 10.0) -> Path:
 
 
 # ---------------------------------------------------------------------------------------------- the Franka set
-def _example(env, expert) -> int:
+def _example(env: Renders, expert) -> int:
     """The rendered test trajectory: the configured one, else the one where the expert comes closest to the
     obstacle among those it completes (the most interaction)."""
-    chosen = env.params.render_trajectory
+    chosen = env.render_settings.trajectory
     B = expert.rollout.q.shape[1]
     if chosen is not None:
         return min(int(chosen), B - 1)
@@ -205,7 +206,7 @@ def _index_at(times: torch.Tensor, t: float) -> int:
     return int((times - t).abs().argmin())
 
 
-def franka_figures(env, fig_dir, expert, stages, aux: Mapping[str, torch.Tensor], title: str = "franka") -> list[Path]:
+def franka_figures(env: Renders, fig_dir, expert, stages, aux: Mapping[str, torch.Tensor], title: str = "franka") -> list[Path]:
     """All Franka figures; see the module docstring. ``expert``/``stages``: ``StageResult``s."""
     fig_dir = Path(fig_dir)
     out: list[Path] = []
@@ -226,7 +227,8 @@ def franka_figures(env, fig_dir, expert, stages, aux: Mapping[str, torch.Tensor]
     out.append(plot_ee_paths(fig_dir / "franka_ee_paths.png", ex_aux,
                              {st.label: st.rollout.ee[:, b] for st in policies},
                              title=f"{title}: end-effector paths, test execution {b} (top view)"))
-    w, h = env.params.render_size
+    settings = env.render_settings
+    w, h = settings.size
     goal_px = env.project(ex_aux["goal"].reshape(1, 3).cpu().numpy(), w, h)[0]
 
     def frame(st, t: float, width: int, height: int, goal) -> dict:
@@ -243,23 +245,23 @@ def franka_figures(env, fig_dir, expert, stages, aux: Mapping[str, torch.Tensor]
                 "trail": env.project(ee, width, height) if len(ee) else None, "goal": goal}
 
     horizon = float(expert.rollout.times[-1])
-    times = [t for t in env.params.render_times if t <= horizon + 1e-9] or [0.0]
+    times = [t for t in settings.times if t <= horizon + 1e-9] or [0.0]
     rows = [{"label": st.label, "frames": [frame(st, t, w, h, goal_px) for t in times]} for st in policies]
     out.append(plot_render_strip(fig_dir / "franka_execution.png", rows,
                                  title=f"{title}: test execution {b}, left to right in time"))
     # the animation: policies side by side, real time
     gw, gh = (w * 3) // 4, (h * 3) // 4
     goal_g = env.project(ex_aux["goal"].reshape(1, 3).cpu().numpy(), gw, gh)[0]
-    n_frames = int(np.floor(horizon * env.params.gif_fps + 1e-9)) + 1
+    n_frames = int(np.floor(horizon * settings.gif_fps + 1e-9)) + 1
     frames = []
     for k in range(n_frames):
-        t = k / env.params.gif_fps
+        t = k / settings.gif_fps
         tiles = []
         for st in policies:
             f = frame(st, t, gw, gh, goal_g)
             tiles.append(_label(_draw_trail(f["image"], f["trail"], goal_g), f"{st.label}  t={f['t']:.1f}s"))
         frames.append(np.concatenate(tiles, axis=1))
-    out.append(save_gif(fig_dir / "franka_execution.gif", frames, env.params.gif_fps))
+    out.append(save_gif(fig_dir / "franka_execution.gif", frames, settings.gif_fps))
     return out
 
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 from typing import Mapping
 
 import torch
-from pydantic import Field, model_validator
+from pydantic import Field, field_validator, model_validator
 from torch import Tensor
 
 from ..core.auxstate import AuxOrValue, AuxParam
@@ -19,7 +19,15 @@ class Constant(WeightFunction):
     is_constant = True
 
     class Params(Params):
-        value: float = Field(1.0, gt=0)
+        value: float = Field(1.0, description="> 0: positive weights keep the policy Lyapunov-stable (Theorem 2)")
+
+        @field_validator("value")
+        @classmethod
+        def _positive(cls, v: float) -> float:
+            if not v > 0:
+                raise ValueError(f"constant weight must be > 0 (positive weights are what keep the policy "
+                                 f"Lyapunov-stable, Theorem 2); given {v}")
+            return v
 
     def __init__(self, params: Params, in_dim: int, aux_dims: Mapping[str, int] | None = None):
         super().__init__(in_dim, aux_dims)

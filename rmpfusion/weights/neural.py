@@ -6,7 +6,8 @@ dimension is small), so it needs no double backward and stays differentiable in 
 from __future__ import annotations
 
 import math
-from typing import Literal, Mapping
+from dataclasses import dataclass
+from typing import Callable, Literal, Mapping
 
 import torch
 import torch.nn.functional as F
@@ -18,29 +19,48 @@ from ..core.weight import WeightFunction, aux_features
 from ..registry import WEIGHTS, Params
 
 
-def _act(name: str):
-    """(σ(z), σ'(z)) for the supported smooth activations."""
-    if name == "tanh":
-        def f(z):
-            t = torch.tanh(z)
-            return t, 1 - t * t
-    elif name == "softplus":
-        def f(z):
-            return F.softplus(z), torch.sigmoid(z)
-    elif name == "sigmoid":
-        def f(z):
-            s = torch.sigmoid(z)
-            return s, s * (1 - s)
-    elif name == "elu":
-        def f(z):
-            return F.elu(z), torch.where(z > 0, torch.ones_like(z), torch.exp(z.clamp(max=0)))
-    elif name == "silu":
-        def f(z):
-            s = torch.sigmoid(z)
-            return z * s, s * (1 + z * (1 - s))
-    else:  # pragma: no cover - the Params model rejects other names
-        raise ValueError(name)
-    return f
+def _tanh(z: Tensor) -> tuple[Tensor, Tensor]:
+    t = torch.tanh(z)
+    return t, 1 - t * t
+
+
+def _softplus(z: Tensor) -> tuple[Tensor, Tensor]:
+    return F.softplus(z), torch.sigmoid(z)
+
+
+def _sigmoid(z: Tensor) -> tuple[Tensor, Tensor]:
+    s = torch.sigmoid(z)
+    return s, s * (1 - s)
+
+
+def _elu(z: Tensor) -> tuple[Tensor, Tensor]:
+    return F.elu(z), torch.where(z > 0, torch.ones_like(z), torch.exp(z.clamp(max=0)))
+
+
+def _silu(z: Tensor) -> tuple[Tensor, Tensor]:
+    s = torch.sigmoid(z)
+    return z * s, s * (1 + z * (1 - s))
+
+
+@dataclass(frozen=True)
+class Activation:
+    """One activation two ways: a layer, for networks evaluated plainly (the unstructured learner), and
+    (σ(z), σ'(z)), for networks whose input gradient is propagated forward (weight functions need ∇_x w, so
+    only activations smooth everywhere have one)."""
+
+    module: type[nn.Module]
+    with_derivative: Callable[[Tensor], tuple[Tensor, Tensor]] | None
+
+
+#: The activations networks in rmpfusion use, by the name configs give them.
+ACTIVATIONS: dict[str, Activation] = {
+    "tanh": Activation(nn.Tanh, _tanh),
+    "softplus": Activation(nn.Softplus, _softplus),
+    "sigmoid": Activation(nn.Sigmoid, _sigmoid),
+    "elu": Activation(nn.ELU, _elu),
+    "silu": Activation(nn.SiLU, _silu),
+    "relu": Activation(nn.ReLU, None),  # a kink at 0: no weight function uses it
+}
 
 
 @WEIGHTS.register("mlp")
@@ -74,7 +94,7 @@ class MLPWeight(WeightFunction):
         sizes = [n_in, *p.hidden, 1]
         # float64 like every constant (init_bias exact; one seed, one network, whatever torch's default dtype)
         self.layers = nn.ModuleList(nn.Linear(a, b, dtype=CONSTANT_DTYPE) for a, b in zip(sizes[:-1], sizes[1:]))
-        self.act = _act(p.activation)
+        self.act = ACTIVATIONS[p.activation].with_derivative
         self.activation = p.activation
         self.positivity, self.floor = p.positivity, p.floor
         if p.init_bias is not None:

@@ -1,6 +1,9 @@
 """Demonstrations (paper §4.1 "Data"): the expert is rolled out in random environments and every
 ``interval`` seconds the visited state, the aux state and the expert's acceleration there are recorded.
 
+Environments produce demonstrations (each may define its own protocol, ``Env.demonstrations``) and learners
+only consume them, so the dataset type lives with the environments, below ``learn/``.
+
 Datasets are expensive relative to tests and shared between runs, so they are saved with the seed and
 config hash that made them and a content checksum; a stale, truncated or edited file is refused loudly
 instead of silently training on the wrong data.
@@ -18,7 +21,7 @@ from typing import Any, Callable, Mapping
 import torch
 from torch import Tensor
 
-from ..files import atomic_torch_save
+from ..files import atomic_torch_save, load_error_cause, read_torch_file
 
 FORMAT = "rmpfusion-dataset/1"
 
@@ -95,7 +98,7 @@ def collect(env, expert, n_envs: int, n_traj: int, n_points: int, interval: floa
 
     # a trajectory the expert could not finish (a recorded error, or any non-finite record) must not become
     # training data: it is left out, with a warning that says which and why; none left is an error
-    errors = list(getattr(ro, "error", None) or [None] * B)
+    errors = list(ro.error or [None] * B)
     finite = (ro.q.isfinite() & ro.qd.isfinite() & ro.qdd.isfinite()).all(-1).all(0)
     failed = {b: errors[b] or "non-finite record" for b in range(B) if errors[b] is not None or not bool(finite[b])}
     if len(failed) == B:
@@ -141,40 +144,6 @@ def save_dataset(path: str | os.PathLike, ds: Dataset, meta: Mapping[str, Any]) 
                "tensors": {k: v.detach().cpu() for k, v in ds.tensors().items()}}
     atomic_torch_save(payload, path)
     return checksum
-
-
-def load_error_cause(e: BaseException) -> str:
-    """A one-line cause for a file torch could not load: torch's own messages run to paragraphs (and suggest
-    ``weights_only=False``, which is the wrong advice for a damaged or tampered file)."""
-    msg = str(e)
-    if "WeightsUnpickler error:" in msg:
-        msg = msg.split("WeightsUnpickler error:", 1)[1]
-    lines = [ln.strip() for ln in msg.strip().splitlines() if ln.strip()]
-    first = lines[0] if lines else {EOFError: "the file ends early"}.get(type(e), "no detail")
-    for cut in (" This is an internal", ". Please use", " was not an allowed global"):
-        first = first.split(cut, 1)[0]
-    if len(first) > 160:
-        first = first[:157] + "..."
-    return f"{type(e).__name__}: {first}"
-
-
-def read_torch_file(path: Path, what: str, fix: str, error: type[Exception], fmt: str | None = None,
-                    missing: str | None = None) -> dict:
-    """``torch.load`` (weights only) of a file this package wrote, every failure as ``error`` naming the file.
-
-    ``fmt`` is the ``format`` tag the payload must carry; ``missing`` the advice when the file does not exist.
-    """
-    if not path.is_file():
-        raise error(f"{what} file {path} does not exist" + (f"; {missing}" if missing else ""))
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")  # torch's warnings about odd pickles: the error below says it all
-            payload = torch.load(path, map_location="cpu", weights_only=True)
-        if not isinstance(payload, dict) or (fmt is not None and payload.get("format") != fmt):
-            raise ValueError(f"not a {fmt or 'rmpfusion'} file")
-    except Exception as e:  # noqa: BLE001 - any unreadable file gets the same advice
-        raise error(f"{what} file {path} is unreadable or truncated ({load_error_cause(e)}); {fix}") from e
-    return payload
 
 
 def load_dataset(path: str | os.PathLike, expected_meta: Mapping[str, Any] | None = None) -> Dataset:

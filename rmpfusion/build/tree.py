@@ -1,0 +1,120 @@
+"""Build a tree: a validated spec (docs/architecture.md) made into an ``RMPTree`` through the registries."""
+from __future__ import annotations
+
+from typing import Any, Mapping
+
+import torch
+from torch import nn
+
+from ..core.tree import BoundWeight, NodeLabel, RMPTree, TreeLayout, breadth_first
+from ..registry import LEAF_RMPS, TASK_MAPS, WEIGHTS
+from .errors import ConfigError, Issue
+from .spec import TreeSpec, shared_ref, validate_tree_spec, weight_label
+
+
+def _build(registry, block, *args) -> nn.Module:
+    """The module of a validated block: its entry's class called with the block (its parameter model)."""
+    return registry.get(block.type).obj(block, *args)
+
+
+class _Builder:
+    """Builds one tree's modules in pushforward order, collecting every problem with its YAML path."""
+
+    def __init__(self, ts: TreeSpec, where: str):
+        self.ts, self.where = ts, where
+        self.aux = dict(ts.aux)
+        self.dims = {ts.root.name: ts.root.dim}
+        self.maps: dict[str, nn.Module] = {}
+        self.weights: dict[str, nn.Module] = {}
+        self.rmps: dict[str, nn.Module] = {}
+        self.shared: dict[str, tuple[nn.Module, int]] = {}  # built shared weights and their parent dimension
+        self.issues: list[Issue] = []
+
+    def unused_shared(self) -> None:
+        used = {ref.shared for nd in self.ts.nodes.values() if (ref := shared_ref(nd.weight)) is not None}
+        for name in self.ts.shared_weights:
+            if name not in used:
+                self.issues.append(Issue(f"{self.where}.shared_weights.{name}", "declared but used by no edge; remove it"))
+
+    def node(self, n: str) -> None:
+        nd, p = self.ts.nodes[n], f"{self.where}.nodes.{n}"
+        in_dim = self.dims[nd.parent]
+        try:
+            self.maps[n] = _build(TASK_MAPS, nd.map, in_dim, self.aux)
+            self.dims[n] = self.maps[n].out_dim
+        except Exception as e:  # noqa: BLE001 - reported with its path
+            self.issues.append(Issue(f"{p}.map", str(e)))
+            return
+        if nd.weight is not None:
+            try:
+                self.weights[n] = self.weight(nd.weight, in_dim)
+            except Exception as e:  # noqa: BLE001
+                self.issues.append(Issue(f"{p}.weight", str(e)))
+        if nd.rmp is not None:
+            self.leaf(n, nd.rmp, p)
+
+    def weight(self, spec, in_dim: int) -> BoundWeight:
+        ref = shared_ref(spec)
+        if ref is None:
+            return BoundWeight(_build(WEIGHTS, spec, in_dim, self.aux))
+        bad = [v for v in ref.bind.values() if v not in self.aux]
+        if bad:
+            raise ValueError(f"bind refers to undeclared aux {bad} (declared: {sorted(self.aux)})")
+        if ref.shared not in self.shared:  # a shared weight's parent dimension is that of the first edge using it
+            self.shared[ref.shared] = (_build(WEIGHTS, self.ts.shared_weights[ref.shared], in_dim, self.aux), in_dim)
+        fn, d = self.shared[ref.shared]
+        if d != in_dim:
+            raise ValueError(f"shared weight '{ref.shared}' is used on parents of dimension {d} and {in_dim}")
+        return BoundWeight(fn, ref.bind)
+
+    def leaf(self, n: str, spec, p: str) -> None:
+        fixed = LEAF_RMPS.get(spec.type).obj.dim
+        if fixed is not None and fixed != self.dims[n]:
+            self.issues.append(Issue(f"{p}.rmp", f"'{spec.type}' is {fixed}-dimensional but the map gives dimension "
+                                                 f"{self.dims[n]}; change the map or the rmp"))
+            return
+        try:
+            self.rmps[n] = _build(LEAF_RMPS, spec, self.dims[n])
+        except Exception as e:  # noqa: BLE001
+            self.issues.append(Issue(f"{p}.rmp", str(e)))
+
+    def layout(self) -> TreeLayout:
+        ts = self.ts
+        labels = {n: NodeLabel(nd.map.type, weight_label(nd.weight), None if nd.rmp is None else nd.rmp.type)
+                  for n, nd in ts.nodes.items()}
+        return TreeLayout(ts.root.name, ts.root.dim, dict(ts.aux), {n: nd.parent for n, nd in ts.nodes.items()}, labels)
+
+
+def build_tree(
+    spec: Mapping[str, Any] | TreeSpec,
+    aux_dims: Mapping[str, int] | None = None,
+    dtype: torch.dtype | None = torch.float64,
+    where: str = "tree",
+    resolve_method: str = "solve",
+    check_finite: bool = True,
+) -> RMPTree:
+    """Validate a tree spec (docs/architecture.md §2) and assemble its modules through the registries.
+
+    ``aux_dims`` adds to (or overrides) the spec's ``aux`` declarations, e.g. from the environment.
+    All problems are reported together in one ConfigError whose lines name YAML paths.
+
+    ``dtype`` is the one floating dtype of the tree's constants and parameters (None: torch's current default).
+    Every registered class builds its constants in float64 from the spec's Python numbers
+    (``rmpfusion.core.auxstate.constant``); the built tree is then cast to ``dtype``, so a constant is rounded
+    at most once, to the dtype the tree computes in.
+    """
+    ts = validate_tree_spec(spec, where)
+    if aux_dims:
+        ts = ts.model_copy(update={"aux": {**ts.aux, **dict(aux_dims)}})
+    b = _Builder(ts, where)
+    b.unused_shared()
+    children: dict[str, list[str]] = {}
+    for n, nd in ts.nodes.items():
+        children.setdefault(nd.parent, []).append(n)
+    for n in breadth_first(children, ts.root.name):
+        b.node(n)
+    if b.issues:
+        raise ConfigError(b.issues)
+    shared = {k: v[0] for k, v in b.shared.items()}
+    tree = RMPTree(b.layout(), b.maps, b.weights, b.rmps, shared, resolve_method, check_finite)
+    return tree.to(torch.get_default_dtype() if dtype is None else dtype)

@@ -1,0 +1,139 @@
+"""Torque mode: every sample has its own pybullet world, and the policy's acceleration becomes joint torques by
+computed-torque control (pybullet's inverse dynamics, default velocity motors disabled). The simulated robot is
+then the paper's feedback-linearised system, integrated by pybullet itself."""
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any, Callable, Mapping
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from ..common import evaluate_policy
+from ..faults import IsolatingPolicy
+from ..rollout import Rollout
+from .recording import GoalTracker, Recorder, finish
+from .scene import _pb, _Scene
+
+if TYPE_CHECKING:
+    from .env import Franka
+
+#: PD gains of the acceleration that holds the fingers closed inside the same inverse dynamics (1/s², 1/s)
+FINGER_KP, FINGER_KD = 400.0, 40.0
+
+
+def rollout_torque(env: "Franka", policy: Callable[..., Any], q0: Tensor, qd0: Tensor, aux: Mapping[str, Tensor],
+                   n_steps: int, every: int, monitor: Callable[..., Any] | None) -> Rollout:
+    """``n_steps`` pybullet steps recorded every ``every`` steps; a sample whose world fails (a pybullet error)
+    or whose policy answers a non-finite acceleration ends there with its reason, the others go on."""
+    dt = env.dt
+    policy = IsolatingPolicy(policy)  # a sample whose evaluation raises gets NaN, the others go on
+    worlds = _Worlds(env, policy, q0, qd0)
+    try:
+        worlds.open(aux)
+        rec = Recorder()
+        goal_hit = GoalTracker(q0.shape[0], env.dtype)
+        worlds.read_states()
+        goal_hit.update(0.0, env.ee_position(worlds.q), aux["goal"], env.params.goal_tolerance, worlds.alive, worlds.q)
+        for k in range(n_steps + 1):
+            a, V, D = evaluate_policy(policy, worlds.q, worlds.qd, aux)
+            if k % every == 0:
+                rec.add(k * dt, worlds.q, worlds.qd, a, V, D, worlds.alive, monitor)
+            if k == n_steps:
+                break
+            worlds.step(a, k)
+            worlds.read_states()
+            goal_hit.update((k + 1) * dt, env.ee_position(worlds.q), aux["goal"], env.params.goal_tolerance,
+                            worlds.alive, worlds.q)
+    finally:
+        worlds.close()
+    return finish(env, "torque", rec, aux, worlds.min_clear, worlds.first_hit, goal_hit, worlds.errors)
+
+
+class _Worlds:
+    """The batch's pybullet worlds, one a sample, and what each has seen: its state (q, q̇ of the arm, the
+    fingers' apart), whether it is still alive and why not, its smallest clearance and first collision time."""
+
+    def __init__(self, env: "Franka", policy: IsolatingPolicy, q0: Tensor, qd0: Tensor):
+        B = q0.shape[0]
+        self.env, self.policy, self.q0, self.qd0 = env, policy, q0, qd0
+        self.errors: list[str | None] = [None] * B
+        self.alive = torch.ones(B, dtype=torch.bool)
+        self.scenes: list[_Scene | None] = []
+        self.min_clear = torch.full((B,), float(env.params.clearance_query), dtype=env.dtype)
+        self.first_hit = torch.full((B,), float("inf"), dtype=env.dtype)
+        self.q, self.qd = q0.clone(), qd0.clone()
+        self.fingers = [np.zeros(2)] * B
+        self.finger_v = [np.zeros(2)] * B
+
+    def open(self, aux: Mapping[str, Tensor]) -> None:
+        """A world per sample at its initial state (the GUI, if asked for, shows sample 0)."""
+        p, env = _pb(), self.env
+        gui = env.params.gui
+        for b in range(self.q0.shape[0]):
+            try:
+                sc = _Scene(gui=gui and b == 0, gravity=env.params.gravity)
+                sc.set_env(*env.scene_args(aux, b), visual=gui and b == 0)
+                p.setTimeStep(env.dt, physicsClientId=sc.cid)
+                sc.reset(self.q0[b].cpu().numpy(), self.qd0[b].cpu().numpy())
+                self.scenes.append(sc)
+                self.min_clear[b] = sc.clearance(env.params.clearance_query)
+                if self.min_clear[b] <= 0.0:
+                    self.first_hit[b] = 0.0
+            except p.error as e:
+                self.scenes.append(None)
+                self.errors[b] = f"pybullet error at setup: {e}"
+                self.alive[b] = False
+
+    def kill(self, b: int, reason: str) -> None:
+        self.alive[b] = False
+        self.errors[b] = reason
+        if self.scenes[b] is not None:
+            self.scenes[b].close()
+            self.scenes[b] = None
+
+    def read_states(self) -> None:
+        """(q, q̇) of every live world into ``q`` and ``qd`` (in place: the policy and the records see them)."""
+        p = _pb()
+        for b, sc in enumerate(self.scenes):
+            if not self.alive[b]:
+                continue
+            try:
+                qa, qda = sc.state()
+            except p.error as e:
+                self.kill(b, f"pybullet error reading state: {e}")
+                continue
+            self.q[b] = torch.as_tensor(qa[:7], dtype=self.env.dtype)
+            self.qd[b] = torch.as_tensor(qda[:7], dtype=self.env.dtype)
+            self.fingers[b], self.finger_v[b] = qa[7:], qda[7:]
+
+    def step(self, a: Tensor, k: int) -> None:
+        """One pybullet step of every live world under the torques that realise the accelerations ``a`` at step k."""
+        a_np = a.detach().cpu().numpy()
+        for b, sc in enumerate(self.scenes):
+            if not self.alive[b]:
+                continue
+            if not np.isfinite(a_np[b]).all():
+                self.kill(b, self.policy.explain(b, f"non-finite acceleration at t={k * self.env.dt:.4f}s"))
+                continue
+            try:
+                self._step_one(b, sc, a_np[b], k)
+            except _pb().error as e:
+                self.kill(b, f"pybullet error at t={k * self.env.dt:.4f}s: {e}")
+
+    def _step_one(self, b: int, sc: _Scene, a: np.ndarray, k: int) -> None:
+        p, dt = _pb(), self.env.dt
+        acc_f = -FINGER_KP * self.fingers[b] - FINGER_KD * self.finger_v[b]
+        qs = self.q[b].tolist() + self.fingers[b].tolist()
+        vs = self.qd[b].tolist() + self.finger_v[b].tolist()
+        tau = p.calculateInverseDynamics(sc.robot, qs, vs, a.tolist() + acc_f.tolist(), physicsClientId=sc.cid)
+        p.setJointMotorControlArray(sc.robot, sc.joints, p.TORQUE_CONTROL, forces=list(tau), physicsClientId=sc.cid)
+        p.stepSimulation(physicsClientId=sc.cid)
+        self.min_clear[b] = min(float(self.min_clear[b]), sc.clearance(self.env.params.clearance_query))
+        if self.min_clear[b] <= 0.0 and self.first_hit[b].isinf():
+            self.first_hit[b] = (k + 1) * dt
+
+    def close(self) -> None:
+        for sc in self.scenes:
+            if sc is not None:
+                sc.close()

@@ -1,0 +1,125 @@
+"""What the pipeline, the evaluation and the figures may ask of an environment.
+
+``Env`` is what every registered environment provides; the capability protocols are what only some do (task
+metrics, rendering, a planar workspace). Callers test a capability with ``isinstance`` against these types
+instead of probing for attribute names, so a misspelt or missing method is a type error at the protocol, not a
+feature that silently switches off.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Callable, Mapping, Protocol, Sequence, runtime_checkable
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from .demonstrations import Dataset
+from .rollout import Rollout
+
+
+@runtime_checkable
+class Env(Protocol):
+    """A batched environment: sampling of aux states and starts, closed-loop rollouts, demonstrations.
+
+    It exists so that the experiment pipeline runs any registered environment with the same calls: the
+    configuration dimension and step grid (``dim``, ``dt``) size trees and recordings; ``sample_envs`` and
+    ``sample_initial_states`` draw reproducibly from a generator; ``demonstrations`` is the environment's own
+    protocol for the expert's data (how long a demonstration is, which obstacles a split uses).
+    """
+
+    #: configuration dimension d: q, q̇ and q̈ are (B, d)
+    dim: int
+
+    @property
+    def dt(self) -> float:
+        """The integration step (s); horizons and record intervals are multiples of it."""
+        ...
+
+    def aux_dims(self) -> dict[str, int]:
+        """Names and sizes of the per-sample aux state; pass to ``build_tree(..., aux_dims=...)``."""
+        ...
+
+    def sample_envs(self, n_envs: int, generator: torch.Generator | None = None,
+                    split: str = "train") -> dict[str, Tensor]:
+        """``n_envs`` environments of a data split as an aux dict of (n_envs, k) tensors."""
+        ...
+
+    def sample_initial_states(self, envs_aux: Mapping[str, Tensor], n_per_env: int,
+                              generator: torch.Generator | None = None) -> tuple[Tensor, Tensor, dict[str, Tensor]]:
+        """(q0, q̇0, aux) for n_envs·n_per_env samples, environment-major."""
+        ...
+
+    def rollout(self, policy: Callable[..., Any], q0: Tensor, qd0: Tensor, aux: Mapping[str, Tensor],
+                horizon: float, record_every: float, monitor: Callable[..., Any] | None = None,
+                progress: Callable[[int, int], Any] | None = None, enable_grad: bool = False) -> Rollout:
+        """Run q̈ = policy(q, q̇, aux) for ``horizon`` seconds, recorded every ``record_every`` seconds."""
+        ...
+
+    def demonstrations(self, expert: Callable[..., Any], n_envs: int, n_traj: int, n_points: int, interval: float,
+                       generator: torch.Generator | None = None, split: str = "train",
+                       progress: Callable[[int, int], Any] | None = None) -> Dataset:
+        """The expert's demonstrations of a data split, at most ``n_points`` records ``interval`` s apart."""
+        ...
+
+
+@runtime_checkable
+class HasTaskMetrics(Protocol):
+    """Per-trajectory metrics of the environment's task beyond success and collision (paper §4.2: time, path
+    lengths, goal distance). It exists because only a task that defines an *execution* has them; the pipeline
+    then reports them per policy and builds the task table."""
+
+    def task_metrics(self, rollout: Rollout) -> dict[str, Tensor]:
+        """``{name: (B,)}`` of a rollout whose horizon is the time-out."""
+        ...
+
+
+@runtime_checkable
+class HasRatioMetrics(Protocol):
+    """The task metrics compared with the expert as per-trajectory ratios learner/expert (paper Fig. 5b). It
+    exists because a ratio means something only for some metrics (a distance that is ~0 for every policy makes
+    a ratio of noise), and which ones is the environment's call."""
+
+    ratio_metrics: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class RenderSettings:
+    """How an environment's figures render executions: frame size, the times of a render strip, the GIF's frame
+    rate and which test trajectory is shown (None: the figures choose)."""
+
+    size: tuple[int, int]  # width, height of a frame (pixels)
+    times: tuple[float, ...]  # s
+    gif_fps: float
+    trajectory: int | None = None
+
+
+@runtime_checkable
+class Renders(Protocol):
+    """An environment that draws its own state as images (the Franka Panda in pybullet). It exists so that the
+    figures of an execution (render strips, GIFs, paths drawn on a frame) need only this interface, and the
+    settings they use come from ``render_settings`` rather than from the environment's parameter model."""
+
+    @property
+    def render_settings(self) -> RenderSettings:
+        ...
+
+    def render(self, q: Tensor | Sequence[float], aux: Mapping[str, Tensor], width: int, height: int,
+               sample: int) -> np.ndarray:
+        """(height, width, 3) uint8 image of the configuration ``q`` in environment ``aux[sample]``."""
+        ...
+
+    def project(self, points: Any, width: int, height: int) -> np.ndarray:
+        """(N, 2) pixel coordinates (column, row) of world points (N, 3) in ``render``'s image."""
+        ...
+
+
+@runtime_checkable
+class PlanarWorkspace(Protocol):
+    """An environment whose configuration space is the plane with circular obstacles (the 2-D particle). It
+    exists so that figures can draw trajectories over the obstacles directly in configuration space, which is
+    meaningless for a manipulator's joint space."""
+
+    def obstacles(self, aux: Mapping[str, Tensor]) -> tuple[Tensor, Tensor]:
+        """Centres (B, K, 2) and radii (B, K) of the obstacles of each sample."""
+        ...

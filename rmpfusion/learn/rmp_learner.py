@@ -1,0 +1,75 @@
+"""learner-rmp: the expert's tree with a fresh neural weight function on each learned edge (paper §4.1).
+
+Its policy is an RMP tree, so it keeps the tree's Lyapunov function (Theorem 2) whatever the weights learn.
+"""
+from __future__ import annotations
+
+from typing import Any, Mapping
+
+from pydantic import Field
+from torch import Tensor
+
+from ..build.errors import ConfigError, Issue
+from ..build.tree import build_tree
+from ..build.weighting import expand_aux, tree_with_weights
+from ..core.tree import RMPTree, TreeOutput
+from ..registry import LEARNERS, Params
+from .learner import Learner
+
+#: Leaf types that only condition or damp the root; learning a weight on them adds nothing the expert has.
+REGULARISER_LEAVES = frozenset({"identity_metric", "damper", "rmpflow_damper"})
+
+
+def _default_weight() -> dict:
+    return {"type": "mlp", "hidden": [32, 32], "activation": "tanh", "aux": "all"}
+
+
+@LEARNERS.register("rmp")
+class RMPLearner(Learner):
+    """learner-rmp: the given tree with a (fresh, randomly initialised) neural weight on each learned edge."""
+
+    class Params(Params):
+        weights: dict[str, Any] = Field(default_factory=_default_weight,
+                                        description="weight spec put on every learned edge; aux: all = every aux input")
+        edges: list[str] | None = Field(None, description="edges to learn; default: those the expert weights, "
+                                                          "else every edge except regulariser leaves")
+        edge_weights: dict[str, dict[str, Any]] = Field(
+            default_factory=dict, description="per-edge keys merged over `weights`, e.g. "
+                                              "{obstacle1: {aux: [obstacle1_center, obstacle1_radius]}}")
+
+    def __init__(self, params: Params, tree_spec: Mapping[str, Any], aux_dims: Mapping[str, int], dim: int,
+                 expert: Mapping[str, Any] | None = None):
+        super().__init__()
+        self.params = params
+        edges = list(params.edges) if params.edges is not None else self.default_edges(tree_spec, expert)
+        stray = [e for e in params.edge_weights if e not in edges]
+        if stray:
+            raise ConfigError([Issue(f"learners.rmp.edge_weights.{e}",
+                                     f"'{e}' is not a learned edge; learned edges: {', '.join(edges)} "
+                                     "(add it to learners.rmp.edges or remove the entry)") for e in stray])
+        per_edge = {e: expand_aux({**params.weights, **params.edge_weights.get(e, {})}, aux_dims) for e in edges}
+        spec = tree_with_weights(tree_spec, per_edge, where="learners.rmp.edges")
+        self.edges = edges
+        # registered as the submodule "tree" (state_dict keys tree.…); read back through the ``tree`` property
+        self.tree = build_tree(spec, aux_dims=dict(aux_dims))
+        if self.tree.dim != dim:
+            raise ValueError(f"the tree's root has dimension {self.tree.dim} but the environment has {dim}")
+
+    @property
+    def tree(self) -> RMPTree:
+        return self._modules["tree"]
+
+    @staticmethod
+    def default_edges(tree_spec: Mapping[str, Any], expert: Mapping[str, Any] | None) -> list[str]:
+        nodes = tree_spec["nodes"]
+        if expert:
+            return [n for n in nodes if n in expert]
+        return [n for n, nd in nodes.items()
+                if not ((nd.get("rmp") or {}).get("type") in REGULARISER_LEAVES)]
+
+    def policy(self, q: Tensor, qd: Tensor, aux: Mapping[str, Tensor] | None = None) -> TreeOutput:
+        """The full TreeOutput, so rollouts can record V_r and q̇ᵀBq̇."""
+        return self.tree(q, qd, aux)
+
+    def forward(self, q: Tensor, qd: Tensor, aux: Mapping[str, Tensor] | None = None) -> Tensor:
+        return self.tree(q, qd, aux).qdd

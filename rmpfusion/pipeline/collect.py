@@ -1,0 +1,98 @@
+"""Stage 1, collect: the expert's demonstrations of every split, cached in the run directory (checksummed)."""
+from __future__ import annotations
+
+import hashlib
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+
+from ..envs.demonstrations import Dataset, load_dataset, save_dataset
+from .config import RunConfig
+from .experiment import Experiment
+
+#: Each split's generator seed is the run's seed plus its offset: three disjoint draws of environments and starts.
+SPLIT_SEED_OFFSET = {"train": 0, "test": 1_000_003, "val": 2_000_003}
+
+
+@dataclass
+class Splits:
+    """The datasets of a run by split (``train``, ``test``, and ``val`` when ``data.val_envs`` > 0) and what
+    metrics.json says about each (file, checksum, size, the expert's success there)."""
+
+    data: dict[str, Dataset]
+    info: dict[str, dict]
+
+    @property
+    def train(self) -> Dataset:
+        return self.data["train"]
+
+    @property
+    def test(self) -> Dataset:
+        return self.data["test"]
+
+    @property
+    def val(self) -> Dataset | None:
+        return self.data.get("val")
+
+
+def data_hash(run: RunConfig) -> str:
+    """What determines the demonstrations: env, tree, expert, data sizes and seed (not the cache location)."""
+    key = {"env": run.env.model_dump(), "tree": run.tree.model_dump(), "expert": _plain(run.expert),
+           "seed": run.seed, "data": run.data.model_dump(exclude={"cache_dir"})}
+    return hashlib.sha256(json.dumps(key, sort_keys=True, default=str).encode()).hexdigest()
+
+
+def _plain(weights) -> dict:
+    return {k: (w.model_dump() if hasattr(w, "model_dump") else w) for k, w in weights.items()}
+
+
+def _trajectory_seconds(ds: Dataset) -> dict[str, float]:
+    """Duration of the dataset's trajectories (min, mean, max): fixed for the 2D data, 5–10 s for Franka's."""
+    ids, inv = ds.traj_id.unique(return_inverse=True)
+    last = torch.zeros(len(ids), dtype=ds.t.dtype).scatter_reduce(0, inv, ds.t, "amax", include_self=False)
+    return {"min": float(last.min()), "mean": float(last.mean()), "max": float(last.max())}
+
+
+def _describe(ds: Dataset) -> dict:
+    return {"trajectories": int(ds.traj_id.unique().numel()), "trajectory_seconds": _trajectory_seconds(ds),
+            "expert_success": float(ds.success.double().mean()),
+            "expert_collision": float(ds.collided.double().mean())}
+
+
+def load_or_collect(exp: Experiment, split: str) -> tuple[Dataset, dict]:
+    """The split's dataset from the cache when present and valid, else collected and saved (then reused).
+
+    ``val`` is drawn like ``train`` (the training environments' distribution, for Franka the training obstacle
+    placement) from its own seed: the split settings are chosen on, never trained on.
+    """
+    d, h = exp.run.data, data_hash(exp.run)
+    cache = Path(d.cache_dir) if d.cache_dir else exp.dir / "data"
+    path = cache / f"{split}-{h[:16]}.pt"
+    meta = {"seed": exp.run.seed, "config_hash": h, "split": split}
+    if path.exists():
+        ds = load_dataset(path, meta)  # damaged or foreign files raise, naming the file and the fix
+        exp.say.say(f"data: reusing {split} set {path} ({len(ds)} points)")
+        return ds, {"path": str(path), "sha256": ds.checksum(), "points": len(ds), "reused": True, **_describe(ds)}
+    n_envs, n_traj = {"train": (d.train_envs, d.train_trajectories), "val": (d.val_envs, d.val_trajectories),
+                      "test": (d.test_envs, d.test_trajectories)}[split]
+    gen = torch.Generator().manual_seed(exp.run.seed + SPLIT_SEED_OFFSET[split])
+    exp.say.say(f"data: collecting {split} set, {n_envs} envs x {n_traj} trajectories x up to {d.points} points")
+    t0 = time.time()
+    ds = exp.env.demonstrations(exp.expert, n_envs, n_traj, d.points, d.interval, gen, split=split,
+                                progress=exp.say.bar(f"collect {split}"))
+    sha = save_dataset(path, ds, meta)
+    return ds, {"path": str(path), "sha256": sha, "points": len(ds), "reused": False, "seconds": time.time() - t0,
+                **_describe(ds)}
+
+
+def collect(exp: Experiment, splits: tuple[str, ...] | None = None) -> Splits:
+    """Every split the run uses (or those named): the one place that decides the splits, for
+    ``rmpfusion-run`` and the stage commands alike."""
+    names = splits or (("train", "test", "val") if exp.run.data.val_envs else ("train", "test"))
+    t0 = time.time()
+    loaded = {s: load_or_collect(exp, s) for s in names}
+    exp.timing["data_s"] = time.time() - t0
+    return Splits({s: ds for s, (ds, _) in loaded.items()}, {s: info for s, (_, info) in loaded.items()})

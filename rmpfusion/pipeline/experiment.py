@@ -1,0 +1,82 @@
+"""What every stage of an experiment shares: the validated config, the run directory, the environment, the
+expert, progress output and the metrics logger, and the settings derived from the config once."""
+from __future__ import annotations
+
+import math
+import zlib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Mapping
+
+from ..core.tree import RMPTree
+from ..envs.protocol import Env
+from .config import RunConfig
+from .progress import Progress
+from .validate import build_expert, make_env, typed
+
+#: metrics.json's and the logger's sink for scalar metrics: ``log({"iteration": i, "<name>/<key>": value})``
+Log = Callable[[dict[str, float]], Any]
+
+
+@dataclass
+class Experiment:
+    """One run's fixed context, built once (``prepare``) and handed to every stage."""
+
+    run: RunConfig
+    dir: Path
+    env: Env
+    expert: RMPTree
+    say: Progress
+    log: Log | None = None
+    timing: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def config(self) -> dict:
+        """The run config as plain data: what checkpoints and config.json store."""
+        return self.run.model_dump()
+
+    @property
+    def horizon(self) -> float:
+        """Seconds each evaluation rollout lasts: ``eval.horizon``, default the demonstrations' length."""
+        d = self.run.data
+        return self.run.eval.horizon if self.run.eval.horizon is not None else d.points * d.interval
+
+    @property
+    def fine_interval(self) -> float:
+        """A recording interval dividing ``data.interval`` ~10x finer on the env's step grid: smooth figures and
+        a stricter Lyapunov monitor than the demonstrations' spacing."""
+        interval = self.run.data.interval
+        steps = int(round(interval / self.env.dt))
+        for n in (10, 8, 5, 4, 2):
+            if steps % n == 0:
+                return interval / n
+        return interval
+
+    def learner_seed(self, name: str) -> int:
+        """Each learner's own seed (its initial weights; training uses this + 1): independent of the others."""
+        return (self.run.seed * 1_000_003 + zlib.crc32(name.encode())) % (2**63 - 1)
+
+    def log_scalars(self, name: str, metrics: Mapping[str, float]) -> None:
+        if self.log is not None:
+            self.log({k if k == "iteration" else f"{name}/{k}": v for k, v in metrics.items()})
+
+
+def prepare(run: RunConfig, run_dir: Path, say: Progress, log: Log | None = None) -> Experiment:
+    """The environment and the expert tree of a validated config, compiled when ``eval.compile`` asks."""
+    run = typed(run)
+    env = make_env(run)
+    expert = build_expert(run, env.aux_dims())
+    if run.eval.compile:
+        expert.compile()
+    return Experiment(run=run, dir=run_dir, env=env, expert=expert, say=say, log=log)
+
+
+def clean(m: Any) -> Any:
+    """JSON has no inf/nan: a diverged learner's loss is written as null (and reported as such); nested too."""
+    if isinstance(m, Mapping):
+        return {k: clean(v) for k, v in m.items()}
+    if isinstance(m, (list, tuple)):
+        return [clean(v) for v in m]
+    if isinstance(m, float):
+        return m if math.isfinite(m) else None
+    return m

@@ -1,0 +1,82 @@
+"""Stage 2, fit: every learner built from its own seed and trained by behavior cloning on the train split.
+
+Checkpoints go to ``checkpoints/<learner>/`` (resumed on a rerun, also after SIGKILL); the trained learner is
+written to ``final.pt`` in the same checksummed format. ``require_trained`` turns the stage into loading only:
+what ``rmpfusion-evaluate`` does with the checkpoints ``rmpfusion-train`` left.
+"""
+from __future__ import annotations
+
+import contextlib
+import time
+from dataclasses import dataclass
+
+import torch
+
+from ..learn.learner import Learner
+from ..learn.train import TrainResult, latest_checkpoint, load_checkpoint, save_checkpoint, train
+from .collect import Splits
+from .experiment import Experiment
+from .validate import build_learners
+
+
+class NotTrainedError(RuntimeError):
+    """A stage that evaluates found no fully trained checkpoint for some learner."""
+
+
+@dataclass
+class Fitted:
+    """One trained learner: the model (in its training dtype), its training record and how long it took."""
+
+    model: Learner
+    result: TrainResult
+    seconds: float
+
+
+def learners(exp: Experiment) -> dict[str, Learner]:
+    """Every learner of the run, each drawn from its own seed (so stage commands rebuild the same ones)."""
+
+    @contextlib.contextmanager
+    def seeded(name: str):
+        with torch.random.fork_rng():
+            torch.manual_seed(exp.learner_seed(name))
+            yield
+
+    built = build_learners(exp.run, exp.env.aux_dims(), seeded)
+    for name, model in built.items():
+        exp.say.say(f"learner {name}: {exp.run.learners[name].type}, {model.num_parameters()} parameters")
+    return built
+
+
+def _require_trained(exp: Experiment) -> None:
+    missing = []
+    for name in exp.run.learners:
+        ck = latest_checkpoint(exp.dir / "checkpoints" / name)
+        if ck is None or int(load_checkpoint(ck)["iteration"]) < exp.run.train.iterations:
+            missing.append(name)
+    if missing:
+        raise NotTrainedError(f"no fully trained checkpoints for {missing} in {exp.dir / 'checkpoints'}; run "
+                              f"rmpfusion-train with the same overrides and hydra.run.dir={exp.dir} first")
+
+
+def fit_one(exp: Experiment, name: str, model: Learner, splits: Splits) -> Fitted:
+    """Train one learner (resuming from its checkpoints) and write ``final.pt``."""
+    t0 = time.time()
+    if exp.run.train.compile:
+        model.compile()
+    ckdir = exp.dir / "checkpoints" / name
+    if (ck := latest_checkpoint(ckdir)) is not None:
+        exp.say.say(f"learner {name}: resuming from {ck}")
+    tr = train(model, splits.train, exp.run.train, seed=exp.learner_seed(name) + 1, test_data=splits.test,
+               val_data=splits.val, checkpoint_dir=ckdir, run_config=exp.config, progress=exp.say.bar(f"train {name}"),
+               log=(lambda m: exp.log_scalars(name, m)) if exp.log is not None else None)
+    save_checkpoint({"model": model.state_dict(), "learner": exp.run.learners[name].model_dump(),
+                     "config": exp.config, "iteration": exp.run.train.iterations}, ckdir / "final.pt")
+    return Fitted(model, tr, time.time() - t0)
+
+
+def fit(exp: Experiment, splits: Splits, require_trained: bool = False) -> dict[str, Fitted]:
+    """Every learner trained (config order), or with ``require_trained`` only loaded from finished checkpoints."""
+    if require_trained:
+        _require_trained(exp)
+    built = learners(exp)
+    return {name: fit_one(exp, name, built[name], splits) for name in exp.run.learners}

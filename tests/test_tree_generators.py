@@ -1,0 +1,156 @@
+"""Trees declared as a generator and its parameters (build/generated.py): conf/tree/franka.yaml expands to the
+paper's Panda tree, and bad declarations are refused with the path of the key at fault."""
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+import pytest
+import yaml
+from pydantic import Field
+
+import rmpfusion  # noqa: F401  (registers the built-in generators)
+from rmpfusion.build.errors import ConfigError
+from rmpfusion.build.generated import expand_tree
+from rmpfusion.registry import TREE_GENERATORS, Params
+
+CONF = Path(__file__).resolve().parents[1] / "conf"
+needs_panda = pytest.mark.skipif(importlib.util.find_spec("pybullet_data") is None,
+                                 reason="the Panda URDF comes from pybullet_data")
+
+# The Panda's joint limits in pybullet_data's panda.urdf, (lower, upper) per joint, rad.
+PANDA_LIMITS = [(-2.9671, 2.9671), (-1.8326, 1.8326), (-2.9671, 2.9671), (-3.1416, 0.0), (-2.9671, 2.9671),
+                (-0.0873, 3.8223), (-2.9671, 2.9671)]
+
+
+def declaration() -> dict:
+    return yaml.safe_load((CONF / "tree" / "franka.yaml").read_text())
+
+
+def issues_of(spec) -> dict[str, str]:
+    with pytest.raises(ConfigError) as err:
+        expand_tree(spec)
+    return {i.path: i.message for i in err.value.issues}
+
+
+def test_the_panda_generator_is_registered_by_importing_rmpfusion():
+    assert "franka_fig1b" in TREE_GENERATORS
+    assert declaration()["generator"] == "franka_fig1b"
+
+
+@needs_panda
+def test_franka_declaration_expands_to_the_fig1b_tree():
+    tree = expand_tree(declaration())
+    nodes = tree["nodes"]
+    # ee + attractor, 2 limits x 7 joints, 14 control points with one obstacle each, damper, identity metric
+    assert len(nodes) == 2 + 14 + 14 * 2 + 2
+    assert tree["root"] == {"name": "q", "dim": 7}
+    assert tree["aux"] == {"goal": 3, "obstacle1_center": 3, "obstacle1_radius": 1,
+                           "obstacle_center": 3, "obstacle_radius": 1}
+    assert set(tree["shared_weights"]) == {f"cp{i}_obstacle" for i in range(1, 15)}
+    assert tree["shared_weights"]["cp7_obstacle"] == {"type": "mlp", "hidden": [32, 32], "positivity": "exp",
+                                                      "aux": ["obstacle_center", "obstacle_radius"]}
+    for j, (lower, upper) in enumerate(PANDA_LIMITS, start=1):
+        for side, limit in (("lower", lower), ("upper", upper)):
+            jl = nodes[f"jl{j}_{side}"]
+            assert jl["parent"] == "q" and "weight" not in jl
+            assert jl["map"] == {"type": "joint_limit", "side": side, "limit": limit, "joints": j - 1}
+            assert jl["rmp"] == {"type": "joint_limit", "r_w": 0.25, "sigma": 0.5, "epsilon": 0.1, "alpha": 0.001,
+                                 "eta": 0.0}
+    assert nodes["ee"]["map"] == {"type": "forward_kinematics", "robot": "panda", "link": "panda_hand",
+                                  "offset": [0.0, 0.0, 0.1034]}
+    assert nodes["attractor"]["parent"] == "ee" and nodes["attractor"]["map"] == {"type": "offset", "origin": "goal"}
+    assert nodes["attractor"]["rmp"] == {"type": "goal_attractor", "gain": 5.0, "alpha": 10.0, "eta": 5.0,
+                                         "w_u": 1.0, "w_l": 1.0, "sigma": 1.0}
+    assert nodes["cp10"]["map"]["link"] == "panda_link6" and nodes["cp10"]["map"]["offset"] == [0.035, -0.011, 0.021]
+    cp3 = nodes["cp3_obstacle1"]
+    assert cp3["parent"] == "cp3"
+    assert cp3["map"]["maps"] == [{"type": "cylinder_distance", "center": "obstacle1_center",
+                                   "radius": "obstacle1_radius"}, {"type": "offset", "origin": [0.095]}]
+    assert cp3["weight"] == {"shared": "cp3_obstacle",
+                             "bind": {"obstacle_center": "obstacle1_center", "obstacle_radius": "obstacle1_radius"}}
+    assert cp3["rmp"] == {"type": "collision_avoidance", "r_w": 0.15, "sigma": 0.5, "epsilon": 0.2, "alpha": 0.01,
+                          "eta": 0.0, "min_distance": 0.005}
+    assert nodes["damper"]["rmp"] == {"type": "damper", "w": 1.0, "eta": 20.0}
+    assert nodes["identity_metric"]["rmp"] == {"type": "identity_metric", "scale": 0.01}
+    assert all("weight" not in nodes[n] for n in ("damper", "identity_metric"))
+
+
+@needs_panda
+def test_parameters_change_the_generated_tree():
+    tree = expand_tree({**declaration(), "n_obstacles": 2, "attractor_rmp": {"gain": 3.0}})
+    assert sum(n.startswith("cp") and n.endswith("_obstacle2") for n in tree["nodes"]) == 14
+    # a partial leaf block changes its own keys only; the rest stay the tuned ones
+    assert tree["nodes"]["attractor"]["rmp"] == {"type": "goal_attractor", "gain": 3.0, "alpha": 10.0, "eta": 5.0,
+                                                 "w_u": 1.0, "w_l": 1.0, "sigma": 1.0}
+
+
+def test_a_written_tree_passes_through_unchanged():
+    spec = {"root": {"name": "q", "dim": 2}, "nodes": {"d": {"parent": "q", "rmp": {"type": "damper"}}}}
+    out = expand_tree(spec)
+    assert out == spec and out is not spec
+
+
+def test_unknown_generator_gets_did_you_mean():
+    issues = issues_of({"generator": "franka_fig1", "n_obstacles": 1})
+    assert list(issues) == ["tree.generator"]
+    assert "unknown tree generator 'franka_fig1'" in issues["tree.generator"]
+    assert "did you mean 'franka_fig1b'" in issues["tree.generator"]
+
+
+@needs_panda
+def test_misspelt_parameter_names_its_key_and_the_allowed_ones():
+    decl = declaration()
+    decl["n_obstacle"] = decl.pop("n_obstacles")
+    issues = issues_of(decl)
+    assert list(issues) == ["tree.n_obstacle"]
+    msg = issues["tree.n_obstacle"]
+    assert "unknown key" in msg and "allowed: control_points, n_obstacles" in msg and "did you mean 'n_obstacles'" in msg
+    nested = issues_of({**declaration(), "attractor_rmp": {"gian": 5.0}})
+    assert list(nested) == ["tree.attractor_rmp.gian"] and "gain" in nested["tree.attractor_rmp.gian"]
+
+
+@needs_panda
+@pytest.mark.parametrize("key,value,path", [
+    ("control_points", [{"link": "panda_link3", "radius": -0.1}], "tree.control_points.0.radius"),
+    ("attractor_rmp", {"gain": -5.0}, "tree.attractor_rmp.gain"),
+    ("n_obstacles", -1, "tree.n_obstacles"),
+])
+def test_out_of_range_values_are_refused_naming_the_key(key, value, path):
+    issues = issues_of({**declaration(), key: value})
+    assert list(issues) == [path] and "greater than" in issues[path]
+
+
+@needs_panda
+def test_a_control_point_on_an_unknown_link_is_refused():
+    issues = issues_of({**declaration(), "control_points": [{"link": "panda_lnk3", "radius": 0.1}]})
+    assert "did you mean 'panda_link3'" in issues["tree.control_points.0.link"]
+
+
+@needs_panda
+def test_tree_keys_beside_the_parameters_adjust_the_generated_tree():
+    tree = expand_tree({**declaration(), "shared_weights": {"cp2_obstacle": {"init_bias": 1.0}}})
+    assert tree["shared_weights"]["cp2_obstacle"] == {"type": "mlp", "hidden": [32, 32], "positivity": "exp",
+                                                      "aux": ["obstacle_center", "obstacle_radius"], "init_bias": 1.0}
+    assert "init_bias" not in tree["shared_weights"]["cp1_obstacle"]
+    issues = issues_of({**declaration(), "shared_weights": {"cp2_obstacel": {"init_bias": 1.0}}})
+    assert "did you mean 'cp2_obstacle'" in issues["tree.shared_weights.cp2_obstacel"]
+
+
+def test_a_generator_registered_from_outside_expands_the_same_way():
+    """What a plugin does: register a function with its Params; the declaration needs nothing else."""
+
+    class ChainParams(Params):
+        length: int = Field(ge=1)
+
+    @TREE_GENERATORS.register("test_damper_chain", params=ChainParams)
+    def chain(p: ChainParams) -> dict:
+        nodes = {f"n{i}": {"parent": f"n{i - 1}" if i else "q"} for i in range(p.length)}
+        nodes[f"n{p.length - 1}"]["rmp"] = {"type": "damper"}
+        return {"root": {"name": "q", "dim": 2}, "nodes": nodes}
+
+    try:
+        assert list(expand_tree({"generator": "test_damper_chain", "length": 3})["nodes"]) == ["n0", "n1", "n2"]
+        assert list(issues_of({"generator": "test_damper_chain", "length": 0})) == ["tree.length"]
+    finally:
+        TREE_GENERATORS.unregister("test_damper_chain")
