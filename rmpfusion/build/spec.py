@@ -73,7 +73,7 @@ def typed_union(registry: Registry) -> Any:
         members = tuple(Annotated[spec_model(registry, n), Tag(registry_tag(registry, n))] for n in names)
 
         def tag_of(value: Any) -> str | None:
-            t = value.get("type") if isinstance(value, Mapping) else getattr(value, "type", None)
+            t = value.get("type") if isinstance(value, Mapping) else value.type if isinstance(value, BaseModel) else None
             return registry_tag(registry, t) if isinstance(t, str) and t in names else None
 
         union = Union[members] if members else Literal["<nothing registered>"]  # type: ignore[valid-type]

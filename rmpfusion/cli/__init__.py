@@ -2,13 +2,12 @@
 
 ``rmpfusion.cli.CONF_DIR`` is the conf/ directory the commands compose from, for composing the same configs from
 Python: ``$RMPFUSION_CONF`` if set, else the conf/ of the source checkout rmpfusion is imported from (a clone or an
-editable install; see ``_common.conf_dir``). It is looked up on first use, so importing a submodule never needs it.
+editable install; see ``_common.conf_dir``). It is looked up when read, so importing a submodule never needs it.
 """
+from ._common import conf_dir
 
 
 def __getattr__(name: str):
     if name == "CONF_DIR":
-        from ._common import conf_dir
-
         return conf_dir()
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

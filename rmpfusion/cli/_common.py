@@ -15,6 +15,14 @@ from dataclasses import dataclass
 from typing import Any, Callable, Iterator
 
 import hydra
+from ..build.errors import ConfigError
+from ..registry import RegistryError
+from ..files import atomic_write_bytes
+from .rundir import RESOLVED
+from ..pipeline.validate import resolve_and_validate
+from . import logger as wandb_logger
+from ..files import remove_stale_temporaries
+from .rundir import HydraFiles, RunDirError, check_same_config, console_log, exclusive, record_environment
 
 #: Exit code of a command whose configuration is invalid (nothing was run).
 CONFIG_ERROR_EXIT = 2
@@ -51,8 +59,6 @@ def hydra_app(task: Callable[[Any], Any]) -> Callable[[], Any]:
 @contextlib.contextmanager
 def config_errors_exit() -> Iterator[None]:
     """Print configuration problems as the user should read them (paths and fixes), no traceback."""
-    from ..build.errors import ConfigError
-    from ..registry import RegistryError
 
     try:
         yield
@@ -75,8 +81,6 @@ def save_resolved(run, run_dir: Path) -> Path:
     the same directory must match, see rundir.check_same_config)."""
     import yaml
 
-    from ..files import atomic_write_bytes
-    from .rundir import RESOLVED
 
     path = run_dir / RESOLVED
     atomic_write_bytes(path, yaml.safe_dump(run.model_dump(mode="json"), sort_keys=False).encode())
@@ -105,10 +109,6 @@ def job(cfg, threads: int = 1, log: bool = True) -> Iterator[Job]:
     """
     import torch
 
-    from ..pipeline.validate import resolve_and_validate
-    from . import logger as wandb_logger
-    from ..files import remove_stale_temporaries
-    from .rundir import HydraFiles, RunDirError, check_same_config, console_log, exclusive, record_environment
 
     run_dir = hydra_run_dir()
     hydra_files = HydraFiles(run_dir)

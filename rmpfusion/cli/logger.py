@@ -14,6 +14,7 @@ import secrets
 import sys
 from pathlib import Path
 from typing import Any, Callable, Mapping
+from ..files import atomic_write_bytes
 
 
 class JobLogger:
@@ -61,7 +62,6 @@ def _run_id(run_dir: Path) -> str:
     path = run_dir / "wandb" / "run_id"
     if path.is_file() and (rid := path.read_text().strip()):
         return rid
-    from ..files import atomic_write_bytes
 
     rid = secrets.token_hex(4)
     atomic_write_bytes(path, (rid + "\n").encode())

@@ -21,6 +21,8 @@ import sys
 from importlib import metadata
 from pathlib import Path
 from typing import Any, Iterator, Mapping
+from ..pipeline.config import upgrade_run_config
+from ..files import atomic_write_json
 
 #: the resolved, validated configuration of the run that owns a directory (written by save_resolved)
 RESOLVED = "config.resolved.yaml"
@@ -72,7 +74,6 @@ def check_same_config(resolved: Mapping[str, Any], run_dir: Path) -> None:
     except Exception as e:  # noqa: BLE001 - any unreadable file gets the same advice
         raise RunDirError(f"{run_dir} holds a run whose saved configuration {saved} is unreadable "
                           f"({type(e).__name__}: {e}); nothing was changed. {fix}") from e
-    from ..pipeline.config import upgrade_run_config
 
     old = upgrade_run_config(old)  # a run saved before a key was renamed (train.lr_final) still resumes
     strip = lambda c: {k: v for k, v in c.items() if k not in MAY_DIFFER}  # noqa: E731
@@ -219,7 +220,6 @@ def record_environment(run_dir: Path, threads: int | None = None) -> dict[str, A
     warns when the packages changed in between (the numbers may then differ from an uninterrupted run)."""
     import json
 
-    from ..files import atomic_write_json
 
     rec = environment(threads)
     path = run_dir / VERSIONS

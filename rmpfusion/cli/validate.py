@@ -9,6 +9,7 @@ from omegaconf import DictConfig
 
 from ..evaluate.weights import learned_edges
 from ._common import config_errors_exit, hydra_app
+from ..pipeline.validate import build_all, resolve_and_validate
 
 
 def summary(run, env, expert, learners) -> str:
@@ -38,7 +39,6 @@ def summary(run, env, expert, learners) -> str:
 
 @hydra_app
 def main(cfg: DictConfig) -> None:
-    from ..pipeline.validate import build_all, resolve_and_validate
 
     with config_errors_exit():
         run = resolve_and_validate(cfg)

@@ -76,8 +76,9 @@ class NumericalError(FloatingPointError):
 
     def __init__(self, message: str, where: str | None = None, samples: list[int] | None = None):
         super().__init__(message)
-        self.where = where if where is not None else getattr(message, "where", None)
-        self.samples = samples if samples is not None else getattr(message, "samples", None)
+        diagnosis = message if isinstance(message, _Diagnosis) else None
+        self.where = where if where is not None or diagnosis is None else diagnosis.where
+        self.samples = samples if samples is not None or diagnosis is None else diagnosis.samples
 
 
 class _Diagnosis(str):
@@ -125,7 +126,7 @@ class BoundWeight(nn.Module):
 
     @property
     def is_constant(self) -> bool:
-        return bool(getattr(self.fn, "is_constant", False))
+        return bool(self.fn.is_constant)
 
     def forward(self, x: Tensor, aux: AuxDict | None):
         if self.bind and aux is not None:
@@ -160,7 +161,7 @@ class RMPTree(nn.Module):
         self.node_dims = {self.root_name: self.dim, **{n: maps[n].out_dim for n in layout.parents}}
         first: dict[tuple, str] = {}
         for n in self.order:  # maps that share a computation also share its modules
-            key = getattr(self.maps[n], "shared_key", None)
+            key = self.maps[n].shared_key
             if key is not None:
                 k = (self.parent_of[n], key)
                 if k in first:

@@ -54,8 +54,7 @@ def evaluate_policy(policy: Callable[..., Any], q: Tensor, qd: Tensor,
     out = policy(q, qd, aux)
     if isinstance(out, Tensor):
         return out, None, None
-    Bm = getattr(out, "B", None)
-    return out.qdd, getattr(out, "V", None), quad(qd, Bm) if Bm is not None else None
+    return out.qdd, out.V, quad(qd, out.B)
 
 
 def time_grid(horizon: float, record_every: float, dt: float, step: str = "dt") -> tuple[int, int]:

@@ -24,6 +24,7 @@ from ..maps.urdf import PANDA_ARM_JOINTS, load_panda_urdf_path, parse_urdf
 from ..registry import TREE_GENERATORS, Params
 from ..rmps.gds_leaves import CollisionAvoidance, Damper, GoalAttractor, IdentityMetric, JointLimitBarrier
 from ..weights.neural import MLPWeight
+from ..maps.kinematics import Chain
 
 # Spheres covering the Panda's collision meshes from link3 to the closed fingers, in each link's frame:
 # a k-means fit of the mesh vertices, each radius covering its cluster (rounded up by ~5 mm).
@@ -226,7 +227,6 @@ def franka_tree_spec(
 
 
 def _panda_limits():
-    from ..maps.kinematics import Chain
 
     return Chain(parse_urdf(load_panda_urdf_path()), PANDA_ARM_JOINTS).joint_limits()
 

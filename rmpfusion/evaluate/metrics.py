@@ -13,6 +13,7 @@ from torch import Tensor, nn
 from ..envs.protocol import HasRatioMetrics, HasTaskMetrics
 from ..envs.rollout import Rollout
 from .lyapunov import lyapunov_monotone
+from .lyapunov import max_relative_increase
 
 
 @dataclass
@@ -179,7 +180,6 @@ def task_stage(label: str, rollout: Rollout, env: HasTaskMetrics, expert: "Stage
                atol: float = 1e-9, learner: str | None = None, iteration: int | None = None) -> StageResult:
     """The env's task metrics of ``rollout`` summarised, the ratios to ``expert`` if given, and the Lyapunov
     monitor per trajectory (fraction monotone, worst relative increase) when the rollout recorded V_r."""
-    from .lyapunov import max_relative_increase
 
     per = {k: v.detach() for k, v in env.task_metrics(rollout).items()}
     ratios = None

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import torch
+from pydantic import BaseModel
 
 from ..envs.demonstrations import Dataset, load_dataset, save_dataset
 from .config import RunConfig
@@ -46,7 +47,7 @@ def data_hash(run: RunConfig) -> str:
 
 
 def _plain(weights) -> dict:
-    return {k: (w.model_dump() if hasattr(w, "model_dump") else w) for k, w in weights.items()}
+    return {k: (w.model_dump() if isinstance(w, BaseModel) else w) for k, w in weights.items()}
 
 
 def _trajectory_seconds(ds: Dataset) -> dict[str, float]:

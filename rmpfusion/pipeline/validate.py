@@ -147,7 +147,7 @@ def _expert_issues(run: RunConfig) -> list[Issue]:
 
 def _learner_weight_blocks(name: str, learner: Any) -> list[tuple[str, Any]]:
     """Weight specs a learner will put on the tree: validated against WEIGHTS like the tree's own."""
-    w = learner.get("weights") if isinstance(learner, Mapping) else getattr(learner, "weights", None)
+    w = (learner if isinstance(learner, Mapping) else learner.model_dump()).get("weights")
     if isinstance(w, Mapping) and w.get("aux") == "all":  # the learner expands it to every env aux name
         w = {**w, "aux": []}
     return [(f"learners.{name}.weights", w)] if isinstance(w, Mapping) else []
@@ -158,14 +158,15 @@ def _learner_issues(run: RunConfig) -> list[Issue]:
     nodes = run.tree.nodes
     issues = []
     for name, learner in run.learners.items():
-        for path, w in _learner_weight_blocks(name, learner):
+        block = learner.model_dump()  # learners of different types carry different keys
+        for path, w in _learner_weight_blocks(name, block):
             issues += check_typed(w, WEIGHTS, path)[1]
-        ref = getattr(learner, "match_parameters_of", None)
+        ref = block.get("match_parameters_of")
         if ref is not None and ref not in run.learners:
             issues.append(Issue(f"learners.{name}.match_parameters_of",
                                 f"no learner named '{ref}'; {_close(ref, list(run.learners))}"
                                 f"learners: {_listing(run.learners)}"))
-        for i, e in enumerate(getattr(learner, "edges", None) or []):
+        for i, e in enumerate(block.get("edges") or []):
             if e not in nodes:
                 issues.append(Issue(f"learners.{name}.edges[{i}]", f"'{e}' is not a node of the tree; "
                                                                     f"{_close(e, list(nodes))}nodes: {_listing(nodes)}"))

@@ -1,4 +1,4 @@
-"""Figures of the 2D experiments (paper Fig. 3, 4, 7, 8) as PNG files; matplotlib runs headless (Agg)."""
+"""Figures as PNG files, drawn off-screen on matplotlib Figures (no pyplot: importing them never picks a backend)."""
 from .figures import (  # noqa: F401
     plot_learning_curves,
     plot_lyapunov,

@@ -6,17 +6,13 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
-import matplotlib
+import numpy as np
+import torch
+from matplotlib.patches import Circle
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import torch  # noqa: E402
-from matplotlib.patches import Circle  # noqa: E402
-
-from ..envs.protocol import Renders  # noqa: E402
-from ..files import atomic_path  # noqa: E402
-from .figures import _np, save_figure  # noqa: E402
+from ..envs.protocol import Renders
+from ..files import atomic_path
+from .figures import _np, save_figure, subplots
 
 METRIC_LABELS = {"time": "time", "cspace_length": "conf length", "ee_length": "end eff length",
                  "goal_distance": "goal distance", "timeout_goal_distance": "goal distance\nat time-out",
@@ -30,7 +26,7 @@ def plot_ratio_bars(path, ratios: Mapping[str, Mapping[str, Mapping[str, float]]
     = their standard deviation; the expert is the dotted line at 1. ``ratios[label][metric] = {mean, std}``."""
     labels = list(ratios)
     metrics = list(metrics or (next(iter(ratios.values())).keys() if ratios else []))
-    fig, ax = plt.subplots(figsize=(1.6 + 1.5 * len(metrics), 3.4))
+    fig, ax = subplots(figsize=(1.6 + 1.5 * len(metrics), 3.4))
     n = max(len(labels), 1)
     width = 0.8 / n
     x = np.arange(len(metrics))
@@ -63,7 +59,7 @@ def plot_goal_distances(path, policies: Sequence[Any], title: str = "") -> Path:
     and the closest it came, mean ± std over the test trajectories, on a log scale, with the 0.05 m precision
     at which an execution counts as reached."""
     keys = (("timeout_goal_distance", "at the time-out"), ("min_goal_distance", "closest"))
-    fig, ax = plt.subplots(figsize=(1.8 + 1.1 * len(policies), 3.4))
+    fig, ax = subplots(figsize=(1.8 + 1.1 * len(policies), 3.4))
     width = 0.8 / len(keys)
     x = np.arange(len(policies))
     for j, (key, label) in enumerate(keys):
@@ -86,7 +82,7 @@ def plot_lyapunov_stages(path, panels: Sequence[Mapping[str, Any]], title: str =
     """Paper Fig. 6e: one panel per policy with V_r(t) of every test trajectory (thin) and of the rendered
     example (thick). ``panels`` items: ``{"label", "times" (T,), "V" (T, B), "highlight": int}``."""
     n = len(panels)
-    fig, axes = plt.subplots(1, n, figsize=(2.8 * n, 2.7), squeeze=False)
+    fig, axes = subplots(1, n, figsize=(2.8 * n, 2.7), squeeze=False)
     for ax, p in zip(axes[0], panels):
         t, V = _np(p["times"]), _np(p["V"])
         ax.plot(t, V, lw=0.6, color="0.6")
@@ -108,7 +104,7 @@ def plot_render_strip(path, rows: Sequence[Mapping[str, Any]], title: str = "") 
     n_rows = len(rows)
     n_cols = max(len(r["frames"]) for r in rows) if rows else 1
     h, w = rows[0]["frames"][0]["image"].shape[:2]
-    fig, axes = plt.subplots(n_rows, n_cols, figsize=(1.9 * n_cols * w / h, 1.9 * n_rows), squeeze=False)
+    fig, axes = subplots(n_rows, n_cols, figsize=(1.9 * n_cols * w / h, 1.9 * n_rows), squeeze=False)
     for i, r in enumerate(rows):
         for j in range(n_cols):
             ax = axes[i, j]
@@ -139,7 +135,7 @@ def plot_render_strip(path, rows: Sequence[Mapping[str, Any]], title: str = "") 
 
 def plot_ee_paths(path, aux: Mapping[str, torch.Tensor], paths: Mapping[str, Any], title: str = "") -> Path:
     """End-effector paths of one test execution seen from above (x-y), obstacles as discs, goal as a star."""
-    fig, ax = plt.subplots(figsize=(4.6, 4.6))
+    fig, ax = subplots(figsize=(4.6, 4.6))
     k = 1
     while f"obstacle{k}_center" in aux:
         c = _np(aux[f"obstacle{k}_center"]).reshape(-1)[:2]

@@ -1,0 +1,116 @@
+"""The layer contract of docs/architecture.md, checked on the source: every module imports only from its own
+layer or below, never from inside a function, and core/ is torch alone."""
+from __future__ import annotations
+
+import ast
+import pathlib
+
+import pytest
+
+PACKAGE = pathlib.Path(__file__).resolve().parents[1] / "rmpfusion"
+
+#: Bottom to top. Folders of one rank that must not import each other are listed in SIDE_BY_SIDE.
+RANK = {"core": 0, "files": 0,
+        "registry": 1, "maps": 1, "rmps": 1, "weights": 1,
+        "build": 2, "envs": 3, "learn": 4, "evaluate": 4, "plots": 5, "pipeline": 6, "cli": 7}
+SIDE_BY_SIDE = {frozenset({"learn", "evaluate"})}
+#: what core/ may import besides itself: the math needs torch and the standard library only
+CORE_ALLOWED = {"torch", "__future__", "collections", "dataclasses", "logging", "math", "types", "typing", "warnings"}
+
+
+def _layer(module: str) -> str | None:
+    """``rmpfusion.envs.franka.env`` -> ``envs``; the package root (its façade) has none."""
+    parts = module.split(".")
+    return parts[1] if len(parts) > 1 else None
+
+
+def _module_of(path: pathlib.Path) -> str:
+    rel = path.relative_to(PACKAGE.parent).with_suffix("")
+    parts = list(rel.parts)
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def _target(module: str, is_package: bool, node: ast.ImportFrom) -> str:
+    if node.level == 0:
+        return node.module or ""
+    base = module.split(".") if is_package else module.split(".")[:-1]
+    base = base[: len(base) - (node.level - 1)]
+    return ".".join(base + ([node.module] if node.module else []))
+
+
+def violations(module: str, source: str, is_package: bool = False) -> list[str]:
+    """Every import of ``module`` (given its source) that breaks the layer contract, said in one line each."""
+    tree, here = ast.parse(source), _layer(module)
+    inside_functions = {id(n) for f in ast.walk(tree) if isinstance(f, (ast.FunctionDef, ast.AsyncFunctionDef))
+                        for n in ast.walk(f)}
+    out = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom):
+            targets = [_target(module, is_package, node)]
+            if node.level and not node.module:  # ``from . import x``: x are modules of the package
+                targets = [f"{targets[0]}.{a.name}" for a in node.names]
+        elif isinstance(node, ast.Import):
+            targets = [a.name for a in node.names]
+        else:
+            continue
+        for t in targets:
+            own = t == "rmpfusion" or t.startswith("rmpfusion.")
+            if here == "core" and not own and t.split(".")[0] not in CORE_ALLOWED:
+                out.append(f"{module}:{node.lineno} core imports {t} (core/ is torch and the standard library only)")
+            if not own or here is None:
+                continue
+            if id(node) in inside_functions:
+                out.append(f"{module}:{node.lineno} imports {t} inside a function (import at the top)")
+            there = _layer(t)
+            if there is None or there not in RANK or here not in RANK:
+                if there is not None and here is not None and there != here:
+                    out.append(f"{module}:{node.lineno} imports {t}, a folder without a layer (add it to RANK)")
+                continue
+            if RANK[there] > RANK[here]:
+                out.append(f"{module}:{node.lineno} imports {t}: {there}/ is above {here}/")
+            elif there != here and frozenset({here, there}) in SIDE_BY_SIDE:
+                out.append(f"{module}:{node.lineno} imports {t}: {there}/ and {here}/ sit side by side")
+    return out
+
+
+def _sources():
+    for path in sorted(PACKAGE.rglob("*.py")):
+        yield _module_of(path), path.read_text(), path.name == "__init__.py"
+
+
+def test_every_folder_has_a_layer():
+    folders = {p.name for p in PACKAGE.iterdir() if p.is_dir() and (p / "__init__.py").exists()}
+    modules = {p.stem for p in PACKAGE.glob("*.py") if p.stem != "__init__"}
+    assert folders | modules <= set(RANK), f"no layer for {sorted((folders | modules) - set(RANK))}"
+
+
+def test_the_package_keeps_its_layers():
+    found = [v for module, source, pkg in _sources() for v in violations(module, source, pkg)]
+    assert not found, "\n".join(found)
+
+
+@pytest.mark.parametrize("module,source,expected", [
+    ("rmpfusion.core.tree", "from ..build.tree import build_tree\n", "build/ is above core/"),
+    ("rmpfusion.envs.particle2d", "from ..plots import plot_trajectories\n", "plots/ is above envs/"),
+    ("rmpfusion.evaluate.metrics", "from ..learn.objectives import dataset_loss\n", "side by side"),
+    ("rmpfusion.build.tree", "def f():\n    from ..maps import basic\n", "inside a function"),
+    ("rmpfusion.core.gds", "import pydantic\n", "core imports pydantic"),
+    ("rmpfusion.maps.basic", "import rmpfusion.pipeline.run\n", "pipeline/ is above maps/"),
+])
+def test_a_deliberate_breach_is_caught(module, source, expected):
+    """The checker is not vacuous: each kind of breach, written into a module, is reported."""
+    found = violations(module, source)
+    assert any(expected in v for v in found), found
+
+
+def test_importing_the_package_chooses_no_plotting_backend():
+    """Nothing happens at import: importing every layer leaves matplotlib's backend choice to the user."""
+    import subprocess
+    import sys
+
+    code = ("import rmpfusion, rmpfusion.pipeline.run, rmpfusion.cli.run, sys; "
+            "print('matplotlib.pyplot' in sys.modules)")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
+                       env={"RMPFUSION_CONF": "/nonexistent", "PATH": "/usr/bin:/bin"})
+    assert r.returncode == 0, r.stderr  # and no conf/ lookup at import either: RMPFUSION_CONF points nowhere
+    assert r.stdout.strip() == "False"

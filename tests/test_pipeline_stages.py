@@ -1,0 +1,52 @@
+"""The staged pipeline: running collect, fit, evaluate and report one at a time in one directory gives the
+metrics of one ``run_experiment``, and an evaluation before training is refused with what to run."""
+from __future__ import annotations
+
+import json
+import pathlib
+import sys
+
+import pytest
+from hydra import compose, initialize_config_dir
+
+from rmpfusion.pipeline.collect import collect
+from rmpfusion.pipeline.fit import NotTrainedError, fit
+from rmpfusion.pipeline.run import evaluate_and_report, run_experiment, start
+from rmpfusion.pipeline.validate import resolve_and_validate
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tools"))
+from compare_metrics import compare  # noqa: E402
+
+TINY = ["experiment=2d2level_unstructured", "data=tiny", "train=tiny", "eval=fast", "logger=disabled"]
+
+
+def _run_config(overrides=()):
+    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
+        return resolve_and_validate(compose("config", overrides=[*TINY, *overrides]))
+
+
+def test_stages_one_at_a_time_give_the_metrics_of_one_run(tmp_path):
+    run = _run_config()
+    whole = run_experiment(run, tmp_path / "whole", progress=False)
+
+    staged_dir = tmp_path / "staged"
+    collect(start(run, staged_dir, progress=False))  # rmpfusion-collect
+    exp = start(run, staged_dir, progress=False)  # rmpfusion-train: a new process would rebuild all of this
+    fit(exp, collect(exp))
+    exp = start(run, staged_dir, progress=False)  # rmpfusion-evaluate
+    splits = collect(exp)
+    staged = evaluate_and_report(exp, splits, fit(exp, splits, require_trained=True), started=0.0)
+
+    n, worst, differ, one_sided = compare(whole, staged, rtol=0.0)
+    assert n > 50 and not differ and not one_sided, (differ, one_sided)
+    assert set(whole["learners"]) == {"rmp", "un", "un_large"}  # both kinds of learner went through every stage
+    assert json.loads((staged_dir / "metrics.json").read_text())["learners"]["rmp"]["resumed_from"] == 3
+
+
+def test_evaluating_before_training_says_what_to_run(tmp_path):
+    exp = start(_run_config(), tmp_path, progress=False)
+    with pytest.raises(NotTrainedError, match=r"no fully trained checkpoints for \['rmp', 'un', 'un_large'\].*"
+                                              r"run rmpfusion-train with the same overrides"):
+        fit(exp, collect(exp), require_trained=True)
+    assert not (tmp_path / "checkpoints").exists()  # nothing was trained

@@ -1,0 +1,80 @@
+"""Compare two runs' metrics.json number by number: did a change keep the results?
+
+    python tools/compare_metrics.py outputs/a/metrics.json outputs/b/metrics.json [--rtol 1e-12]
+
+Every number present in both files is compared (nested keys flattened to paths like
+``learners.rmp.snapshots.60.online_loss``), except what says how a run went rather than what it found:
+wall-clock times, file paths, whether data was reused or training resumed, and the config hash (which
+changes with the config's spelling, not its meaning). Dataset checksums are compared: equal checksums mean
+bit-identical demonstrations. Prints the count compared, the largest relative difference, every number
+that differs beyond ``--rtol`` and every key only one side has; exits 1 when any number differs.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+from typing import Any, Iterator
+
+#: keys about how the run went (time, places, resumption), not about what it found
+IGNORED = {"timing", "train_seconds", "eval_seconds", "seconds", "path", "figures", "config_hash", "reused",
+           "resumed_from"}
+
+
+def leaves(x: Any, prefix: str = "") -> Iterator[tuple[str, Any]]:
+    """(path, value) of every scalar below ``x``, skipping the IGNORED keys."""
+    if isinstance(x, dict):
+        for k, v in x.items():
+            if k not in IGNORED:
+                yield from leaves(v, f"{prefix}.{k}" if prefix else str(k))
+    elif isinstance(x, list):
+        for i, v in enumerate(x):
+            yield from leaves(v, f"{prefix}[{i}]")
+    else:
+        yield prefix, x
+
+
+def relative_difference(a: Any, b: Any) -> float:
+    """|a − b| / max(|a|, |b|) for numbers (0 when both are equal, NaN-equal or both null); inf when unequal
+    non-numbers."""
+    if isinstance(a, bool) or isinstance(b, bool) or not isinstance(a, (int, float)) or not isinstance(b, (int, float)):
+        return 0.0 if a == b else math.inf
+    if a == b or (math.isnan(a) and math.isnan(b)):
+        return 0.0
+    return abs(a - b) / max(abs(a), abs(b))
+
+
+def compare(a: dict, b: dict, rtol: float) -> tuple[int, float, list[str], list[str]]:
+    """(numbers compared, largest relative difference, lines for differing numbers, lines for one-sided keys)."""
+    la, lb = dict(leaves(a)), dict(leaves(b))
+    shared = [k for k in la if k in lb]
+    worst, differ = 0.0, []
+    for k in shared:
+        d = relative_difference(la[k], lb[k])
+        worst = max(worst, d)
+        if d > rtol:
+            differ.append(f"  {k}: {la[k]!r} vs {lb[k]!r} (relative {d:.3g})")
+    one_sided = [f"  only in the first: {k}" for k in la if k not in lb] + \
+                [f"  only in the second: {k}" for k in lb if k not in la]
+    return len(shared), worst, differ, one_sided
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("first", type=Path)
+    ap.add_argument("second", type=Path)
+    ap.add_argument("--rtol", type=float, default=1e-12, help="largest relative difference counted as equal")
+    args = ap.parse_args(argv)
+    a, b = (json.loads(p.read_text()) for p in (args.first, args.second))
+    n, worst, differ, one_sided = compare(a, b, args.rtol)
+    print(f"{n} values compared, largest relative difference {worst:.3g}; {len(differ)} differ beyond "
+          f"rtol={args.rtol:g}; {len(one_sided)} keys on one side only")
+    for line in differ + one_sided:
+        print(line)
+    return 1 if differ else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
