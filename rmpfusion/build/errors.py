@@ -127,8 +127,8 @@ def _message(e: Mapping[str, Any], model: type | None) -> tuple[str, str]:
     msg = e["msg"]
     if kind == "value_error" and msg.startswith("Value error, "):
         msg = msg[len("Value error, "):]
-    if "given" in msg or "input" not in e:
-        return "", msg
+    if "given" in msg or "input" not in e or (isinstance(e["input"], str) and f"'{e['input']}'" in msg):
+        return "", msg  # the message already says what was given
     return "", f"{msg} (given: {_show(e['input'])})"
 
 

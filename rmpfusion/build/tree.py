@@ -20,8 +20,8 @@ def _build(registry, block, *args) -> nn.Module:
 class _Builder:
     """Builds one tree's modules in pushforward order, collecting every problem with its YAML path."""
 
-    def __init__(self, ts: TreeSpec, where: str):
-        self.ts, self.where = ts, where
+    def __init__(self, ts: TreeSpec, where: str, weight_paths: Mapping[str, str]):
+        self.ts, self.where, self.weight_paths = ts, where, dict(weight_paths)
         self.aux = dict(ts.aux)
         self.dims = {ts.root.name: ts.root.dim}
         self.maps: dict[str, nn.Module] = {}
@@ -49,9 +49,15 @@ class _Builder:
             try:
                 self.weights[n] = self.weight(nd.weight, in_dim)
             except Exception as e:  # noqa: BLE001
-                self.issues.append(Issue(f"{p}.weight", str(e)))
+                self.issues.append(self.weight_issue(n, str(e)))
         if nd.rmp is not None:
             self.leaf(n, nd.rmp, p)
+
+    def weight_issue(self, n: str, message: str) -> Issue:
+        """A weight's problem at the config path it was written at: the node's, or the expert's or learner's
+        block that put it there (``weight_paths``), naming the edge when that path does not."""
+        path = self.weight_paths.get(n, f"{self.where}.nodes.{n}.weight")
+        return Issue(path, message if n in path.split(".") else f"on edge '{n}': {message}")
 
     def weight(self, spec, in_dim: int) -> BoundWeight:
         ref = shared_ref(spec)
@@ -92,6 +98,7 @@ def build_tree(
     where: str = "tree",
     resolve_method: str = "solve",
     check_finite: bool = True,
+    weight_paths: Mapping[str, str] | None = None,
 ) -> RMPTree:
     """Validate a tree spec (docs/architecture.md §2) and assemble its modules through the registries.
 
@@ -102,11 +109,14 @@ def build_tree(
     Every registered class builds its constants in float64 from the spec's Python numbers
     (``rmpfusion.core.auxstate.constant``); the built tree is then cast to ``dtype``, so a constant is rounded
     at most once, to the dtype the tree computes in.
+
+    ``weight_paths`` names where the weight of a node was written when that is not the tree's own node (the
+    expert's ``expert.<node>``, a learner's ``learners.<name>.weights``), so its problems are reported there.
     """
     ts = validate_tree_spec(spec, where)
     if aux_dims:
         ts = ts.model_copy(update={"aux": {**ts.aux, **dict(aux_dims)}})
-    b = _Builder(ts, where)
+    b = _Builder(ts, where, weight_paths or {})
     b.unused_shared()
     children: dict[str, list[str]] = {}
     for n, nd in ts.nodes.items():

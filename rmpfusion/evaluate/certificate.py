@@ -18,6 +18,7 @@ from typing import Any, Mapping
 import torch
 from torch import Tensor
 
+from ..core.gds import quad
 from ..core.tree import RMPTree
 
 
@@ -94,7 +95,7 @@ def certify(tree: RMPTree, q: Tensor, qd: Tensor, aux=None, eps: float = 1e-6, r
     finally:
         tree.check_finite = was
     dVdt = (Vp - Vm) / (2 * eps)
-    diss = torch.einsum("bi,bij,bj->b", qd, out.B, qd)
+    diss = quad(qd, out.B)
     err = (dVdt + diss).abs() / (1 + diss.abs())
     ident = (err <= rtol) & finite
     dissipative = (diss >= -1e-12 * (1 + diss.abs())) & finite

@@ -37,21 +37,26 @@ class RMPLearner(Learner):
             default_factory=dict, description="per-edge keys merged over `weights`, e.g. "
                                               "{obstacle1: {aux: [obstacle1_center, obstacle1_radius]}}")
 
+    @classmethod
+    def from_params(cls, params: Params, tree_spec: Mapping[str, Any] | None, aux_dims: Mapping[str, int], dim: int,
+                    expert: Mapping[str, Any] | None = None, built=None, where: str = "learners.rmp") -> "RMPLearner":
+        return cls(params, tree_spec, aux_dims, dim, expert=expert, where=where)
+
     def __init__(self, params: Params, tree_spec: Mapping[str, Any], aux_dims: Mapping[str, int], dim: int,
-                 expert: Mapping[str, Any] | None = None):
+                 expert: Mapping[str, Any] | None = None, where: str = "learners.rmp"):
         super().__init__()
         self.params = params
         edges = list(params.edges) if params.edges is not None else self.default_edges(tree_spec, expert)
         stray = [e for e in params.edge_weights if e not in edges]
         if stray:
-            raise ConfigError([Issue(f"learners.rmp.edge_weights.{e}",
+            raise ConfigError([Issue(f"{where}.edge_weights.{e}",
                                      f"'{e}' is not a learned edge; learned edges: {', '.join(edges)} "
-                                     "(add it to learners.rmp.edges or remove the entry)") for e in stray])
+                                     f"(add it to {where}.edges or remove the entry)") for e in stray])
         per_edge = {e: expand_aux({**params.weights, **params.edge_weights.get(e, {})}, aux_dims) for e in edges}
-        spec = tree_with_weights(tree_spec, per_edge, where="learners.rmp.edges")
+        spec = tree_with_weights(tree_spec, per_edge, where=f"{where}.edges")
         self.edges = edges
         # registered as the submodule "tree" (state_dict keys tree.…); read back through the ``tree`` property
-        self.tree = build_tree(spec, aux_dims=dict(aux_dims))
+        self.tree = build_tree(spec, aux_dims=dict(aux_dims), weight_paths={e: f"{where}.weights" for e in edges})
         if self.tree.dim != dim:
             raise ValueError(f"the tree's root has dimension {self.tree.dim} but the environment has {dim}")
 

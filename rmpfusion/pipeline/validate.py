@@ -102,10 +102,7 @@ def parse_run_config(data: Mapping[str, Any]) -> RunConfig:
     try:
         return model.model_validate(dict(data))
     except ValidationError as e:
-        found = issues_from_pydantic(e, "", model)
-        found = [Issue(i.path, f"{i.message} (allowed: {', '.join(RunConfig.model_fields)})")
-                 if "unknown key" in i.message and "." not in i.path else i for i in found]
-        raise ConfigError(_dedupe(found)) from None
+        raise ConfigError(_dedupe(issues_from_pydantic(e, "", model))) from None
 
 
 def typed(run: RunConfig) -> RunConfig:
@@ -253,15 +250,8 @@ def expert_spec(run: RunConfig) -> dict:
 
 def build_expert(run: RunConfig, aux_dims: Mapping[str, int]) -> RMPTree:
     """The expert tree; a problem with one of the expert's weights is reported at ``expert.<name>``."""
-    try:
-        return build_tree(expert_spec(run), aux_dims=aux_dims)
-    except ConfigError as e:
-        issues = []
-        for i in e.issues:
-            head = i.path.split(".weight")[0][len("tree.nodes."):]
-            own = i.path.startswith("tree.nodes.") and i.path.endswith(".weight") and head in run.expert
-            issues.append(Issue(f"expert.{head}", i.message) if own else i)
-        raise ConfigError(issues) from None
+    return build_tree(expert_spec(run), aux_dims=aux_dims,
+                      weight_paths={n: f"expert.{n}" for n in run.expert if n in run.tree.nodes})
 
 
 def build_learners(run: RunConfig, aux_dims: Mapping[str, int], seeded=None) -> dict:
@@ -278,7 +268,7 @@ def build_learners(run: RunConfig, aux_dims: Mapping[str, int], seeded=None) -> 
                 built[n] = build_learner(blocks[n], tree, aux_dims, run.tree.root.dim, expert=expert,
                                          built=built, where=f"learners.{n}")
         except ConfigError as e:
-            issues += [_learner_issue(n, i) for i in e.issues]
+            issues += e.issues
         except (ValueError, KeyError, TypeError) as e:
             issues.append(Issue(f"learners.{n}", str(e)))
     if issues:
@@ -288,14 +278,6 @@ def build_learners(run: RunConfig, aux_dims: Mapping[str, int], seeded=None) -> 
 
 def _plain(w: Any) -> Any:
     return w.model_dump() if isinstance(w, BaseModel) else w
-
-
-def _learner_issue(name: str, i: Issue) -> Issue:
-    """The learner's weights on an edge: name the learner's own key."""
-    if i.path.startswith("tree.nodes.") and i.path.endswith(".weight"):
-        edge = i.path[len("tree.nodes."):-len(".weight")]
-        return Issue(f"learners.{name}.weights", f"on edge '{edge}': {i.message}")
-    return i
 
 
 def _build_issues(run: RunConfig, aux_dims: Mapping[str, int]) -> list[Issue]:
