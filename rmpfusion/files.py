@@ -96,6 +96,20 @@ def load_error_cause(e: BaseException) -> str:
     return f"{type(e).__name__}: {first}"
 
 
+def torch_file_format(path: Path) -> str | None:
+    """The ``format`` tag of a torch file this package wrote (dataset, checkpoint), None for anything else:
+    tells what a file is before deciding which error, if any, to give about it."""
+    import torch
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            payload = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception:  # noqa: BLE001 - not a torch file we can read: no format
+        return None
+    return payload.get("format") if isinstance(payload, dict) else None
+
+
 def read_torch_file(path: Path, what: str, fix: str, error: type[Exception], fmt: str | None = None,
                     missing: str | None = None) -> dict:
     """``torch.load`` (weights only) of a file this package wrote, every failure as ``error`` naming the file.

@@ -21,13 +21,18 @@ PLUGIN_GROUP = "rmpfusion.plugins"
 
 
 class Params(BaseModel):
-    """Base of every entry's parameter model: unknown keys are errors, values are immutable."""
+    """Base of every entry's parameter model: unknown keys are errors, values are immutable, and no number
+    is infinite or NaN (a gain or radius of .inf passes ``gt=0`` but means nothing)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class RegistryError(LookupError):
     """An unknown or clashing registry name."""
+
+
+class PluginError(ImportError):
+    """A plugin named in the ``rmpfusion.plugins`` entry points failed to import; its own error is the cause."""
 
 
 @dataclass(frozen=True)
@@ -137,7 +142,8 @@ class PluginLoader:
             except RegistryError:
                 raise
             except Exception as e:  # a broken plugin must say which one it is
-                raise ImportError(f"rmpfusion plugin '{ep.name}' ({ep.value}) failed to load: {e}") from e
+                raise PluginError(f"rmpfusion plugin '{ep.name}' ({ep.value}) failed to load: "
+                                  f"{type(e).__name__}: {e}") from e
 
 
 #: The plugins of the default registries (``rmpfusion.plugins`` entry points).

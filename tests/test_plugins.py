@@ -78,3 +78,53 @@ def test_plugin_rmp_in_process(plugin_site, monkeypatch):
     q = torch.tensor([[1.0, -2.0]], dtype=torch.float64)
     out = tree(q, torch.zeros_like(q))
     torch.testing.assert_close(out.qdd, -2.0 * q)
+
+
+def _readme_leaf_recipe() -> str:
+    """The README's leaf-RMP plugin code, verbatim, without the line that only lets the README run it twice."""
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    section = readme[readme.index("## Adding an RMP as a plugin"):]
+    code = section[section.index("```python\n") + len("```python\n"):]
+    code = code[:code.index("```")]
+    assert "class MySpring(GDS)" in code and "def curvature" not in code  # curvature terms left to autodiff
+    return "\n".join(line for line in code.splitlines() if not line.startswith("LEAF_RMPS.unregister"))
+
+
+@pytest.fixture(scope="session")
+def readme_plugin_site(tmp_path_factory) -> Path:
+    """The README's recipe as a fresh package, declared through the entry point the README shows, pip-installed."""
+    root = tmp_path_factory.mktemp("readme_plugin")
+    pkg = root / "src" / "rmpfusion_myspring"
+    pkg.mkdir(parents=True)
+    (pkg / "__init__.py").write_text(_readme_leaf_recipe() + "\n")
+    (root / "src" / "pyproject.toml").write_text(
+        '[build-system]\nrequires = ["setuptools"]\nbuild-backend = "setuptools.build_meta"\n\n'
+        '[project]\nname = "rmpfusion-myspring"\nversion = "0.1"\n\n'
+        '[project.entry-points."rmpfusion.plugins"]\nmy_spring = "rmpfusion_myspring"\n\n'
+        '[tool.setuptools]\npackages = ["rmpfusion_myspring"]\n')
+    site = root / "site"
+    subprocess.run([sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--no-build-isolation",
+                    "--target", str(site), str(root / "src")], check=True, capture_output=True, timeout=300)
+    return site
+
+
+@pytest.mark.slow
+def test_readme_leaf_recipe_runs_compiled_at_every_batch_size_like_eager(readme_plugin_site, tmp_path):
+    """A leaf with autodiff curvature, in the default pipeline with compilation on (training and evaluation see
+    several batch sizes): the run completes, says once per tree how it compiles, and equals the eager run."""
+    leaf = ["~tree.nodes.goal.rmp", "+tree.nodes.goal.rmp.type=my_spring", "data=tiny", "train=tiny", "logger=disabled"]
+    compiled = _cli(readme_plugin_site, "rmpfusion.cli.run", *leaf, "+train.compile=true", "eval.compile=true",
+                    f"hydra.run.dir={tmp_path / 'compiled'}", timeout=900)
+    assert compiled.returncode == 0, compiled.stderr[-3000:]
+    assert "Traceback" not in compiled.stderr and "storage_offset" not in compiled.stderr
+    assert "compiles once per batch size (static shapes), with the same numbers" in compiled.stderr
+    eager = _cli(readme_plugin_site, "rmpfusion.cli.run", *leaf, "eval.compile=false",
+                 f"hydra.run.dir={tmp_path / 'eager'}", timeout=600)
+    assert eager.returncode == 0, eager.stderr[-3000:]
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
+    from compare_metrics import compare
+
+    import json
+    n, worst, differ, _ = compare(*(json.loads((tmp_path / d / "metrics.json").read_text()) for d in ("compiled", "eager")),
+                                  rtol=1e-9)
+    assert n > 20 and not differ, differ

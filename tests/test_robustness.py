@@ -795,6 +795,105 @@ def _diverged(tmp_path, monkeypatch):
     return f"online_loss = {res.loss}, success = {rates['success']}, collision = {rates['collision']}"
 
 
+# ------------------------------------------------------------------------------------------------ rows: config values
+CONF = ROOT / "conf"
+_REFUSED = "ConfigError at validation naming the key, what was given and what is allowed; nothing runs"
+
+
+def validation_issue(overrides) -> str:
+    """The one problem ``resolve_and_validate`` (what every entry point runs first) finds in conf/config.yaml
+    composed with ``overrides``, as the line a user reads."""
+    from hydra import compose, initialize_config_dir
+
+    from rmpfusion.build.errors import ConfigError
+    from rmpfusion.pipeline.validate import resolve_and_validate
+
+    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
+        cfg = compose("config", overrides=list(overrides))
+    with pytest.raises(ConfigError) as info:
+        resolve_and_validate(cfg)
+    issues = info.value.issues
+    assert len(issues) == 1, [str(i) for i in issues]  # the bad value is the only problem, and it is found
+    return str(issues[0])
+
+
+def _config_row(*overrides: str):
+    return lambda tmp_path, monkeypatch: validation_issue(overrides)
+
+
+_ON_GRID = "(rollouts integrate and record on that step's grid only)"
+for _id, _fault, _overrides, _shows, _needs in [
+        ("negative-radius", "a negative radius on a tree's distance map", ["tree.nodes.obstacle.map.radius=-1"],
+         "tree.nodes.obstacle.map.radius: radius must be > 0 (a sphere of radius ≤ 0 has no surface to keep a distance "
+         "from) or the name of an aux entry; given -1.0", ()),
+        ("negative-weight-radius", "a negative radius in an expert's weight", ["expert.obstacle.radius=-0.5"],
+         "expert.obstacle.radius: radius must be ≥ 0 (0 measures the distance from the centre point; a negative "
+         "radius is no surface) or the name of an aux entry; given -0.5", ()),
+        ("negative-index", "a negative coordinate in a select map",
+         ["tree.nodes.goal.map.type=select", "~tree.nodes.goal.map.origin", "+tree.nodes.goal.map.indices=[-1]"],
+         "tree.nodes.goal.map.indices: indices must be ≥ 0 (the parent's coordinates are numbered from 0; negative "
+         "numbers do not count from the end); given [-1]", ()),
+        ("negative-scale", "a negative metric scale on a leaf", ["tree.nodes.conditioning.rmp.scale=-0.01"],
+         "tree.nodes.conditioning.rmp.scale: Input should be greater than 0 (given: -0.01)", ()),
+        ("barrier-never-acts", "a barrier whose support ends before it starts",
+         ["+tree.nodes.obstacle.rmp.min_distance=2"],
+         "tree.nodes.obstacle.rmp: min_distance must be < r_w (w(x) is evaluated at x ≥ min_distance and is zero from "
+         "r_w on, so the barrier would never act); given min_distance=2.0, r_w=1.0", ()),
+        ("hidden-width-zero", "a hidden width of 0 in a learner's weight network", ["learners.rmp.weights.hidden=[0]"],
+         "learners.rmp.weights.hidden: hidden widths must be ≥ 1 (a layer of width 0 cuts the output off from the "
+         "inputs, so nothing could be learned); given [0]", ()),
+        ("init-bias-below-floor", "a weight network asked to start below its floor",
+         ["+learners.rmp.weights.init_bias=0.0005"],
+         "learners.rmp.weights: init_bias must be > floor (w = floor + a positive term never reaches floor or below); "
+         "given init_bias=0.0005, floor=0.001", ()),
+        ("range-inverted", "an environment range with low > high", ["+env.obstacle_radius=[1.5,0.5]"],
+         "env.obstacle_radius: obstacle_radius must be (low, high) with low ≤ high (values are drawn uniformly between "
+         "them); given (1.5, 0.5)", ()),
+        ("fraction-outside", "a fraction outside [0, 1]", ["+env.obstacle_along=[0.3,1.5]"],
+         "env.obstacle_along: obstacle_along must lie in [0, 1] (a fraction of the way from the starts to the goal: "
+         "outside it the obstacle is not between them); given (0.3, 1.5)", ()),
+        ("zero-dt", "a zero integration step", ["env.dt=0"], "env.dt: Input should be greater than 0 (given: 0)", ()),
+        ("interval-off-grid", "a recording interval off the environment's step grid", ["env.dt=0.03"],
+         f"data.interval: must be a positive multiple of the environment's step env.dt = 0.03 s {_ON_GRID}; "
+         "given 1.0", ()),
+        ("horizon-off-grid", "an evaluation horizon off the environment's step grid", ["eval.horizon=2.005"],
+         f"eval.horizon: must be a multiple of the environment's step env.dt = 0.01 s {_ON_GRID}; given 2.005", ()),
+        ("snapshot-beyond-training", "a snapshot after the last training iteration", ["train.snapshots=[0,30000]"],
+         "train.snapshots: snapshots [30000] lie outside 0..train.iterations=20000 (a snapshot is the learner after "
+         "that many iterations); given [0, 30000]", ()),
+        ("joint-margin-no-room", "a joint margin that leaves lower ≥ upper for the starts",
+         ["experiment=franka", "+env.joint_margin=2.0"],
+         "env.joint_margin: joint_margin must be < half of every joint's range (starts are drawn in [lower + margin, "
+         "upper − margin]); panda_joint2 spans [-1.8326, 1.8326], half of it is 1.833; given 2.0", ("pybullet",)),
+        ("render-trajectory-missing", "a rendered test trajectory that is not collected",
+         ["experiment=franka", "env.render_trajectory=20"],
+         "env.render_trajectory: must be < 20, the number of test trajectories (data.test_envs × "
+         "data.test_trajectories, numbered from 0); given 20", ("pybullet",))]:
+    row(f"config-{_id}", _fault, "resolve_and_validate on conf/config.yaml with " + " ".join(_overrides), _REFUSED,
+        shows=_shows, needs=_needs)(_config_row(*_overrides))
+
+URDF_INVERTED = """<robot name="arm">
+  <link name="base"/><link name="l1"/><link name="tip"/>
+  <joint name="j1" type="revolute"><parent link="base"/><child link="l1"/><axis xyz="0 0 1"/>
+    <limit lower="1.0" upper="-1.0" effort="1" velocity="1"/></joint>
+  <joint name="j2" type="revolute"><parent link="l1"/><child link="tip"/><origin xyz="1 0 0"/><axis xyz="0 0 1"/>
+    <limit lower="-1.0" upper="1.0" effort="1" velocity="1"/></joint>
+</robot>
+"""
+
+
+@row("config-urdf-limits-inverted", "a URDF joint limit with lower > upper",
+     "resolve_and_validate with a forward_kinematics node on a 2-joint URDF whose joint j1 has lower=1, upper=-1",
+     "ConfigError at validation naming the node, the file and the joint; nothing runs",
+     shows="tree.nodes.arm.map: <dir>/arm.urdf: URDF joint 'j1': limit lower=1.0 is above upper=-1.0 (the joint "
+           "could take no angle at all); fix the <limit> of the joint")
+def _urdf_inverted(tmp_path, monkeypatch):
+    urdf = tmp_path / "arm.urdf"
+    urdf.write_text(URDF_INVERTED, encoding="utf-8")
+    return validation_issue([f"+tree.nodes.arm={{parent: q, map: {{type: forward_kinematics, robot: null, "
+                             f"urdf: '{urdf}', link: tip}}, rmp: {{type: damper}}}}"])
+
+
 # ------------------------------------------------------------------------------------------------ the tests
 MESSAGES: dict[str, str] = {}
 
@@ -907,6 +1006,147 @@ def test_certify_rollout_checks_every_record_and_skips_ended_samples():
     cert = certify_rollout(tree, ro, aux)
     kept = [i for i in range(33) if not ((i % 3 == 2 and i // 3 >= 5) or i == 7 * 3 + 1)]
     assert not cert.inertia_positive_definite and cert.failing_states == kept
+
+
+# ------------------------------------------------------------------------------------------------ rows: the command line
+_SAID = "one or two lines naming the file, key or path and the fix, exit 2; nothing runs"
+
+
+def command_line_message(*argv: str) -> str:
+    """What ``rmpfusion-run`` / ``-validate`` say for a command line that cannot compose (before anything runs)."""
+    from rmpfusion.cli.preflight import CommandLineError, check_command_line, check_output_dir
+
+    with pytest.raises(CommandLineError) as info:
+        check_command_line(str(CONF), list(argv))
+        check_output_dir(list(argv))
+    return f"error: {info.value}"
+
+
+@row("cli-misspelt-group", "a misspelt config group", "rmpfusion-run experimnt=2d1level", _SAID,
+     shows="error: 'experimnt' is neither a config group nor a key of the config; did you mean 'experiment', "
+           "'expert'? config groups: data, env, eval, experiment, expert, launcher, learner, logger, rmp, sweep, "
+           "train, tree, weights; top-level keys: env, tree, expert, learners, data, train, eval, logger, name, seed, "
+           "device (to add a new key on purpose write +experimnt=...)")
+def _cli_misspelt_group(tmp_path, monkeypatch):
+    return command_line_message("experimnt=2d1level")
+
+
+@row("cli-misspelt-group-added", "a misspelt config group written as a new key", "rmpfusion-run +experimnt=2d1level",
+     _SAID, shows="error: '+experimnt=2d1level' adds a new key 'experimnt', which the config does not have; did you "
+                  "mean the config group 'experiment' (experiment=2d1level)?")
+def _cli_added_group(tmp_path, monkeypatch):
+    return command_line_message("+experimnt=2d1level")
+
+
+@row("cli-missing-option", "a config group option that does not exist", "rmpfusion-run experiment=2d1levl", _SAID,
+     shows="error: no config '2d1levl' in the group 'experiment' (experiment/2d1levl.yaml); did you mean '2d1level', "
+           "'2d2level', '2d1level_per_edge'? options: 2d1level, 2d1level_per_edge, 2d2level, 2d2level_per_edge, "
+           "2d2level_unstructured, franka, franka_unit_start")
+def _cli_missing_option(tmp_path, monkeypatch):
+    return command_line_message("experiment=2d1levl")
+
+
+@row("cli-yaml-syntax", "a YAML syntax error in a user's config file",
+     "rmpfusion-run --config-dir <dir> experiment=mine, where <dir>/experiment/mine.yaml has an unclosed [", _SAID,
+     shows="error: YAML syntax error in <dir>/experiment/mine.yaml: while parsing a flow sequence (line 3, column 7), "
+           "expected ',' or ']', but got '<stream end>' (line 4, column 1); fix the file (every config file must be "
+           "valid YAML)")
+def _cli_yaml_syntax(tmp_path, monkeypatch):
+    (tmp_path / "experiment").mkdir()
+    (tmp_path / "experiment" / "mine.yaml").write_text("name: mine\ntrain:\n  lr: [1, 2\n")
+    return command_line_message("--config-dir", str(tmp_path), "experiment=mine")
+
+
+@row("cli-override-grammar", "an override Hydra cannot parse", "rmpfusion-run train.lr=[1,2", _SAID,
+     shows="error: cannot read the command line 'train.lr=[1,2': no viable alternative at input '[1,2'; see "
+           "https://hydra.cc/docs/advanced/override_grammar/basic/")
+def _cli_grammar(tmp_path, monkeypatch):
+    return command_line_message("train.lr=[1,2")
+
+
+@row("cli-output-dir", "an output directory that cannot be created", "hydra.run.dir=<dir>/a-file/run", _SAID,
+     shows="error: hydra.run.dir=<dir>/a-file/run cannot be created (Not a directory); choose a directory you can "
+           "write to")
+def _cli_output_dir(tmp_path, monkeypatch):
+    (tmp_path / "a-file").write_text("")
+    return command_line_message(f"hydra.run.dir={tmp_path / 'a-file' / 'run'}")
+
+
+@row("plugin-import-error", "a plugin whose import raises",
+     "an rmpfusion.plugins entry point naming a module that divides by zero on import",
+     "the plugin's name, its own error and its own frames (none of rmpfusion's), exit 2",
+     shows="error: rmpfusion plugin 'broken' (broken_plugin) failed to load: ZeroDivisionError: division by zero\n"
+           '  File "<dir>/broken_plugin.py", line 2, in <module>\n    ratio = 1 / 0\n'
+           "(RMPFUSION_DEBUG=1 shows the whole traceback)")
+def _plugin_import_error(tmp_path, monkeypatch):
+    import contextlib
+    import io
+    from importlib.metadata import EntryPoint
+
+    import rmpfusion.registry as registry
+    from rmpfusion.cli._common import config_errors_exit
+
+    (tmp_path / "broken_plugin.py").write_text('"""A plugin with a bug."""\nratio = 1 / 0\n')
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setattr(registry, "entry_points", lambda group: [EntryPoint("broken", "broken_plugin", group)])
+    loader = registry.PluginLoader()  # an isolated loader: the default registries keep theirs
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err), pytest.raises(SystemExit) as info, config_errors_exit():
+        loader.load()
+    assert info.value.code == 2
+    return err.getvalue().strip()
+
+
+def _checkpoint_message(path) -> str:
+    from rmpfusion.cli.from_checkpoint import evaluate_checkpoint
+
+    with pytest.raises(CheckpointError) as info:
+        evaluate_checkpoint(path, figures=False, progress=False)
+    return f"error: {info.value}"
+
+
+@row("checkpoint-given-a-directory", "rmpfusion-evaluate-checkpoint given a run directory",
+     "rmpfusion-evaluate-checkpoint <dir> (a run directory holding checkpoints/rmp/)",
+     "says it is a directory and names the checkpoints in it; nothing is changed",
+     shows="error: <dir> is a directory, not a checkpoint file; its checkpoints: <dir>/checkpoints/rmp/ckpt-00000003.pt")
+def _checkpoint_dir(tmp_path, monkeypatch):
+    (tmp_path / "checkpoints" / "rmp").mkdir(parents=True)
+    (tmp_path / "checkpoints" / "rmp" / "ckpt-00000003.pt").write_bytes(b"")
+    return _checkpoint_message(tmp_path)
+
+
+@row("checkpoint-given-metrics", "rmpfusion-evaluate-checkpoint given a run's metrics.json",
+     "rmpfusion-evaluate-checkpoint <dir>/metrics.json", "says what the file is; never advises deleting it",
+     shows="error: <dir>/metrics.json is a JSON file, not a checkpoint; a checkpoint is "
+           "checkpoints/<learner>/ckpt-<iteration>.pt in a run directory")
+def _checkpoint_json(tmp_path, monkeypatch):
+    (tmp_path / "metrics.json").write_text("{}")
+    return _checkpoint_message(tmp_path / "metrics.json")
+
+
+@row("checkpoint-given-a-dataset", "rmpfusion-evaluate-checkpoint given a dataset file",
+     "rmpfusion-evaluate-checkpoint <dir>/data/train.pt (written by save_dataset)",
+     "says it is a dataset; never advises deleting it",
+     shows="error: <dir>/data/train.pt is a dataset (demonstrations of a run's data/), not a checkpoint; nothing was "
+           "changed")
+def _checkpoint_dataset(tmp_path, monkeypatch):
+    n = 3
+    ds = Dataset(q=torch.zeros(n, 2, dtype=F64), qd=torch.zeros(n, 2, dtype=F64), qdd=torch.zeros(n, 2, dtype=F64),
+                 aux={}, env_id=torch.zeros(n, dtype=torch.long), traj_id=torch.zeros(n, dtype=torch.long),
+                 t=torch.arange(n, dtype=F64), collided=torch.zeros(1, dtype=torch.bool),
+                 success=torch.ones(1, dtype=torch.bool))
+    (tmp_path / "data").mkdir()
+    save_dataset(tmp_path / "data" / "train.pt", ds, {"seed": 0})
+    return _checkpoint_message(tmp_path / "data" / "train.pt")
+
+
+@row("checkpoint-given-a-foreign-file", "rmpfusion-evaluate-checkpoint given a file rmpfusion did not write",
+     "rmpfusion-evaluate-checkpoint <dir>/weights.bin (random bytes)", "says so; never advises deleting it",
+     shows="error: <dir>/weights.bin is not a checkpoint written by rmpfusion (not a torch file it can read); nothing "
+           "was changed")
+def _checkpoint_foreign(tmp_path, monkeypatch):
+    (tmp_path / "weights.bin").write_bytes(bytes(range(64)))
+    return _checkpoint_message(tmp_path / "weights.bin")
 
 
 def main() -> None:

@@ -201,6 +201,22 @@ def test_sigterm_writes_a_checkpoint_at_once_and_the_rerun_resumes_from_it(outdi
     assert log.count("==== ") == 2 and "SIGTERM received" in log and f"resumed from iteration {at}" in log
 
 
+@pytest.mark.slow
+def test_ctrl_c_writes_a_checkpoint_and_says_how_to_resume_without_a_traceback(tmp_path):
+    """Ctrl-C (SIGINT): the step in progress finishes, a checkpoint is written, and the command ends in two
+    lines (what was saved, how to resume) with the shell's status for an interrupt, 130: no traceback."""
+    run_dir = tmp_path / "run"
+    proc = train_proc(run_dir, tmp_path / "logs", "train.checkpoint_every=100000")
+    proc.wait_until(lambda: "train rmp [" in proc.stdout, "training to start")
+    proc.p.send_signal(signal.SIGINT)
+    assert proc.wait() == 130, proc.stderr[-3000:]
+    assert "Traceback" not in proc.stderr and "KeyboardInterrupt" not in proc.stderr, proc.stderr[-3000:]
+    m = re.search(r"SIGINT received; checkpoint at iteration (\d+)/%d written to (\S+);" % ITERS, proc.stderr)
+    assert m and Path(m.group(2)).is_file(), proc.stderr[-3000:]
+    assert (f"interrupted (Ctrl-C): what was finished is kept in {run_dir} (datasets, the last checkpoint); rerun "
+            f"the same command with hydra.run.dir={run_dir} to resume") in proc.stderr
+
+
 def test_signals_during_training_in_process_checkpoint_then_defer_to_the_installed_handler(tmp_path):
     """Under a job manager that handles SIGTERM itself (submitit keeps the job alive until its requeue), the
     signal still writes a checkpoint at once, the manager's handler runs, and training goes on; Ctrl-C with

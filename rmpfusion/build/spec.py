@@ -21,7 +21,7 @@ from .errors import TAG_SEPARATOR, ConfigError, Issue, issues_from_pydantic
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class TypedBlock(BaseModel):

@@ -10,18 +10,20 @@ import contextlib
 import functools
 import os
 import sys
+import traceback
 from pathlib import Path
 from dataclasses import dataclass
 from typing import Any, Callable, Iterator
 
 import hydra
 from ..build.errors import ConfigError
-from ..registry import RegistryError
+from ..registry import PluginError, RegistryError
 from ..files import atomic_write_bytes
 from .rundir import RESOLVED
 from ..pipeline.validate import resolve_and_validate
 from . import logger as wandb_logger
 from ..files import remove_stale_temporaries
+from .preflight import CommandLineError, check_command_line, check_output_dir
 from .rundir import HydraFiles, RunDirError, check_same_config, console_log, exclusive, record_environment
 
 #: Exit code of a command whose configuration is invalid (nothing was run).
@@ -40,20 +42,53 @@ def conf_dir() -> str:
     raise FileNotFoundError(f"rmpfusion: no conf/config.yaml found (tried {tried}); set RMPFUSION_CONF to your conf/ directory")
 
 
+#: Exit code of a run stopped by Ctrl-C (128 + SIGINT, what a shell reports for it).
+INTERRUPTED_EXIT = 130
+
+
+def debug_enabled() -> bool:
+    """``RMPFUSION_DEBUG=1``: full tracebacks instead of the one- or two-line answers, for someone debugging
+    rmpfusion or a plugin (it also sets Hydra's ``HYDRA_FULL_ERROR=1`` for Hydra's own errors)."""
+    return os.environ.get("RMPFUSION_DEBUG", "") not in ("", "0")
+
+
+def fail(message: str, code: int = CONFIG_ERROR_EXIT) -> None:
+    """Say what went wrong in the user's terms and exit; under ``RMPFUSION_DEBUG=1`` the caller's exception
+    propagates instead (see ``debug_enabled``)."""
+    if debug_enabled():
+        raise
+    print(f"error: {message}", file=sys.stderr)
+    sys.exit(code)
+
+
 def hydra_app(task: Callable[[Any], Any]) -> Callable[[], Any]:
     """A console script running ``task(cfg)`` as a Hydra app over conf/. The directory is looked up when the
-    command runs, never on import, and a missing one is said in one line (exit 2) instead of a traceback."""
+    command runs, never on import; the command line is composed once first (``preflight``) so a misspelt group,
+    a missing file, a YAML error or an unwritable output directory is said in a line or two (exit 2)."""
 
     @functools.wraps(task)
     def entry() -> Any:
         try:
             path = conf_dir()
-        except FileNotFoundError as e:
-            print(f"error: {e}", file=sys.stderr)
-            sys.exit(CONFIG_ERROR_EXIT)
+            check_command_line(path, sys.argv[1:])
+            check_output_dir(sys.argv[1:])
+        except (FileNotFoundError, CommandLineError) as e:
+            fail(str(e))
+        if debug_enabled():
+            os.environ["HYDRA_FULL_ERROR"] = "1"
         return hydra.main(version_base="1.3", config_path=path, config_name="config")(task)()
 
     return entry
+
+
+def plugin_report(e: "PluginError") -> str:
+    """The plugin's own error and its own frames (where the plugin author must look), not rmpfusion's."""
+    cause = e.__cause__
+    ours = (str(Path(__file__).resolve().parents[1]), "<frozen importlib", os.sep + "importlib" + os.sep)
+    frames = [f for f in traceback.extract_tb(cause.__traceback__) if not any(o in f.filename for o in ours)]
+    shown = "\n".join(f'  File "{f.filename}", line {f.lineno}, in {f.name}' + (f"\n    {f.line}" if f.line else "")
+                      for f in frames)
+    return f"{e}" + (f"\n{shown}" if shown else "") + "\n(RMPFUSION_DEBUG=1 shows the whole traceback)"
 
 
 @contextlib.contextmanager
@@ -62,12 +97,10 @@ def config_errors_exit() -> Iterator[None]:
 
     try:
         yield
-    except ConfigError as e:
-        print(f"error: {e}", file=sys.stderr)
-        sys.exit(CONFIG_ERROR_EXIT)
-    except RegistryError as e:
-        print(f"error: {e}", file=sys.stderr)
-        sys.exit(CONFIG_ERROR_EXIT)
+    except (ConfigError, RegistryError) as e:
+        fail(str(e))
+    except PluginError as e:
+        fail(plugin_report(e))
 
 
 def hydra_run_dir() -> Path:
@@ -139,6 +172,13 @@ def job(cfg, threads: int = 1, log: bool = True) -> Iterator[Job]:
         try:
             yield Job(run=run, dir=run_dir, logger=lg, environment=environment)
             code = 0
+        except KeyboardInterrupt:
+            code = INTERRUPTED_EXIT
+            if debug_enabled():
+                raise
+            print(f"interrupted (Ctrl-C): what was finished is kept in {run_dir} (datasets, the last checkpoint); "
+                  f"rerun the same command with hydra.run.dir={run_dir} to resume", file=sys.stderr)
+            sys.exit(INTERRUPTED_EXIT)
         except SystemExit as e:
             code = 0 if e.code is None else e.code if isinstance(e.code, int) else 1
             raise

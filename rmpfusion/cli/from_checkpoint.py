@@ -17,10 +17,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from ..envs.demonstrations import FORMAT as DATASET_FORMAT
 from ..envs.demonstrations import DatasetError
 from ..envs.protocol import PlanarWorkspace, Renders
-from ..files import atomic_write_json
-from ..learn.train import CheckpointError, load_checkpoint
+from ..files import atomic_write_json, torch_file_format
+from ..learn.train import CHECKPOINT_FORMAT, CHECKPOINT_NAME, CheckpointError, latest_checkpoint, load_checkpoint
 from ..pipeline.collect import collect
 from ..pipeline.config import RunConfig, upgrade_run_config
 from ..pipeline.evaluation import evaluate_model
@@ -30,6 +31,43 @@ from ..pipeline.progress import Progress
 from ..pipeline.validate import parse_run_config
 from ..plots import plot_lyapunov, plot_trajectories
 from ..plots.figures import save_figure, subplots
+
+
+_KINDS = {".json": "a JSON file", ".yaml": "a YAML file", ".yml": "a YAML file", ".png": "an image",
+          ".gif": "an animation", ".log": "a log file", ".md": "a text file", ".txt": "a text file"}
+
+
+def _checkpoints_below(directory: Path) -> list[Path]:
+    """The newest checkpoint of each learner in a run directory or a checkpoints/ directory."""
+    found = []
+    for d in [directory, *sorted(p for p in directory.glob("checkpoints/*") if p.is_dir()),
+              *sorted(p for p in directory.glob("*") if p.is_dir() and directory.name == "checkpoints")]:
+        ck = latest_checkpoint(d)
+        if ck is not None and ck not in found:
+            found.append(ck)
+    return found
+
+
+def _not_a_checkpoint(path: Path) -> str | None:
+    """What ``path`` is when it is not a checkpoint file (said instead of a checkpoint error, whose advice is
+    for damaged checkpoints only); None for a checkpoint, damaged or not."""
+    if path.is_dir():
+        found = _checkpoints_below(path)
+        hint = f"; its checkpoints: {', '.join(str(p) for p in found)}" if found else \
+            "; a checkpoint is checkpoints/<learner>/ckpt-<iteration>.pt in a run directory"
+        return f"{path} is a directory, not a checkpoint file{hint}"
+    if not path.exists() or CHECKPOINT_NAME.match(path.name) or path.name == "final.pt":
+        return None  # a missing or damaged checkpoint gets the checkpoint's own message
+    if path.suffix in _KINDS:
+        return (f"{path} is {_KINDS[path.suffix]}, not a checkpoint; a checkpoint is "
+                "checkpoints/<learner>/ckpt-<iteration>.pt in a run directory")
+    tag = torch_file_format(path)
+    if tag == CHECKPOINT_FORMAT:
+        return None
+    if tag == DATASET_FORMAT:
+        return f"{path} is a dataset (demonstrations of a run's data/), not a checkpoint; nothing was changed"
+    return (f"{path} is not a checkpoint written by rmpfusion ({tag or 'not a torch file it can read'}); nothing "
+            "was changed")
 
 
 def _load(path: Path) -> tuple[dict, RunConfig, str]:
@@ -50,6 +88,8 @@ def evaluate_checkpoint(path: str | Path, out: str | Path | None = None, figures
                         progress: bool = True) -> dict:
     """Metrics of the learner in checkpoint ``path`` on its run's test set (see the module docstring)."""
     path = Path(path)
+    if (what := _not_a_checkpoint(path)) is not None:
+        raise CheckpointError(what)
     state, run, name = _load(path)
     run_dir = path.parents[2] if len(path.parents) > 2 else path.parent
     out = Path(out) if out is not None else path.parent / f"eval-{int(state['iteration']):08d}"

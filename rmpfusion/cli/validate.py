@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from omegaconf import DictConfig
 
+from ..build.spec import weight_label
 from ..evaluate.weights import learned_edges
 from ._common import config_errors_exit, hydra_app
 from ..pipeline.validate import build_all, resolve_and_validate
@@ -21,8 +22,7 @@ def summary(run, env, expert, learners) -> str:
         *("  " + ln for ln in expert.describe().splitlines()),
     ]
     if run.expert:
-        lines.append("expert weights: " + ", ".join(f"{n}={(w.get('type') if isinstance(w, dict) else w)}"
-                                                      for n, w in run.expert.items()))
+        lines.append("expert weights: " + ", ".join(f"{n}={weight_label(w)}" for n, w in run.expert.items()))
     for name, model in learners.items():
         extra = f", learns the weights of edges {learned_edges(model.tree)}" if model.tree is not None else ""
         lines.append(f"learner {name}: {run.learners[name].type}, {model.num_parameters()} parameters{extra}")
@@ -39,7 +39,6 @@ def summary(run, env, expert, learners) -> str:
 
 @hydra_app
 def main(cfg: DictConfig) -> None:
-
     with config_errors_exit():
         run = resolve_and_validate(cfg)
         env, expert, learners = build_all(run)

@@ -116,6 +116,10 @@ def _first_nonfinite(named) -> str | None:
     return None
 
 
+class CompileFallbackWarning(RuntimeWarning):
+    """A compiled tree met a construct torch.compile cannot trace and fell back (static shapes, then eager)."""
+
+
 class BoundWeight(nn.Module):
     """A (possibly shared) weight function as seen from one edge: aux inputs renamed by ``bind``."""
 
@@ -206,8 +210,7 @@ class RMPTree(nn.Module):
             state, edges, rmp = self._passes(q, qd, aux)
             r = rmp[self.root_name]
         else:
-            run = self._compiled_fn() if self._compile_args is not None else self._root_rmp
-            *fields, qdd, ok = run(q, qd, aux)
+            *fields, qdd, ok = self._root_rmp_maybe_compiled(q, qd, aux)
             r = NodeRMP(*fields)
             solved = self.resolve_method == "solve" and bool(ok)
         if not solved:  # singular or non-finite samples, or pinv asked for: the full treatment
@@ -294,6 +297,8 @@ class RMPTree(nn.Module):
             dynamic, options = self._compile_args
             # the C++ wrapper calls LU ops through a generic shim and says so at every compile: expected
             logging.getLogger("torch._inductor.ir").setLevel(logging.ERROR)
+            # a construct that cannot be traced is reported once by the fallback, not by torch's tracer logs
+            logging.getLogger("torch._subclasses.fake_tensor").setLevel(logging.CRITICAL)
             # inductor's own use of a deprecated torch helper warns at every compile: not the user's concern
             warnings.filterwarnings("ignore", message=r".*torch\._prims_common\.check.*", category=FutureWarning)
             # a private copy of the function's code: torch.compile caches per code object, so trees compiled in one
@@ -301,6 +306,33 @@ class RMPTree(nn.Module):
             fn = types.FunctionType(RMPTree._root_rmp.__code__.replace(), globals(), f"_root_rmp_{id(self):x}")
             self._compiled = torch.compile(types.MethodType(fn, self), dynamic=dynamic, options=options)
         return self._compiled
+
+    def _root_rmp_maybe_compiled(self, q: Tensor, qd: Tensor, aux: dict[str, Tensor] | None) -> tuple[Tensor, ...]:
+        """``_root_rmp`` through the compiled code when the tree is compiled. A construct torch.compile cannot
+        trace never crashes the tree: with a symbolic batch size (forward-mode autodiff, e.g. a leaf whose
+        curvature is derived by ``torch.func.jvp``) the tree compiles again per batch size; if that fails too it
+        runs eagerly. Each step is said once (``CompileFallbackWarning``); the numbers are the same."""
+        while self._compile_args is not None:
+            try:
+                return self._compiled_fn()(q, qd, aux)
+            except torch._dynamo.exc.TorchDynamoException as e:
+                self._fall_back(e)
+        return self._root_rmp(q, qd, aux)
+
+    def _fall_back(self, error: Exception) -> None:
+        dynamic, options = self._compile_args
+        reason = str(error).strip().splitlines()[0][:200] if str(error).strip() else type(error).__name__
+        if dynamic is not False:
+            self._compile_args, self._compiled = (False, options), None
+            warnings.warn(CompileFallbackWarning(
+                "torch.compile cannot trace this tree with a symbolic batch size, typically because of forward-mode "
+                f"autodiff (a map's or leaf's derivatives left to the defaults) ({reason}); it now compiles once per "
+                "batch size (static shapes), with the same numbers"), stacklevel=6)
+        else:
+            self.uncompile()
+            warnings.warn(CompileFallbackWarning(
+                f"torch.compile cannot compile this tree ({reason}); it now runs eagerly, with the same numbers"),
+                stacklevel=6)
 
     def uncompile(self) -> "RMPTree":
         self._compiled = self._compile_args = None

@@ -10,7 +10,7 @@ from __future__ import annotations
 from typing import Any, Callable, Literal, Mapping
 
 import torch
-from pydantic import Field, model_validator
+from pydantic import Field, ValidationInfo, field_validator
 from torch import Tensor
 
 from ..registry import ENVS, Params
@@ -23,9 +23,11 @@ Range = tuple[float, float]
 Box = tuple[tuple[float, float], tuple[float, float]]  # ((x_low, x_high), (y_low, y_high))
 
 
-def _check_range(name: str, r: Range) -> None:
-    if not r[0] <= r[1]:
-        raise ValueError(f"{name}: low {r[0]} is above high {r[1]}")
+def _check_range(name: str, r: Range, strict: bool = False) -> None:
+    """A (low, high) sampling range: low ≤ high (low < high with ``strict``), NaN refused."""
+    if not (r[0] < r[1] if strict else r[0] <= r[1]):
+        raise ValueError(f"{name} must be (low, high) with low {'<' if strict else '≤'} high (values are drawn "
+                         f"uniformly between them); given {tuple(r)}")
 
 
 @ENVS.register("particle2d")
@@ -59,18 +61,60 @@ class Particle2D(SeededSampling):
         goal_tolerance: float = Field(0.1, gt=0)
         dtype: Literal["float64", "float32"] = "float64"
 
-        @model_validator(mode="after")
-        def _ranges(self):
-            for name in ("workspace", "start_speed", "obstacle_along", "obstacle_across", "obstacle_radius"):
-                _check_range(name, getattr(self, name))
-            for name in ("goal_region", "start_region"):
-                for axis, r in zip("xy", getattr(self, name)):
-                    _check_range(f"{name}.{axis}", r)
-                    if r[0] < self.workspace[0] or r[1] > self.workspace[1]:
-                        raise ValueError(f"{name}.{axis} {r} leaves the workspace {self.workspace}")
-            if self.obstacle_radius[0] <= 0:
-                raise ValueError("obstacle_radius must be positive")
-            return self
+        @field_validator("workspace")
+        @classmethod
+        def _workspace(cls, v: Range) -> Range:
+            _check_range("workspace", v, strict=True)
+            return v
+
+        @field_validator("obstacle_across")
+        @classmethod
+        def _range(cls, v: Range, info: ValidationInfo) -> Range:
+            _check_range(info.field_name, v)
+            return v
+
+        @field_validator("start_speed")
+        @classmethod
+        def _speed(cls, v: Range) -> Range:
+            _check_range("start_speed", v)
+            if not v[0] >= 0:
+                raise ValueError(f"start_speed must have low ≥ 0 (it is a speed; the direction is drawn separately); "
+                                 f"given {tuple(v)}")
+            return v
+
+        @field_validator("obstacle_along")
+        @classmethod
+        def _fraction(cls, v: Range) -> Range:
+            _check_range("obstacle_along", v)
+            if not (0 <= v[0] and v[1] <= 1):
+                raise ValueError(f"obstacle_along must lie in [0, 1] (a fraction of the way from the starts to the "
+                                 f"goal: outside it the obstacle is not between them); given {tuple(v)}")
+            return v
+
+        @field_validator("obstacle_radius")
+        @classmethod
+        def _radius(cls, v: Range) -> Range:
+            _check_range("obstacle_radius", v)
+            if not v[0] > 0:
+                raise ValueError(f"obstacle_radius must have low > 0 (an obstacle of radius ≤ 0 is no obstacle); "
+                                 f"given {tuple(v)}")
+            return v
+
+        @field_validator("goal_region", "start_region")
+        @classmethod
+        def _box(cls, v: Box, info: ValidationInfo) -> Box:
+            ws = info.data.get("workspace")  # absent when the workspace itself was refused
+            for axis, r in zip("xy", v):
+                _check_range(f"{info.field_name}.{axis}", r)
+                if ws is not None and (r[0] < ws[0] or r[1] > ws[1]):
+                    raise ValueError(f"{info.field_name}.{axis} must lie inside the workspace {tuple(ws)} (every "
+                                     f"sample lies in the workspace); given {tuple(r)}")
+            return v
+
+        def integration_step(self) -> tuple[float, str]:
+            """(seconds, the key that sets it) of the fixed step rollouts integrate on: a run config's recording
+            interval and horizon are checked against it before anything runs (``time_grid`` at rollout time)."""
+            return self.dt, "env.dt"
 
     def __init__(self, params: Params | None = None, **overrides: Any):
         if params is None:

@@ -12,7 +12,7 @@ from . import objectives, optimizers  # noqa: F401  (the built-in names are regi
 
 
 class _Frozen(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 def _registered(registry: Registry, name: str) -> str:
@@ -29,7 +29,9 @@ class TrainConfig(_Frozen):
                                                        description="cosine: anneal lr to lr·lr_final_fraction")
     lr_final_fraction: float = Field(0.01, ge=0, le=1, description="the final step size as a fraction of lr (cosine "
                                                                    "schedule): 0.01 ends at lr/100")
-    batch_size: int = Field(200, gt=0)
+    batch_size: int = Field(200, gt=0, description="training points per step, drawn uniformly with replacement; "
+                                                 "above the number of training points a step draws that many "
+                                                 "instead, still uniformly (so not an error)")
     iterations: int = Field(20000, ge=0)
     snapshots: list[int] = Field(default_factory=lambda: [0, 1000, 5000, 20000],
                                  description="iterations at which the learner is kept and evaluated")

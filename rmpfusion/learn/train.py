@@ -57,14 +57,14 @@ def _state_copy(model: nn.Module) -> dict[str, torch.Tensor]:
     return {k: v.detach().clone() for k, v in model.state_dict().items()}
 
 
-_CKPT = re.compile(r"^ckpt-(\d+)\.pt$")
+CHECKPOINT_NAME = re.compile(r"^ckpt-(\d+)\.pt$")
 
 
 def latest_checkpoint(directory: str | os.PathLike) -> Path | None:
     d = Path(directory)
     if not d.is_dir():
         return None
-    found = [(int(m.group(1)), p) for p in d.iterdir() if (m := _CKPT.match(p.name))]
+    found = [(int(m.group(1)), p) for p in d.iterdir() if (m := CHECKPOINT_NAME.match(p.name))]
     return max(found)[1] if found else None
 
 
@@ -248,7 +248,7 @@ def _checkpoint(s: _Session, it: int) -> Path | None:
                      "iteration": it, "snapshots": res.snapshots, "curve": res.curve, "test_curve": res.test_curve,
                      "val_curve": res.val_curve, "train_config": s.cfg.model_dump(),
                      "config": dict(s.run_config or {})}, path)
-    olds = sorted((int(m.group(1)), p) for p in s.ckdir.iterdir() if (m := _CKPT.match(p.name)))
+    olds = sorted((int(m.group(1)), p) for p in s.ckdir.iterdir() if (m := CHECKPOINT_NAME.match(p.name)))
     for _, p in olds[:-s.keep_checkpoints]:
         p.unlink(missing_ok=True)
     return path

@@ -6,13 +6,13 @@ import math
 from typing import Any, Literal, Mapping
 
 import torch
-from pydantic import Field
+from pydantic import Field, field_validator
 from torch import Tensor, nn
 
 from ..core.tree import RMPTree
 from ..core.weight import aux_features
 from ..registry import LEARNERS, Params
-from ..weights.neural import ACTIVATIONS
+from ..weights.neural import ACTIVATIONS, hidden_widths
 from .learner import Learner
 
 
@@ -21,12 +21,18 @@ class UnstructuredLearner(Learner):
     """learner-un: a fully connected network [q, q̇, aux] -> q̈ with no stability or safety structure."""
 
     class Params(Params):
-        hidden: list[int] = Field(default_factory=lambda: [64, 64], min_length=1)
+        hidden: list[int] = Field(default_factory=lambda: [64, 64], min_length=1,
+                                  description="widths ≥ 1 (with match_parameters_of only the depth counts)")
         activation: Literal["tanh", "relu", "elu", "softplus", "silu"] = "tanh"
         match_parameters_of: str | None = Field(
             None, description="another learner's name: hidden widths are chosen so the parameter count is "
                               "parameter_ratio × that learner's (depth = len(hidden))")
         parameter_ratio: float = Field(1.0, gt=0)
+
+        @field_validator("hidden")
+        @classmethod
+        def _widths(cls, v: list[int]) -> list[int]:
+            return hidden_widths(v)
 
     def __init__(self, params: Params, tree_spec: Mapping[str, Any] | None, aux_dims: Mapping[str, int], dim: int,
                  expert: Mapping[str, Any] | None = None, target_parameters: int | None = None):

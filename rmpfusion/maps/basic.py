@@ -16,6 +16,15 @@ def _eye(n: int, x: Tensor) -> Tensor:
     return torch.eye(n, dtype=x.dtype, device=x.device).expand(x.shape[0], n, n)
 
 
+def _coordinates(v: int | list[int], key: str) -> int | list[int]:
+    """Refuse negative coordinate numbers: a config means the parent's coordinate k, never Python's x[-k]."""
+    bad = [i for i in ([v] if isinstance(v, int) else v) if i < 0]
+    if bad:
+        raise ValueError(f"{key} must be ≥ 0 (the parent's coordinates are numbered from 0; negative numbers do not "
+                         f"count from the end); given {v!r}")
+    return v
+
+
 @TASK_MAPS.register("identity")
 class Identity(TaskMap):
     """y = x: attach several RMPs to the same space, or weight a whole subtree."""
@@ -92,7 +101,12 @@ class Select(Linear):
     """y = x[indices]: a joint, or a sub-vector of the configuration."""
 
     class Params(Params):
-        indices: list[int] = Field(min_length=1)
+        indices: list[int] = Field(min_length=1, description="coordinates of the parent, from 0")
+
+        @field_validator("indices")
+        @classmethod
+        def _from_zero(cls, v: list[int]) -> list[int]:
+            return _coordinates(v, "indices")
 
     def __init__(self, params: Params, in_dim: int, aux_dims: Mapping[str, int] | None = None):
         bad = [i for i in params.indices if not 0 <= i < in_dim]
@@ -113,7 +127,12 @@ class JointLimit(TaskMap):
     class Params(Params):
         side: Literal["upper", "lower"]
         limit: float | list[float]
-        joints: int | list[int] | None = None
+        joints: int | list[int] | None = Field(None, description="coordinates of the parent, from 0; default: all")
+
+        @field_validator("joints")
+        @classmethod
+        def _from_zero(cls, v: int | list[int] | None) -> int | list[int] | None:
+            return v if v is None else _coordinates(v, "joints")
 
     def __init__(self, params: Params, in_dim: int, aux_dims: Mapping[str, int] | None = None):
         super().__init__(in_dim, aux_dims)

@@ -1,10 +1,10 @@
 """Distance task maps to obstacles: 1-D coordinates for barrier RMPs."""
 from __future__ import annotations
 
-from typing import Mapping, Sequence
+from typing import Any, Mapping, Sequence
 
 import torch
-from pydantic import Field
+from pydantic import Field, field_validator
 from torch import Tensor
 
 from ..core.auxstate import CONSTANT_DTYPE, AuxOrValue, AuxParam, constant
@@ -21,14 +21,34 @@ def _radial(d: Tensor, dd: Tensor, scale: Tensor | float):
     return r, u / scale, c / scale
 
 
+def _values(v: Any) -> list[float] | None:
+    """The numbers of a constant parameter (a number or a list of them); None for an aux name."""
+    if isinstance(v, str):
+        return None
+    return [float(x) for x in v] if isinstance(v, Sequence) else [float(v)]
+
+
+def _positive_radius(v: AuxOrValue, shape: str) -> AuxOrValue:
+    vals = _values(v)
+    if vals is not None and not all(x > 0 for x in vals):
+        raise ValueError(f"radius must be > 0 (a {shape} of radius ≤ 0 has no surface to keep a distance from) or "
+                         f"the name of an aux entry; given {v!r}")
+    return v
+
+
 @TASK_MAPS.register("sphere_distance")
 class SphereDistance(TaskMap):
     """Distance to a sphere (circle in 2D): ``|y−c| − R``, or ``|y−c|/R − 1`` when ``normalized``."""
 
     class Params(Params):
         center: AuxOrValue
-        radius: AuxOrValue = 1.0
+        radius: AuxOrValue = Field(1.0, description="> 0, or the name of an aux entry")
         normalized: bool = False
+
+        @field_validator("radius")
+        @classmethod
+        def _radius(cls, v: AuxOrValue) -> AuxOrValue:
+            return _positive_radius(v, "sphere")
 
     def __init__(self, params: Params, in_dim: int, aux_dims: Mapping[str, int] | None = None):
         super().__init__(in_dim, aux_dims)
@@ -61,8 +81,21 @@ class CylinderDistance(TaskMap):
 
     class Params(Params):
         center: AuxOrValue
-        radius: AuxOrValue = 1.0
-        axis: Sequence[float] = (0.0, 0.0, 1.0)
+        radius: AuxOrValue = Field(1.0, description="> 0, or the name of an aux entry")
+        axis: Sequence[float] = Field((0.0, 0.0, 1.0), description="the cylinder's direction: any non-zero vector")
+
+        @field_validator("radius")
+        @classmethod
+        def _radius(cls, v: AuxOrValue) -> AuxOrValue:
+            return _positive_radius(v, "cylinder")
+
+        @field_validator("axis")
+        @classmethod
+        def _axis(cls, v: Sequence[float]) -> Sequence[float]:
+            if not any(float(a) != 0.0 for a in v):
+                raise ValueError(f"axis must be a non-zero vector (it is the direction the cylinder extends in); "
+                                 f"given {list(v)}")
+            return v
 
     def __init__(self, params: Params, in_dim: int, aux_dims: Mapping[str, int] | None = None):
         super().__init__(in_dim, aux_dims)
@@ -93,7 +126,16 @@ class BoxDistance(TaskMap):
 
     class Params(Params):
         center: AuxOrValue
-        half_extents: AuxOrValue
+        half_extents: AuxOrValue = Field(description="≥ 0 along every axis, or an aux name")
+
+        @field_validator("half_extents")
+        @classmethod
+        def _half_extents(cls, v: AuxOrValue) -> AuxOrValue:
+            vals = _values(v)
+            if vals is not None and not all(x >= 0 for x in vals):
+                raise ValueError(f"half_extents must all be ≥ 0 (a box cannot reach a negative length from its "
+                                 f"centre) or the name of an aux entry; given {v!r}")
+            return v
 
     def __init__(self, params: Params, in_dim: int, aux_dims: Mapping[str, int] | None = None):
         super().__init__(in_dim, aux_dims)

@@ -123,6 +123,9 @@ def _parse_joint(el: ET.Element) -> Joint:
     lower, upper = -math.inf, math.inf
     if jtype in ("revolute", "prismatic"):
         lower, upper = get("lower", -math.inf), get("upper", math.inf)
+        if not lower <= upper:  # NaN included: every joint-limit barrier and start range is built from these
+            raise ValueError(f"URDF joint '{name}': limit lower={lower} is above upper={upper} (the joint could take "
+                             f"no angle at all); fix the <limit> of the joint")
     return Joint(
         name=name, type=jtype, parent=parent.get("link"), child=child.get("link"), xyz=xyz, rpy=rpy, axis=axis,
         lower=lower, upper=upper, velocity=get("velocity", math.inf), effort=get("effort", math.inf),
@@ -174,7 +177,11 @@ def parse_urdf_string(text: str) -> URDFModel:
 @functools.lru_cache(maxsize=16)
 def _parse_cached(path: str, mtime: float) -> URDFModel:
     with open(path, encoding="utf-8") as f:
-        return parse_urdf_string(f.read())
+        text = f.read()
+    try:
+        return parse_urdf_string(text)
+    except ValueError as e:  # the file to fix, not only what is wrong in it
+        raise ValueError(f"{path}: {e}") from None
 
 
 def parse_urdf(path: str | os.PathLike) -> URDFModel:

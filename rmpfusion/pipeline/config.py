@@ -8,16 +8,18 @@ from __future__ import annotations
 
 from typing import Any, Literal, Mapping
 
-from pydantic import BaseModel, ConfigDict, Field, create_model, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, create_model, model_validator
+from pydantic_core import InitErrorDetails, PydanticCustomError
 
 from ..build.spec import TreeSpec, TypedBlock, tree_spec_model, typed_union, weight_field
+from ..envs.common import time_grid
 from ..registry import ENVS, LEAF_RMPS, LEARNERS, TASK_MAPS, WEIGHTS
 
 from ..learn.config import RENAMED_KEYS, TrainConfig, _renamed, upgrade_train_config  # noqa: F401
 
 
 class _Frozen(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class DataConfig(_Frozen):
@@ -86,11 +88,45 @@ class RunConfig(_Frozen):
     logger: LoggerConfig = LoggerConfig()
 
     @model_validator(mode="after")
-    def _snapshots_in_range(self):
+    def _across_blocks(self):
+        """Checks that need two blocks at once, each reported at the key to change (all of them together)."""
+        found: list[InitErrorDetails] = []
+
+        def refuse(loc: tuple[str, ...], given: Any, message: str) -> None:
+            found.append(InitErrorDetails(type=PydanticCustomError("run_config", "{message}", {"message": message}),
+                                          loc=loc, input=given))
+
         bad = [s for s in self.train.snapshots if s < 0 or s > self.train.iterations]
         if bad:
-            raise ValueError(f"train.snapshots {bad} lie outside 0..train.iterations={self.train.iterations}")
+            refuse(("train", "snapshots"), bad,
+                   f"snapshots {bad} lie outside 0..train.iterations={self.train.iterations} (a snapshot is the "
+                   f"learner after that many iterations); given {self.train.snapshots}")
+        step = getattr(self.env, "integration_step", None) if not isinstance(self.env, TypedBlock) else None
+        if callable(step):  # environments that name their fixed step; others are checked when they roll out
+            dt, key = step()
+            for loc, t, what in ((("data", "interval"), self.data.interval, "a positive multiple"),
+                                 (("eval", "horizon"), self.eval.horizon, "a multiple")):
+                if t is not None and not _on_grid(t, dt):
+                    refuse(loc, t, f"must be {what} of the environment's step {key} = {dt:.6g} s (rollouts "
+                                   f"integrate and record on that step's grid only); given {t}")
+        shown = getattr(self.env, "render_trajectory", None) if not isinstance(self.env, TypedBlock) else None
+        n_test = self.data.test_envs * self.data.test_trajectories
+        if isinstance(shown, int) and shown >= n_test:
+            refuse(("env", "render_trajectory"), shown,
+                   f"must be < {n_test}, the number of test trajectories (data.test_envs × data.test_trajectories, "
+                   f"numbered from 0); given {shown}")
+        if found:
+            raise ValidationError.from_exception_data(type(self).__name__, found)
         return self
+
+
+def _on_grid(t: float, dt: float) -> bool:
+    """Whether a rollout can record every ``t`` seconds on the step ``dt``: the rollout's own check, ``time_grid``."""
+    try:
+        time_grid(t, t, dt)
+    except ValueError:
+        return False
+    return True
 
 
 _RUN_MODELS: dict[tuple, type[RunConfig]] = {}

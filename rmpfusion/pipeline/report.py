@@ -34,10 +34,11 @@ def _planar_figures(exp: Experiment, name: str, ev: LearnerEval, expert: ExpertE
     idx, q0, qd0, aux = _environment_0(exp, test)
     ro, out = ev.final_rollout, []
     out.append(plot_trajectories(exp.dir / "figures" / f"trajectories_{name}.png", aux, expert.rollout.q[:, idx],
-                                 {name: ro.q[:, idx]}, q0, qd0, title=f"{exp.run.name}: expert (dashed) vs {name}"))
+                                 {name: ro.q[:, idx]}, q0, qd0,
+                                 title=f"{exp.run.name}: expert (dashed) vs {name}, test environment 0"))
     if ro.V is not None:
         out.append(plot_lyapunov(exp.dir / "figures" / f"lyapunov_{name}.png", ro.times, ro.V[:, idx],
-                                 title=f"{name}: $V_r(t)$, test environment 0"))
+                                 title=f"{exp.run.name}: {name}'s $V_r(t)$, test environment 0"))
     return out
 
 
@@ -45,7 +46,8 @@ def _progression_figure(exp: Experiment, name: str, ev: LearnerEval, expert: Exp
     """Test environment 0 at every snapshot beside the expert (paper Fig. 4)."""
     idx, q0, qd0, aux = _environment_0(exp, test)
     return plot_progression(exp.dir / "figures" / f"progression_{name}.png", aux, expert.rollout.q[:, idx],
-                            ev.panels, q0, qd0)
+                            ev.panels, q0, qd0, title=f"{exp.run.name}: {name} vs the expert at each training "
+                                                      f"snapshot (columns: {name} @ iteration), test environment 0")
 
 
 def _learner_figures(exp: Experiment, name: str, f: Fitted, ev: LearnerEval, expert: ExpertEval,
@@ -55,11 +57,12 @@ def _learner_figures(exp: Experiment, name: str, f: Fitted, ev: LearnerEval, exp
     if planar:
         out += _planar_figures(exp, name, ev, expert, splits.test)
     out.append(plot_learning_curves(fig_dir / f"learning_curve_{name}.png", {name: _curves(f)},
-                                    {name: sorted(f.result.snapshots)}))
+                                    {name: sorted(f.result.snapshots)}, title=f"{exp.run.name}: learning curve of {name}",
+                                    unit="a.u./s²" if planar else "rad/s²"))
     if ev.weights is not None and ev.weights.traces:
         out.append(plot_weights(fig_dir / f"weights_{name}.png", ev.weights.times, ev.weights.expert_traces(),
                                 ev.weights.traces, title=f"{exp.run.name}: {name}'s weights vs the expert's (dashed) "
-                                                         "along test trajectory 0"))
+                                                         "along test trajectory 0 (test environment 0)"))
     if planar and ev.panels:
         out.append(_progression_figure(exp, name, ev, expert, splits.test))
     return out
@@ -73,7 +76,9 @@ def figures(exp: Experiment, splits: Splits, fitted: dict[str, Fitted], expert: 
         out += _learner_figures(exp, name, fitted[name], ev, expert, splits)
     if evals:
         out.append(plot_learning_curves(exp.dir / "figures" / "learning_curves.png",
-                                        {n: _curves(f) for n, f in fitted.items()}))
+                                        {n: _curves(f) for n, f in fitted.items()},
+                                        title=f"{exp.run.name}: learning curves of every learner",
+                                        unit="a.u./s²" if isinstance(exp.env, PlanarWorkspace) else "rad/s²"))
     if isinstance(exp.env, Renders) and expert.stage is not None:
         t0 = time.time()
         exp.say.say("figures: " + exp.run.name)

@@ -1,6 +1,7 @@
 """Figures of the Franka experiment (paper §4.2, Fig. 5b and Fig. 6): the learner/expert ratio chart, V_r(t) per
 policy, a render strip and an animated GIF of one test execution (pybullet's headless renderer), and the
-end-effector paths seen from above. Written atomically, like every figure of the project."""
+end-effector paths seen from above. Written atomically, like every figure of the project; each ``plot_*`` saves what
+a ``_draw_*`` returns, so the tests inspect the ``Figure`` without writing a file."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -8,11 +9,14 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 import torch
-from matplotlib.patches import Circle
+from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
+from matplotlib.patches import Circle, Patch
 
 from ..envs.protocol import Renders
 from ..files import atomic_path
-from .figures import _np, save_figure, subplots
+from .figures import (LEGEND_SIZE, TIME_LABEL, TITLE_SIZE, V_LABEL, _np, figure_legend, legend_outside, save_figure,
+                      shared_ylim, subplots, unique_handles)
 
 METRIC_LABELS = {"time": "time", "cspace_length": "conf length", "ee_length": "end eff length",
                  "goal_distance": "goal distance", "timeout_goal_distance": "goal distance\nat time-out",
@@ -20,13 +24,10 @@ METRIC_LABELS = {"time": "time", "cspace_length": "conf length", "ee_length": "e
 _STAGE_COLOURS = ("tab:red", "tab:orange", "tab:green", "tab:blue", "tab:purple", "tab:brown", "tab:pink")
 
 
-def plot_ratio_bars(path, ratios: Mapping[str, Mapping[str, Mapping[str, float]]],
-                    metrics: Sequence[str] | None = None, title: str = "") -> Path:
-    """Paper Fig. 5b: per metric, one bar per policy = mean of the per-trajectory ratios learner/expert, error bar
-    = their standard deviation; the expert is the dotted line at 1. ``ratios[label][metric] = {mean, std}``."""
+def _draw_ratio_bars(ratios, metrics=None, title: str = "") -> Figure:
     labels = list(ratios)
     metrics = list(metrics or (next(iter(ratios.values())).keys() if ratios else []))
-    fig, ax = subplots(figsize=(1.6 + 1.5 * len(metrics), 3.4))
+    fig, ax = subplots(figsize=(3.4 + 1.5 * len(metrics), 3.6), layout="constrained")
     n = max(len(labels), 1)
     width = 0.8 / n
     x = np.arange(len(metrics))
@@ -37,16 +38,25 @@ def plot_ratio_bars(path, ratios: Mapping[str, Mapping[str, Mapping[str, float]]
         std = np.array([np.nan if v is None else v for v in std], dtype=float)
         ax.bar(x + (i - (n - 1) / 2) * width, mean, width * 0.9, yerr=std, capsize=3, label=lab,
                color=_STAGE_COLOURS[(i + 1) % len(_STAGE_COLOURS)], alpha=0.85, error_kw={"lw": 1})
-    ax.axhline(1.0, color="k", ls=":", lw=1.2, label="expert")
+    ax.axhline(1.0, color="k", ls=":", lw=1.2, label="expert (ratio 1)")
+    ax.errorbar([], [], yerr=[], fmt="none", ecolor="k", capsize=3, lw=1, label="± std over trajectories")
     tops = [ratios[lab].get(m, {}).get("mean") for lab in labels for m in metrics]
     if any(t is not None and np.isfinite(t) and t > 10 for t in tops):  # e.g. an untrained learner's goal distance
         ax.set_yscale("log")
     ax.set_xticks(x)
     ax.set_xticklabels([METRIC_LABELS.get(m, m) for m in metrics])
-    ax.set_ylabel("learner / expert")
-    ax.set_title(title, fontsize=9)
-    ax.legend(fontsize=7, ncol=2)
-    return save_figure(fig, path)
+    ax.set_xlabel("metric of a test execution")
+    ax.set_ylabel("learner / expert (ratio)")
+    ax.set_title(title or "learner / expert per test trajectory (mean ± std)", fontsize=TITLE_SIZE)
+    legend_outside(ax)
+    return fig
+
+
+def plot_ratio_bars(path, ratios: Mapping[str, Mapping[str, Mapping[str, float]]],
+                    metrics: Sequence[str] | None = None, title: str = "") -> Path:
+    """Paper Fig. 5b: per metric, one bar per policy = mean of the per-trajectory ratios learner/expert, error bar
+    = their standard deviation; the expert is the dotted line at 1. ``ratios[label][metric] = {mean, std}``."""
+    return save_figure(_draw_ratio_bars(ratios, metrics, title), path)
 
 
 #: The paper's Fig. 5b ratios. The goal distances are drawn in metres instead (``plot_goal_distances``): a policy
@@ -54,12 +64,9 @@ def plot_ratio_bars(path, ratios: Mapping[str, Mapping[str, Mapping[str, float]]
 PATH_RATIOS = ("time", "cspace_length", "ee_length")
 
 
-def plot_goal_distances(path, policies: Sequence[Any], title: str = "") -> Path:
-    """Per policy (``StageResult``s, the expert first), the end effector's distance to the goal at the 10 s time-out
-    and the closest it came, mean ± std over the test trajectories, on a log scale, with the 0.05 m precision
-    at which an execution counts as reached."""
-    keys = (("timeout_goal_distance", "at the time-out"), ("min_goal_distance", "closest"))
-    fig, ax = subplots(figsize=(1.8 + 1.1 * len(policies), 3.4))
+def _draw_goal_distances(policies: Sequence[Any], title: str = "") -> Figure:
+    keys = (("timeout_goal_distance", "at the 10 s time-out"), ("min_goal_distance", "closest approach"))
+    fig, ax = subplots(figsize=(3.6 + 1.1 * len(policies), 3.6), layout="constrained")
     width = 0.8 / len(keys)
     x = np.arange(len(policies))
     for j, (key, label) in enumerate(keys):
@@ -68,39 +75,61 @@ def plot_goal_distances(path, policies: Sequence[Any], title: str = "") -> Path:
         lower = np.minimum(std, mean * 0.999)  # a log axis cannot show mean − std ≤ 0
         ax.bar(x + (j - 0.5) * width, mean, width * 0.9, yerr=[lower, std], capsize=3, label=label,
                color=("tab:blue", "tab:orange")[j], alpha=0.85, error_kw={"lw": 1})
-    ax.axhline(0.05, color="k", ls=":", lw=1.2, label="0.05 m precision")
+    ax.axhline(0.05, color="k", ls=":", lw=1.2, label="0.05 m: goal reached")
+    ax.errorbar([], [], yerr=[], fmt="none", ecolor="k", capsize=3, lw=1, label="± std over trajectories")
     ax.set_yscale("log")
     ax.set_xticks(x)
     ax.set_xticklabels([p.label for p in policies], fontsize=8)
-    ax.set_ylabel("end effector – goal [m]")
-    ax.set_title(title, fontsize=9)
-    ax.legend(fontsize=7)
-    return save_figure(fig, path)
+    ax.set_xlabel("policy")
+    ax.set_ylabel("end effector to goal (m)")
+    ax.set_title(title or "end effector's distance to the goal on the test set", fontsize=TITLE_SIZE)
+    legend_outside(ax)
+    return fig
+
+
+def plot_goal_distances(path, policies: Sequence[Any], title: str = "") -> Path:
+    """Per policy (``StageResult``s, the expert first), the end effector's distance to the goal at the 10 s time-out
+    and the closest it came, mean ± std over the test trajectories, on a log scale, with the 0.05 m precision
+    at which an execution counts as reached."""
+    return save_figure(_draw_goal_distances(policies, title), path)
+
+
+def _draw_lyapunov_stages(panels: Sequence[Mapping[str, Any]], title: str = "") -> Figure:
+    n = len(panels)
+    fig, axes = subplots(1, n, figsize=(2.9 * n + 0.3, 3.4), squeeze=False, layout="constrained")
+    values = []
+    for ax, p in zip(axes[0], panels):
+        t, V = _np(p["times"]), _np(p["V"])
+        V = V.reshape(len(t), -1)
+        ax.plot(t, V, lw=0.6, color="0.6")
+        ax.plot([], [], lw=0.6, color="0.6", label="each test trajectory")
+        h = p.get("highlight")
+        if h is not None:
+            ax.plot(t, V[:, h], lw=1.8, color="tab:blue", label=f"rendered execution (trajectory {h})")
+        values.append(V)
+        ax.set_title(str(p["label"]), fontsize=TITLE_SIZE - 1)
+        ax.set_xlabel(TIME_LABEL)
+        ax.set_ylabel(V_LABEL)
+    shared_ylim(axes[0], values)
+    figure_legend(fig, *unique_handles(*axes.flat))
+    fig.suptitle(title or "$V_r(t)$ per policy on the test set (Theorem 2: non-increasing)", fontsize=TITLE_SIZE)
+    return fig
 
 
 def plot_lyapunov_stages(path, panels: Sequence[Mapping[str, Any]], title: str = "") -> Path:
     """Paper Fig. 6e: one panel per policy with V_r(t) of every test trajectory (thin) and of the rendered
-    example (thick). ``panels`` items: ``{"label", "times" (T,), "V" (T, B), "highlight": int}``."""
-    n = len(panels)
-    fig, axes = subplots(1, n, figsize=(2.8 * n, 2.7), squeeze=False)
-    for ax, p in zip(axes[0], panels):
-        t, V = _np(p["times"]), _np(p["V"])
-        ax.plot(t, V, lw=0.6, color="0.6")
-        h = p.get("highlight")
-        if h is not None:
-            ax.plot(t, V[:, h], lw=1.8, color="tab:blue")
-        ax.set_title(str(p["label"]), fontsize=9)
-        ax.set_xlabel("t [s]")
-    axes[0, 0].set_ylabel("$V_r$")
-    if title:
-        fig.suptitle(title, fontsize=9, y=1.04)
-    return save_figure(fig, path)
+    example (thick), on one y-scale so the policies compare at a glance. ``panels`` items: ``{"label", "times"
+    (T,), "V" (T, B), "highlight": int}``."""
+    return save_figure(_draw_lyapunov_stages(panels, title), path)
 
 
-def plot_render_strip(path, rows: Sequence[Mapping[str, Any]], title: str = "") -> Path:
-    """Paper Fig. 6a-d: one row per policy, one column per time, each a pybullet render with the end-effector
-    path so far (line) and the goal (star). ``rows`` items: ``{"label", "frames": [{"t", "image", "trail" (N, 2)
-    pixels, "goal" (2,) pixels}]}``."""
+#: The marks drawn over a render: the end-effector path so far and the goal (strip and GIF alike).
+TRAIL_LABEL = "end-effector path so far"
+GOAL_LABEL = "goal"
+OBSTACLE_LABEL = "obstacle (red cylinder)"
+
+
+def _draw_render_strip(rows: Sequence[Mapping[str, Any]], title: str = "") -> Figure:
     n_rows = len(rows)
     n_cols = max(len(r["frames"]) for r in rows) if rows else 1
     h, w = rows[0]["frames"][0]["image"].shape[:2]
@@ -127,47 +156,110 @@ def plot_render_strip(path, rows: Sequence[Mapping[str, Any]], title: str = "") 
                 ax.set_title(f"t = {f['t']:.1f} s", fontsize=9)
             if j == 0:
                 ax.set_ylabel(str(r["label"]), fontsize=9)
-    if title:
-        fig.suptitle(title, fontsize=10)
+    handles = [Line2D([], [], color="yellow", lw=1.5),
+               Line2D([], [], ls="none", marker="*", color="orange", mec="k", ms=9),
+               Patch(color="tab:red", alpha=0.8)]
     fig.subplots_adjust(wspace=0.02, hspace=0.04)
-    return save_figure(fig, path)
+    # just below the images (the saved figure's tight bounding box takes it in), never over a render
+    fig.legend(handles, [TRAIL_LABEL, GOAL_LABEL, OBSTACLE_LABEL], loc="upper center", ncol=3, fontsize=LEGEND_SIZE,
+               frameon=False, bbox_to_anchor=(0.5, 0.105))
+    fig.suptitle(title or "one test execution per policy (rows), left to right in time", fontsize=TITLE_SIZE)
+    return fig
 
 
-def plot_ee_paths(path, aux: Mapping[str, torch.Tensor], paths: Mapping[str, Any], title: str = "") -> Path:
-    """End-effector paths of one test execution seen from above (x-y), obstacles as discs, goal as a star."""
-    fig, ax = subplots(figsize=(4.6, 4.6))
+def plot_render_strip(path, rows: Sequence[Mapping[str, Any]], title: str = "") -> Path:
+    """Paper Fig. 6a-d: one row per policy, one column per time, each a pybullet render with the end-effector
+    path so far (line) and the goal (star). ``rows`` items: ``{"label", "frames": [{"t", "image", "trail" (N, 2)
+    pixels, "goal" (2,) pixels}]}``."""
+    return save_figure(_draw_render_strip(rows, title), path)
+
+
+def _draw_ee_paths(aux: Mapping[str, torch.Tensor], paths: Mapping[str, Any], title: str = "") -> Figure:
+    fig, ax = subplots(figsize=(6.8, 4.6), layout="constrained")
     k = 1
     while f"obstacle{k}_center" in aux:
         c = _np(aux[f"obstacle{k}_center"]).reshape(-1)[:2]
         r = float(_np(aux[f"obstacle{k}_radius"]).reshape(-1)[0])
-        ax.add_patch(Circle(c, r, color="tab:red", alpha=0.5, lw=0))
+        ax.add_patch(Circle(c, r, color="tab:red", alpha=0.5, lw=0, zorder=1,
+                            label="obstacle (cylinder)" if k == 1 else None))
         k += 1
     g = _np(aux["goal"]).reshape(-1)
-    ax.add_patch(Circle(g[:2], 0.05, fill=False, ls="--", color="orange"))
-    for (lab, p), col in zip(paths.items(), _STAGE_COLOURS):
-        p = _np(p).reshape(-1, 3)
+    ax.add_patch(Circle(g[:2], 0.05, fill=False, ls="--", color="orange", zorder=2, label="within 0.05 m of the goal"))
+    # learners first and beneath (wide, semi-transparent), the expert last and on top (thin, black, dashed): where
+    # a learner retraces the expert's path both stay visible
+    learners = [lab for lab in paths if lab != "expert"]
+    order = learners + [lab for lab in paths if lab == "expert"]
+    # the colours of the ratio chart's bars (_STAGE_COLOURS from index 1), so a policy has one colour throughout
+    colours = {lab: _STAGE_COLOURS[(i + 1) % len(_STAGE_COLOURS)] for i, lab in enumerate(learners)}
+    started = False
+    for lab in order:
+        p = _np(paths[lab]).reshape(-1, 3)
         p = p[np.isfinite(p).all(1)]
-        ax.plot(p[:, 0], p[:, 1], "--" if lab == "expert" else "-", color="k" if lab == "expert" else col, lw=1.3,
-                label=lab)
+        if lab == "expert":
+            ax.plot(p[:, 0], p[:, 1], "--", color="k", lw=1.3, zorder=4, label=lab)
+        else:
+            ax.plot(p[:, 0], p[:, 1], "-", color=colours[lab], lw=2.6, alpha=0.6, zorder=3, solid_capstyle="round",
+                    label=lab)
         if len(p):
-            ax.plot(p[0, 0], p[0, 1], "o", color="k", ms=4)
-    ax.plot(g[0], g[1], "*", color="orange", mec="k", ms=12, label="goal")
+            ax.plot(p[0, 0], p[0, 1], "o", color="k", ms=4, zorder=5, label=None if started else "start")
+            started = True
+    ax.plot(g[0], g[1], "*", color="orange", mec="k", ms=12, zorder=5, label="goal")
     ax.plot(0, 0, "s", color="0.3", ms=8, label="robot base")
     ax.set_aspect("equal")
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("y [m]")
-    ax.legend(fontsize=7)
-    ax.set_title(title, fontsize=9)
-    return save_figure(fig, path)
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    legend_outside(ax)
+    ax.set_title(title or "end-effector paths of one test execution (top view)", fontsize=TITLE_SIZE)
+    return fig
 
 
-def _label(img: np.ndarray, text: str) -> np.ndarray:
+def plot_ee_paths(path, aux: Mapping[str, torch.Tensor], paths: Mapping[str, Any], title: str = "") -> Path:
+    """End-effector paths of one test execution seen from above (x-y), obstacles as discs, goal as a star, the
+    expert's path (key "expert") drawn over the learners'."""
+    return save_figure(_draw_ee_paths(aux, paths, title), path)
+
+
+def _font(size: int):
+    from PIL import ImageFont
+
+    try:
+        return ImageFont.load_default(size=size)  # scalable where pillow has FreeType
+    except TypeError:  # older pillow: the fixed bitmap font
+        return ImageFont.load_default()
+
+
+def _label(img: np.ndarray, text: str, size: int = 12) -> np.ndarray:
+    """``img`` under a white strip holding ``text`` on one line: the label never covers the render, however small
+    the frame, and every tile of every frame has the same height."""
+    return np.concatenate([_caption(img.shape[1], [text], size, wrap=False), img], axis=0)
+
+
+def _wrap(draw, text: str, font, width: int) -> list[str]:
+    """``text`` broken between words into lines no wider than ``width`` pixels (a longer word keeps its line)."""
+    out: list[str] = []
+    for word in text.split(" "):
+        joined = f"{out[-1]} {word}" if out else word
+        if out and draw.textlength(joined, font=font) <= width:
+            out[-1] = joined
+        else:
+            out.append(word)
+    return out
+
+
+def _caption(width: int, lines: Sequence[str], size: int = 12, wrap: bool = True) -> np.ndarray:
+    """A white strip of ``width`` pixels holding ``lines`` of text, one under the other (a line too wide is
+    broken between words): a GIF's title, key and frame labels."""
     from PIL import Image, ImageDraw
 
-    im = Image.fromarray(img)
+    font = _font(size)
+    probe = ImageDraw.Draw(Image.new("RGB", (1, 1)))
+    if wrap:
+        lines = [part for line in lines for part in _wrap(probe, line, font, width - 12)]
+    height = probe.textbbox((0, 0), "Ag|", font=font)[3]  # one height for any text: every GIF frame the same size
+    im = Image.new("RGB", (width, (height + 4) * len(lines) + 4), (255, 255, 255))
     d = ImageDraw.Draw(im)
-    d.rectangle([0, 0, 8 + 7 * len(text), 16], fill=(255, 255, 255))
-    d.text((4, 2), text, fill=(0, 0, 0))
+    for i, line in enumerate(lines):
+        d.text((6, 4 + i * (height + 4)), line, fill=(0, 0, 0), font=font)
     return np.asarray(im)
 
 
@@ -249,14 +341,17 @@ def franka_figures(env: Renders, fig_dir, expert, stages, aux: Mapping[str, torc
     gw, gh = (w * 3) // 4, (h * 3) // 4
     goal_g = env.project(ex_aux["goal"].reshape(1, 3).cpu().numpy(), gw, gh)[0]
     n_frames = int(np.floor(horizon * settings.gif_fps + 1e-9)) + 1
+    caption = _caption(gw * len(policies), [f"{title}: test execution {b}, policies side by side, real time",
+                                            f"yellow line: {TRAIL_LABEL}; orange ring: {GOAL_LABEL}; "
+                                            f"red cylinder: obstacle"])
     frames = []
     for k in range(n_frames):
         t = k / settings.gif_fps
         tiles = []
         for st in policies:
             f = frame(st, t, gw, gh, goal_g)
-            tiles.append(_label(_draw_trail(f["image"], f["trail"], goal_g), f"{st.label}  t={f['t']:.1f}s"))
-        frames.append(np.concatenate(tiles, axis=1))
+            tiles.append(_label(_draw_trail(f["image"], f["trail"], goal_g), f"{st.label}, t = {f['t']:.1f} s"))
+        frames.append(np.concatenate([caption, np.concatenate(tiles, axis=1)], axis=0))
     out.append(save_gif(fig_dir / "franka_execution.gif", frames, settings.gif_fps))
     return out
 

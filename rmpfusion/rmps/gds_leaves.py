@@ -6,7 +6,7 @@ weights; the autodiff curvature of the base class is the reference the tests com
 from __future__ import annotations
 
 import torch
-from pydantic import Field
+from pydantic import Field, model_validator
 from torch import Tensor
 
 from ..core.gds import GDS
@@ -85,7 +85,16 @@ class Barrier1D(GDS):
         epsilon: float = Field(0.2, ge=0, description="metric floor (always-on part of the gating)")
         alpha: float = Field(1e-5, ge=0, description="potential gain")
         eta: float = Field(0.0, ge=0, description="damping gain")
-        min_distance: float = Field(1e-3, gt=0)
+        min_distance: float = Field(1e-3, gt=0, description="< r_w: where the barrier's tangent-line continuation "
+                                                             "inside an obstacle starts")
+
+        @model_validator(mode="after")
+        def _acts_somewhere(self):
+            if not self.min_distance < self.r_w:
+                raise ValueError(f"min_distance must be < r_w (w(x) is evaluated at x ≥ min_distance and is zero "
+                                 f"from r_w on, so the barrier would never act); given min_distance={self.min_distance}, "
+                                 f"r_w={self.r_w}")
+            return self
 
     def __init__(self, params: Params, dim: int = 1):
         super().__init__(dim)

@@ -1,10 +1,10 @@
 """Hand-designed weight functions with analytic gradients: the fixed weights of expert policies."""
 from __future__ import annotations
 
-from typing import Mapping
+from typing import Mapping, Sequence
 
 import torch
-from pydantic import Field, field_validator, model_validator
+from pydantic import Field, field_validator
 from torch import Tensor
 
 from ..core.auxstate import AuxOrValue, AuxParam
@@ -45,6 +45,16 @@ class _Range(Params):
     high: float = Field(gt=0)
 
 
+def _surface_radius(v: AuxOrValue) -> AuxOrValue:
+    """A constant radius is ≥ 0: 0 measures from the centre point itself, a negative one is no surface."""
+    if not isinstance(v, str):
+        vals = [float(x) for x in v] if isinstance(v, Sequence) else [float(v)]
+        if not all(x >= 0 for x in vals):
+            raise ValueError(f"radius must be ≥ 0 (0 measures the distance from the centre point; a negative radius "
+                             f"is no surface) or the name of an aux entry; given {v!r}")
+    return v
+
+
 class _DistanceWeight(WeightFunction):
     """Base for weights of the distance d = |x − center| − radius (center/radius constant or aux)."""
 
@@ -80,8 +90,13 @@ class RBF(_DistanceWeight):
 
     class Params(_Range):
         center: AuxOrValue
-        radius: AuxOrValue = 0.0
+        radius: AuxOrValue = Field(0.0, description="≥ 0 (0: a point), or an aux name")
         sigma: float = Field(1.0, gt=0)
+
+        @field_validator("radius")
+        @classmethod
+        def _radius(cls, v: AuxOrValue) -> AuxOrValue:
+            return _surface_radius(v)
 
     def __init__(self, params: Params, in_dim: int, aux_dims: Mapping[str, int] | None = None):
         super().__init__(params, in_dim, aux_dims)
@@ -101,15 +116,22 @@ class Logistic(_DistanceWeight):
 
     class Params(_Range):
         center: AuxOrValue
-        radius: AuxOrValue = 0.0
+        radius: AuxOrValue = Field(0.0, description="≥ 0 (0: a point), or an aux name")
         steepness: float = Field(4.0, description="k; its sign picks which side is 'high'")
-        switch_distance: float = 0.0
+        switch_distance: float = Field(0.0, description="d0, any sign: d is a signed distance (< 0 inside)")
 
-        @model_validator(mode="after")
-        def _nonzero(self):
-            if self.steepness == 0:
-                raise ValueError("steepness must be non-zero (use a constant weight instead)")
-            return self
+        @field_validator("radius")
+        @classmethod
+        def _radius(cls, v: AuxOrValue) -> AuxOrValue:
+            return _surface_radius(v)
+
+        @field_validator("steepness")
+        @classmethod
+        def _nonzero(cls, v: float) -> float:
+            if not (v > 0 or v < 0):  # NaN too
+                raise ValueError(f"steepness must be non-zero (k = 0 is a constant weight: use type constant "
+                                 f"instead); given {v}")
+            return v
 
     def __init__(self, params: Params, in_dim: int, aux_dims: Mapping[str, int] | None = None):
         super().__init__(params, in_dim, aux_dims)

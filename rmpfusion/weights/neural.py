@@ -11,7 +11,7 @@ from typing import Callable, Literal, Mapping
 
 import torch
 import torch.nn.functional as F
-from pydantic import Field
+from pydantic import Field, field_validator, model_validator
 from torch import Tensor, nn
 
 from ..core.auxstate import CONSTANT_DTYPE, AuxDict
@@ -63,6 +63,15 @@ ACTIVATIONS: dict[str, Activation] = {
 }
 
 
+def hidden_widths(v: list[int]) -> list[int]:
+    """Hidden-layer widths are ≥ 1: a layer of width 0 cuts the output off from every input."""
+    bad = [w for w in v if w < 1]
+    if bad:
+        raise ValueError(f"hidden widths must be ≥ 1 (a layer of width {bad[0]} cuts the output off from the inputs, "
+                         f"so nothing could be learned); given {list(v)}")
+    return v
+
+
 @WEIGHTS.register("mlp")
 class MLPWeight(WeightFunction):
     """w = floor + pos(MLP([x, aux features])) with pos = softplus or exp.
@@ -72,13 +81,25 @@ class MLPWeight(WeightFunction):
     """
 
     class Params(Params):
-        hidden: list[int] = Field(default_factory=lambda: [64, 64])
+        hidden: list[int] = Field(default_factory=lambda: [64, 64], description="widths ≥ 1; [] = no hidden layer")
         activation: Literal["tanh", "softplus", "sigmoid", "elu", "silu"] = "tanh"
         positivity: Literal["softplus", "exp"] = "softplus"
         floor: float = Field(1e-3, gt=0, description="lower bound of w: keeps every edge strictly positive")
         aux: list[str] = Field(default_factory=list)
         use_config: bool = Field(True, description="feed the parent configuration to the network")
-        init_bias: float | None = Field(None, description="initial w before training (default: random)")
+        init_bias: float | None = Field(None, description="initial w before training, > floor (default: random)")
+
+        @field_validator("hidden")
+        @classmethod
+        def _widths(cls, v: list[int]) -> list[int]:
+            return hidden_widths(v)
+
+        @model_validator(mode="after")
+        def _reachable_start(self):
+            if self.init_bias is not None and not self.init_bias > self.floor:
+                raise ValueError(f"init_bias must be > floor (w = floor + a positive term never reaches floor or "
+                                 f"below); given init_bias={self.init_bias}, floor={self.floor}")
+            return self
 
     def __init__(self, params: Params, in_dim: int, aux_dims: Mapping[str, int] | None = None):
         super().__init__(in_dim, aux_dims)

@@ -2,10 +2,12 @@
 demonstrations' length, and how figures render; validated when the environment is built from YAML."""
 from __future__ import annotations
 
+import functools
 from typing import Literal
 
-from pydantic import Field, model_validator
+from pydantic import Field, ValidationInfo, field_validator
 
+from ...maps.urdf import PANDA_ARM_JOINTS, load_panda_urdf_path, parse_urdf
 from ...registry import Params
 
 Vec3 = tuple[float, float, float]
@@ -16,6 +18,18 @@ class ObstacleSpec(Params):
     center: Vec3
     radius: float = Field(gt=0)
     height: float = Field(0.5, gt=0)
+
+
+@functools.lru_cache(maxsize=1)
+def panda_limits() -> tuple[tuple[float, float], ...]:
+    """(lower, upper) of panda_joint1..7 in the URDF the environment simulates (rad)."""
+    model = parse_urdf(load_panda_urdf_path())
+    return tuple((model.joint(n).lower, model.joint(n).upper) for n in PANDA_ARM_JOINTS)
+
+
+def _per_joint(name: str, v: tuple[float, ...]) -> None:
+    if len(v) != 7:
+        raise ValueError(f"{name} needs 7 values (one per joint); given {len(v)}: {list(v)}")
 
 
 class FrankaParams(Params):
@@ -64,15 +78,82 @@ class FrankaParams(Params):
     gif_fps: float = Field(10.0, gt=0, description="figures: frames per second of the execution GIF (real time)")
     dtype: Literal["float64", "float32"] = "float64"
 
-    @model_validator(mode="after")
-    def _shapes(self):
-        for name in ("nominal_q", "start_spread"):
-            if len(getattr(self, name)) != 7:
-                raise ValueError(f"{name} needs 7 values (one per joint)")
-        for axis, r in zip("xyz", self.goal_region):
+    def integration_step(self) -> tuple[float, str]:
+        """(seconds, the key that sets it) of the step rollouts integrate and pybullet steps on: a run config's
+        recording interval and horizon are checked against it before anything runs (``time_grid`` at rollout time)."""
+        return 1.0 / self.control_rate, "1/env.control_rate"
+
+    @field_validator("test_obstacles")
+    @classmethod
+    def _as_many_as_obstacles(cls, v: list[ObstacleSpec] | None, info: ValidationInfo):
+        nominal = info.data.get("obstacles")
+        if v is not None and nominal is not None and len(v) != len(nominal):
+            raise ValueError(f"test_obstacles has {len(v)} cylinders but obstacles has {len(nominal)}: the tree has "
+                             f"one distance node per obstacle")
+        return v
+
+    @field_validator("obstacle_jitter", "start_spread")
+    @classmethod
+    def _half_widths(cls, v: tuple[float, ...], info: ValidationInfo):
+        if info.field_name == "start_spread":
+            _per_joint("start_spread", v)
+        if not all(x >= 0 for x in v):
+            raise ValueError(f"{info.field_name} must be ≥ 0 in every entry (each is the half-width of a uniform "
+                             f"± perturbation); given {list(v)}")
+        return v
+
+    @field_validator("goal_region")
+    @classmethod
+    def _box(cls, v: tuple[Range, Range, Range]):
+        for axis, r in zip("xyz", v):
             if not r[0] <= r[1]:
-                raise ValueError(f"goal_region.{axis}: low {r[0]} is above high {r[1]}")
-        if self.test_obstacles is not None and len(self.test_obstacles) != len(self.obstacles):
-            raise ValueError(f"test_obstacles has {len(self.test_obstacles)} cylinders but obstacles has "
-                             f"{len(self.obstacles)}: the tree has one distance node per obstacle")
-        return self
+                raise ValueError(f"goal_region.{axis} must be (low, high) with low ≤ high (goals are drawn uniformly "
+                                 f"between them); given {tuple(r)}")
+        return v
+
+    @field_validator("nominal_q")
+    @classmethod
+    def _inside_the_limits(cls, v: tuple[float, ...]):
+        _per_joint("nominal_q", v)
+        for k, (q, (lo, hi)) in enumerate(zip(v, panda_limits())):
+            if not lo <= q <= hi:
+                raise ValueError(f"nominal_q[{k}] must lie within {PANDA_ARM_JOINTS[k]}'s limits [{lo}, {hi}] (starts "
+                                 f"are drawn around it and clamped to the limits); given {q}")
+        return v
+
+    @field_validator("joint_margin")
+    @classmethod
+    def _room_inside_the_limits(cls, v: float, info: ValidationInfo):
+        nominal = info.data.get("nominal_q")  # absent when it was refused itself
+        for k, (lo, hi) in enumerate(panda_limits()):
+            if not lo + v < hi - v:
+                raise ValueError(f"joint_margin must be < half of every joint's range (starts are drawn in "
+                                 f"[lower + margin, upper − margin]); {PANDA_ARM_JOINTS[k]} spans [{lo}, {hi}], "
+                                 f"half of it is {(hi - lo) / 2:.4g}; given {v}")
+            if nominal is not None and not lo + v <= nominal[k] <= hi - v:
+                raise ValueError(f"joint_margin puts nominal_q[{k}] = {nominal[k]} outside the start range of "
+                                 f"{PANDA_ARM_JOINTS[k]} [{lo} + margin, {hi} − margin] (every start would be "
+                                 f"clamped to its edge); move nominal_q inward or lower joint_margin; given {v}")
+        return v
+
+    @field_validator("camera")
+    @classmethod
+    def _in_front(cls, v):
+        if not v[0] > 0:
+            raise ValueError(f"camera distance (the first entry) must be > 0 (the camera looks at the target from "
+                             f"that far); given {v[0]}")
+        return v
+
+    @field_validator("render_size")
+    @classmethod
+    def _pixels(cls, v: tuple[int, int]):
+        if not (v[0] >= 1 and v[1] >= 1):
+            raise ValueError(f"render_size must be ≥ 1 pixel in width and height; given {tuple(v)}")
+        return v
+
+    @field_validator("render_times")
+    @classmethod
+    def _times(cls, v: tuple[float, ...]):
+        if not all(t >= 0 for t in v):
+            raise ValueError(f"render_times must all be ≥ 0 (times into a rollout, in s); given {list(v)}")
+        return v

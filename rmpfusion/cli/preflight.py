@@ -1,0 +1,185 @@
+"""Before a Hydra app runs: compose the command line's config once and say what is wrong in a line or two.
+
+Hydra reports a misspelt config group, a missing config file, a YAML syntax error or an override it cannot
+parse in its own words (a traceback for YAML, "use +key" for a misspelt group). This module composes the same
+config first, through Hydra's public compose API, and turns those failures into messages naming the file,
+key or path and the fix, with the closest names where one was misspelt. A sweep (``-m a=1,2``) is checked on
+its first job. Only then does the app start, so nothing is created for a command that cannot run.
+"""
+from __future__ import annotations
+
+import difflib
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import yaml
+from hydra import compose, initialize_config_dir
+from hydra.core.override_parser.overrides_parser import OverridesParser
+from hydra.errors import ConfigCompositionException, HydraException, MissingConfigException, OverrideParseException
+
+#: Hydra's flags that take a value, and those that ask Hydra for something else than a run (help, the config).
+_VALUED_FLAGS = {"--config-dir", "-cd", "--config-path", "-cp", "--config-name", "-cn", "--experimental-rerun"}
+_INFO_FLAGS = {"-h", "--help", "--hydra-help", "--info", "-i", "--cfg", "-c", "--shell-completion", "-sc", "--version"}
+
+
+class CommandLineError(ValueError):
+    """The command line cannot compose into a config; the message says where and what to write instead."""
+
+
+@dataclass
+class CommandLine:
+    overrides: list[str]
+    config_dir: str | None = None
+    informational: bool = False
+
+
+def split_argv(argv: list[str]) -> CommandLine:
+    """Hydra's flags apart from the overrides."""
+    out, i = CommandLine([]), 0
+    while i < len(argv):
+        arg, value = argv[i], None
+        name = arg.split("=", 1)[0]
+        if name in _INFO_FLAGS:
+            out.informational = True
+        elif name in _VALUED_FLAGS:
+            value = arg.split("=", 1)[1] if "=" in arg else (argv[i + 1] if i + 1 < len(argv) else None)
+            i += 0 if "=" in arg else 1
+            if name in ("--config-dir", "-cd"):
+                out.config_dir = value
+        elif not arg.startswith("-"):
+            out.overrides.append(arg)
+        i += 1
+    return out
+
+
+def _first_job(overrides: list[str]) -> list[str]:
+    """The overrides of a sweep's first job (a sweep ``a=1,2`` becomes ``a=1``); Hydra's own keys left out."""
+    try:
+        parsed = OverridesParser.create().parse_overrides(overrides)
+    except OverrideParseException as e:
+        first = str(e).strip().splitlines()[0]
+        raise CommandLineError(f"cannot read the command line {' '.join(overrides)!r}: {first}; see "
+                               "https://hydra.cc/docs/advanced/override_grammar/basic/") from None
+    out = []
+    for o in parsed:
+        if o.key_or_group.split("/")[0].split(".")[0] == "hydra" and o.key_or_group != "hydra.searchpath":
+            continue
+        if o.is_sweep_override():
+            values = list(o.sweep_string_iterator())
+            if not values:
+                continue
+            out.append(f"{o.get_key_element()}={values[0]}")
+        else:
+            out.append(o.input_line)
+    return out
+
+
+def _groups(dirs: list[Path]) -> list[str]:
+    return sorted({p.name for d in dirs if d.is_dir() for p in d.iterdir() if p.is_dir() and not p.name.startswith(".")})
+
+
+def _close(name: str, options: list[str]) -> str:
+    close = difflib.get_close_matches(name, list(dict.fromkeys(options)), n=3, cutoff=0.5)
+    return f"did you mean {', '.join(repr(c) for c in close)}? " if close else ""
+
+
+def _yaml_message(e: yaml.MarkedYAMLError) -> str:
+    """Where the YAML went wrong: the construct it was reading (context) and what broke it (problem)."""
+    def at(mark) -> str:
+        return f"line {mark.line + 1}, column {mark.column + 1}"
+
+    mark = e.context_mark or e.problem_mark
+    parts = []
+    if e.context:
+        parts.append(f"{e.context} ({at(e.context_mark)})" if e.context_mark else e.context)
+    if e.problem:
+        parts.append(f"{e.problem} ({at(e.problem_mark)})" if e.problem_mark else e.problem)
+    where = mark.name if mark else "a config file"
+    return f"YAML syntax error in {where}: {', '.join(parts)}; fix the file (every config file must be valid YAML)"
+
+
+def _override_message(e: ConfigCompositionException, groups: list[str], keys: list[str]) -> str | None:
+    m = re.search(r"Could not override '([^']+)'", str(e))
+    if not m:
+        return None
+    key = m.group(1)
+    head = key.split(".")[0].split("/")[0]
+    hint = _close(head, groups + keys)
+    return (f"'{key}' is neither a config group nor a key of the config; {hint}config groups: {', '.join(groups)}; "
+            f"top-level keys: {', '.join(keys)} (to add a new key on purpose write +{key}=...)")
+
+
+def _missing_message(e: MissingConfigException, dirs: list[Path]) -> str:
+    m = re.search(r"Could not find '([^']+)'", str(e))
+    target = m.group(1) if m else str(e).splitlines()[0]
+    group, _, option = target.rpartition("/")
+    options = sorted({p.stem for d in dirs for p in (d / group).glob("*.yaml")}) if group else []
+    if not options:
+        return f"no config '{target}' (looked in {', '.join(str(d) for d in dirs)})"
+    return (f"no config '{option}' in the group '{group}' ({group}/{option}.yaml); {_close(option, options)}"
+            f"options: {', '.join(options)}")
+
+
+def _added_group(overrides: list[str], groups: list[str], keys: list[str]) -> str | None:
+    """``+experimnt=...`` composes (it adds a key) but was meant as a group: say so before validation does."""
+    for o in overrides:
+        if not o.startswith("+") or o.startswith("++"):
+            continue
+        head = o[1:].split("=", 1)[0].split(".")[0].split("/")[0]
+        if head in keys or head in groups:
+            continue
+        close = difflib.get_close_matches(head, groups, n=1, cutoff=0.6)
+        if close:
+            return (f"'{o}' adds a new key '{head}', which the config does not have; did you mean the config group "
+                    f"'{close[0]}' ({close[0]}={o.split('=', 1)[1] if '=' in o else '...'})?")
+    return None
+
+
+def check_command_line(conf_dir: str, argv: list[str]) -> None:
+    """Compose the command line's config as the app will; raise CommandLineError saying what is wrong."""
+    cmd = split_argv(argv)
+    if cmd.informational:
+        return
+    dirs = [Path(conf_dir)] + ([Path(cmd.config_dir)] if cmd.config_dir else [])
+    groups = _groups(dirs)
+    overrides = _first_job(cmd.overrides)
+    if cmd.config_dir:
+        overrides.append(f"hydra.searchpath=[file://{Path(cmd.config_dir).resolve()}]")
+    try:
+        with initialize_config_dir(config_dir=conf_dir, version_base="1.3"):
+            keys = list(compose("config").keys())
+            if (msg := _added_group(overrides, groups, keys)) is not None:
+                raise CommandLineError(msg)
+            compose("config", overrides=overrides)
+    except yaml.MarkedYAMLError as e:
+        raise CommandLineError(_yaml_message(e)) from None
+    except MissingConfigException as e:
+        raise CommandLineError(_missing_message(e, dirs)) from None
+    except ConfigCompositionException as e:
+        if isinstance(e.__cause__, yaml.MarkedYAMLError):
+            raise CommandLineError(_yaml_message(e.__cause__)) from None
+        msg = _override_message(e, groups, keys if "keys" in locals() else [])
+        raise CommandLineError(msg or _first_lines(e)) from None
+    except HydraException as e:
+        raise CommandLineError(_first_lines(e)) from None
+
+
+def _first_lines(e: Exception, n: int = 2) -> str:
+    lines = [ln for ln in str(e).strip().splitlines() if ln.strip() and not ln.startswith("Set the environment")]
+    return " ".join(lines[:n]) or type(e).__name__
+
+
+def check_output_dir(argv: list[str]) -> None:
+    """The run or sweep directory the command line names can be created (else Hydra fails with a traceback
+    after it has started). A directory with interpolations (``${now:...}``) is left to Hydra."""
+    for arg in split_argv(argv).overrides:
+        key, _, value = arg.partition("=")
+        key = key.lstrip("+")
+        if key not in ("hydra.run.dir", "hydra.sweep.dir") or not value or "${" in value:
+            continue
+        try:
+            Path(value).expanduser().mkdir(parents=True, exist_ok=True)
+        except OSError as e:
+            raise CommandLineError(f"{key}={value} cannot be created ({e.strerror or type(e).__name__}); choose a "
+                                   "directory you can write to") from None
