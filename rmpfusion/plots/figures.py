@@ -16,6 +16,7 @@ import numpy as np
 import torch
 from matplotlib.figure import Figure
 from matplotlib.patches import Circle
+from matplotlib.ticker import FuncFormatter, MaxNLocator
 
 from ..files import atomic_path
 
@@ -45,6 +46,11 @@ def subplots(*grid, figsize: tuple[float, float], layout: str | None = None, **k
     ``layout="constrained"`` makes room for titles, labels and figure legends outside the axes."""
     fig = Figure(figsize=figsize, layout=layout)
     return fig, fig.subplots(*grid, **kwargs)
+
+
+def _iterations(value: float, _position=None) -> str:
+    """Tick labels of iteration axes: 20000 as 20k, so five ticks never run into each other."""
+    return f"{value / 1000:g}k" if abs(value) >= 1000 else f"{value:g}"
 
 
 def colour_cycle() -> list[str]:
@@ -236,6 +242,8 @@ def _draw_learning_curves(curves, snapshots=None, smooth: int = 50, title: str =
                 marked = True
     ax.set_yscale("log")
     ax.set_xlabel("training iteration")
+    ax.xaxis.set_major_locator(MaxNLocator(nbins=5, integer=True))  # long runs: 20000 needs room for its digits
+    ax.xaxis.set_major_formatter(FuncFormatter(_iterations))
     ax.set_ylabel(_loss_label(unit))
     legend_outside(ax)
     ax.set_title(title or "learning curves: loss against the expert's accelerations", fontsize=TITLE_SIZE)
