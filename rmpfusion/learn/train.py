@@ -25,12 +25,12 @@ import torch
 from torch import nn
 
 from ..envs.demonstrations import Dataset
+from ..envs.common import DTYPES
 from ..files import atomic_torch_save, read_torch_file, remove_stale_temporaries
 from .config import TrainConfig, upgrade_train_config
 from .objectives import Objective, dataset_loss, make_objective
 from .optimizers import make_optimizer
 
-_DTYPES = {"float32": torch.float32, "float64": torch.float64}
 #: TrainConfig fields that change the optimisation path; a checkpoint made with other values is not resumed.
 _PATH_KEYS = ("optimizer", "objective", "lr", "lr_schedule", "lr_final_fraction", "batch_size", "dtype", "grad_clip")
 
@@ -328,7 +328,7 @@ def train(model: nn.Module, data: Dataset, cfg: TrainConfig, seed: int, test_dat
     (the validation loss is the one to choose settings by; the test loss is only reported);
     ``progress(done, total)`` is called after every step.
     """
-    dtype = _DTYPES[cfg.dtype]
+    dtype = DTYPES[cfg.dtype]
     model.to(dtype)
     data = data.to(dtype)
     test_data = test_data.to(dtype) if test_data is not None else None
