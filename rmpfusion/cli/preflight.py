@@ -16,6 +16,7 @@ from pathlib import Path
 import yaml
 from hydra import compose, initialize_config_dir
 from hydra.core.override_parser.overrides_parser import OverridesParser
+from hydra.core.override_parser.types import Glob
 from hydra.errors import ConfigCompositionException, HydraException, MissingConfigException, OverrideParseException
 
 #: Hydra's flags that take a value, and those that ask Hydra for something else than a run (help, the config).
@@ -53,8 +54,9 @@ def split_argv(argv: list[str]) -> CommandLine:
     return out
 
 
-def _first_job(overrides: list[str]) -> list[str]:
-    """The overrides of a sweep's first job (a sweep ``a=1,2`` becomes ``a=1``); Hydra's own keys left out."""
+def _first_job(overrides: list[str], dirs: list[Path]) -> list[str]:
+    """The overrides of a sweep's first job (a sweep ``a=1,2`` becomes ``a=1``, ``experiment=glob(*)`` the first
+    option it matches in the config directories); Hydra's own keys left out."""
     try:
         parsed = OverridesParser.create().parse_overrides(overrides)
     except OverrideParseException as e:
@@ -64,6 +66,14 @@ def _first_job(overrides: list[str]) -> list[str]:
     out = []
     for o in parsed:
         if o.key_or_group.split("/")[0].split(".")[0] == "hydra" and o.key_or_group != "hydra.searchpath":
+            continue
+        if isinstance(o.value(), Glob):
+            names = sorted({f.stem for d in dirs for f in (d / o.key_or_group.lstrip("+~")).glob("*.yaml")})
+            chosen = o.value().filter(names)
+            if chosen:
+                out.append(f"{o.get_key_element()}={chosen[0]}")
+            continue
+        if o.is_interval_sweep():  # a sweeper's search interval: the sweeper picks the values (and checks them)
             continue
         if o.is_sweep_override():
             values = list(o.sweep_string_iterator())
@@ -143,7 +153,7 @@ def check_command_line(conf_dir: str, argv: list[str]) -> None:
         return
     dirs = [Path(conf_dir)] + ([Path(cmd.config_dir)] if cmd.config_dir else [])
     groups = _groups(dirs)
-    overrides = _first_job(cmd.overrides)
+    overrides = _first_job(cmd.overrides, dirs)
     if cmd.config_dir:
         overrides.append(f"hydra.searchpath=[file://{Path(cmd.config_dir).resolve()}]")
     try:

@@ -1,4 +1,4 @@
-"""``RMPFUSION_DEBUG=1`` turns the one-line answers to mistakes back into full tracebacks."""
+"""The command line before a run: the debug switch, and which job of a sweep the preflight composes."""
 from __future__ import annotations
 
 import os
@@ -20,3 +20,15 @@ def test_a_mistake_is_one_line_and_the_debug_switch_shows_the_traceback():
     debug = _validate("experimnt=2d1level", RMPFUSION_DEBUG="1")
     assert debug.returncode != 0 and "Traceback (most recent call last)" in debug.stderr
     assert "CommandLineError" in debug.stderr and "check_command_line" in debug.stderr
+
+
+def test_every_kind_of_sweep_is_checked_on_its_first_job_or_left_to_its_sweeper():
+    from pathlib import Path
+
+    from rmpfusion.cli.preflight import _first_job
+
+    conf = [Path(__file__).resolve().parents[1] / "conf"]
+    assert _first_job(["experiment=glob(2d*,exclude=2d1*)", "seed=1,2", "seed=range(3,5)",
+                       "train.lr=choice(1e-3,1e-2)", "train.lr=tag(log,interval(1e-4,1e-2))",
+                       "hydra.run.dir=/x", "hydra/launcher=joblib"], conf) == [
+        "experiment=2d2level", "seed=1", "seed=3", "train.lr=0.001"]
