@@ -86,16 +86,18 @@ class Registry(Generic[T]):
 
         return deco
 
-    def _load(self) -> None:
+    def load_plugins(self) -> None:
+        """Import the plugins of this registry now (otherwise on its first lookup): a schema generated from the
+        registry must see their entries before it is cached under the registry's version."""
         if self.plugins is not None:
             self.plugins.load()
 
     def entries(self) -> list[Entry[T]]:
-        self._load()
+        self.load_plugins()
         return [self._entries[n] for n in sorted(self._entries)]
 
     def names(self) -> list[str]:
-        self._load()
+        self.load_plugins()
         return sorted(self._entries)
 
     def suggest(self, name: str, n: int = 3) -> list[str]:
@@ -107,11 +109,11 @@ class Registry(Generic[T]):
         return f"unknown {self.kind} '{name}'; {hint}registered: {', '.join(self.names())}"
 
     def __contains__(self, name: str) -> bool:
-        self._load()
+        self.load_plugins()
         return name in self._entries
 
     def get(self, name: str) -> Entry[T]:
-        self._load()
+        self.load_plugins()
         try:
             return self._entries[name]
         except KeyError:

@@ -66,10 +66,10 @@ def typed_union(registry: Registry) -> Any:
     """``{type: name, ...}`` validated by the named entry of ``registry``: a discriminated union of every entry,
     regenerated when the registry changes. An unknown or missing type is a ``registry_type`` error that the
     error formatter turns into the registry's did-you-mean message."""
+    registry.load_plugins()  # first, so they are part of the union and of its cache key
     key = (id(registry), registry.version)
     if key not in _UNIONS:
-        names = registry.names()  # loads plugins first, so they are part of the union
-        key = (id(registry), registry.version)
+        names = registry.names()
         members = tuple(Annotated[spec_model(registry, n), Tag(registry_tag(registry, n))] for n in names)
 
         def tag_of(value: Any) -> str | None:
@@ -172,6 +172,8 @@ _TREE_MODELS: dict[tuple, type[TreeSpec]] = {}
 
 def tree_spec_model() -> type[TreeSpec]:
     """``TreeSpec`` with every block typed by the registries as they are now (regenerated when they change)."""
+    for r in (TASK_MAPS, WEIGHTS, LEAF_RMPS):
+        r.load_plugins()
     key = tuple((id(r), r.version) for r in (TASK_MAPS, WEIGHTS, LEAF_RMPS))
     if key not in _TREE_MODELS:
         weight = weight_field()

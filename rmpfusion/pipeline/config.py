@@ -135,6 +135,8 @@ _RUN_MODELS: dict[tuple, type[RunConfig]] = {}
 def run_config_model() -> type[RunConfig]:
     """``RunConfig`` typed by the registries as they are now: env, tree blocks, expert weights and learners are
     validated by their entries' own models (regenerated when an entry is registered, plugins included)."""
+    for r in (ENVS, LEARNERS, TASK_MAPS, WEIGHTS, LEAF_RMPS):
+        r.load_plugins()  # first: a plugin's entries belong to the schema and to its cache key
     key = tuple((id(r), r.version) for r in (ENVS, LEARNERS, TASK_MAPS, WEIGHTS, LEAF_RMPS))
     if key not in _RUN_MODELS:
         _RUN_MODELS[key] = create_model(
