@@ -10,7 +10,7 @@ from pydantic import BaseModel
 from .errors import ConfigError, Issue
 
 
-def _plain(value: Any) -> Any:
+def plain_data(value: Any) -> Any:
     """A deep, plain-data copy of a spec or block, validated (a pydantic model) or not."""
     if isinstance(value, BaseModel):
         return value.model_dump()
@@ -24,7 +24,7 @@ def tree_with_weights(tree_spec: Mapping[str, Any], weights: Mapping[str, Any], 
     ``shared_weights`` (the shared function is replaced, so one entry covers every edge that uses it, e.g.
     all obstacles on a Franka control point). All unknown names are reported together.
     """
-    spec = _plain(tree_spec)
+    spec = plain_data(tree_spec)
     nodes = spec.get("nodes") or {}
     shared = dict(spec.get("shared_weights") or {})
     unknown = [n for n in weights if n not in nodes and n not in shared]
@@ -36,7 +36,7 @@ def tree_with_weights(tree_spec: Mapping[str, Any], weights: Mapping[str, Any], 
             issues.append(Issue(f"{where}.{n}", f"'{n}' {why}; nodes: {', '.join(nodes)}"))
         raise ConfigError(issues)
     for n, w in weights.items():
-        w = _plain(w)
+        w = plain_data(w)
         if n in nodes:
             node = dict(nodes[n])
             node.pop("weight", None)

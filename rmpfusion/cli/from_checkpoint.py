@@ -38,14 +38,10 @@ _KINDS = {".json": "a JSON file", ".yaml": "a YAML file", ".yml": "a YAML file",
 
 
 def _checkpoints_below(directory: Path) -> list[Path]:
-    """The newest checkpoint of each learner in a run directory or a checkpoints/ directory."""
-    found = []
-    for d in [directory, *sorted(p for p in directory.glob("checkpoints/*") if p.is_dir()),
-              *sorted(p for p in directory.glob("*") if p.is_dir() and directory.name == "checkpoints")]:
-        ck = latest_checkpoint(d)
-        if ck is not None and ck not in found:
-            found.append(ck)
-    return found
+    """The newest checkpoint of each learner below a run directory, a checkpoints/ directory or a learner's."""
+    inside = sorted(directory.glob("*")) if directory.name == "checkpoints" else []
+    learners = [directory, *sorted(directory.glob("checkpoints/*")), *inside]
+    return list(dict.fromkeys(ck for d in learners if d.is_dir() and (ck := latest_checkpoint(d)) is not None))
 
 
 def _not_a_checkpoint(path: Path) -> str | None:
@@ -121,10 +117,9 @@ def _figures(exp, test_ds, ro, out: Path, name: str) -> list[Path]:
     if ro.V is not None:
         paths.append(plot_lyapunov(out / f"lyapunov_{name}.png", ro.times, ro.V, title=f"{name}: $V_r(t)$"))
     if isinstance(exp.env, PlanarWorkspace):
-        idx = slice(0, min(exp.run.data.test_trajectories, q0.shape[0]))  # environment-major initial states
-        aux_plot = {k: v[:1] for k, v in aux0.items()}
+        idx, q0_env, qd0_env, aux_plot = exp.environment_0(test_ds)
         paths.append(plot_trajectories(out / f"trajectories_{name}.png", aux_plot, None, {name: ro.q[:, idx]},
-                                       q0[idx], qd0[idx], title=f"{name} from its checkpoint, test environment 0"))
+                                       q0_env, qd0_env, title=f"{name} from its checkpoint, test environment 0"))
     elif isinstance(exp.env, Renders):
         aux1 = {k: v[:1] for k, v in aux0.items()}
         w, h = 320, 240  # a small two-frame summary, not the run's figure size

@@ -9,9 +9,11 @@ its first job. Only then does the app start, so nothing is created for a command
 from __future__ import annotations
 
 import difflib
+import functools
 import re
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
 import yaml
 from hydra import compose, initialize_config_dir
@@ -109,15 +111,15 @@ def _yaml_message(e: yaml.MarkedYAMLError) -> str:
     return f"YAML syntax error in {where}: {', '.join(parts)}; fix the file (every config file must be valid YAML)"
 
 
-def _override_message(e: ConfigCompositionException, groups: list[str], keys: list[str]) -> str | None:
+def _override_message(e: ConfigCompositionException, groups: list[str], keys: Callable[[], list[str]]) -> str | None:
     m = re.search(r"Could not override '([^']+)'", str(e))
     if not m:
         return None
     key = m.group(1)
     head = key.split(".")[0].split("/")[0]
-    hint = _close(head, groups + keys)
+    hint = _close(head, groups + keys())
     return (f"'{key}' is neither a config group nor a key of the config; {hint}config groups: {', '.join(groups)}; "
-            f"top-level keys: {', '.join(keys)} (to add a new key on purpose write +{key}=...)")
+            f"top-level keys: {', '.join(keys())} (to add a new key on purpose write +{key}=...)")
 
 
 def _missing_message(e: MissingConfigException, dirs: list[Path]) -> str:
@@ -131,13 +133,13 @@ def _missing_message(e: MissingConfigException, dirs: list[Path]) -> str:
             f"options: {', '.join(options)}")
 
 
-def _added_group(overrides: list[str], groups: list[str], keys: list[str]) -> str | None:
+def _added_group(overrides: list[str], groups: list[str], keys: Callable[[], list[str]]) -> str | None:
     """``+experimnt=...`` composes (it adds a key) but was meant as a group: say so before validation does."""
     for o in overrides:
         if not o.startswith("+") or o.startswith("++"):
             continue
         head = o[1:].split("=", 1)[0].split(".")[0].split("/")[0]
-        if head in keys or head in groups:
+        if head in groups or head in keys():
             continue
         close = difflib.get_close_matches(head, groups, n=1, cutoff=0.6)
         if close:
@@ -156,12 +158,17 @@ def check_command_line(conf_dir: str, argv: list[str]) -> None:
     overrides = _first_job(cmd.overrides, dirs)
     if cmd.config_dir:
         overrides.append(f"hydra.searchpath=[file://{Path(cmd.config_dir).resolve()}]")
+    with initialize_config_dir(config_dir=conf_dir, version_base="1.3"):
+        keys = functools.cache(lambda: list(compose("config").keys()))  # the base config: only for messages
+        _compose(overrides, groups, dirs, keys)
+
+
+def _compose(overrides: list[str], groups: list[str], dirs: list[Path], keys: Callable[[], list[str]]) -> None:
+    """Compose as the app will, inside an initialised Hydra; every failure as a CommandLineError."""
     try:
-        with initialize_config_dir(config_dir=conf_dir, version_base="1.3"):
-            keys = list(compose("config").keys())
-            if (msg := _added_group(overrides, groups, keys)) is not None:
-                raise CommandLineError(msg)
-            compose("config", overrides=overrides)
+        if (msg := _added_group(overrides, groups, keys)) is not None:
+            raise CommandLineError(msg)
+        compose("config", overrides=overrides)
     except yaml.MarkedYAMLError as e:
         raise CommandLineError(_yaml_message(e)) from None
     except MissingConfigException as e:
@@ -169,7 +176,7 @@ def check_command_line(conf_dir: str, argv: list[str]) -> None:
     except ConfigCompositionException as e:
         if isinstance(e.__cause__, yaml.MarkedYAMLError):
             raise CommandLineError(_yaml_message(e.__cause__)) from None
-        msg = _override_message(e, groups, keys if "keys" in locals() else [])
+        msg = _override_message(e, groups, keys)
         raise CommandLineError(msg or _first_lines(e)) from None
     except HydraException as e:
         raise CommandLineError(_first_lines(e)) from None

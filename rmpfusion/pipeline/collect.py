@@ -8,8 +8,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import torch
-from pydantic import BaseModel
 
+from ..build.weighting import plain_data
 from ..envs.demonstrations import Dataset, load_dataset, save_dataset
 from .config import RunConfig
 from .experiment import Experiment
@@ -41,13 +41,9 @@ class Splits:
 
 def data_hash(run: RunConfig) -> str:
     """What determines the demonstrations: env, tree, expert, data sizes and seed (not the cache location)."""
-    key = {"env": run.env.model_dump(), "tree": run.tree.model_dump(), "expert": _plain(run.expert),
+    key = {"env": run.env.model_dump(), "tree": run.tree.model_dump(), "expert": {k: plain_data(w) for k, w in run.expert.items()},
            "seed": run.seed, "data": run.data.model_dump(exclude={"cache_dir"})}
     return hashlib.sha256(json.dumps(key, sort_keys=True, default=str).encode()).hexdigest()
-
-
-def _plain(weights) -> dict:
-    return {k: (w.model_dump() if isinstance(w, BaseModel) else w) for k, w in weights.items()}
 
 
 def _trajectory_seconds(ds: Dataset) -> dict[str, float]:

@@ -104,7 +104,7 @@ class _SnapshotEvaluator:
 
     def __init__(self, exp: Experiment, name: str, splits: Splits, expert: ExpertEval):
         self.exp, self.name, self.splits, self.expert = exp, name, splits, expert
-        self.plot_idx = torch.arange(min(exp.run.data.test_trajectories, splits.test.initial_states()[0].shape[0]))
+        self.plot_idx = exp.environment_0(splits.test)[0]
 
     def with_task(self, met: dict, ro, it: int, out: LearnerEval) -> dict:
         if self.expert.stage is None:

@@ -8,7 +8,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
+import torch
+from torch import Tensor
+
 from ..core.tree import RMPTree
+from ..envs.demonstrations import Dataset
 from ..envs.protocol import Env
 from .config import RunConfig
 from .progress import Progress
@@ -51,6 +55,13 @@ class Experiment:
             if steps % n == 0:
                 return interval / n
         return interval
+
+    def environment_0(self, test: Dataset) -> tuple[Tensor, Tensor, Tensor, dict[str, Tensor]]:
+        """Test environment 0, the one figures draw: the indices of its initial states (they are
+        environment-major), those states, and its aux as a one-row batch."""
+        q0, qd0, aux0 = test.initial_states()
+        idx = torch.arange(min(self.run.data.test_trajectories, q0.shape[0]))
+        return idx, q0[idx], qd0[idx], {k: v[:1] for k, v in aux0.items()}
 
     def learner_seed(self, name: str) -> int:
         """Each learner's own seed (its initial weights; training uses this + 1): independent of the others."""

@@ -5,7 +5,6 @@ import time
 from pathlib import Path
 from typing import Any
 
-import torch
 
 from ..envs.protocol import HasRatioMetrics, PlanarWorkspace, Renders
 from ..evaluate.metrics import StageResult
@@ -22,16 +21,9 @@ def _curves(f: Fitted) -> dict:
     return {"train": f.result.curve, "val": f.result.val_curve, "test": f.result.test_curve}
 
 
-def _environment_0(exp: Experiment, test):
-    """Initial states and aux of test environment 0 (initial states are environment-major)."""
-    q0, qd0, aux0 = test.initial_states()
-    idx = torch.arange(min(exp.run.data.test_trajectories, q0.shape[0]))
-    return idx, q0[idx], qd0[idx], {k: v[:1] for k, v in aux0.items()}
-
-
 def _planar_figures(exp: Experiment, name: str, ev: LearnerEval, expert: ExpertEval, test) -> list[Path]:
     """Configuration-space figures of test environment 0: trajectories and V_r(t)."""
-    idx, q0, qd0, aux = _environment_0(exp, test)
+    idx, q0, qd0, aux = exp.environment_0(test)
     ro, out = ev.final_rollout, []
     out.append(plot_trajectories(exp.dir / "figures" / f"trajectories_{name}.png", aux, expert.rollout.q[:, idx],
                                  {name: ro.q[:, idx]}, q0, qd0,
@@ -44,7 +36,7 @@ def _planar_figures(exp: Experiment, name: str, ev: LearnerEval, expert: ExpertE
 
 def _progression_figure(exp: Experiment, name: str, ev: LearnerEval, expert: ExpertEval, test) -> Path:
     """Test environment 0 at every snapshot beside the expert (paper Fig. 4)."""
-    idx, q0, qd0, aux = _environment_0(exp, test)
+    idx, q0, qd0, aux = exp.environment_0(test)
     return plot_progression(exp.dir / "figures" / f"progression_{name}.png", aux, expert.rollout.q[:, idx],
                             ev.panels, q0, qd0, title=f"{exp.run.name}: {name} vs the expert at each training "
                                                       f"snapshot (columns: {name} @ iteration), test environment 0")

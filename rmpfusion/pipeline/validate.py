@@ -22,7 +22,7 @@ from ..build.errors import ConfigError, Issue, issues_from_pydantic
 from ..build.generated import expand_tree
 from ..build.spec import check_typed, shared_ref, validate_tree_spec
 from ..build.tree import build_tree
-from ..build.weighting import tree_with_weights
+from ..build.weighting import plain_data, tree_with_weights
 from ..core.auxstate import AuxOrValue
 from ..core.tree import RMPTree
 from ..learn.learners import build_learner, build_order
@@ -259,7 +259,7 @@ def build_learners(run: RunConfig, aux_dims: Mapping[str, int], seeded=None) -> 
     context entered around each construction (the pipeline draws each learner's initial weights from its
     own seed); problems are reported at ``learners.<name>``."""
     blocks = {n: b.model_dump() for n, b in run.learners.items()}
-    tree, expert = run.tree.model_dump(), {k: _plain(w) for k, w in run.expert.items()}
+    tree, expert = run.tree.model_dump(), {k: plain_data(w) for k, w in run.expert.items()}
     built: dict = {}
     issues: list[Issue] = []
     for n in build_order(blocks):
@@ -274,10 +274,6 @@ def build_learners(run: RunConfig, aux_dims: Mapping[str, int], seeded=None) -> 
     if issues:
         raise ConfigError(issues)
     return built
-
-
-def _plain(w: Any) -> Any:
-    return w.model_dump() if isinstance(w, BaseModel) else w
 
 
 def _build_issues(run: RunConfig, aux_dims: Mapping[str, int]) -> list[Issue]:
