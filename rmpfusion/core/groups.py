@@ -66,12 +66,15 @@ def stacked(modules: Sequence[nn.Module], like: Tensor) -> Callable:
 @dataclass
 class Rows:
     """Where a group's members find a value: in the ``(P, B, ...)`` tensors of the ``sources`` (group ids, or
-    ``ROOT``), concatenated in that order. ``index`` None: the one source's rows as they are (or its single row
-    broadcast, when it has one); an int: that one row for every member (kept ``(1, B, ...)``); else a (G,) index."""
+    ``ROOT``), concatenated in that order (``size`` rows). ``index`` None: the one source's rows as they are (or its
+    single row, broadcast); an int: that one row for every member (kept ``(1, B, ...)``); else a (G,) index.
+    ``span`` (start, stop): the members read rows start..stop-1 of one source in order, each the same number of
+    times in a row (a control point's obstacles, say), so their terms sum back by one segment sum."""
 
     sources: list[int]
     index: int | Tensor | None
-    size: int  # rows of the concatenated sources
+    size: int
+    span: tuple[int, int] | None = None
 
     @classmethod
     def of(cls, places: Sequence[tuple[int, int]], sizes: Mapping[int, int], device) -> "Rows":
@@ -81,11 +84,12 @@ class Rows:
         for s in sources:
             start[s], offset = offset, offset + sizes[s]
         rows = [start[s] + r for s, r in places]
+        span = _span(rows) if len(sources) == 1 else None
         if len(sources) == 1 and (offset == 1 or rows == list(range(offset))):
-            return cls(sources, None, offset)
+            return cls(sources, None, offset, span)
         if len(set(rows)) == 1:
-            return cls(sources, rows[0], offset)
-        return cls(sources, torch.tensor(rows, dtype=torch.long, device=device), offset)
+            return cls(sources, rows[0], offset, span)
+        return cls(sources, torch.tensor(rows, dtype=torch.long, device=device), offset, span)
 
     def gather(self, tensors: Mapping[int, Tensor]) -> Tensor:
         """The members' values: ``(G, B, ...)``, or ``(1, B, ...)`` when they all read one row."""
@@ -94,18 +98,47 @@ class Rows:
             return t
         if isinstance(self.index, int):
             return t[self.index:self.index + 1]
+        if self.span is not None and self.span[1] - self.span[0] == self.index.shape[0]:
+            return t[self.span[0]:self.span[1]]
         return t.index_select(0, self.index)
 
-    def scatter_sum(self, t: Tensor) -> Tensor:
-        """The members' ``(G, B, ...)`` terms summed into the rows they were gathered from (one source)."""
+    def scatter_sum(self, t: Tensor) -> tuple[int, Tensor]:
+        """The members' ``(G, B, ...)`` terms summed into the rows they were gathered from (one source), as
+        (first row, the summed rows from there on)."""
         if self.size == 1:
-            return t if t.shape[0] == 1 else t.sum(0, keepdim=True)
-        if self.index is None:
-            return t
-        index = self.index
-        if isinstance(index, int):
-            index = torch.full((t.shape[0],), index, dtype=torch.long, device=t.device)
-        return t.new_zeros(self.size, *t.shape[1:]).index_add(0, index, t)
+            return 0, (t if t.shape[0] == 1 else t.sum(0, keepdim=True))
+        if self.span is not None:
+            first, stop = self.span
+            return first, (t if t.shape[0] == stop - first else t.reshape(stop - first, -1, *t.shape[1:]).sum(1))
+        index = torch.as_tensor(self.index, device=t.device).expand(t.shape[0])
+        return 0, t.new_zeros(self.size, *t.shape[1:]).index_add(0, index, t)
+
+
+def _span(rows: list[int]) -> tuple[int, int] | None:
+    """(start, stop) when ``rows`` is start, start, ..., start+1, start+1, ..., stop-1: every row equally often."""
+    first, stop = rows[0], rows[-1] + 1
+    if (stop - first) <= 0 or len(rows) % (stop - first):
+        return None
+    k = len(rows) // (stop - first)
+    return (first, stop) if rows == [r for r in range(first, stop) for _ in range(k)] else None
+
+
+def assemble(pieces: Sequence[tuple[int, Tensor]], size: int) -> Tensor:
+    """A group's ``(size, B, ...)`` tensor from terms each covering rows [first, first + n): terms over the same rows
+    are added; terms that tile the rows are concatenated, others added where they fall."""
+    spans: dict[tuple[int, int], Tensor] = {}
+    for first, t in pieces:
+        key = (first, t.shape[0])
+        spans[key] = t if key not in spans else spans[key] + t
+    keys = sorted(spans)
+    ends = [first + n for first, n in keys]
+    if keys[0][0] == 0 and ends[-1] == size and all(e == k[0] for e, k in zip(ends, keys[1:])):
+        return spans[keys[0]] if len(keys) == 1 else torch.cat([spans[k] for k in keys])
+    t = next(iter(spans.values()))
+    out = t.new_zeros(size, *t.shape[1:])
+    for (first, n), part in spans.items():
+        out = out.index_add(0, torch.arange(first, first + n, device=t.device), part)
+    return out
 
 
 @dataclass

@@ -11,8 +11,8 @@ from typing import Mapping
 
 from torch import Tensor
 
-from .algebra import Edge, NodeRMP, add_rmps, edge_contribution
-from .groups import ROOT, Plan
+from .algebra import Edge, NodeRMP, edge_contribution
+from .groups import ROOT, Plan, assemble
 
 
 @dataclass
@@ -72,24 +72,32 @@ def pushforward(plan: Plan, q: Tensor, qd: Tensor, aux: Mapping[str, Tensor] | N
 def pullback(plan: Plan, x, xd, edges, lean: bool = False) -> Passes:
     """Every group's RMP, deepest groups first: a leaf group's from its leaf, an inner group's from the summed
     terms of its child groups; then the root's. ``lean``: f and M only (``Plan.lean`` trees, unmonitored)."""
-    gathered: dict[int, NodeRMP] = {}
+    terms: dict[int, list[tuple[int, NodeRMP]]] = {}  # per group (and the root): its members' children's terms
     rmps: list[NodeRMP | None] = [None] * len(plan.groups)
     for i in reversed(range(len(plan.groups))):
         g = plan.groups[i]
         if g.leaf is None:
-            rmp = gathered[i]
+            rmp = _gathered(terms[i], g.size)
         else:
             rmp = g.leaf.force(x[i], xd[i]) if lean else g.leaf(x[i], xd[i])
         rmps[i] = rmp
         term = edge_contribution(g.parent.gather(xd), edges[i], rmp)
-        term = NodeRMP(*(None if v is None else g.parent.scatter_sum(v) for _, v in term.items()))
-        parent = g.parent.sources[0]
-        gathered[parent] = add_rmps(gathered.get(parent), term)
-    if ROOT not in gathered:
+        first, f = g.parent.scatter_sum(term.f)
+        summed = NodeRMP(f, *(None if v is None else g.parent.scatter_sum(v)[1] for k, v in term.items() if k != "f"))
+        terms.setdefault(g.parent.sources[0], []).append((first, summed))
+    if ROOT not in terms:
         raise ValueError("the tree has no nodes below its root: pullback* needs at least one child")
     states = [(x[i], xd[i]) for i in range(len(plan.groups))]
-    root = NodeRMP(*(None if v is None else v[0] for _, v in gathered[ROOT].items()))
+    root = NodeRMP(*(None if v is None else v[0] for _, v in _gathered(terms[ROOT], 1).items()))
     return Passes(states=states, edges=edges, rmps=rmps, root=root)
+
+
+def _gathered(pieces: list[tuple[int, NodeRMP]], size: int) -> NodeRMP:
+    """A group's RMP from its members' children's terms (``pieces``: each covering rows from its first on)."""
+    fields = {}
+    for k, v in pieces[0][1].items():
+        fields[k] = None if v is None else assemble([(first, getattr(r, k)) for first, r in pieces], size)
+    return NodeRMP(**fields)
 
 
 def evaluate(plan: Plan, q: Tensor, qd: Tensor, aux: Mapping[str, Tensor] | None, lean: bool = False) -> Passes:
