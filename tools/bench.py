@@ -1,21 +1,26 @@
 #!/usr/bin/env python
 """rmpfusion's performance table (`make bench`): every figure is a median over repeated runs, measured side
-by side with its reference in the same process, so the ratios hold whatever else the machine is doing.
+by side with its reference in the same process, so the ratios hold whatever else the machine is doing. Rows with
+a target say whether it is met.
 
-    python tools/bench.py                 # the whole table (a few minutes, most of it torch.compile)
-    python tools/bench.py --only latency  # one section: train, batched, latency, franka, memory
+    python tools/bench.py                 # the whole table (~10 min on 2 cores, most of it torch.compile)
+    python tools/bench.py --only latency  # one section: latency, compile, scaling, batched, train, cuda, memory
     python tools/bench.py --no-compile    # eager only
 
 Sections:
-  train    2d2level learner-rmp training step (minibatch 200: forward, backward through the h_i terms,
-           RMSprop step), the config-built tree against a hand-fused reference of the same math written
-           below (all four weight MLPs stacked into batched matrix products, every map and leaf inlined).
-           Both are checked to agree to 1e-9 before they are timed.
+  latency  B = 1, the control-loop case: the test-vector tree (RMPflow's two reference leaves) beside an
+           independent numpy transcription of RMPflow's reference code (its policy: f and M resolved); the
+           2d2level learner tree; the Franka expert tree (46 nodes), eager, compiled, and exported with
+           AOTInductor (rmpfusion-export --aoti).
+  compile  the Franka tree's time to compile, in a fresh process with an empty inductor cache (a user's first).
+  scaling  the Franka tree with 1, 10 and 100 obstacles (14 control points each), B = 1 and B = 1024: how the
+           cost grows with the work.
   batched  2d2level tree with neural weights (including ∇w), B = 4096: states/s.
-  latency  B = 1, the control-loop case: the test-vector tree (RMPflow's two reference leaves) beside
-           an independent numpy transcription of RMPflow's reference code; the 2d2level learner tree; the
-           Franka expert tree (46 nodes).
-  franka   Franka tree at B = 1024 (states/s), and its kinematics alone vs pybullet's forward kinematics.
+  train    2d2level learner-rmp training step (minibatch 200: forward, backward through the h_i terms, RMSprop
+           step), the config-built tree against a hand-fused reference of the same math written below (all four
+           weight MLPs stacked into batched matrix products, every map and leaf inlined). Both are checked to
+           agree to 1e-9 before they are timed.
+  cuda     with a CUDA device only: 2d2level at B = 65,536 and the training step, on the GPU.
   memory   peak resident memory of a 2d2level training run (a child process), over the bare interpreter
            with torch imported.
 """
@@ -78,35 +83,49 @@ def row(section: str, what: str, value: str, reference: str = "", ratio: str = "
 
 
 # ---------------------------------------------------------------------------------------------- configs
-def compose(experiment: str):
+def compose(experiment: str, overrides: list[str] | None = None):
     from hydra import compose as hcompose, initialize_config_dir
 
     from rmpfusion.cli import CONF_DIR
     from rmpfusion.pipeline.validate import resolve_and_validate
 
     with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
-        return resolve_and_validate(hcompose("config", overrides=[f"experiment={experiment}", "logger=disabled"]))
+        return resolve_and_validate(hcompose("config", overrides=[f"experiment={experiment}", "logger=disabled",
+                                                                  *(overrides or [])]))
 
 
 def learner_2d2level(seed: int = 0):
-    from rmpfusion.learn.learners import build_learner
-    from rmpfusion.pipeline.validate import make_env
+    from rmpfusion.pipeline.validate import build_learners, make_env
 
     cfg = compose("2d2level")
     env = make_env(cfg)
     torch.manual_seed(seed)
-    learner = build_learner(cfg.learners["rmp"].model_dump(), cfg.tree, env.aux_dims(), 2, expert=cfg.expert,
-                            built={}, where="learners.rmp").double()
-    return learner, env
+    return build_learners(cfg, env.aux_dims())["rmp"].double(), env
 
 
-def franka_expert():
-    from rmpfusion.pipeline.validate import expert_spec
+def franka_expert(n_obstacles: int = 1):
+    """The Franka experiment's expert tree with ``n_obstacles`` obstacles (14 control points each), and a batch of
+    aux states for it: the experiment's first test environment's goal, and obstacles spread around the robot."""
+    from hydra import compose as hcompose, initialize_config_dir
+    from omegaconf import OmegaConf
+
+    from rmpfusion.build.generated import expand_tree
+    from rmpfusion.build.weighting import tree_with_weights
+    from rmpfusion.cli import CONF_DIR
     from rmpfusion.pipeline.validate import make_env
 
     cfg = compose("franka")
     env = make_env(cfg)
-    return rmpfusion.build_tree(expert_spec(cfg), aux_dims=env.aux_dims()), env
+    with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):  # the tree as declared: its generator
+        raw = OmegaConf.to_container(hcompose("config", overrides=["experiment=franka"]), resolve=True)
+    spec = tree_with_weights(expand_tree({**raw["tree"], "n_obstacles": n_obstacles}), raw["expert"])
+    tree = rmpfusion.build_tree(spec)
+    g = torch.Generator().manual_seed(0)
+    aux = {"goal": env.sample_envs(1, g)["goal"]}
+    for k in range(1, n_obstacles + 1):
+        aux[f"obstacle{k}_center"] = torch.tensor([[0.5, -0.6 + 1.2 * k / (n_obstacles + 1), 0.3]], dtype=torch.float64)
+        aux[f"obstacle{k}_radius"] = torch.tensor([[0.05]], dtype=torch.float64)
+    return tree, aux
 
 
 # ---------------------------------------------------------------------------------------------- the hand-fused reference
@@ -300,6 +319,18 @@ def _rmpflow_numpy_latency() -> float:
     return median_time(lambda: ref.rmpflow_root(q, qd, children))
 
 
+def _compiled_time(tree, args, policy: bool = False) -> tuple[float, float]:
+    """(seconds to compile, seconds a call) of the tree compiled for a controller (fixed structure)."""
+    call = (lambda: tree.policy(*args)) if policy else (lambda: tree(*args))
+    tree.compile(dynamic=False, fixed_structure=True)
+    t0 = time.perf_counter()
+    call()
+    compile_s = time.perf_counter() - t0
+    t = median_time(call)
+    tree.uncompile()
+    return compile_s, t
+
+
 def section_latency(compile_: bool) -> None:
     print("\nsingle-state latency (B = 1, the control loop)")
     from test_tree import TEST_VECTOR_SPEC
@@ -308,78 +339,140 @@ def section_latency(compile_: bool) -> None:
     tv = rmpfusion.build_tree(TEST_VECTOR_SPEC)
     q = torch.tensor([[2.5, 0.0]], dtype=torch.float64)
     qd = torch.tensor([[-1.0, 0.0]], dtype=torch.float64)
-    learner, env = learner_2d2level()
-    q2, qd2, aux2 = env.sample(n_envs=1, n_per_env=1, seed=3)
-    fr, fenv = franka_expert()
-    faux = fenv.sample_envs(1, torch.Generator().manual_seed(0))
-    fq, fqd = torch.full((1, 7), 0.1, dtype=torch.float64), torch.full((1, 7), 0.1, dtype=torch.float64)
-    cases = [("test-vector tree", tv, (q, qd), 150e-6, t_np), ("2d2level learner tree", learner.tree, (q2, qd2, aux2), 500e-6, None),
-             ("Franka expert tree (46 nodes)", fr, (fq, fqd, faux), 1e-3, None)]
-    with torch.no_grad():
-        for name, tree, args, target, ref in cases:
-            t = median_time(lambda: tree(*args))
-            reference = f"RMPflow numpy {_fmt_time(ref)}" if ref else ""
-            row("latency", f"{name}, eager", _fmt_time(t), reference, f"{t / ref:.2f}" if ref else "",
-                f"≤ {_fmt_time(target)}", t <= target)
-            if compile_:
-                tree.compile(dynamic=False)
-                t0 = time.perf_counter()
-                tree(*args)
-                ct = time.perf_counter() - t0
-                t = median_time(lambda: tree(*args))
-                row("latency", f"{name}, torch.compile ({ct:.0f} s to compile)", _fmt_time(t), reference,
-                    f"{t / ref:.2f}" if ref else "", f"≤ {_fmt_time(target)}", t <= target)
-                # a controller's tree no longer changes: skip the per-call module guards (same graph, reused)
-                tree.compile(dynamic=False, fixed_structure=True)
-                tree(*args)
-                t = median_time(lambda: tree(*args))
-                row("latency", f"{name}, torch.compile, fixed_structure", _fmt_time(t), reference,
-                    f"{t / ref:.2f}" if ref else "", f"≤ {_fmt_time(target)}", t <= target)
-                tree.uncompile()
-
-
-def section_franka(compile_: bool) -> None:
-    print("\nFranka tree batched, B = 1024; kinematics alone vs pybullet")
-    import pybullet as p
-
-    tree, env = franka_expert()
-    g = torch.Generator().manual_seed(4)
-    aux = {k: v.expand(1024, -1) for k, v in env.sample_envs(1, g).items()}
-    fk = next(m for m in tree.maps.values() if getattr(m, "shared_key", None))
-    lo, hi = fk.chain.joint_limits()
-    q = lo + (hi - lo) * torch.rand(1024, 7, generator=g, dtype=torch.float64)
-    qd = torch.randn(1024, 7, generator=g, dtype=torch.float64)
-    with torch.no_grad():
-        t = median_time(lambda: tree(q, qd, aux), min_time=1.0)
-        row("franka", "Franka expert tree, eager, B = 1024", f"{1024 / t:,.0f} /s")
+    ref = f"RMPflow numpy {_fmt_time(t_np)}"
+    with torch.inference_mode():
+        t = median_time(lambda: tv.policy(q, qd))
+        row("latency", "test-vector tree, policy (q̈), eager", _fmt_time(t), ref, f"{t / t_np:.2f}", "≤ 2", t / t_np <= 2)
+        t = median_time(lambda: tv(q, qd))
+        row("latency", "test-vector tree, q̈ and V, G, B, Φ, L, eager", _fmt_time(t), ref, f"{t / t_np:.2f}")
         if compile_:
-            tree.compile(dynamic=False)
-            tree(q, qd, aux)
-            t = median_time(lambda: tree(q, qd, aux), min_time=1.0)
-            row("franka", "Franka expert tree, torch.compile, B = 1024", f"{1024 / t:,.0f} /s")
-            tree.uncompile()
-        t_fk = median_time(lambda: fk.chain.all_frames(q))
-    cid = p.connect(p.DIRECT)
-    try:
-        import pybullet_data
+            ct, t = _compiled_time(tv, (q, qd), policy=True)
+            row("latency", f"test-vector tree, policy, compiled ({ct:.0f} s)", _fmt_time(t), ref, f"{t / t_np:.2f}",
+                "≤ 0.5", t / t_np <= 0.5)
+    learner, env = learner_2d2level()
+    args = env.sample(n_envs=1, n_per_env=1, seed=3)
+    fr, faux = franka_expert()
+    fargs = (torch.full((1, 7), 0.1, dtype=torch.float64), torch.full((1, 7), 0.1, dtype=torch.float64), faux)
+    with torch.inference_mode():
+        for name, tree, a, eager_target, compiled_target in (
+                ("2d2level learner tree", learner.tree, args, None, None),
+                ("Franka expert tree (46 nodes)", fr, fargs, 2e-3, 0.3e-3)):
+            t = median_time(lambda: tree(*a))
+            target = dict(target=f"≤ {_fmt_time(eager_target)}", ok=t <= eager_target) if eager_target else {}
+            row("latency", f"{name}, eager", _fmt_time(t), **target)
+            if compile_:
+                ct, t = _compiled_time(tree, a)
+                target = dict(target=f"≤ {_fmt_time(compiled_target)}", ok=t <= compiled_target) if compiled_target else {}
+                row("latency", f"{name}, compiled ({ct:.0f} s)", _fmt_time(t), **target)
+    if compile_:
+        _exported_latency(fr, faux)
 
-        robot = p.loadURDF(os.path.join(pybullet_data.getDataPath(), "franka_panda/panda.urdf"), useFixedBase=True,
-                           physicsClientId=cid)
-        n_links = p.getNumJoints(robot, physicsClientId=cid)
-        qs = q[:256].tolist()
 
-        def pb_fk():
-            for qi in qs:
-                for j in range(7):
-                    p.resetJointState(robot, j, qi[j], physicsClientId=cid)
-                p.getLinkStates(robot, list(range(n_links)), computeForwardKinematics=1, physicsClientId=cid)
+def _exported_latency(tree, aux) -> None:
+    """The Franka tree exported and compiled ahead of time (what rmpfusion-export --aoti writes), at B = 1."""
+    import tempfile
 
-        t_pb = median_time(pb_fk, min_time=1.0) / len(qs)
-    finally:
-        p.disconnect(cid)
-    t_ours = t_fk / 1024
-    row("franka", "kinematics, all links, per state (torch, B = 1024)", _fmt_time(t_ours),
-        f"pybullet {_fmt_time(t_pb)}", f"{t_ours / t_pb:.2f}")
+    from rmpfusion.core.export import export_tree
+
+    names = sorted(aux)
+    g = torch.Generator().manual_seed(0)
+    q2, qd2 = 0.3 * torch.rand(2, 7, generator=g, dtype=torch.float64), torch.randn(2, 7, generator=g, dtype=torch.float64)
+    program = export_tree(tree, q2, qd2, {k: v.expand(2, -1) for k, v in aux.items()}, names)
+    with tempfile.TemporaryDirectory() as d:
+        t0 = time.perf_counter()
+        path = torch._inductor.aoti_compile_and_package(program, package_path=os.path.join(d, "franka.pt2"))
+        ct = time.perf_counter() - t0
+        runner = torch._inductor.aoti_load_package(path)
+    x = (q2[:1], qd2[:1], *(aux[n] for n in names))
+    with torch.inference_mode():
+        err = (runner(*x) - tree(q2[:1], qd2[:1], aux).qdd).abs().max().item()
+        t = median_time(lambda: runner(*x))
+    row("latency", f"Franka expert tree, AOTInductor package ({ct:.0f} s, |Δq̈| {err:.0e})", _fmt_time(t))
+
+
+COMPILE_CHILD = """
+import sys, time, torch
+sys.path.insert(0, {tools!r}); sys.path.insert(0, {tests!r})
+torch.set_num_threads(1)
+import bench
+tree, aux = bench.franka_expert()
+q = torch.full((1, 7), 0.1, dtype=torch.float64)
+tree.compile(dynamic=False, fixed_structure=True)
+t0 = time.perf_counter()
+with torch.inference_mode():
+    tree(q, q, aux)
+print(time.perf_counter() - t0)
+"""
+
+
+def section_compile(compile_: bool) -> None:
+    if not compile_:
+        return
+    print("\ntime to compile, Franka expert tree, B = 1 (a fresh process, an empty inductor cache)")
+    import tempfile
+
+    code = COMPILE_CHILD.format(tools=str(ROOT / "tools"), tests=str(ROOT / "tests"))
+    with tempfile.TemporaryDirectory() as cache:
+        env = {**os.environ, "TORCHINDUCTOR_CACHE_DIR": cache}
+        out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, env=env)
+    s = float(out.stdout.split()[-1])
+    row("compile", "Franka expert tree, first call after compile()", f"{s:.1f} s", "", "", "≤ 30 s", s <= 30)
+
+
+def section_scaling(compile_: bool) -> None:
+    print("\nFranka tree with 1, 10 and 100 obstacles (14 control points each): how the cost grows")
+    compiled_b1 = {}
+    for n in (1, 10, 100):
+        tree, aux = franka_expert(n)
+        for B in (1, 1024):
+            g = torch.Generator().manual_seed(B)
+            lo, hi = tree.maps["ee"].chain.joint_limits()
+            q = lo + (hi - lo) * torch.rand(B, 7, generator=g, dtype=torch.float64)
+            qd = torch.randn(B, 7, generator=g, dtype=torch.float64)
+            a = {k: v.expand(B, -1) for k, v in aux.items()}
+            with torch.inference_mode():
+                t = median_time(lambda: tree(q, qd, a), min_time=1.0)
+                row("scaling", f"{n} obstacle(s), B = {B}, eager", _fmt_time(t), "", "", "")
+                if compile_:
+                    ct, t = _compiled_time(tree, (q, qd, a))
+                    row("scaling", f"{n} obstacle(s), B = {B}, compiled ({ct:.0f} s)", _fmt_time(t))
+                    if B == 1:
+                        compiled_b1[n] = t
+    if compile_:
+        r = compiled_b1[100] / compiled_b1[1]
+        row("scaling", "100 obstacles / 1, B = 1, compiled", f"{r:.2f}", "", "", "≤ 3", r <= 3)
+
+
+def section_cuda(compile_: bool) -> None:
+    if not torch.cuda.is_available():
+        print("\ncuda: no CUDA device on this machine (section skipped)")
+        return
+    print(f"\ncuda: {torch.cuda.get_device_name(0)}")
+    learner, env = learner_2d2level()
+    q, qd, aux = env.sample(n_envs=64, n_per_env=1024, seed=2)
+    tree = learner.tree.to("cuda", torch.float32)
+    args = (q.cuda().float(), qd.cuda().float(), {k: v.cuda().float() for k, v in aux.items()})
+
+    def run():
+        tree(*args)
+        torch.cuda.synchronize()
+
+    with torch.inference_mode():
+        t = median_time(run)
+        row("cuda", "2d2level tree, B = 65,536, float32, eager", f"{65536 / t:,.0f} /s")
+    learner.double().to("cuda")
+    q, qd, aux = env.sample(n_envs=4, n_per_env=50, seed=1)
+    args = (q.cuda(), qd.cuda(), {k: v.cuda() for k, v in aux.items()})
+    target = torch.randn(200, 2, dtype=torch.float64, device="cuda")
+    opt = torch.optim.RMSprop(learner.parameters(), lr=1e-4, foreach=True)
+
+    def step():
+        opt.zero_grad(set_to_none=True)
+        ((learner(*args) - target) ** 2).mean().backward()
+        opt.step()
+        torch.cuda.synchronize()
+
+    row("cuda", "2d2level training step, minibatch 200, eager", _fmt_time(median_time(step)))
 
 
 def section_memory(iterations: int = 300) -> None:
@@ -410,7 +503,8 @@ print(before, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)
         f"before training {before / 1024:.0f} MiB", f"+{(peak - before) / 1024:.0f} MiB")
 
 
-SECTIONS = {"train": section_train, "batched": section_batched, "latency": section_latency, "franka": section_franka}
+SECTIONS = {"latency": section_latency, "compile": section_compile, "scaling": section_scaling,
+            "batched": section_batched, "train": section_train, "cuda": section_cuda}
 
 
 def main(argv=None) -> int:

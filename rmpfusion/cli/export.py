@@ -67,6 +67,7 @@ def export_checkpoint(path: Path, out: Path | None = None, with_rmp: bool = Fals
     if existing and not force:
         raise ExportError(f"{', '.join(existing)} exists; choose another --out or pass --force to replace it")
     torch.set_num_threads(1)
+    run = run.model_copy(update={"device": "cpu"})  # traced on the CPU; a loaded program moves with .to(device)
     exp = prepare(run, path.parents[2] if len(path.parents) > 2 else path.parent, Progress(False))
     learner = learners(exp)[name]
     load_checkpoint(path, learner)  # the weights must fit this learner

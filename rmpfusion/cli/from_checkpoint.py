@@ -28,7 +28,7 @@ from ..pipeline.evaluation import evaluate_model
 from ..pipeline.experiment import clean, prepare
 from ..pipeline.fit import learners
 from ..pipeline.progress import Progress
-from ..pipeline.validate import parse_run_config
+from ..pipeline.validate import device_problem, parse_run_config
 from ..plots import plot_lyapunov, plot_trajectories
 from ..plots.figures import save_figure, subplots
 
@@ -91,6 +91,10 @@ def evaluate_checkpoint(path: str | Path, out: str | Path | None = None, figures
     out = Path(out) if out is not None else path.parent / f"eval-{int(state['iteration']):08d}"
     out.mkdir(parents=True, exist_ok=True)
     torch.set_num_threads(1)
+    if (missing := device_problem(run.device)) is not None:
+        print(f"rmpfusion: the run computed on {run.device}, which is not available here; evaluating on the CPU "
+              f"({missing})", file=sys.stderr)
+        run = run.model_copy(update={"device": "cpu"})
     exp = prepare(run, run_dir, Progress(progress))
     model = learners(exp)[name]
     load_checkpoint(path, model)  # the weights must fit this learner

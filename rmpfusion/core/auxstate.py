@@ -43,6 +43,7 @@ class AuxParam(nn.Module):
             self.name = None
             self.dim = t.numel()
             self.register_buffer("const", t)
+        self.values = None if self.name is not None else tuple(t.tolist())  # the numbers as written
 
     def forward(self, aux: AuxDict | None) -> Tensor:
         """(B, k) for aux, (k,) for a constant: both broadcast against a (B, k) coordinate."""
@@ -58,7 +59,7 @@ class AuxParam(nn.Module):
             return self
         other = AuxParam.__new__(AuxParam)
         nn.Module.__init__(other)
-        other.name, other.dim = name, self.dim
+        other.name, other.dim, other.values = name, self.dim, None
         other.register_buffer("const", None)
         return other
 
@@ -83,7 +84,7 @@ class StackedAux(nn.Module):
         self.names = list(dict.fromkeys(n for n in names if n is not None))  # each entry read once, in order
         consts = [p.const for p in params if p.name is None]
         self.register_buffer("consts", torch.stack(consts) if consts else None, persistent=False)
-        if consts and len(consts) == len(params) and all(torch.equal(c, consts[0]) for c in consts):
+        if consts and len(consts) == len(params) and len({p.values for p in params}) == 1:
             self.register_buffer("consts", consts[0].unsqueeze(0), persistent=False)
         # member g's row in cat([stacked aux entries, constants]): read when members mix entries and constants
         order, k = [], 0

@@ -43,6 +43,11 @@ class TreeOutput:
     L: Tensor
     nodes: dict[str, Any] | None = None  # per-node states and RMPs when asked for
 
+    def to(self, device: torch.device | str) -> "TreeOutput":
+        """The root's quantities on ``device`` (per-node ones are left where they are)."""
+        moved = {k: getattr(self, k).to(device) for k in ("qdd", "f", "M", "G", "B", "Phi", "V", "L")}
+        return TreeOutput(**moved, nodes=self.nodes)
+
 
 class CompileFallbackWarning(RuntimeWarning):
     """A compiled tree met a construct torch.compile cannot trace and fell back (static shapes, then eager)."""
@@ -84,8 +89,7 @@ class RMPTree(nn.Module):
     def plan(self) -> Plan:
         """Which nodes and weights evaluate together (``core/groups.py``), for the tree's current device and dtype."""
         if self._plan is None:
-            device = next((t.device for t in (*self.parameters(), *self.buffers())), torch.device("cpu"))
-            like = torch.empty(0, dtype=self._dtype() or torch.float64, device=device)
+            like = torch.empty(0, dtype=self._dtype() or torch.float64, device=self.device)
             self._plan = plan_tree(self.layout, self.maps, self.weights, self.rmps, like)
         return self._plan
 
@@ -143,6 +147,11 @@ class RMPTree(nn.Module):
         if self.check_finite and not bool(torch.isfinite(qdd).all()):
             raise NumericalError(self._diagnose(q, qd, aux))
         return qdd
+
+    @property
+    def device(self) -> torch.device:
+        """Where the tree's parameters and buffers are (the CPU for a tree that has none)."""
+        return next((t.device for t in (*self.parameters(), *self.buffers())), torch.device("cpu"))
 
     def _dtype(self) -> torch.dtype | None:
         """The floating dtype of the tree's parameters and buffers (float64 unless converted); None if it has none.

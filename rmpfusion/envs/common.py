@@ -47,6 +47,26 @@ def stack_obstacles(aux: Mapping[str, Tensor], n_obstacles: int) -> tuple[Tensor
     return c, r
 
 
+class OnDevice:
+    """A policy that computes on ``device`` for a caller holding its states elsewhere (pybullet's CPU, a dataset):
+    the state goes over, the answer (a tensor or a tree's output) comes back to the state's device, once a call."""
+
+    def __init__(self, policy: Callable[..., Any], device: torch.device | str):
+        self.policy, self.device = policy, torch.device(device)
+
+    def __call__(self, q: Tensor, qd: Tensor, aux: Mapping[str, Tensor]):
+        home = q.device
+        out = self.policy(q.to(self.device), qd.to(self.device), {k: v.to(self.device) for k, v in aux.items()})
+        return out.to(home)
+
+
+def on_device(policy: Callable[..., Any], device: torch.device | str | None) -> Callable[..., Any]:
+    """``policy`` as it is on the CPU (or where no device is set), else wrapped to compute on ``device``."""
+    if device is None or torch.device(device).type == "cpu":
+        return policy
+    return OnDevice(policy, device)
+
+
 def evaluate_policy(policy: Callable[..., Any], q: Tensor, qd: Tensor,
                     aux: Mapping[str, Tensor]) -> tuple[Tensor, Tensor | None, Tensor | None]:
     """(q̈, V, q̇ᵀBq̇) of one policy evaluation: a tree's V and dissipation come from the same evaluation that gives

@@ -67,11 +67,12 @@ class Dataset:
     def select(self, idx: Tensor) -> tuple[Tensor, Tensor, dict[str, Tensor], Tensor]:
         return self.q[idx], self.qd[idx], {k: v[idx] for k, v in self.aux.items()}, self.qdd[idx]
 
-    def to(self, dtype: torch.dtype) -> "Dataset":
-        f = lambda x: x.to(dtype) if x.is_floating_point() else x  # noqa: E731
+    def to(self, dtype: torch.dtype | None = None, device: torch.device | str | None = None) -> "Dataset":
+        """The samples in ``dtype`` (floating tensors) and on ``device`` (all of them); None leaves either as it is."""
+        f = lambda x: x.to(device=device, dtype=dtype if x.is_floating_point() else None)  # noqa: E731
         return Dataset(q=f(self.q), qd=f(self.qd), aux={k: f(v) for k, v in self.aux.items()}, qdd=f(self.qdd),
-                       env_id=self.env_id, traj_id=self.traj_id, t=f(self.t), collided=self.collided,
-                       success=self.success)
+                       env_id=f(self.env_id), traj_id=f(self.traj_id), t=f(self.t), collided=f(self.collided),
+                       success=f(self.success))
 
     def checksum(self) -> str:
         """sha256 of the content (names, dtypes, shapes, bytes): independent of how the file was serialised."""

@@ -124,6 +124,12 @@ class Particle2D(SeededSampling):
             params = self.Params.model_validate(params.model_dump())
         self.params = params
         self.dtype = DTYPES[params.dtype]
+        self.device = torch.device("cpu")  # where rollouts integrate (``to``); sampling stays on the CPU
+
+    def to(self, device: torch.device | str) -> "Particle2D":
+        """Integrate rollouts on ``device`` (the policy must compute there); they are returned on the CPU."""
+        self.device = torch.device(device)
+        return self
 
     # ------------------------------------------------------------------ auxiliary state
     @property
@@ -257,15 +263,18 @@ class Particle2D(SeededSampling):
         n_steps, every = time_grid(horizon, record_every, dt)
         check_initial_states(q0, qd0, self.dim)
         step = semi_implicit_euler if self.params.integrator == "semi_implicit_euler" else rk4
+        home, d = q0.device, self.device
         with torch.set_grad_enabled(enable_grad):
-            return self._rollout(policy, step, q0, qd0, dict(aux), dt, n_steps, every, monitor, progress)
+            ro = self._rollout(policy, step, q0.to(d), qd0.to(d), {k: v.to(d) for k, v in aux.items()}, dt, n_steps,
+                               every, monitor, progress)
+        return ro if d == home else ro.to(home)
 
     def _rollout(self, policy, step, q0, qd0, aux, dt, n_steps, every, monitor, progress) -> Rollout:
         q, qd = q0, qd0
         qs, qds, qdds, Vs, Ds, ts = [], [], [], [], [], []
         clear = self.clearance(q, aux)
         min_clear = clear
-        first_hit = torch.where(clear < 0, 0.0, float("inf")).to(q0.dtype)
+        first_hit = torch.where(clear < 0, 0.0, float("inf")).to(q0)
         reached = self.success(q, aux)
 
         def accel(x, xd):

@@ -64,6 +64,18 @@ class Env(Protocol):
 
 
 @runtime_checkable
+class ComputesOn(Protocol):
+    """An environment whose rollouts evaluate policies on a chosen device (``device`` in the run config). It exists
+    because where a rollout can compute is the environment's call: the batched 2-D particle integrates on the
+    device itself; pybullet stays on the CPU and sends each step's state to the policy's device and back. Either
+    way the rollout it returns, and the datasets made of it, are on the CPU."""
+
+    def to(self, device: torch.device | str) -> Any:
+        """Evaluate policies on ``device`` from now on (returns the environment)."""
+        ...
+
+
+@runtime_checkable
 class HasTaskMetrics(Protocol):
     """Per-trajectory metrics of the environment's task beyond success and collision (paper §4.2: time, path
     lengths, goal distance). It exists because only a task that defines an *execution* has them; the pipeline

@@ -6,8 +6,9 @@ end effector, the execution that ends at the goal) is optional and None elsewher
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields, replace
 
+import torch
 from torch import Tensor
 
 
@@ -46,3 +47,9 @@ class Rollout:
     @property
     def batch_size(self) -> int:
         return self.q.shape[1]
+
+    def to(self, device: torch.device | str) -> "Rollout":
+        """Every tensor of the record on ``device`` (a rollout computed on a GPU is read on the CPU)."""
+        moved = {f.name: getattr(self, f.name).to(device) for f in fields(self)
+                 if isinstance(getattr(self, f.name), Tensor)}
+        return replace(self, **moved)

@@ -24,13 +24,15 @@ def learned_edges(tree: RMPTree) -> list[str]:
 def edge_weights(tree: RMPTree, q: Tensor, qd: Tensor, aux: Mapping[str, Tensor], edges: list[str],
                  chunk: int = 2048) -> dict[str, Tensor]:
     """``{edge: (B,) w}`` at the states (q, q̇, aux), evaluated through the tree (so shared weights see the aux
-    their edge binds and the parent state their edge starts from). Chunked: memory stays flat for big sets."""
+    their edge binds and the parent state their edge starts from). Chunked: memory stays flat for big sets. The
+    states go to the tree's device, the weights come back to the states'."""
     parts: dict[str, list[Tensor]] = {e: [] for e in edges}
+    d = tree.device
     for s in range(0, q.shape[0], chunk):
         sl = slice(s, s + chunk)
-        out = tree(q[sl], qd[sl], {k: v[sl] for k, v in aux.items()}, return_nodes=True)
+        out = tree(q[sl].to(d), qd[sl].to(d), {k: v[sl].to(d) for k, v in aux.items()}, return_nodes=True)
         for e in edges:
-            parts[e].append(out.nodes["edge"][e].w.reshape(-1))
+            parts[e].append(out.nodes["edge"][e].w.reshape(-1).to(q.device))
     return {e: torch.cat(v) if v else q.new_zeros(0) for e, v in parts.items()}
 
 

@@ -56,13 +56,23 @@ def make_objective(name: str) -> Objective:
     return entry.obj(entry.validate({}))
 
 
+def module_device(model: nn.Module) -> torch.device:
+    """Where a model's parameters (or buffers) are: the CPU for one that has none."""
+    return next((t.device for t in (*model.parameters(), *model.buffers())), torch.device("cpu"))
+
+
 @torch.no_grad()
 def dataset_loss(model: nn.Module, data: Dataset, objective: Objective | str = "mse", chunk: int = 4096) -> float:
-    """``objective`` of ``model`` against the expert over a whole dataset, in chunks to bound memory."""
+    """``objective`` of ``model`` against the expert over a whole dataset, in chunks (sent to the model's device)
+    to bound memory."""
     objective = make_objective(objective) if isinstance(objective, str) else objective
-    total, n = 0.0, len(data)
+    total, n, device = 0.0, len(data), module_device(model)
     for s in range(0, n, chunk):
-        idx = torch.arange(s, min(n, s + chunk))
-        q, qd, aux, qdd = data.select(idx)
+        idx = torch.arange(s, min(n, s + chunk), device=data.q.device)
+        q, qd, aux, qdd = (_to(t, device) for t in data.select(idx))
         total += float(objective.total(model(q, qd, aux), qdd))
     return total / (n * data.qdd.shape[1])
+
+
+def _to(t, device: torch.device):
+    return {k: v.to(device) for k, v in t.items()} if isinstance(t, dict) else t.to(device)

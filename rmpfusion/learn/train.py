@@ -28,7 +28,7 @@ from ..envs.demonstrations import Dataset
 from ..envs.common import DTYPES
 from ..files import atomic_torch_save, read_torch_file, remove_stale_temporaries
 from .config import TrainConfig, upgrade_train_config
-from .objectives import Objective, dataset_loss, make_objective
+from .objectives import Objective, dataset_loss, make_objective, module_device
 from .optimizers import make_optimizer
 
 #: TrainConfig fields that change the optimisation path; a checkpoint made with other values is not resumed.
@@ -268,7 +268,7 @@ def _record_start(s: _Session) -> None:
 def _step(s: _Session, it: int) -> float:
     """Minibatch step ``it`` (0-based); returns its loss."""
     cfg, opt, N = s.cfg, s.opt, len(s.data)
-    idx = torch.randint(N, (min(cfg.batch_size, N),), generator=s.gen)
+    idx = torch.randint(N, (min(cfg.batch_size, N),), generator=s.gen).to(s.data.q.device)  # the CPU's draws
     q, qd, aux, qdd = s.data.select(idx)
     if cfg.lr_schedule != "constant":
         for group in opt.param_groups:
@@ -326,11 +326,14 @@ def train(model: nn.Module, data: Dataset, cfg: TrainConfig, seed: int, test_dat
 
     ``log`` receives ``{"iteration", "train_loss"[, "val_loss", "test_loss"]}`` every ``cfg.log_every`` steps
     (the validation loss is the one to choose settings by; the test loss is only reported);
-    ``progress(done, total)`` is called after every step.
+    ``progress(done, total)`` is called after every step. The model trains where it is (``model.to(device)``
+    first): the training data goes there once; minibatches are drawn by the CPU generator, so a run draws the same
+    minibatches on every device.
     """
     dtype = DTYPES[cfg.dtype]
     model.to(dtype)
-    data = data.to(dtype)
+    device = module_device(model)
+    data = data.to(dtype, device)
     test_data = test_data.to(dtype) if test_data is not None else None
     val_data = val_data.to(dtype) if val_data is not None else None
     s = _Session(model=model, cfg=cfg, data=data, test_data=test_data, val_data=val_data,

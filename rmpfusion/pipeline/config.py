@@ -76,8 +76,9 @@ class RunConfig(_Frozen):
 
     name: str = "experiment"
     seed: int = 0
-    device: Literal["cpu"] = Field("cpu", description="where the trees run; only the CPU until GPU support lands "
-                                                     "(resolve_and_validate names any other value)")
+    device: str = Field("cpu", pattern=r"^(cpu|cuda(:\d+)?)$",
+                        description="where trees, learners, training and the 2D environment compute: cpu, cuda or "
+                                    "cuda:<index> (pybullet stays on the CPU; a policy's tensors cross once a step)")
     env: TypedBlock
     tree: TreeSpec = Field(description="the tree spec (docs/architecture.md §2) without learned weights")
     expert: dict[str, Any] = Field(default_factory=dict, description="node or shared-weight name -> weight spec")

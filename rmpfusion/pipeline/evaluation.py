@@ -46,7 +46,7 @@ def evaluate_expert(exp: Experiment, test: Dataset) -> ExpertEval:
     exp.say.say("eval: expert")
     q0, qd0, aux0 = test.initial_states()
     ev, d = exp.run.eval, exp.run.data
-    ro = online_loss(exp.expert, exp.expert, exp.env, q0, qd0, aux0, exp.horizon, d.interval, exp.fine_interval,
+    ro = online_loss(exp.expert, exp.expert_at(), exp.env, q0, qd0, aux0, exp.horizon, d.interval, exp.fine_interval,
                      exp.say.bar("rollout expert")).rollout
     metrics = rollout_rates(ro, ev.lyapunov_rtol, ev.lyapunov_atol)
     stage = None
@@ -119,7 +119,7 @@ class _SnapshotEvaluator:
 
     def metrics(self, model: Learner, bar_label: str):
         exp, ev = self.exp, self.exp.run.eval
-        return evaluate_learner(model, exp.expert, exp.env, self.splits.test, exp.horizon, exp.run.data.interval,
+        return evaluate_learner(model, exp.expert_at(), exp.env, self.splits.test, exp.horizon, exp.run.data.interval,
                                 ev.lyapunov_rtol, ev.lyapunov_atol, exp.fine_interval, exp.say.bar(bar_label),
                                 loss=lambda m, ds: dataset_loss(m, ds, exp.run.train.objective))
 

@@ -11,9 +11,11 @@ from typing import Any, Callable, Mapping
 import torch
 from torch import Tensor
 
+from ..build.errors import ConfigError, Issue
 from ..core.tree import RMPTree
+from ..envs.common import on_device
 from ..envs.demonstrations import Dataset
-from ..envs.protocol import Env
+from ..envs.protocol import ComputesOn, Env
 from .config import RunConfig
 from .progress import Progress
 from .validate import build_expert, make_env, typed
@@ -33,6 +35,16 @@ class Experiment:
     say: Progress
     log: Log | None = None
     timing: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def device(self) -> torch.device:
+        """Where trees, learners and training compute (``device`` in the run config)."""
+        return torch.device(self.run.device)
+
+    def expert_at(self) -> Callable:
+        """The expert as a callable for states held on the CPU (rollout records, datasets): it computes on the
+        run's device and answers on the states'."""
+        return on_device(self.expert, self.device)
 
     @property
     def config(self) -> dict:
@@ -76,7 +88,14 @@ def prepare(run: RunConfig, run_dir: Path, say: Progress, log: Log | None = None
     """The environment and the expert tree of a validated config, compiled when ``eval.compile`` asks."""
     run = typed(run)
     env = make_env(run)
-    expert = build_expert(run, env.aux_dims())
+    device = torch.device(run.device)
+    if device.type != "cpu":
+        if not isinstance(env, ComputesOn):
+            raise ConfigError([Issue("device", f"the environment '{run.env.type}' cannot evaluate policies on "
+                                               f"{run.device} (it does not implement envs.protocol.ComputesOn); "
+                                               "set device=cpu")])
+        env.to(device)
+    expert = build_expert(run, env.aux_dims()).to(device)
     if run.eval.compile:
         expert.compile()
     return Experiment(run=run, dir=run_dir, env=env, expert=expert, say=say, log=log)

@@ -43,6 +43,7 @@ def learners(exp: Experiment) -> dict[str, Learner]:
 
     built = build_learners(exp.run, exp.env.aux_dims(), seeded)
     for name, model in built.items():
+        model.to(exp.device)  # drawn on the CPU (the same initial weights on every device), then moved
         exp.say.say(f"learner {name}: {exp.run.learners[name].type}, {model.num_parameters()} parameters")
     return built
 

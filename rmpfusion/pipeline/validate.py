@@ -14,6 +14,7 @@ import difflib
 from contextlib import nullcontext
 from typing import Any, Mapping, Sequence
 
+import torch
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 from pydantic import BaseModel, ValidationError
@@ -58,8 +59,8 @@ def _to_container(cfg: DictConfig | Mapping[str, Any]) -> dict[str, Any]:
 
 # ------------------------------------------------------------------ before the schema
 def _upgrade_issues(data: dict[str, Any]) -> list[Issue]:
-    """Renamed keys get their new name (not "unknown key"); an unsupported device is named, never ignored.
-    Both are removed from ``data`` so the rest of the config is still checked and every problem reported."""
+    """Renamed keys get their new name (not "unknown key"); a device this machine does not have is named, never
+    ignored. Both are removed from ``data`` so the rest of the config is still checked and every problem reported."""
     issues = []
     for block, names in RENAMED_KEYS.items():
         for old, new in names.items():
@@ -67,11 +68,25 @@ def _upgrade_issues(data: dict[str, Any]) -> list[Issue]:
                 issues.append(Issue(f"{block}.{old}", f"was renamed {block}.{new}; write {block}.{new}="
                                                       f"{data[block][old]!r} instead"))
                 data[block] = {k: v for k, v in data[block].items() if k != old}
-    if "device" in data and data["device"] != "cpu":  # accepted and never used would be a silent ignore
-        issues.append(Issue("device", f"{data['device']!r} is not supported yet: rmpfusion runs on the CPU only "
-                                      "(device=cpu); set device=cpu or leave the key out"))
+    missing = device_problem(data.get("device", "cpu"))
+    if missing is not None:
+        issues.append(Issue("device", missing))
         data["device"] = "cpu"
     return issues
+
+
+def device_problem(device: Any) -> str | None:
+    """Why this machine cannot compute on ``device`` (None: it can). The form itself is the schema's to check."""
+    if not isinstance(device, str) or not device.startswith("cuda"):
+        return None
+    if not torch.cuda.is_available():
+        why = "this torch has no CUDA build" if torch.version.cuda is None else "no CUDA GPU is visible"
+        return f"{device!r} is not available here ({why}); set device=cpu, or run where a GPU is"
+    index = int(device.split(":")[1]) if ":" in device else 0
+    if index >= torch.cuda.device_count():
+        return (f"{device!r} is not available here: this machine has {torch.cuda.device_count()} CUDA device(s), "
+                f"cuda:0 to cuda:{torch.cuda.device_count() - 1}; choose one of them")
+    return None
 
 
 def _expanded_tree(data: dict[str, Any]) -> list[Issue]:

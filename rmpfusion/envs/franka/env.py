@@ -11,8 +11,8 @@ from torch import Tensor
 from ...maps.kinematics import Chain
 from ...maps.urdf import PANDA_ARM_JOINTS, load_panda_urdf_path, parse_urdf
 from ...registry import ENVS
-from ..common import (DTYPES, SeededSampling, check_initial_states, obstacle_aux, obstacle_aux_dims, redraw_until_ok,
-                      stack_obstacles, time_grid)
+from ..common import (DTYPES, SeededSampling, check_initial_states, obstacle_aux, obstacle_aux_dims, on_device,
+                      redraw_until_ok, stack_obstacles, time_grid)
 from ..demonstrations import Dataset
 from ..franka_tree import EE_LINK, EE_OFFSET
 from ..protocol import RenderSettings
@@ -45,6 +45,12 @@ class Franka(SeededSampling):
         self.lower, self.upper = (t.to(self.dtype) for t in self.chain.joint_limits())
         self._ee_offset = torch.tensor(EE_OFFSET, dtype=self.dtype)
         self.worlds = HelperWorlds(params.gravity)
+        self.device = torch.device("cpu")  # where policies compute (``to``); pybullet and the records stay on the CPU
+
+    def to(self, device: torch.device | str) -> "Franka":
+        """Evaluate policies on ``device``: each step's state goes there and the acceleration comes back."""
+        self.device = torch.device(device)
+        return self
 
     # ------------------------------------------------------------------ bookkeeping
     @property
@@ -217,7 +223,7 @@ class Franka(SeededSampling):
         q0, qd0 = q0.to(self.dtype), qd0.to(self.dtype)
         run = rollout_torque if mode == "torque" else rollout_kinematic
         with torch.set_grad_enabled(enable_grad):
-            return run(self, policy, q0, qd0, aux, n_steps, every, monitor)
+            return run(self, on_device(policy, self.device), q0, qd0, aux, n_steps, every, monitor)
 
     # ------------------------------------------------------------------ demonstrations and task metrics
     def demonstration_lengths(self, ro: Rollout) -> Tensor:
