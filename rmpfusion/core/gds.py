@@ -17,6 +17,7 @@ class LeafRMP(nn.Module):
     """A leaf of the tree: anything that returns a NodeRMP for a batch of (y, ẏ)."""
 
     dim: int | None = None  # None: any dimension
+    coordinates: str | None = None  # the map output it reads when not plain coordinates (TaskMap.coordinates)
 
     def __init__(self, dim: int):
         super().__init__()

@@ -11,15 +11,41 @@ from torch import Tensor
 
 from ..core.gds import GDS
 from ..registry import LEAF_RMPS, Params
-from .potentials import logcosh
+from .potentials import soft_norm, soft_norm_grad
 
 
 def _eye_like(y: Tensor) -> Tensor:
     return torch.eye(y.shape[-1], dtype=y.dtype, device=y.device).expand(y.shape[0], -1, -1)
 
 
+class RadialMetricAttractor(GDS):
+    """An attractor to the origin of its space with metric G = w(|y|)·I, w = (w_u − w_l)·exp(−|y|²/2σ²) + w_l
+    (constant when w_u = w_l), and damping B = η·G; subclasses choose the potential Φ(y)."""
+
+    def __init__(self, params: Params, dim: int):
+        super().__init__(dim)
+        self.eta, self.w_u, self.w_l, self.sigma = params.eta, params.w_u, params.w_l, params.sigma
+
+    def _w(self, y: Tensor) -> tuple[Tensor, Tensor]:
+        beta = torch.exp(-(y * y).sum(-1) / (2 * self.sigma**2))
+        w = (self.w_u - self.w_l) * beta + self.w_l
+        grad_w = -((self.w_u - self.w_l) * beta / self.sigma**2)[:, None] * y
+        return w, grad_w
+
+    def metric(self, y, yd):
+        return self._w(y)[0][:, None, None] * _eye_like(y)
+
+    def damping(self, y, yd):
+        return self.eta * self.metric(y, yd)
+
+    def curvature(self, y, yd):
+        _, grad_w = self._w(y)
+        xi = yd * (yd * grad_w).sum(-1, keepdim=True) - 0.5 * (yd * yd).sum(-1, keepdim=True) * grad_w
+        return torch.zeros_like(_eye_like(y)), xi
+
+
 @LEAF_RMPS.register("goal_attractor")
-class GoalAttractor(GDS):
+class GoalAttractor(RadialMetricAttractor):
     """Soft-normalised attractor to the origin of its space (use an ``offset`` map to place the goal).
 
     Φ = gain·log cosh(α|y|)/α (its gradient has norm gain·tanh(α|y|): linear near the goal, constant
@@ -36,36 +62,14 @@ class GoalAttractor(GDS):
         sigma: float = Field(1.0, gt=0)
 
     def __init__(self, params: Params, dim: int):
-        super().__init__(dim)
-        p = params
-        self.gain, self.alpha, self.eta, self.w_u, self.w_l, self.sigma = p.gain, p.alpha, p.eta, p.w_u, p.w_l, p.sigma
-
-    def _w(self, y: Tensor) -> tuple[Tensor, Tensor]:
-        beta = torch.exp(-(y * y).sum(-1) / (2 * self.sigma**2))
-        w = (self.w_u - self.w_l) * beta + self.w_l
-        grad_w = -((self.w_u - self.w_l) * beta / self.sigma**2)[:, None] * y
-        return w, grad_w
-
-    def metric(self, y, yd):
-        return self._w(y)[0][:, None, None] * _eye_like(y)
-
-    def damping(self, y, yd):
-        return self.eta * self.metric(y, yd)
+        super().__init__(params, dim)
+        self.gain, self.alpha = params.gain, params.alpha
 
     def potential(self, y):
-        return self.gain * logcosh(self.alpha * y.norm(dim=-1)) / self.alpha
+        return self.gain * soft_norm(y, self.alpha)
 
     def potential_grad(self, y):
-        r = y.norm(dim=-1, keepdim=True)
-        # tanh(αr)/r → α as r → 0; the series keeps the goal itself finite and smooth
-        small = r < 1e-8
-        ratio = torch.where(small, torch.full_like(r, self.alpha), torch.tanh(self.alpha * r) / torch.where(small, torch.ones_like(r), r))
-        return self.gain * ratio * y
-
-    def curvature(self, y, yd):
-        _, grad_w = self._w(y)
-        xi = yd * (yd * grad_w).sum(-1, keepdim=True) - 0.5 * (yd * yd).sum(-1, keepdim=True) * grad_w
-        return torch.zeros_like(_eye_like(y)), xi
+        return self.gain * soft_norm_grad(y, self.alpha)
 
 
 class Barrier1D(GDS):
