@@ -962,8 +962,10 @@ for _id, _fault, _node, _shows, _velocity in [
          "{parent: q, map: {type: moving_offset, origin: goal, velocity: [0.1, 0.0]}, rmp: {type: goal_attractor}}",
          "tree.nodes.leaf.rmp: 'goal_attractor' reads plain coordinates but the map gives the output of a "
          "'moving_offset' map; put a leaf that reads it here, or change the map", True)]:
-    row(f"config-{_id}", _fault, f"resolve_and_validate on conf/config.yaml with +tree.nodes.leaf={_node}", _REFUSED,
-        shows=_shows)(_arm_row(_node, _velocity))
+    _arm = " (<dir>/arm.urdf: a 2-joint arm with a tool fixed to its tip)" if "URDF" in _node else ""
+    row(f"config-{_id}", _fault,
+        f"resolve_and_validate on conf/config.yaml with +tree.nodes.leaf={_node.replace('URDF', '<dir>/arm.urdf')}{_arm}",
+        _REFUSED, shows=_shows)(_arm_row(_node, _velocity))
 
 
 # ------------------------------------------------------------------------------------------------ the tests

@@ -13,9 +13,9 @@ import torch
 from pydantic import Field
 
 from ..core.auxstate import CONSTANT_DTYPE
+from ..registry import TASK_MAPS
 from .basic import Linear
 from .robot import RobotParams, robot_chain
-from ..registry import TASK_MAPS
 
 
 @TASK_MAPS.register("velocity_scaled_joints")

@@ -191,6 +191,8 @@ class LinkAxis(LinkOrientation):
 
     class Params(_Orientation):
         axis: Vector3 = Field(default_factory=lambda: [0.0, 0.0, 1.0], description="direction in the link frame")
+        target: AuxOrValue | None = Field(None, description="the target direction (3 numbers, normalised here) or an "
+                                                            "aux name; none: the map gives the axis itself")
 
         @field_validator("axis")
         @classmethod

@@ -7,16 +7,16 @@ Per coordinate i of its space (the joints, or ``velocity_scaled_joints`` where e
 
 so Ξ = diag(½ ẏ_i ∂g_i/∂ẏ_i) and ξ = 0 (G does not depend on y). Below the onset the leaf is absent (G = 0). Its
 energy ½ Σ w·φ(r_i)·ẏ_i² grows without bound at the limit, and Theorem 2 bounds it by V_r(0): a velocity can reach
-its limit only if the tree started with infinite energy (docs/math.md §8, "Velocity limits"). RMP²'s joint-velocity
-cap (Li et al., 2021) has the same metric shape without the GDS curvature terms; here Ξ makes it a GDS. From
-``linear_from`` of the band on, φ continues along its tangent line, so a state beyond the limit (an integrator's
-overshoot, a measured velocity) gets a large but finite metric and the leaf stays an exact GDS.
+its limit only if the tree started with more energy than the cap holds there (docs/math.md §8, "Velocity limits").
+RMP²'s joint-velocity cap (Li et al., 2021) uses w/(1 − r²) in the band, jumping from 0 to w at the onset, with a
+damping acceleration and no curvature terms, so it is not a GDS; this metric starts from 0 (C¹ at the onset) and
+carries Ξ. From ``linear_from`` of the band on, φ continues along its tangent line, so a state beyond the limit (an
+integrator's overshoot, a measured velocity) gets a large but finite metric and the leaf stays an exact GDS.
 """
 from __future__ import annotations
 
-from pydantic import Field, field_validator
-
 import torch
+from pydantic import Field, field_validator
 from torch import Tensor
 
 from ..core.auxstate import constant
