@@ -1,7 +1,6 @@
 """Self-collision: which link pairs are listed, the sphere gap against pybullet, the shared kinematics pass, and
 the collision_avoidance barrier (conf/rmp/self_collision.yaml) keeping the Panda's hand off its upper arm on a
 rollout, with Theorem 2. (J and J̇ẋ against finite differences: tests/test_registry_derivatives.py.)"""
-import copy
 from pathlib import Path
 
 import pybullet
@@ -12,6 +11,7 @@ import yaml
 
 import rmpfusion
 from conftest import assert_energy_identity, assert_lyapunov_non_increasing, rk4_rollout
+from reference_tree import node_by_node
 from rmpfusion.envs.franka_tree import DEFAULT_CONTROL_POINTS
 from rmpfusion.maps import build_map
 from rmpfusion.maps.kinematics import Chain
@@ -96,29 +96,29 @@ def test_the_gap_is_the_distance_of_sphere_centres_placed_by_pybullet(urdf, join
         pybullet.disconnect(cid)
 
 
-def test_sibling_gaps_share_one_kinematics_pass(gen):
-    """Gap maps under one parent compute forward kinematics once (prepare); switching the sharing off gives the
-    same tree output, and each map's prepared output equals its own forward."""
+def test_sibling_gaps_evaluate_as_one_group_equal_to_each_gap_alone(gen):
+    """Gaps on one robot under one parent form one group (2G centres from one pass of the chain); the tree equals
+    the node-by-node computation, and the group's rows equal each gap evaluated on its own."""
     pairs = [(0, 13), (2, 12), (3, 10)]
     spec = {"root": {"name": "q", "dim": 7}, "nodes": {
         **{f"gap{i}_{j}": {"parent": "q", "map": {"type": "link_sphere_distance", "a": sphere(i), "b": sphere(j)},
+                           "weight": {"type": "mlp", "hidden": [4]},
                            "rmp": {"type": "collision_avoidance", "r_w": 0.5, "alpha": 0.1, "eta": 0.5}} for i, j in pairs},
         "regulariser": {"parent": "q", "map": {"type": "identity"}, "rmp": {"type": "identity_metric"}}}}
-    shared = rmpfusion.build_tree(spec)
-    gaps = [m for m in shared.maps.values() if m.shared_key is not None]
-    assert len(gaps) == 3 and all(m.chain is gaps[0].chain for m in gaps)  # one set of robot constants
-    plain = copy.deepcopy(shared)
-    for m in plain.maps.values():
-        m.shared_key = None
+    torch.manual_seed(0)
+    tree = rmpfusion.build_tree(spec)
+    assert sorted(len(g.nodes) for g in tree.plan.groups) == [1, 3]
     q = HOME + 0.5 * torch.randn(6, 7, generator=gen)
     qd = torch.randn(6, 7, generator=gen)
-    a, b = shared(q, qd), plain(q, qd)
+    out, ref = tree(q, qd), node_by_node(tree, q, qd)
     for field in ("qdd", "f", "M", "V"):
-        torch.testing.assert_close(getattr(a, field), getattr(b, field), rtol=1e-12, atol=1e-12)
-    prepared = gaps[1].prepare(q, qd)
-    for m in gaps:
-        for x, y in zip(m.from_prepared(prepared, q, qd), m(q, qd)):
-            torch.testing.assert_close(x, y, rtol=1e-13, atol=1e-13)
+        torch.testing.assert_close(getattr(out, field), ref[field], rtol=1e-12, atol=1e-12)
+    gaps = [tree.maps[f"gap{i}_{j}"] for i, j in pairs]
+    group = type(gaps[0]).stacked(gaps, q)
+    for rows in (group(q[None], qd[None]), group(q.expand(3, 6, 7), qd.expand(3, 6, 7))):  # one parent row, or G
+        for g, m in enumerate(gaps):
+            for a, b in zip((t[g] for t in rows), m(q, qd)):
+                torch.testing.assert_close(a, b, rtol=1e-13, atol=1e-13)
 
 
 # ------------------------------------------------------------------------------------------------ on a rollout

@@ -17,7 +17,10 @@ from typing import Mapping, Sequence
 
 import torch
 from pydantic import Field
+from torch import Tensor
 
+from ..core.auxstate import CONSTANT_DTYPE
+from ..core.stacking import shallow_clone, spread, stack_values
 from ..core.taskmap import TaskMap
 from ..registry import TASK_MAPS, Params
 from .distances import _radial
@@ -79,9 +82,12 @@ def _ancestors(n: int, parent: Mapping[int, int]) -> list[int]:
 class LinkSphereDistance(TaskMap):
     """y = |p_a(q) − p_b(q)| − r_a − r_b: the gap between control spheres ``a`` and ``b`` on two links of the robot.
 
-    The two links must move relative to each other (not one rigid body). Siblings of this type under one parent
-    share one forward-kinematics pass (``prepare``). J and J̇ẋ are analytic (module docstring).
+    The two links must move relative to each other (not one rigid body). Both centres come from one pass of the
+    chain (a group of two ``forward_kinematics`` points), and gaps on one robot stack (``core/stacking.py``): a group
+    of G gaps evaluates its 2G centres from one pass. J and J̇ẋ are analytic (module docstring).
     """
+
+    stack_fields = ("radii",)  # and the centres, stacked by ``stacked``
 
     class Params(RobotParams):
         a: LinkSphere
@@ -101,8 +107,8 @@ class LinkSphereDistance(TaskMap):
         self.point_a = self._point(params.a, robot, in_dim)
         self.point_b = self._point(params.b, robot, in_dim)
         self.radii = params.a.radius + params.b.radius
-        self.shared_key = ("link_sphere_distance", *self.point_a.shared_key[1:])
         self.out_dim = 1
+        object.__setattr__(self, "centres", _centres([self.point_a], [self.point_b]))
 
     def _point(self, sphere: LinkSphere, robot: dict, in_dim: int) -> ForwardKinematics:
         point = ForwardKinematics(ForwardKinematics.Params(**robot, link=sphere.link, offset=list(sphere.offset)),
@@ -110,19 +116,34 @@ class LinkSphereDistance(TaskMap):
         point.chain = self.chain  # one set of robot constants for both centres
         return point
 
-    def _gap(self, a, b):
-        """(y, ẏ, J, J̇ẋ) of the gap from the two centres' (p, ṗ, J, J̇ẋ)."""
-        d, dd = a[0] - b[0], a[1] - b[1]
-        r, n, curv = _radial(d, dd, 1.0)
-        J = (n.unsqueeze(-1) * (a[2] - b[2])).sum(1, keepdim=True)  # nᵀ(J_a − J_b), (B, 1, dof)
-        c = (n * (a[3] - b[3])).sum(-1, keepdim=True) + curv
-        return r - self.radii, (n * dd).sum(-1, keepdim=True), J, c
+    def stack_settings(self) -> tuple:
+        return self.point_a.stack_settings()  # spheres on one robot model
 
-    def psi(self, x, aux):
-        return (self.point_a.psi(x, aux) - self.point_b.psi(x, aux)).norm(dim=-1, keepdim=True) - self.radii
+    @classmethod
+    def stacked(cls, members: Sequence["LinkSphereDistance"], like: Tensor) -> "LinkSphereDistance":
+        group = shallow_clone(members[0])
+        object.__setattr__(group, "centres", _centres([m.point_a for m in members], [m.point_b for m in members]))
+        object.__setattr__(group, "radii", stack_values([m.radii for m in members], like))
+        return group
 
     def forward(self, x, xd, aux=None):
-        return self._gap(self.point_a(x, xd, aux), self.point_b(x, xd, aux))
+        """(y, ẏ, J, J̇ẋ) of the gap(s): x is (B, m) on its own, (G, B, m) or (1, B, m) in a group of G."""
+        alone = x.dim() == 2
+        if alone:
+            x, xd = x.unsqueeze(0), xd.unsqueeze(0)
+        elif x.shape[0] > 1:  # one parent state per member: the a and b centres of member g read row g
+            x, xd = torch.cat([x, x]), torch.cat([xd, xd])
+        p, pd, Jp, cp = self.centres(x, xd)  # (2G, B, ...): the a centres, then the b centres
+        G = p.shape[0] // 2
+        d, dd = p[:G] - p[G:], pd[:G] - pd[G:]
+        r, n, curv = _radial(d, dd, 1.0)
+        J = (n.unsqueeze(-1) * (Jp[:G] - Jp[G:])).sum(-2, keepdim=True)  # nᵀ(J_a − J_b), (G, B, 1, m)
+        c = (n * (cp[:G] - cp[G:])).sum(-1, keepdim=True) + curv
+        out = (r - spread(self.radii, 1), (n * dd).sum(-1, keepdim=True), J, c)
+        return tuple(t.squeeze(0) for t in out) if alone else out
+
+    def psi(self, x, aux):
+        return self.forward(x, torch.zeros_like(x), aux)[0]
 
     def jacobian(self, x, aux=None):
         return self.forward(x, torch.zeros_like(x), aux)[2]
@@ -130,12 +151,8 @@ class LinkSphereDistance(TaskMap):
     def curvature(self, x, xd, aux=None, J=None):
         return self.forward(x, xd, aux)[3]
 
-    def prepare(self, x, xd, aux=None):
-        return self.point_a.prepare(x, xd, aux)
 
-    def adopt_shared(self, other: "LinkSphereDistance") -> None:
-        self.chain = self.point_a.chain = self.point_b.chain = other.chain
-
-    def from_prepared(self, prepared, x, xd, aux=None):
-        return self._gap(self.point_a.from_prepared(prepared, x, xd, aux),
-                         self.point_b.from_prepared(prepared, x, xd, aux))
+def _centres(a: Sequence[ForwardKinematics], b: Sequence[ForwardKinematics]):
+    """The a centres then the b centres as one group of forward-kinematics points (one pass of the chain for all);
+    its stacked numbers are float64 and cast to the input's dtype on use, like a point's own."""
+    return ForwardKinematics.stacked([*a, *b], torch.zeros((), dtype=CONSTANT_DTYPE))

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 from pydantic import Field
 
+from ..core.stacking import spread
 from ..registry import LEAF_RMPS, Params
 from .gds_leaves import RadialMetricAttractor
 
@@ -27,6 +28,8 @@ class OrientationAttractor(RadialMetricAttractor):
         sigma: float = Field(0.5, gt=0, description="|e| (≈ angle in rad near the target) over which the metric "
                                                      "changes from w_l to w_u")
 
+    stack_fields = ("gain", "eta", "w_u", "w_l", "sigma")
+
     def __init__(self, params: Params, dim: int):
         super().__init__(params, dim)
         self.gain = params.gain
@@ -35,4 +38,4 @@ class OrientationAttractor(RadialMetricAttractor):
         return 0.5 * self.gain * (y * y).sum(-1)
 
     def potential_grad(self, y):
-        return self.gain * y
+        return spread(self.gain, 1) * y
