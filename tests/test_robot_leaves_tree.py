@@ -1,5 +1,6 @@
 """Every robot leaf in one Panda tree, each edge with a random positive neural weight: Theorem 2's identity at
-arbitrary states (velocities inside the velocity cap's band included), and the compiled tree equal to the eager one."""
+arbitrary states (velocities inside the velocity cap's band included), level-batched evaluation equal to the
+node-by-node computation, and the compiled tree equal to the eager one."""
 import copy
 
 import pytest
@@ -7,6 +8,7 @@ import torch
 
 import rmpfusion
 from conftest import assert_energy_identity
+from reference_tree import FIELDS, node_by_node
 
 HOME = torch.tensor([0.0, -0.3, 0.0, -2.2, 0.0, 2.0, 0.8])
 PANDA = {"robot": "panda"}
@@ -34,6 +36,9 @@ def every_robot_leaf_tree():
                  "weight": mlp(), "rmp": {"type": "collision_avoidance", "r_w": 1.0, "alpha": 0.1, "eta": 0.5}},
         "speed": {"parent": "q", "map": {"type": "velocity_scaled_joints", **PANDA}, "weight": mlp(),
                   "rmp": {"type": "velocity_limit", "eta": 2.0}},
+        **{f"posture{k}": {"parent": "q", "map": {"type": "offset", "origin": (HOME + 0.1 * k).tolist()},
+                           "weight": mlp(), "rmp": {"type": "orientation_attractor", "gain": 1.0 + k, "sigma": 0.3 + k}}
+           for k in range(2)},  # two orientation attractors of one group (their numbers stacked)
         "regulariser": {"parent": "q", "map": {"type": "identity"}, "rmp": {"type": "identity_metric"}}}})
     g = torch.Generator().manual_seed(3)
     with torch.no_grad():
@@ -58,6 +63,15 @@ def test_theorem_2_identity_with_every_robot_leaf_and_neural_weights():
     speed = qd.abs() / torch.tensor([2.175] * 4 + [2.61] * 3)
     assert ((speed > 0.8) & (speed < 1.0)).any()  # the cap acts at some of these states
     assert_energy_identity(tree, q, qd, aux)
+
+
+def test_level_batched_evaluation_equals_the_node_by_node_computation():
+    tree = every_robot_leaf_tree()
+    assert any(g.nodes == ["posture0", "posture1"] for g in tree.plan.groups)
+    q, qd, aux = inputs(5, 2)
+    out, ref = tree(q, qd, aux), node_by_node(tree, q, qd, aux)
+    for field in (*FIELDS, "qdd"):
+        torch.testing.assert_close(getattr(out, field), ref[field], rtol=1e-12, atol=1e-12)
 
 
 @pytest.mark.slow
