@@ -154,16 +154,9 @@ class Chain(nn.Module):
     _CONSTANTS = ("origin_R", "origin_p", "origin_axis", "rot_sin", "rot_cos", "turns", "slides", "axis_local")
 
     def _constants(self, like: Tensor) -> dict[str, Tensor]:
-        """The pass's constants in ``like``'s dtype and device (cast once per dtype; ``.to()`` of the chain resets)."""
-        key = (like.dtype, like.device)
-        cache = self.__dict__.setdefault("_cast", {})
-        if key not in cache:
-            cache[key] = {n: getattr(self, n).to(like) for n in self._CONSTANTS}
-        return cache[key]
-
-    def _apply(self, fn, *args, **kwargs):
-        self.__dict__.pop("_cast", None)
-        return super()._apply(fn, *args, **kwargs)
+        """The pass's constants in ``like``'s dtype and device (cast only when they differ: a tree's chain is
+        already in the tree's dtype)."""
+        return {n: _as(getattr(self, n), like) for n in self._CONSTANTS}
 
     def _local(self, q: Tensor) -> tuple[Tensor, Tensor]:
         """Every joint's transform from its parent link at ``q``: (..., K, 4, 4), and each joint's slide (..., K)."""
@@ -232,7 +225,7 @@ class ForwardKinematics(TaskMap):
     the joints that move it.
     """
 
-    stack_fields = ("link_index", "offset", "moved_by")
+    stack_fields = ("link_mask", "offset", "moved_by")
 
     class Params(Params):
         robot: Literal["panda"] | None = "panda"
@@ -271,7 +264,9 @@ class ForwardKinematics(TaskMap):
         self.register_buffer("select", S)
         self.register_buffer("revolute", torch.tensor(revolute, dtype=torch.bool))
         self.register_buffer("offset", torch.tensor(params.offset, dtype=torch.float64))
-        self.register_buffer("link_index", torch.tensor(self.chain.check_link(self.link)), persistent=False)
+        one_hot = torch.zeros(len(self.chain.link_names()), dtype=torch.float64)
+        one_hot[self.chain.check_link(self.link)] = 1.0
+        self.register_buffer("link_mask", one_hot, persistent=False)  # picks the link's pose out of every link's
         self.register_buffer("moved_by", self.chain.moves(self.link), persistent=False)
         self.source = (str(path), tuple(self.chain.actuated))
         self.out_dim = 3
@@ -300,10 +295,10 @@ class ForwardKinematics(TaskMap):
         chain = self.chain
         T, O, Z = chain.frames(x)
         O, Z = O[..., chain.actuated_joints, :], Z[..., chain.actuated_joints, :]  # (..., A, 3), URDF order
-        pose = _take(T, self.link_index)
-        y = pose[..., :3, 3] + matvec(pose[..., :3, :3], self.offset.to(x))
+        pose = _take(T, _as(self.link_mask, x))
+        y = pose[..., :3, 3] + matvec(pose[..., :3, :3], _as(self.offset, x))
         turns = chain.actuated_turns[:, None]
-        moved = self.moved_by.to(x)[..., None]
+        moved = _as(self.moved_by, x)[..., None]
         cols = moved * torch.where(turns, torch.linalg.cross(Z, y[..., None, :] - O), Z)  # (..., A, 3)
         J = cols.transpose(-1, -2)
         qd = xd
@@ -314,11 +309,14 @@ class ForwardKinematics(TaskMap):
         return y, yd, J, _jdot_qdot(y, yd, O, Z, qd, moved, turns)
 
 
-def _take(T: Tensor, index: Tensor) -> Tensor:
-    """Link poses (..., 4, 4) picked from every link's (..., L, 4, 4) by a link index (0-d, or (G, 1) for a group)."""
-    idx = index.reshape(*index.shape, 1, 1, 1)
-    idx = idx.reshape((1,) * (T.dim() - idx.dim()) + tuple(idx.shape))
-    return torch.take_along_dim(T, idx, dim=-3).squeeze(-3)
+def _as(t: Tensor, like: Tensor) -> Tensor:
+    return t if t.dtype == like.dtype and t.device == like.device else t.to(like)
+
+
+def _take(T: Tensor, one_hot: Tensor) -> Tensor:
+    """Link poses (..., 4, 4) picked from every link's (..., L, 4, 4) by a one-hot (L,) over the links ((G, 1, L) for
+    a group): a product and a sum, exact, and free of the batch size (so it exports for any batch)."""
+    return (one_hot[..., None, None] * T).sum(-3)
 
 
 def _jdot_qdot(y: Tensor, yd: Tensor, O: Tensor, Z: Tensor, qd: Tensor, moved: Tensor, turns: Tensor) -> Tensor:
