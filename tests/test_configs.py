@@ -23,16 +23,23 @@ def compose_cfg(overrides=(), hydra_cfg=False):
         return compose("config", overrides=list(overrides), return_hydra_config=hydra_cfg)
 
 
+#: The map a leaf that reads a particular map's output (LeafRMP.coordinates) is tried under, on the 2-D root.
+MAP_FOR_COORDINATES = {"moving_offset": "{type: moving_offset, origin: goal, velocity: [0.1, -0.2]}"}
+
+
 def _overrides_for(group: str, option: str) -> list[str]:
     """How to select one file of a group so that the rest of the config fits it."""
     if group == "rmp":
         fixed = getattr(LEAF_RMPS.get(compose_cfg()["tree"]["nodes"]["conditioning"]["rmp"]["type"]).obj, "dim", None)
         import yaml
 
-        rtype = yaml.safe_load((CONF / "rmp" / f"{option}.yaml").read_text())["type"]
-        one_d = getattr(LEAF_RMPS.get(rtype).obj, "dim", None) == 1
+        leaf = LEAF_RMPS.get(yaml.safe_load((CONF / "rmp" / f"{option}.yaml").read_text())["type"]).obj
+        one_d = getattr(leaf, "dim", None) == 1
         assert fixed is None
-        return [f"rmp@tree.nodes.{'obstacle' if one_d else 'conditioning'}.rmp={option}"]
+        node = "obstacle" if one_d else "conditioning"
+        under = ([f"~tree.nodes.{node}.map", f"+tree.nodes.{node}.map={MAP_FOR_COORDINATES[leaf.coordinates]}"]
+                 if leaf.coordinates else [])
+        return [f"rmp@tree.nodes.{node}.rmp={option}", *under]
     if group == "weights":
         return [f"weights@learners.rmp.weights={option}"]
     if group == "learner":

@@ -141,8 +141,8 @@ class Unit:
         def one(c: str) -> bool:
             if self.needs_plugin:
                 return False
-            if c.startswith("rmpfusion-validate"):
-                return True
+            if c.startswith("rmpfusion-validate") or c.startswith("python tools/tracking_demo.py"):
+                return True  # the demo runs 0.1 s of its rollouts here (appended)
             return c.startswith("rmpfusion-run ") and " -m " not in c and "data=tiny train=tiny" in c  # the smoke run
         return all(one(c) for c in self.cmds)
 
@@ -177,6 +177,8 @@ def appended(cmd: str, out: Path) -> list[str]:
     """What the test adds after the README's command (see the module docstring)."""
     if cmd.startswith("rmpfusion-validate"):
         return [f"hydra.run.dir={out}"]
+    if cmd.startswith("python tools/tracking_demo.py"):
+        return ["--seconds", "0.1"]  # every robot and leaf, 10 integration steps
     if cmd.startswith("python tools/reproduce_2d.py"):
         return ["--scale", "0.0005", "--out", str(out), *TINY]  # 10 iterations of each experiment
     if cmd.startswith("rmpfusion-run"):

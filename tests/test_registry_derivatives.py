@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
+import pybullet_data
 import pytest
 import torch
 
@@ -60,14 +61,17 @@ class Example:
         return self.scale * torch.randn(n, self.dim, generator=gen), torch.randn(n, self.dim, generator=gen)
 
 
-# aux state every example may name (maps and weights read centres, radii and goals from it)
-AUX = {"c": 2, "r": 1, "c3": 3, "goal": 2, "obstacle_center": 2, "obstacle_radius": 1}
+# aux state every example may name (maps and weights read centres, radii, goals and target orientations from it)
+AUX = {"c": 2, "r": 1, "c3": 3, "goal": 2, "obstacle_center": 2, "obstacle_radius": 1, "goal_velocity": 2,
+       "quaternion": 4, "directions": 6}
 
 
 def sample_aux(n: int, gen: torch.Generator) -> dict:
     return {"c": torch.randn(n, 2, generator=gen), "r": 0.5 + torch.rand(n, 1, generator=gen),
             "c3": torch.randn(n, 3, generator=gen), "goal": torch.randn(n, 2, generator=gen),
-            "obstacle_center": torch.randn(n, 2, generator=gen), "obstacle_radius": 0.5 + torch.rand(n, 1, generator=gen)}
+            "obstacle_center": torch.randn(n, 2, generator=gen), "obstacle_radius": 0.5 + torch.rand(n, 1, generator=gen),
+            "goal_velocity": torch.randn(n, 2, generator=gen), "quaternion": torch.randn(n, 4, generator=gen),
+            "directions": torch.randn(n, 6, generator=gen)}
 
 
 def barrier_states(gen, n, dim):
@@ -89,6 +93,35 @@ def panda_states(gen, n, dim):
     return lo + torch.rand(n, dim, generator=gen) * (hi - lo), torch.randn(n, dim, generator=gen)
 
 
+IIWA = str(Path(pybullet_data.getDataPath()) / "kuka_iiwa" / "model.urdf")
+
+
+def iiwa_states(gen, n, dim):
+    from rmpfusion.maps.urdf import parse_urdf
+    from rmpfusion.maps.kinematics import Chain
+    lo, hi = Chain(parse_urdf(IIWA)).joint_limits()
+    return lo + torch.rand(n, dim, generator=gen) * (hi - lo), torch.randn(n, dim, generator=gen)
+
+
+def band_states(limit=(1.0,), onset=0.8, linear_from=0.99):
+    """States for a velocity_limit leaf: each velocity below its onset, inside its band or beyond its limit, never
+    within 0.05 band widths of the onset, of the start of the linear continuation or of the limit (where its metric
+    is only C¹, or changes fast); positions do not matter. One sample has every coordinate inside the band."""
+    def states(gen, n, dim):
+        L = torch.tensor(limit).expand(dim)
+        on, band = onset * L, (1 - onset) * L
+        r_lin = on + linear_from * band
+        pick = torch.randint(0, 3, (n, dim), generator=gen)
+        lo = torch.stack([torch.zeros_like(on), on + 0.05 * band, L + 0.05 * band])
+        hi = torch.stack([on - 0.05 * band, r_lin - 0.05 * band * linear_from, L + 2 * band])
+        lo, hi = lo.gather(0, pick), hi.gather(0, pick)
+        sign = torch.where(torch.rand(n, dim, generator=gen) < 0.5, -1.0, 1.0)
+        yd = sign * (lo + (hi - lo) * torch.rand(n, dim, generator=gen))
+        yd[0] = on + band * 0.5
+        return torch.randn(n, dim, generator=gen), yd
+    return states
+
+
 MAP_EXAMPLES: dict[str, list[Example]] = {
     "identity": [Example({}, 2, scale=3.0)],
     "offset": [Example({"origin": [-3.0, 3.0]}, 2, scale=3.0), Example({"origin": "c"}, 2, scale=3.0)],
@@ -106,6 +139,30 @@ MAP_EXAMPLES: dict[str, list[Example]] = {
                         2, scale=3.0)],
     "forward_kinematics": [Example({"link": "panda_hand", "offset": [0.05, -0.01, 0.02]}, 7, state=panda_states),
                            Example({"link": "panda_link4"}, 7, state=panda_states)],
+    "link_axis": [Example({"link": "panda_hand", "axis": [0.0, 0.0, 1.0]}, 7, state=panda_states),
+                  Example({"link": "panda_link5", "axis": [1.0, -2.0, 0.5], "target": [0.0, 0.0, -1.0]}, 7,
+                          state=panda_states),
+                  Example({"robot": None, "urdf": IIWA, "link": "lbr_iiwa_link_7", "target": "c3"}, 7, state=iiwa_states)],
+    "link_orientation": [Example({"link": "panda_hand", "target": [0.0, 1.0, 0.0, 0.0]}, 7, state=panda_states),
+                         Example({"link": "panda_hand", "target": "quaternion", "target_format": "quaternion_wxyz",
+                                  "axes": [[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]}, 7, state=panda_states),
+                         Example({"robot": None, "urdf": IIWA, "link": "lbr_iiwa_link_6", "target": "directions",
+                                  "target_format": "axes", "axes": [[0.0, 1.0, 0.0], [1.0, 1.0, 0.0]]}, 7,
+                                 state=iiwa_states),
+                         Example({"robot": None, "urdf": IIWA, "link": "lbr_iiwa_link_7",
+                                  "target": [0.0, -1.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0], "target_format": "matrix"},
+                                 7, state=iiwa_states)],
+    "link_sphere_distance": [Example({"a": {"link": "panda_link3", "offset": [0.1, 0.07, 0.0], "radius": 0.1},
+                                      "b": {"link": "panda_hand", "offset": [0.0, 0.0, 0.09], "radius": 0.09}}, 7,
+                                     state=panda_states),
+                             Example({"robot": None, "urdf": IIWA, "a": {"link": "lbr_iiwa_link_2"},
+                                      "b": {"link": "lbr_iiwa_link_6", "offset": [0.0, 0.05, 0.0], "radius": 0.08}}, 7,
+                                     state=iiwa_states)],
+    "velocity_scaled_joints": [Example({}, 7, state=panda_states),
+                               Example({"robot": None, "urdf": IIWA, "velocity_limit": [1.0, 2.0, 1.5, 1.0, 3.0, 2.0, 2.5]},
+                                       7, state=iiwa_states)],
+    "moving_offset": [Example({"origin": "c", "velocity": "goal_velocity"}, 2, scale=3.0),
+                      Example({"origin": [0.5, -1.0, 0.2], "velocity": [0.1, 0.0, -0.3]}, 3, scale=3.0)],
 }
 
 LEAF_EXAMPLES: dict[str, list[Example]] = {
@@ -118,6 +175,12 @@ LEAF_EXAMPLES: dict[str, list[Example]] = {
     "rmpflow_collision_avoidance": [Example({"alpha": 1e-3, "eta": 0.5}, 1, state=positive_distance_states)],
     "rmpflow_goal_attractor": [Example({}, 2, scale=2.0), Example({"gain": 1.5, "sigma": 0.8, "eta": 1.0}, 3, scale=2.0)],
     "rmpflow_damper": [Example({"w": 2.0, "eta": 0.5}, 3)],
+    "orientation_attractor": [Example({}, 3),
+                              Example({"gain": 3.0, "eta": 1.5, "w_u": 5.0, "w_l": 1.0, "sigma": 0.4}, 9)],
+    "moving_goal_attractor": [Example({}, 4), Example({"gain": 2.0, "alpha": 4.0, "eta": 3.0, "w": 0.5}, 6)],
+    "velocity_limit": [Example({}, 3, state=band_states()),
+                       Example({"limit": [2.0, 0.5], "onset": 0.6, "w": 3.0, "eta": 0.5, "linear_from": 0.9}, 2,
+                               state=band_states((2.0, 0.5), 0.6, 0.9))],
     "spring": [Example({"gain": 3.0, "eta": 0.5, "w": 2.0}, 2)],  # tests/plugin_example
 }
 

@@ -894,6 +894,80 @@ def _urdf_inverted(tmp_path, monkeypatch):
                              f"urdf: '{urdf}', link: tip}}, rmp: {{type: damper}}}}"])
 
 
+# A 2-joint arm (so it fits the 2-D root of conf/config.yaml) with a tool fixed to its tip, for the robot leaves' rows.
+URDF_ARM = """<robot name="arm">
+  <link name="base"/><link name="l1"/><link name="tip"/><link name="tool"/>
+  <joint name="j1" type="revolute"><parent link="base"/><child link="l1"/><axis xyz="0 0 1"/>
+    <limit lower="-1.0" upper="1.0" effort="1"VELOCITY/></joint>
+  <joint name="j2" type="revolute"><parent link="l1"/><child link="tip"/><origin xyz="1 0 0"/><axis xyz="0 1 0"/>
+    <limit lower="-1.0" upper="1.0" effort="1"VELOCITY/></joint>
+  <joint name="tool_mount" type="fixed"><parent link="tip"/><child link="tool"/><origin xyz="0.2 0 0"/></joint>
+</robot>
+"""
+
+
+def _arm_row(node: str, velocity_limits: bool = True):
+    """A row adding ``+tree.nodes.leaf=<node>`` to conf/config.yaml, with URDF standing for the 2-joint arm's path."""
+    def run(tmp_path, monkeypatch):
+        urdf = tmp_path / "arm.urdf"
+        urdf.write_text(URDF_ARM.replace("VELOCITY", ' velocity="2"' if velocity_limits else ""), encoding="utf-8")
+        return validation_issue([f"+tree.nodes.leaf={node.replace('URDF', str(urdf))}"])
+    return run
+
+
+_ARM = "robot: null, urdf: 'URDF'"
+for _id, _fault, _node, _shows, _velocity in [
+        ("link-axis-zero", "a tool axis of zero length",
+         f"{{parent: q, map: {{type: link_axis, {_ARM}, link: tip, axis: [0, 0, 0]}}, rmp: {{type: orientation_attractor}}}}",
+         "tree.nodes.leaf.map.axis: axis must be a non-zero vector (it is a direction in the link frame); given "
+         "[0.0, 0.0, 0.0]", True),
+        ("orientation-parallel-axes", "two parallel axes for a full orientation",
+         f"{{parent: q, map: {{type: link_orientation, {_ARM}, link: tip, axes: [[1, 0, 0], [-2, 0, 0]]}}, "
+         f"rmp: {{type: orientation_attractor}}}}",
+         "tree.nodes.leaf.map.axes: axes[0] and axes[1] are parallel: they pin the same direction twice; give "
+         "directions that are not parallel; given [[1.0, 0.0, 0.0], [-2.0, 0.0, 0.0]]", True),
+        ("orientation-target-dimension", "an orientation target of the wrong dimension",
+         f"{{parent: q, map: {{type: link_orientation, {_ARM}, link: tip, target: goal}}, "
+         f"rmp: {{type: orientation_attractor}}}}",
+         "tree.nodes.leaf.map: link_orientation.target has dimension 2 but target_format 'quaternion_xyzw' with 3 "
+         "axes needs 4; declare the aux entry with 4 numbers or change target_format", True),
+        ("orientation-not-a-rotation", "a target matrix that is not a rotation",
+         f"{{parent: q, map: {{type: link_orientation, {_ARM}, link: tip, target_format: matrix, "
+         f"target: [1, 0, 0, 0, 2, 0, 0, 0, 1]}}, rmp: {{type: orientation_attractor}}}}",
+         "tree.nodes.leaf.map: link_orientation.target: [1.0, 0.0, 0.0, 0.0, 2.0, 0.0, 0.0, 0.0, 1.0] is not a "
+         "rotation matrix (rows orthonormal, determinant +1; |R Rᵀ − I| = 3); give the 9 entries of a rotation, row "
+         "by row", True),
+        ("self-collision-one-body", "self-collision spheres on links that move together",
+         f"{{parent: q, map: {{type: link_sphere_distance, {_ARM}, a: {{link: tip, radius: 0.05}}, "
+         f"b: {{link: tool, radius: 0.05}}}}, rmp: {{type: collision_avoidance}}}}",
+         "tree.nodes.leaf.map: link_sphere_distance: links 'tip' and 'tool' move as one rigid body (no actuated joint "
+         "between them), so the distance of their spheres never changes; pick spheres on links that move relative to "
+         "each other (non_adjacent_link_pairs)", True),
+        ("velocity-limit-absent", "a URDF without joint velocity limits, for a velocity cap",
+         f"{{parent: q, map: {{type: velocity_scaled_joints, {_ARM}}}, rmp: {{type: velocity_limit}}}}",
+         "tree.nodes.leaf.map: velocity_scaled_joints: URDF '<dir>/arm.urdf' gives no velocity limit for joints j1, "
+         "j2 (<limit velocity=...> absent or 0); give velocity_limit: one value per actuated joint", False),
+        ("velocity-limit-count", "a velocity cap with one limit too many",
+         "{parent: q, map: {type: identity}, rmp: {type: velocity_limit, limit: [1.0, 2.0, 0.5]}}",
+         "tree.nodes.leaf.rmp: velocity_limit.limit has 3 values for a 2-dimensional space; give one value, or one "
+         "per coordinate", True),
+        ("velocity-limit-onset", "a velocity cap that starts at its limit",
+         "{parent: q, map: {type: identity}, rmp: {type: velocity_limit, onset: 1.0}}",
+         "tree.nodes.leaf.rmp.onset: Input should be less than 1 (given: 1.0)", True),
+        ("moving-goal-without-velocity", "a moving-goal attractor on a plain offset (no goal velocity)",
+         "{parent: q, map: {type: offset, origin: goal}, rmp: {type: moving_goal_attractor}}",
+         "tree.nodes.leaf.rmp: 'moving_goal_attractor' reads the output of a 'moving_offset' map, but the map here "
+         "gives plain coordinates; put it under a moving_offset map", True),
+        ("moving-offset-plain-leaf", "a leaf that reads plain coordinates under a moving_offset map",
+         "{parent: q, map: {type: moving_offset, origin: goal, velocity: [0.1, 0.0]}, rmp: {type: goal_attractor}}",
+         "tree.nodes.leaf.rmp: 'goal_attractor' reads plain coordinates but the map gives the output of a "
+         "'moving_offset' map; put a leaf that reads it here, or change the map", True)]:
+    _arm = " (<dir>/arm.urdf: a 2-joint arm with a tool fixed to its tip)" if "URDF" in _node else ""
+    row(f"config-{_id}", _fault,
+        f"resolve_and_validate on conf/config.yaml with +tree.nodes.leaf={_node.replace('URDF', '<dir>/arm.urdf')}{_arm}",
+        _REFUSED, shows=_shows)(_arm_row(_node, _velocity))
+
+
 # ------------------------------------------------------------------------------------------------ the tests
 MESSAGES: dict[str, str] = {}
 

@@ -17,6 +17,15 @@ def _build(registry, block, *args) -> nn.Module:
     return registry.get(block.type).obj(block, *args)
 
 
+def _coordinates_mismatch(leaf: str, reads: str | None, given: str | None) -> str:
+    """Why a leaf cannot read its node's map (TaskMap.coordinates / LeafRMP.coordinates), and the fix."""
+    if reads is None:
+        return (f"'{leaf}' reads plain coordinates but the map gives the output of a '{given}' map; put a leaf that "
+                f"reads it here, or change the map")
+    gives = "plain coordinates" if given is None else f"the output of a '{given}' map"
+    return f"'{leaf}' reads the output of a '{reads}' map, but the map here gives {gives}; put it under a {reads} map"
+
+
 class _Builder:
     """Builds one tree's modules in pushforward order, collecting every problem with its YAML path."""
 
@@ -74,10 +83,15 @@ class _Builder:
         return BoundWeight(fn, ref.bind)
 
     def leaf(self, n: str, spec, p: str) -> None:
-        fixed = LEAF_RMPS.get(spec.type).obj.dim
+        leaf = LEAF_RMPS.get(spec.type).obj
+        fixed = leaf.dim
         if fixed is not None and fixed != self.dims[n]:
             self.issues.append(Issue(f"{p}.rmp", f"'{spec.type}' is {fixed}-dimensional but the map gives dimension "
                                                  f"{self.dims[n]}; change the map or the rmp"))
+            return
+        given = self.maps[n].coordinates
+        if leaf.coordinates != given:
+            self.issues.append(Issue(f"{p}.rmp", _coordinates_mismatch(spec.type, leaf.coordinates, given)))
             return
         try:
             self.rmps[n] = _build(LEAF_RMPS, spec, self.dims[n])

@@ -21,6 +21,7 @@ class LeafRMP(Stackable, nn.Module):
     then ``forward`` also takes ``(G, B, n)`` inputs, its numbers broadcasting as ``(G, 1)``."""
 
     dim: int | None = None  # None: any dimension
+    coordinates: str | None = None  # the map output it reads when not plain coordinates (TaskMap.coordinates)
 
     def __init__(self, dim: int):
         super().__init__()

@@ -195,6 +195,7 @@ class Compose(TaskMap):
             dim = m.out_dim
         self.stages = torch.nn.ModuleList(stages)
         self.out_dim = dim
+        self.coordinates = stages[-1].coordinates  # the composition's output is its last stage's
 
     def psi(self, x, aux):
         for m in self.stages:

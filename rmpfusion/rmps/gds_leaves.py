@@ -15,7 +15,7 @@ from torch import Tensor
 from ..core.gds import GDS
 from ..core.stacking import spread
 from ..registry import LEAF_RMPS, Params
-from .potentials import logcosh
+from .potentials import soft_norm, soft_norm_grad
 
 
 def _eye_like(y: Tensor) -> Tensor:
@@ -24,8 +24,46 @@ def _eye_like(y: Tensor) -> Tensor:
     return torch.eye(n, dtype=y.dtype, device=y.device).expand(*y.shape[:-1], n, n)
 
 
+class RadialMetricAttractor(GDS):
+    """An attractor to the origin of its space with metric G = w(|y|)·I, w = (w_u − w_l)·exp(−|y|²/2σ²) + w_l
+    (constant when w_u = w_l), and damping B = η·G; subclasses choose the potential Φ(y) (``potential`` and
+    ``potential_grad``) and list their numbers in ``stack_fields``."""
+
+    def __init__(self, params: Params, dim: int):
+        super().__init__(dim)
+        self.eta, self.w_u, self.w_l, self.sigma = params.eta, params.w_u, params.w_l, params.sigma
+
+    def _w(self, y: Tensor) -> tuple[Tensor, Tensor]:
+        beta = torch.exp(-(y * y).sum(-1) / (2 * self.sigma**2))
+        w = (self.w_u - self.w_l) * beta + self.w_l
+        grad_w = -((self.w_u - self.w_l) * beta / self.sigma**2)[..., None] * y
+        return w, grad_w
+
+    def metric(self, y, yd):
+        return self._w(y)[0][..., None, None] * _eye_like(y)
+
+    def damping(self, y, yd):
+        return (self.eta * self._w(y)[0])[..., None, None] * _eye_like(y)
+
+    def curvature(self, y, yd):
+        return self._curvature(y, yd, self._w(y)[1])
+
+    @staticmethod
+    def _curvature(y: Tensor, yd: Tensor, grad_w: Tensor) -> tuple[Tensor, Tensor]:
+        xi = yd * (yd * grad_w).sum(-1, keepdim=True) - 0.5 * (yd * yd).sum(-1, keepdim=True) * grad_w
+        return torch.zeros_like(_eye_like(y)), xi
+
+    def terms(self, y, yd):
+        """All six terms from one evaluation of the metric scale w(|y|)."""
+        w, grad_w = self._w(y)
+        eye = _eye_like(y)
+        Xi, xi = self._curvature(y, yd, grad_w)
+        return w[..., None, None] * eye, (self.eta * w)[..., None, None] * eye, self.potential(y), \
+            self.potential_grad(y), Xi, xi
+
+
 @LEAF_RMPS.register("goal_attractor")
-class GoalAttractor(GDS):
+class GoalAttractor(RadialMetricAttractor):
     """Soft-normalised attractor to the origin of its space (use an ``offset`` map to place the goal).
 
     Φ = gain·log cosh(α|y|)/α (its gradient has norm gain·tanh(α|y|): linear near the goal, constant
@@ -44,48 +82,14 @@ class GoalAttractor(GDS):
     stack_fields = ("gain", "alpha", "eta", "w_u", "w_l", "sigma")
 
     def __init__(self, params: Params, dim: int):
-        super().__init__(dim)
-        p = params
-        self.gain, self.alpha, self.eta, self.w_u, self.w_l, self.sigma = p.gain, p.alpha, p.eta, p.w_u, p.w_l, p.sigma
-
-    def _w(self, y: Tensor) -> tuple[Tensor, Tensor]:
-        beta = torch.exp(-(y * y).sum(-1) / (2 * self.sigma**2))
-        w = (self.w_u - self.w_l) * beta + self.w_l
-        grad_w = -((self.w_u - self.w_l) * beta / self.sigma**2)[..., None] * y
-        return w, grad_w
-
-    def metric(self, y, yd):
-        return self._w(y)[0][..., None, None] * _eye_like(y)
-
-    def damping(self, y, yd):
-        return (self.eta * self._w(y)[0])[..., None, None] * _eye_like(y)
+        super().__init__(params, dim)
+        self.gain, self.alpha = params.gain, params.alpha
 
     def potential(self, y):
-        return self.gain * logcosh(self.alpha * y.norm(dim=-1)) / self.alpha
+        return self.gain * soft_norm(y, self.alpha)
 
     def potential_grad(self, y):
-        r = y.norm(dim=-1)
-        # tanh(αr)/r → α as r → 0; the series keeps the goal itself finite and smooth
-        small = r < 1e-8
-        ratio = torch.where(small, self.alpha + torch.zeros_like(r),
-                            torch.tanh(self.alpha * r) / torch.where(small, torch.ones_like(r), r))
-        return (self.gain * ratio)[..., None] * y
-
-    def curvature(self, y, yd):
-        return self._curvature(y, yd, self._w(y)[1])
-
-    @staticmethod
-    def _curvature(y: Tensor, yd: Tensor, grad_w: Tensor) -> tuple[Tensor, Tensor]:
-        xi = yd * (yd * grad_w).sum(-1, keepdim=True) - 0.5 * (yd * yd).sum(-1, keepdim=True) * grad_w
-        return torch.zeros_like(_eye_like(y)), xi
-
-    def terms(self, y, yd):
-        """All six terms from one evaluation of the metric scale w(|y|)."""
-        w, grad_w = self._w(y)
-        eye = _eye_like(y)
-        Xi, xi = self._curvature(y, yd, grad_w)
-        return w[..., None, None] * eye, (self.eta * w)[..., None, None] * eye, self.potential(y), \
-            self.potential_grad(y), Xi, xi
+        return spread(self.gain, 1) * soft_norm_grad(y, self.alpha)
 
 
 class Barrier1D(GDS):

@@ -1,4 +1,5 @@
-"""Scalar helpers shared by leaves: a stable log-cosh and radial integrals by Gauss–Legendre quadrature."""
+"""Scalar helpers shared by leaves: a stable log-cosh, the soft norm built on it, and radial integrals by
+Gauss–Legendre quadrature."""
 from __future__ import annotations
 
 import math
@@ -16,6 +17,20 @@ def logcosh(z: Tensor) -> Tensor:
     """log(cosh z) without overflow: |z| + log1p(e^{−2|z|}) − log 2."""
     a = z.abs()
     return a + torch.log1p(torch.exp(-2.0 * a)) - math.log(2.0)
+
+
+def soft_norm(y: Tensor, alpha: float | Tensor) -> Tensor:
+    """log cosh(α|y|)/α per sample: ½α|y|² near 0, |y| − log 2/α far away (an attractor's potential per unit gain).
+    ``alpha`` is a number, or a group's (G, 1) numbers for y of shape (G, B, n)."""
+    return logcosh(alpha * y.norm(dim=-1)) / alpha
+
+
+def soft_norm_grad(y: Tensor, alpha: float | Tensor) -> Tensor:
+    """∇_y of ``soft_norm``: tanh(α|y|)·y/|y|, of norm < 1; at y = 0 the limit α·y keeps it finite and smooth."""
+    r = y.norm(dim=-1)
+    small = r < 1e-8
+    ratio = torch.where(small, alpha + torch.zeros_like(r), torch.tanh(alpha * r) / torch.where(small, torch.ones_like(r), r))
+    return ratio[..., None] * y
 
 
 def radial_integral(integrand: Callable[[Tensor], Tensor], lo: Tensor, hi: Tensor, panels: int = 8) -> Tensor:
