@@ -320,9 +320,10 @@ def _rmpflow_numpy_latency() -> float:
 
 
 def _compiled_time(tree, args, policy: bool = False) -> tuple[float, float]:
-    """(seconds to compile, seconds a call) of the tree compiled for a controller (fixed structure)."""
+    """(seconds to compile, seconds a call) of the tree compiled for its batch size with a fixed structure (a
+    controller's tree), without SIMD loops for a single state."""
     call = (lambda: tree.policy(*args)) if policy else (lambda: tree(*args))
-    tree.compile(dynamic=False, fixed_structure=True)
+    tree.compile(dynamic=False, fixed_structure=True, vectorize=args[0].shape[0] > 1)
     t0 = time.perf_counter()
     call()
     compile_s = time.perf_counter() - t0
@@ -397,7 +398,7 @@ torch.set_num_threads(1)
 import bench
 tree, aux = bench.franka_expert()
 q = torch.full((1, 7), 0.1, dtype=torch.float64)
-tree.compile(dynamic=False, fixed_structure=True)
+tree.compile(dynamic=False, fixed_structure=True, vectorize=False)
 t0 = time.perf_counter()
 with torch.inference_mode():
     tree(q, q, aux)
