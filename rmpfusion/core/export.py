@@ -44,16 +44,22 @@ class TreeProgram(nn.Module):
         return (qdd, root.M, root.f) if self.with_rmp else qdd
 
 
+def export_policy(program: nn.Module, q: Tensor, qd: Tensor, aux: Mapping[str, Tensor],
+                  aux_names: Sequence[str]) -> torch.export.ExportedProgram:
+    """``program(q, q̇, *aux)`` exported for any batch size, traced at the example state (the batch dimension of
+    every input is one dynamic size)."""
+    batch = torch.export.Dim("batch", min=1)
+    entries = tuple(aux[n].expand(q.shape[0], -1).contiguous() for n in aux_names)
+    shapes = ({0: batch}, {0: batch}) + ((tuple({0: batch} for _ in entries),) if entries else ())  # (q, q̇, *aux)
+    with torch.no_grad():
+        return torch.export.export(program, (q, qd, *entries), dynamic_shapes=shapes)
+
+
 def export_tree(tree: nn.Module, q: Tensor, qd: Tensor, aux: Mapping[str, Tensor], aux_names: Sequence[str],
                 with_rmp: bool = False) -> torch.export.ExportedProgram:
     """The tree's policy exported for any batch size, traced at the example state (q, q̇, aux) (B ≥ 2, so the batch
     dimension is not specialised to 1). ``aux_names``: the aux entries the program takes, in order."""
     if q.shape[0] < 2:
         raise ValueError("export_tree traces at an example batch of at least 2 states (1 would fix the batch size)")
-    program = TreeProgram(tree, aux_names, with_rmp).eval()
     tree.plan  # planned before tracing
-    batch = torch.export.Dim("batch", min=1)
-    entries = tuple(aux[n].expand(q.shape[0], -1).contiguous() for n in aux_names)
-    shapes = ({0: batch}, {0: batch}) + ((tuple({0: batch} for _ in entries),) if entries else ())  # (q, q̇, *aux)
-    with torch.no_grad():
-        return torch.export.export(program, (q, qd, *entries), dynamic_shapes=shapes)
+    return export_policy(TreeProgram(tree, aux_names, with_rmp).eval(), q, qd, aux, aux_names)

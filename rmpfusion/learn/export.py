@@ -13,7 +13,7 @@ from typing import Any, Mapping, Sequence
 import torch
 from torch import Tensor, nn
 
-from ..core.export import export_tree
+from ..core.export import export_policy, export_tree
 from .learner import Learner
 
 #: The name of the metadata an exported file carries (``torch.export.save``'s extra files; AOTInductor metadata).
@@ -41,11 +41,9 @@ def export_learner(learner: Learner, q: Tensor, qd: Tensor, aux: Mapping[str, Te
     if with_rmp:
         raise ValueError("M and f exist for learners whose policy is an RMP tree; this learner has none (export q̈ "
                          "only: leave out --with-rmp)")
-    batch = torch.export.Dim("batch", min=1)
-    entries = tuple(aux[n].expand(q.shape[0], -1).contiguous() for n in aux_names)
-    shapes = ({0: batch}, {0: batch}) + ((tuple({0: batch} for _ in entries),) if entries else ())
-    with torch.no_grad():
-        return torch.export.export(LearnerProgram(learner, aux_names), (q, qd, *entries), dynamic_shapes=shapes)
+    if q.shape[0] < 2:
+        raise ValueError("export_learner traces at an example batch of at least 2 states (1 would fix the batch size)")
+    return export_policy(LearnerProgram(learner, aux_names), q, qd, aux, aux_names)
 
 
 def metadata(aux_dims: Mapping[str, int], aux_names: Sequence[str], dim: int, dtype: torch.dtype, with_rmp: bool,
