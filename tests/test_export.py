@@ -112,3 +112,25 @@ def test_the_aoti_package_equals_the_tree(tiny_run, tmp_path):
            torch.full((3, 1), 0.5, dtype=torch.float64))
     with torch.no_grad():
         assert (runner(q, qd, *aux) - program(q, qd, *aux)).abs().max() <= 1e-10
+
+
+def test_a_learner_without_a_tree_exports_its_policy(tmp_path):
+    """learner-un is no tree: its forward is exported (q̈ only), and asking for M and f says why not."""
+    from hydra import compose, initialize_config_dir
+
+    from rmpfusion.cli import CONF_DIR
+    from rmpfusion.learn.export import export_learner
+    from rmpfusion.pipeline.validate import build_learners, make_env, resolve_and_validate
+
+    with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
+        cfg = resolve_and_validate(compose("config", overrides=["experiment=2d2level_unstructured", "logger=disabled"]))
+    env = make_env(cfg)
+    learner = build_learners(cfg, env.aux_dims())["un"].double()
+    q, qd, aux = env.sample(n_envs=1, n_per_env=3, seed=0)
+    names = sorted(env.aux_dims())
+    with pytest.raises(ValueError, match="M and f exist for learners whose policy is an RMP tree"):
+        export_learner(learner, q, qd, aux, names, with_rmp=True)
+    torch.export.save(export_learner(learner, q, qd, aux, names), tmp_path / "un.pt2")
+    (qdd,) = _run_elsewhere(tmp_path / "un.pt2", (q[:1], qd[:1], *(aux[n][:1] for n in names)), tmp_path)
+    with torch.no_grad():
+        assert (qdd - learner(q[:1], qd[:1], {k: v[:1] for k, v in aux.items()})).abs().max() <= 1e-10

@@ -223,3 +223,22 @@ def test_plugin_leaves_group_when_they_declare_how_and_run_alone_otherwise(plugi
     for n, g in grads[0].items():
         assert g.abs().max() > 0, f"the learned stiffness {n} gets a gradient through its group"
         torch.testing.assert_close(g, grads[1][n], rtol=TOL, atol=TOL)
+
+
+def test_only_a_non_finite_answer_is_walked_down_node_by_node(monkeypatch):
+    """One check of the answer at the root; the node-by-node diagnosis runs only when that check fails, and then
+    names the node."""
+    from rmpfusion.core.tree import NumericalError, RMPTree
+
+    calls = []
+    original = RMPTree._diagnose
+    monkeypatch.setattr(RMPTree, "_diagnose", lambda self, *a: calls.append(1) or original(self, *a))
+    tree = rmpfusion.build_tree(grouping_tree_spec(5))
+    q, qd, aux = _inputs(5, 3, 4)
+    tree(q, qd, aux)
+    assert calls == []
+    with torch.no_grad():
+        tree.shared["near"].layers[0].bias.fill_(float("nan"))
+    with pytest.raises(NumericalError, match=r"non-finite weight at node 'o0' \(weight shared:near\)"):
+        tree(q, qd, aux)
+    assert calls == [1]

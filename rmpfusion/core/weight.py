@@ -85,5 +85,5 @@ def aux_features(names: Sequence[str], aux: AuxDict | None, batch: int | Sequenc
     for n in names:
         if n not in aux:
             raise KeyError(f"aux state '{n}' is required by a weight function but was not passed")
-        parts.append(aux[n].expand(*([batch] if isinstance(batch, int) else batch), -1))
+        parts.append(aux[n].expand(*(batch if isinstance(batch, (tuple, list)) else [batch]), -1))
     return torch.cat(parts, dim=-1)
