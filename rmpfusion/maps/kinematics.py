@@ -105,6 +105,15 @@ class Chain(nn.Module):
         K = len(self._kind)
         act = [k for k in range(K) if self._kind[k] != FIXED]
         self.register_buffer("axis_local", axis, persistent=False)
+        # the local transforms as 4×4 blocks: T(q) = T0 + sin q·S + (1 − cos q)·C + slide·P (only the rotation block
+        # of S and C, only the translation column of P are non-zero), one product and sum for every joint at once
+        K = len(self._kind)
+        T0 = torch.eye(4, dtype=torch.float64).repeat(K, 1, 1)
+        T0[:, :3, :3], T0[:, :3, 3] = self.origin_R, self.origin_p
+        S, C, P = (torch.zeros(K, 4, 4, dtype=torch.float64) for _ in range(3))
+        S[:, :3, :3], C[:, :3, :3], P[:, :3, 3] = self.rot_sin, self.rot_cos, self.origin_axis
+        for name, t in (("T0", T0), ("T_sin", S), ("T_cos", C), ("T_slide", P)):
+            self.register_buffer(name, t, persistent=False)
         self.register_buffer("q_of_joint", torch.tensor([max(i, 0) for i in self._qidx], dtype=torch.long),
                              persistent=False)
         kinds = torch.tensor(self._kind, dtype=torch.long)
@@ -112,6 +121,7 @@ class Chain(nn.Module):
         self.register_buffer("slides", (kinds == PRISMATIC).to(torch.float64), persistent=False)
         self.register_buffer("actuated_joints", torch.tensor(act, dtype=torch.long), persistent=False)
         self.register_buffer("actuated_turns", torch.tensor([self._kind[k] == REVOLUTE for k in act]), persistent=False)
+        self.has_slides = PRISMATIC in self._kind  # an arm of turning joints skips the sliding terms
         q_of_act = [self._qidx[k] for k in act]
         self.register_buffer("actuated_q", torch.tensor(q_of_act, dtype=torch.long), persistent=False)
         # the actuated joints' columns in configuration order (None: URDF order is the configuration's)
@@ -151,7 +161,7 @@ class Chain(nn.Module):
         if q.dim() < 2 or q.shape[-1] != self.dof:
             raise ValueError(f"q must be (B, {self.dof}) for actuated joints {list(self.actuated)}, got {tuple(q.shape)}")
 
-    _CONSTANTS = ("origin_R", "origin_p", "origin_axis", "rot_sin", "rot_cos", "turns", "slides", "axis_local")
+    _CONSTANTS = ("T0", "T_sin", "T_cos", "T_slide", "turns", "slides", "axis_local")
 
     def _constants(self, like: Tensor) -> dict[str, Tensor]:
         """The pass's constants in ``like``'s dtype and device (cast only when they differ: a tree's chain is
@@ -164,10 +174,10 @@ class Chain(nn.Module):
         qj = q.index_select(-1, self.q_of_joint) if len(self._kind) else q[..., :0]
         turn, slide = qj * c["turns"], qj * c["slides"]  # 0 for fixed and frozen joints: their origins exactly
         sin, cos = torch.sin(turn)[..., None, None], (1 - torch.cos(turn))[..., None, None]
-        R = c["origin_R"] + sin * c["rot_sin"] + cos * c["rot_cos"]
-        p = c["origin_p"] + c["origin_axis"] * slide[..., None]
-        bottom = torch.tensor([0.0, 0.0, 0.0, 1.0], dtype=q.dtype, device=q.device).expand(*R.shape[:-2], 1, 4)
-        return torch.cat([torch.cat([R, p[..., None]], -1), bottom], -2), slide
+        T = c["T0"] + sin * c["T_sin"] + cos * c["T_cos"]
+        if self.has_slides:
+            T = T + slide[..., None, None] * c["T_slide"]
+        return T, slide
 
     def frames(self, q: Tensor) -> tuple[Tensor, Tensor, Tensor]:
         """One pass: every link's world pose (..., L, 4, 4) (link order of ``link_names``), and every joint's
@@ -176,12 +186,12 @@ class Chain(nn.Module):
         local, slide = self._local(q)
         eye = torch.eye(4, dtype=q.dtype, device=q.device).expand(*q.shape[:-1], 4, 4)
         world = [eye]
-        for k, parent in enumerate(self._parent):
-            world.append(world[parent] @ local[..., k, :, :])
+        for parent, joint in zip(self._parent, local.unbind(-3)):
+            world.append(world[parent] @ joint)
         T = torch.stack(world, -3)
         children = T[..., 1:, :, :]
         Z = (children[..., :3, :3] * self._constants(q)["axis_local"][..., None, :]).sum(-1)
-        O = children[..., :3, 3] - Z * slide[..., None]
+        O = children[..., :3, 3] - Z * slide[..., None] if self.has_slides else children[..., :3, 3]
         return T, O, Z
 
     def forward_kinematics(self, q: Tensor, links: Sequence[str] | None = None) -> dict[str, Pose]:
@@ -297,16 +307,16 @@ class ForwardKinematics(TaskMap):
         O, Z = O[..., chain.actuated_joints, :], Z[..., chain.actuated_joints, :]  # (..., A, 3), URDF order
         pose = _take(T, _as(self.link_mask, x))
         y = pose[..., :3, 3] + matvec(pose[..., :3, :3], _as(self.offset, x))
-        turns = chain.actuated_turns[:, None]
         moved = _as(self.moved_by, x)[..., None]
-        cols = moved * torch.where(turns, torch.linalg.cross(Z, y[..., None, :] - O), Z)  # (..., A, 3)
+        turning = torch.linalg.cross(Z, y[..., None, :] - O)
+        cols = moved * (torch.where(chain.actuated_turns[:, None], turning, Z) if chain.has_slides else turning)
         J = cols.transpose(-1, -2)
         qd = xd
         if chain.columns is not None:  # actuated joints listed in another order than the URDF's
             J = J.index_select(-1, chain.columns)
             qd = xd.index_select(-1, chain.actuated_q)  # (..., A) in URDF order
         yd = matvec(J, xd)
-        return y, yd, J, _jdot_qdot(y, yd, O, Z, qd, moved, turns)
+        return y, yd, J, _jdot_qdot(y, yd, O, Z, moved * qd[..., None], chain.actuated_turns[:, None], chain.has_slides)
 
 
 def _as(t: Tensor, like: Tensor) -> Tensor:
@@ -319,19 +329,22 @@ def _take(T: Tensor, one_hot: Tensor) -> Tensor:
     return (one_hot[..., None, None] * T).sum(-3)
 
 
-def _jdot_qdot(y: Tensor, yd: Tensor, O: Tensor, Z: Tensor, qd: Tensor, moved: Tensor, turns: Tensor) -> Tensor:
-    """J̇q̇ = Σ_i q̇_i d/dt col_i over the joints that move the point, with ż_i = ω_i⁻ × z_i (ω_i⁻: angular velocity
-    of joint i's parent) and ȯ_i = ω_i⁻ × o_i − Σ_{j<i} q̇_j z_j × o_j + Σ_{j<i, sliding} q̇_j z_j (o_i moves with
-    the parent). Joints off the point's path are masked out (``moved``), so sums over j < i run over its ancestors."""
+def _jdot_qdot(y: Tensor, yd: Tensor, O: Tensor, Z: Tensor, rate: Tensor, turns: Tensor, slides: bool) -> Tensor:
+    """J̇q̇ = Σ_i q̇_i d/dt col_i over the joints that move the point (``rate``: q̇_i for them, 0 for the others, (..., A, 1)),
+    with ż_i = ω_i⁻ × z_i (ω_i⁻: angular velocity of joint i's parent) and ȯ_i = ω_i⁻ × o_i − Σ_{j<i} q̇_j z_j × o_j +
+    Σ_{j<i, sliding} q̇_j z_j (o_i moves with the parent). Joints off the point's path have rate 0, so sums over j < i
+    run over its ancestors. ``slides``: the chain has sliding joints (else their terms are left out, being 0)."""
     if Z.shape[-2] == 0:
         return torch.zeros_like(y)
-    zero = torch.zeros_like(Z)
-    w = moved * torch.where(turns, qd[..., None] * Z, zero)  # angular velocity added by each joint
-    lin = moved * torch.where(turns, zero, qd[..., None] * Z)  # linear velocity added by each sliding joint
     excl = lambda t: torch.cumsum(t, -2) - t  # noqa: E731  (sum over j < i)
+    moving = rate * Z
+    w = torch.where(turns, moving, 0.0) if slides else moving  # angular velocity added by each joint
     w_before = excl(w)
-    od = torch.linalg.cross(w_before, O) - excl(torch.linalg.cross(w, O)) + excl(lin)
+    od = torch.linalg.cross(w_before, O) - excl(torch.linalg.cross(w, O))
+    if slides:
+        od = od + excl(torch.where(turns, 0.0, moving))  # linear velocity added by each sliding joint
     zd = torch.linalg.cross(w_before, Z)
-    dcol_rev = torch.linalg.cross(zd, y[..., None, :] - O) + torch.linalg.cross(Z, yd[..., None, :] - od)
-    dcol = torch.where(turns, dcol_rev, zd)
-    return (moved * qd[..., None] * dcol).sum(-2)
+    dcol = torch.linalg.cross(zd, y[..., None, :] - O) + torch.linalg.cross(Z, yd[..., None, :] - od)
+    if slides:
+        dcol = torch.where(turns, dcol, zd)
+    return (rate * dcol).sum(-2)
