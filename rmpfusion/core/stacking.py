@@ -103,6 +103,8 @@ class Stackable:
         group = shallow_clone(members[0])
         for name in cls.stack_fields or ():
             values = [getattr(m, name) for m in members]
+            if all(v is None for v in values):  # an optional part none of them has (stack_settings says so)
+                continue
             if isinstance(values[0], AuxParam):
                 _replace(group, name, StackedAux(values))
             elif not any(_learned(v) for v in values):  # learned ones follow the members' parameters
