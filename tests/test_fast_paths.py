@@ -51,7 +51,7 @@ def test_compiled_tree_falls_back_to_the_pseudo_inverse_where_the_solve_fails():
 def test_shared_forward_kinematics_pass_equals_one_pass_per_control_point():
     """The Franka tree computes one kinematics pass for all 15 points; switching the sharing off (each map
     runs its own chain) gives the same tree output, and each map's prepared output equals its forward."""
-    from rmpfusion.envs.franka_tree import franka_tree_spec
+    from manipulators import franka_tree_spec
 
     spec = franka_tree_spec(n_obstacles=2)
     aux_dims = dict(spec["aux"])

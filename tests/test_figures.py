@@ -11,7 +11,7 @@ import pytest
 import torch
 
 from rmpfusion.plots import figures as F
-from rmpfusion.plots import franka as FR
+from rmpfusion.plots import manipulator as FR
 
 UNIT = re.compile(r"\(.+\)")
 T, N = 21, 3

@@ -621,8 +621,8 @@ TRAP_TREE = {"root": {"name": "q", "dim": 7}, "nodes": {
 
 
 def franka_setup(B: int = 2):
-    from rmpfusion.envs.franka import Franka
-    env = Franka(control_rate=60.0)
+    from manipulators import franka_env
+    env = franka_env(control_rate=60.0)
     q0 = torch.tensor([NOMINAL] * B, dtype=F64)
     qd0 = torch.zeros(B, 7, dtype=F64)
     aux = {"goal": torch.tensor([[0.4, -0.3, 0.35]] * B, dtype=F64),
@@ -643,7 +643,7 @@ def check_isolated(r, pattern: str) -> str:
 
 
 def _recording_scenes(monkeypatch) -> list:
-    from rmpfusion.envs.franka import torque as fr
+    from rmpfusion.envs.manipulator import torque as fr
     scenes = []
 
     class Recording(fr._Scene):

@@ -24,6 +24,27 @@ from .distances import _positive_radius, _radial, _values
 Measure = tuple[Tensor, Tensor, Tensor]  # distance (B, 1), gradient (B, 3), d²d[v, v] (B, 1)
 
 
+def _checked(v: AuxOrValue | None, ok, what: str) -> AuxOrValue | None:
+    """A constant parameter's numbers must pass ``ok`` (an aux name is checked where it is made)."""
+    vals = None if v is None else _values(v)
+    if vals is not None and not ok(vals):
+        raise ValueError(f"{what}; given {v!r}")
+    return v
+
+
+def _axis(v):
+    return _checked(v, lambda x: len(x) == 3 and any(a != 0 for a in x),
+                    "axis must be a non-zero 3-vector (the shape's direction) or the name of an aux entry")
+
+
+def _non_negative(v):
+    return _checked(v, lambda x: all(a >= 0 for a in x), "must be ≥ 0 (a half length) or the name of an aux entry")
+
+
+def _positive(v):
+    return _checked(v, lambda x: all(a > 0 for a in x), "must be > 0 (a half size) or the name of an aux entry")
+
+
 def _dot(a: Tensor, b: Tensor) -> Tensor:
     return (a * b).sum(-1, keepdim=True)
 
@@ -31,6 +52,12 @@ def _dot(a: Tensor, b: Tensor) -> Tensor:
 class ShapeParams(Params):
     center: AuxOrValue = Field(description="the shape's centre (3), or an aux name")
     velocity: AuxOrValue | None = Field(None, description="the shape's velocity (3) or an aux name; absent: static")
+
+    @field_validator("velocity")
+    @classmethod
+    def _speed(cls, v):
+        return _checked(v, lambda x: len(x) == 3 and all(abs(a) <= 100.0 for a in x),
+                        "velocity must be 3 numbers within ±100 m/s, or the name of an aux entry")
 
 
 class ObstacleDistance(TaskMap):
@@ -95,6 +122,8 @@ class CapsuleObstacle(ObstacleDistance):
         axis: AuxOrValue = Field((0.0, 0.0, 1.0), description="unit direction of the segment (3), or an aux name")
         half_length: AuxOrValue = Field(description="half the distance between the caps' centres (≥ 0), or aux")
         _radius = field_validator("radius")(lambda v: _positive_radius(v, "capsule"))
+        _axis = field_validator("axis")(_axis)
+        _half_length = field_validator("half_length")(_non_negative)
 
     def __init__(self, params, in_dim, aux_dims=None):
         super().__init__(params, in_dim, aux_dims)
@@ -123,6 +152,8 @@ class CylinderObstacle(ObstacleDistance):
         axis: AuxOrValue = Field((0.0, 0.0, 1.0), description="unit direction of the axis (3), or an aux name")
         half_height: AuxOrValue = Field(description="half the height along the axis (> 0), or an aux name")
         _radius = field_validator("radius")(lambda v: _positive_radius(v, "cylinder"))
+        _axis = field_validator("axis")(_axis)
+        _half_height = field_validator("half_height")(_positive)
 
     def __init__(self, params, in_dim, aux_dims=None):
         super().__init__(params, in_dim, aux_dims)
@@ -158,6 +189,9 @@ class BoxObstacle(ObstacleDistance):
         half_extents: AuxOrValue = Field(description="> 0 along every axis of the box (3), or an aux name")
         rotation: AuxOrValue = Field((1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0),
                                      description="R row by row (9): box axes in the world; or an aux name")
+        _rotation = field_validator("rotation")(lambda v: _checked(
+            v, lambda x: len(x) == 9 and all(abs(a) <= 1.0 + 1e-6 for a in x),
+            "rotation must be a rotation matrix row by row (9 numbers within ±1) or the name of an aux entry"))
 
         @field_validator("half_extents")
         @classmethod
@@ -198,6 +232,9 @@ class PlaneDistance(TaskMap):
     class Params(Params):
         normal: list[float] = Field([0.0, 0.0, 1.0], min_length=1, description="the plane's normal (normalised)")
         height: AuxOrValue = Field(0.0, description="offset of the plane along the normal (m), or an aux name")
+
+        _height = field_validator("height")(lambda v: _checked(
+            v, lambda x: len(x) == 1 and abs(x[0]) <= 100.0, "height must be one number within ±100 m or an aux name"))
 
         @field_validator("normal")
         @classmethod
