@@ -154,9 +154,9 @@ def fig1b(p: ManipulatorTreeParams) -> dict[str, Any]:
     """
     r = p.robot
     aux: dict[str, int] = {"goal": 3, **scene_aux_dims(p.scene)}
-    # generic names the shared obstacle weights read; every edge binds them to its own obstacle
-    aux["obstacle_center"] = 3
-    aux["obstacle_radius"] = 1
+    if p.scene.obstacles:  # generic names the shared obstacle weights read; every edge binds them to its own obstacle
+        aux["obstacle_center"] = 3
+        aux["obstacle_radius"] = 1
     nodes: dict[str, Any] = {
         "ee": {"parent": "q", "map": _point(p, r.end_effector.link, r.end_effector.offset)},
         "attractor": {"parent": "ee", "map": {"type": "offset", "origin": "goal"},

@@ -178,7 +178,7 @@ def _draw_ee_paths(aux: Mapping[str, torch.Tensor], paths: Mapping[str, Any], ti
     fig, ax = subplots(figsize=(6.8, 4.6), layout="constrained")
     k = 1
     while f"obstacle{k}_center" in aux:
-        ax.add_patch(_footprint(aux, k, label="obstacles (at t = 0)" if k == 1 else None))
+        ax.add_patch(_footprint(aux, k, label="obstacles (top view)" if k == 1 else None))
         k += 1
     g = _np(aux["goal"]).reshape(-1)
     ax.add_patch(Circle(g[:2], 0.05, fill=False, ls="--", color="orange", zorder=2, label="within 0.05 m of the goal"))
