@@ -226,13 +226,15 @@ class ForwardKinematics(TaskMap):
         joints: list[str] | None = None
         robot: str | None = Field(None, description="retired: a robot is named by its urdf and joints")
 
-        @model_validator(mode="after")
-        def _no_robot_names(self):
-            if self.robot is not None:
-                raise ValueError(f"forward_kinematics.robot ({self.robot!r}) was retired: robots are described in "
+        @model_validator(mode="before")
+        @classmethod
+        def _no_robot_names(cls, data):
+            robot = data.get("robot") if isinstance(data, dict) else None
+            if robot is not None:  # before the other fields: a stored config of old has urdf: null beside it
+                raise ValueError(f"forward_kinematics.robot ({robot!r}) was retired: robots are described in "
                                  f"conf/robot/<name>.yaml; write that file's urdf and joints here instead "
                                  f"(urdf: <its urdf>, joints: [<its joints>])")
-            return self
+            return data
 
     def __init__(self, params: Params, in_dim: int, aux_dims: Mapping[str, int] | None = None):
         super().__init__(in_dim, aux_dims)

@@ -81,8 +81,8 @@ def _robot_block(value: Any) -> Any:
     try:
         return entry.params.model_validate({**value, "type": kind})
     except ValidationError as e:
-        _refuse("; ".join(f"{'.'.join(map(str, err['loc'])) or 'robot'}: {err['msg'].removeprefix('Value error, ')}"
-                          for err in e.errors()))
+        _refuse("; ".join((f"{'.'.join(map(str, err['loc']))}: " if err["loc"] else "")
+                          + err["msg"].removeprefix("Value error, ") for err in e.errors()))
 
 
 def _refuse(message: str):
