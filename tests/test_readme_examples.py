@@ -261,6 +261,12 @@ def test_every_run_command_composes():
 
     runs = [shlex.split(c)[1:] for u in UNITS for c in u.cmds if c.startswith("rmpfusion-run")]
     assert len(runs) >= 10
+    for u in UNITS:  # a folder given by --config-dir is made by the README's own command before it (the robot fit)
+        for c in u.cmds:
+            made = [shlex.split(m) for m in u.cmds if m.startswith("rmpfusion-fit-spheres")]
+            if "--config-dir" in c and not (ROOT / shlex.split(c)[shlex.split(c).index("--config-dir") + 1]).exists():
+                assert made, f"README: {c!r} reads a --config-dir that no command before it writes"
+                subprocess.run(made[0], cwd=ROOT, check=True, capture_output=True, env=_env(), timeout=600)
 
     def one_point(a: str) -> str:
         key, _, value = a.partition("=")
@@ -268,6 +274,9 @@ def test_every_run_command_composes():
 
     for args in runs:
         multirun = "-m" in args
+        if "--config-dir" in args:  # what Hydra's --config-dir does: the folder joins the search path
+            k = args.index("--config-dir")
+            args = [*args[:k], *args[k + 2:], f"hydra.searchpath=[file://{ROOT / args[k + 1]}]"]
         over = [one_point(a) if multirun else a for a in args
                 if a != "-m" and "spring" not in a and "glob(" not in a]
         with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
