@@ -46,8 +46,11 @@ def _overrides_for(group: str, option: str) -> list[str]:
         return [f"+learner@learners.extra={option}"]
     for exp in EXPERIMENTS:  # env/tree/expert/data/train files belonging to an experiment are used with it
         text = (CONF / "experiment" / f"{exp}.yaml").read_text()
-        if f"override /{group}: {option}\n" in text:
+        if f"override /{group}: {option}\n" in text or f"/{group}@env.test_scene: {option}\n" in text:
             return [f"experiment={exp}"]
+    if group in ("robot", "scene"):  # any robot in any scene: the Panda experiment's goals with it
+        return ["experiment=franka", f"{group}={option}", "scene@env.test_scene=" + (option if group == "scene"
+                                                                                     else "franka_cylinder_test")]
     return [f"{group}={option}"]
 
 

@@ -76,7 +76,7 @@ def test_validate_cli_prints_the_message(tmp_path):
 def test_the_evaluation_creates_no_tensor_off_the_trees_device(which):
     """On the meta device (shapes only) any tensor made elsewhere meets a meta tensor and fails: the path that runs
     on a GPU is the one checked here."""
-    from rmpfusion.envs.franka_tree import franka_tree_spec
+    from manipulators import franka_tree_spec
 
     spec = grouping_tree_spec(1) if which == "grouping" else franka_tree_spec(n_obstacles=2)
     tree = rmpfusion.build_tree(spec).to("meta")
@@ -88,10 +88,10 @@ def test_the_evaluation_creates_no_tensor_off_the_trees_device(which):
 
 
 def test_environments_compute_on_a_chosen_device_and_return_cpu_records():
+    from manipulators import franka_env
     from rmpfusion.envs import Particle2D
-    from rmpfusion.envs.franka import Franka
 
-    for env in (Particle2D(n_obstacles=1), Franka()):
+    for env in (Particle2D(n_obstacles=1), franka_env()):
         assert isinstance(env, ComputesOn) and env.to("cpu") is env
     tree = rmpfusion.build_tree(TWO_LEVEL)
     q, qd, aux = two_level_inputs(3, torch.Generator().manual_seed(0))

@@ -30,11 +30,12 @@ def test_particle2d_demonstrations_are_the_generic_collection():
     assert ds.checksum() == ref.checksum() and len(ds) == 2 * 3 * 6
 
 
-def test_franka_is_an_env_with_task_metrics_ratios_and_renders():
+def test_the_manipulator_is_an_env_with_task_metrics_ratios_and_renders():
     pytest.importorskip("pybullet")
-    from rmpfusion.envs.franka import Franka
+    from rmpfusion.envs.manipulator import Manipulator
+    from manipulators import franka_env
 
-    env = Franka()
+    env = franka_env()
     try:
         assert isinstance(env, Env)
         assert isinstance(env, HasTaskMetrics) and isinstance(env, HasRatioMetrics) and isinstance(env, Renders)
@@ -45,6 +46,6 @@ def test_franka_is_an_env_with_task_metrics_ratios_and_renders():
         s = env.render_settings
         assert isinstance(s, RenderSettings) and s.size == tuple(env.params.render_size)
         assert s.times == tuple(env.params.render_times) and s.gif_fps == env.params.gif_fps
-        assert ENVS.get("franka").obj is Franka
+        assert ENVS.get("manipulator").obj is Manipulator
     finally:
         env.close()

@@ -52,7 +52,7 @@ def test_compiled_tree_falls_back_to_the_pseudo_inverse_where_the_solve_fails():
 def test_one_kinematics_pass_serves_every_control_point():
     """The Franka tree's 15 kinematic points form one group reading one pass of the chain; the group's position,
     Jacobian and J̇q̇ of every point equal that point's map evaluated on its own."""
-    from rmpfusion.envs.franka_tree import franka_tree_spec
+    from manipulators import franka_tree_spec
 
     tree = rmpfusion.build_tree(franka_tree_spec(n_obstacles=2))
     (group,) = [g for g in tree.plan.groups if g.nodes[0] == "ee"]

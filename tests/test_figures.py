@@ -11,7 +11,7 @@ import pytest
 import torch
 
 from rmpfusion.plots import figures as F
-from rmpfusion.plots import franka as FR
+from rmpfusion.plots import manipulator as FR
 
 UNIT = re.compile(r"\(.+\)")
 T, N = 21, 3
@@ -266,7 +266,7 @@ def test_ee_paths_in_metres_with_the_expert_over_the_learners():
     for lab in ("learner-0", "learner-4"):
         assert_expert_on_top(ax, lab)
     texts = legend_texts(fig)
-    for entry in ("expert", "learner-0", "learner-4", "start", "goal", "robot base", "obstacle (cylinder)"):
+    for entry in ("expert", "learner-0", "learner-4", "start", "goal", "robot base", "obstacles (top view)"):
         assert entry in texts, texts
     assert any("0.05 m" in t for t in texts)
     assert texts.count("start") == 1 and "test execution 1" in title_of(fig)

@@ -13,10 +13,10 @@ pytest.importorskip("pybullet")
 
 import rmpfusion  # noqa: E402
 from rmpfusion.envs import Rollout  # noqa: E402
-from rmpfusion.envs.franka import Franka  # noqa: E402
-from rmpfusion.envs.franka_tree import (  # noqa: E402
-    DEFAULT_CONTROL_POINTS, copy_weights, franka_tree_spec, with_weights,
-)
+from rmpfusion.envs.manipulator_tree import copy_weights, with_weights  # noqa: E402
+from rmpfusion.envs.manipulator import Manipulator  # noqa: E402
+from rmpfusion.envs.manipulator_tree import manipulator_tree_spec  # noqa: E402
+from manipulators import cylinders, franka_env, franka_tree_spec, make_aux, robot  # noqa: E402
 from rmpfusion.evaluate import lyapunov_monotone, max_relative_increase  # noqa: E402
 from rmpfusion.registry import ENVS  # noqa: E402
 
@@ -33,34 +33,26 @@ def expert_weights():
 
 @pytest.fixture(scope="module")
 def env():
-    e = Franka()
+    e = franka_env()
     yield e
     e.close()
 
 
 @pytest.fixture(scope="module")
 def expert(env, expert_weights):
-    return rmpfusion.build_tree(with_weights(franka_tree_spec(None, 1), expert_weights), aux_dims=env.aux_dims())
-
-
-def make_aux(goal, centers, radii):
-    aux = {"goal": torch.tensor([goal], dtype=F64)}
-    for k, (c, r) in enumerate(zip(centers, radii), start=1):
-        aux[f"obstacle{k}_center"] = torch.tensor([c], dtype=F64)
-        aux[f"obstacle{k}_radius"] = torch.tensor([[r]], dtype=F64)
-    return aux
+    return rmpfusion.build_tree(with_weights(franka_tree_spec(1), expert_weights), aux_dims=env.aux_dims())
 
 
 # ---------------------------------------------------------------- spec and tree
 
 def test_spec_structure_follows_the_paper():
-    spec = franka_tree_spec(DEFAULT_CONTROL_POINTS, 2)
+    spec = franka_tree_spec(2)
     nodes = spec["nodes"]
     assert nodes["attractor"]["parent"] == "ee" and nodes["attractor"]["map"]["origin"] == "goal"
     assert sum(n.startswith("jl") for n in nodes) == 14
     limits = {n: v["map"]["limit"] for n, v in nodes.items() if n.startswith("jl")}
     assert limits["jl4_upper"] == pytest.approx(0.0) and limits["jl4_lower"] == pytest.approx(-3.1416)
-    ncp = len(DEFAULT_CONTROL_POINTS)
+    ncp = len(robot("panda")["control_points"])
     assert sum(n.startswith("cp") and "_obstacle" in n for n in nodes) == 2 * ncp
     assert set(spec["shared_weights"]) == {f"cp{i}_obstacle" for i in range(1, ncp + 1)}
     for k in (1, 2):
@@ -69,12 +61,13 @@ def test_spec_structure_follows_the_paper():
                      "bind": {"obstacle_center": f"obstacle{k}_center", "obstacle_radius": f"obstacle{k}_radius"}}
     for n in ("damper", "identity_metric"):
         assert "weight" not in nodes[n] and nodes[n]["parent"] == "q"
-    with pytest.raises(ValueError, match=r"control_points\.0\.size"):  # the Params model of franka_fig1b
-        franka_tree_spec([{"link": "panda_link3", "radius": 0.1, "size": 2}], 1)
+    bad = {**robot("panda"), "control_points": [{"link": "panda_link3", "radius": 0.1, "size": 2}]}
+    with pytest.raises(ValueError, match=r"control_points\.0\.size"):  # the robot description's model
+        manipulator_tree_spec(bad)
 
 
 def test_tree_finite_qdd_and_positive_definite_M(env, expert, expert_weights):
-    learner = rmpfusion.build_tree(franka_tree_spec(None, 1), aux_dims=env.aux_dims())
+    learner = rmpfusion.build_tree(franka_tree_spec(1), aux_dims=env.aux_dims())
     g = torch.Generator().manual_seed(0)
     B = 8
     lo, hi = env.lower + 0.05, env.upper - 0.05
@@ -93,7 +86,7 @@ def test_tree_finite_qdd_and_positive_definite_M(env, expert, expert_weights):
 
 def test_torque_control_tracks_the_kinematic_rollout(expert):
     """pybullet's computed-torque loop realises the tree's q̈ (same semi-implicit Euler step), and V falls."""
-    env = Franka(control_rate=120.0)
+    env = franka_env(control_rate=120.0)
     q0 = torch.tensor([NOMINAL], dtype=F64)
     qd0 = torch.tensor([[0.3, -0.2, 0.1, 0.2, -0.3, 0.1, 0.2]], dtype=F64)
     aux = make_aux([0.4, -0.3, 0.35], [[0.5, 0.0, 0.25]], [0.06])
@@ -155,7 +148,7 @@ def test_rollout_flags_a_collision_and_isolates_a_failing_sample(env):
 
 
 def test_expert_reaches_a_goal_in_front_of_the_obstacle(expert):
-    env = Franka(control_rate=60.0)
+    env = franka_env(control_rate=60.0)
     q0 = torch.tensor([NOMINAL], dtype=F64)
     aux = make_aux([0.35, -0.2, 0.35], [[0.55, 0.0, 0.25]], [0.06])
     with torch.no_grad():
@@ -170,13 +163,13 @@ def test_expert_reaches_a_goal_in_front_of_the_obstacle(expert):
 # ---------------------------------------------------------------- shared weights, several obstacles
 
 def test_weights_trained_with_one_obstacle_run_with_two(env):
-    tree1 = rmpfusion.build_tree(franka_tree_spec(None, 1), aux_dims=env.aux_dims())
+    tree1 = rmpfusion.build_tree(franka_tree_spec(1), aux_dims=env.aux_dims())
     g = torch.Generator().manual_seed(3)
     with torch.no_grad():  # stand-in for training: move every parameter away from its initialisation
         for p in tree1.parameters():
             p.add_(0.3 * torch.randn(p.shape, generator=g, dtype=p.dtype))
-    env2 = Franka(obstacles=[{"center": (0.5, 0.0, 0.25), "radius": 0.06}, {"center": (0.3, 0.4, 0.25), "radius": 0.05}])
-    tree2 = rmpfusion.build_tree(franka_tree_spec(None, 2), aux_dims=env2.aux_dims())
+    env2 = franka_env(cylinders([(0.5, 0.0, 0.25), (0.3, 0.4, 0.25)], [0.06, 0.05], height=0.5))
+    tree2 = rmpfusion.build_tree(franka_tree_spec(2), aux_dims=env2.aux_dims())
     copied = copy_weights(tree1, tree2)
     assert "attractor" in copied and "cp5_obstacle" in copied
     n_params = lambda t: sum(p.numel() for p in t.parameters())  # noqa: E731
@@ -208,12 +201,12 @@ def test_weights_trained_with_one_obstacle_run_with_two(env):
 # ---------------------------------------------------------------- env plumbing
 
 def test_registered_params_and_sampling(env):
-    entry = ENVS.get("franka")
-    assert entry.obj is Franka
-    p = entry.validate({"mode": "torque", "control_rate": 100})
-    assert p.mode == "torque" and not p.gui and Franka(p).dt == pytest.approx(0.01)
+    entry = ENVS.get("manipulator")
+    assert entry.obj is Manipulator
+    p = entry.validate({"mode": "torque", "control_rate": 100, "robot": robot("panda")})
+    assert p.mode == "torque" and not p.gui and Manipulator(p).dt == pytest.approx(0.01)
     with pytest.raises(Exception):
-        entry.validate({"control_hz": 100})
+        entry.validate({"control_hz": 100, "robot": robot("panda")})
     q0, qd0, aux = env.sample(3, 2, seed=5)
     assert q0.shape == (6, 7) and aux["goal"].shape == (6, 3) and aux["obstacle1_radius"].shape == (6, 1)
     assert (q0 >= env.lower).all() and (q0 <= env.upper).all()
@@ -238,7 +231,7 @@ def test_render_returns_an_rgb_image(env):
 
 def test_execution_metrics_match_the_recorded_path(expert):
     """The rollout's execution metrics (paper §4.2) agree with the path recorded at every integration step."""
-    env = Franka(control_rate=60.0)
+    env = franka_env(control_rate=60.0)
     q0 = torch.tensor([NOMINAL], dtype=F64)
     aux = make_aux([0.35, -0.2, 0.35], [[0.55, 0.0, 0.25]], [0.06])
     with torch.no_grad():
@@ -274,7 +267,7 @@ def _fake_rollout(gd, speed, dt=0.1):
 
 
 def test_demonstrations_last_until_the_expert_rests_at_the_goal():
-    env = Franka(demo_min_duration=0.3, demo_settle_distance=0.01, demo_settle_speed=0.05)
+    env = franka_env(demo_min_duration=0.3, demo_settle_distance=0.01, demo_settle_speed=0.05)
     far, near = 0.2, 0.001
     gd = torch.tensor([[far, far, far],
                        [near, far, far],
@@ -296,8 +289,9 @@ def test_demonstrations_last_until_the_expert_rests_at_the_goal():
 
 
 def test_collected_demonstrations_have_per_trajectory_goals_lengths_and_split_obstacles(expert):
-    env = Franka(control_rate=30.0, demo_min_duration=0.2, demo_settle_distance=0.3, demo_settle_speed=100.0,
-                 test_obstacles=[{"center": (0.45, 0.1, 0.25), "radius": 0.05}])
+    env = franka_env(cylinders([(0.5, 0.0, 0.25)], [0.06], height=0.5), control_rate=30.0, demo_min_duration=0.2,
+                     demo_settle_distance=0.3, demo_settle_speed=100.0,
+                     test_scene=cylinders([(0.45, 0.1, 0.25)], [0.05], height=0.5))
     g = torch.Generator().manual_seed(0)
     ds = env.demonstrations(expert, 1, 3, n_points=6, interval=0.1, generator=g, split="train")
     assert ds.traj_id.unique().tolist() == [0, 1, 2] and (ds.env_id == 0).all()
@@ -313,8 +307,8 @@ def test_collected_demonstrations_have_per_trajectory_goals_lengths_and_split_ob
     test = env.demonstrations(expert, 1, 2, n_points=3, interval=0.1, generator=g, split="test")
     assert (test.aux["obstacle1_center"] == torch.tensor([0.45, 0.1, 0.25], dtype=F64)).all()
     assert (test.aux["obstacle1_radius"] == 0.05).all()
-    with pytest.raises(ValueError, match="test_obstacles"):
-        Franka(test_obstacles=[{"center": (0.45, 0.1, 0.25), "radius": 0.05}] * 2)
+    with pytest.raises(ValueError, match="test_scene must have the obstacles of the training scene"):
+        franka_env(test_scene=cylinders([(0.45, 0.1, 0.25)] * 2, [0.05] * 2))
 
 
 def test_ratios_to_the_expert_are_per_trajectory():
@@ -385,12 +379,12 @@ def test_tiny_franka_experiment_end_to_end(tmp_path, rate):
     assert rows["expert"]["collisions"] == 0
     assert rows["learner-3"]["ratio"]["time"]["mean"] == pytest.approx(snaps["3"]["ratio_to_expert"]["time"]["mean"])
     figs = {os.path.basename(f) for f in m["figures"]}
-    assert {"franka_ratios.png", "franka_lyapunov.png", "franka_execution.png", "franka_execution.gif",
-            "franka_ee_paths.png", "learning_curve_rmp.png"} <= figs
+    assert {"task_ratios.png", "task_lyapunov.png", "task_execution.png", "task_execution.gif",
+            "task_ee_paths.png", "learning_curve_rmp.png"} <= figs
     assert not any(f.startswith(("trajectories_", "progression_")) for f in figs)  # no 2-D plots of a 7-D robot
     for f in m["figures"]:
         assert os.path.getsize(f) > 1000
     from PIL import Image
 
-    with Image.open(tmp_path / "figures" / "franka_execution.gif") as gif:
+    with Image.open(tmp_path / "figures" / "task_execution.gif") as gif:
         assert gif.n_frames == 6  # 0.5 s at 10 frames per second, both ends included

@@ -14,8 +14,8 @@ pytest.importorskip("pybullet")
 
 import rmpfusion  # noqa: E402
 from rmpfusion.learn.config import TrainConfig  # noqa: E402
-from rmpfusion.envs.franka import Franka  # noqa: E402
-from rmpfusion.envs.franka_tree import copy_weights, franka_tree_spec, with_weights  # noqa: E402
+from rmpfusion.envs.manipulator_tree import copy_weights, with_weights  # noqa: E402
+from manipulators import cylinders, franka_env, franka_tree_spec  # noqa: E402
 from rmpfusion.evaluate import lyapunov_monotone, max_relative_increase  # noqa: E402
 from rmpfusion.learn.rmp_learner import RMPLearner  # noqa: E402
 from rmpfusion.learn.objectives import dataset_loss  # noqa: E402
@@ -31,20 +31,21 @@ def _conf(group: str) -> dict:
         return yaml.safe_load(f)
 
 
-def _env(**overrides) -> Franka:
+def _env(scene=None, **overrides):
     """The experiment's environment (conf/env/franka.yaml) with ``overrides``."""
-    params = {k: v for k, v in _conf("env").items() if k != "type"}
-    return Franka(**{**params, "control_rate": RATE, "mode": "kinematic", "collect_mode": "kinematic", **overrides})
+    params = {k: v for k, v in _conf("env").items() if k not in ("type", "defaults")}
+    return franka_env(scene, **{**params, "control_rate": RATE, "mode": "kinematic", "collect_mode": "kinematic",
+                                **overrides})
 
 
 @pytest.mark.slow
 def test_a_trained_learner_runs_with_three_obstacles_without_collision():
     env1 = _env(demo_min_duration=3.0)
     weights = _conf("expert")
-    expert1 = rmpfusion.build_tree(with_weights(franka_tree_spec(None, 1), weights), aux_dims=env1.aux_dims())
+    expert1 = rmpfusion.build_tree(with_weights(franka_tree_spec(1), weights), aux_dims=env1.aux_dims())
     g = torch.Generator().manual_seed(0)
     data = env1.demonstrations(expert1, 1, 24, 51, 0.1, g, split="train")
-    spec1 = franka_tree_spec(None, 1)
+    spec1 = franka_tree_spec(1)
     learner = RMPLearner(RMPLearner.Params(weights={"type": "mlp", "hidden": [32, 32], "aux": ["goal"],
                                                    "positivity": "exp"}),  # as conf/experiment/franka.yaml
                          spec1, env1.aux_dims(), 7, expert=weights)
@@ -56,11 +57,9 @@ def test_a_trained_learner_runs_with_three_obstacles_without_collision():
     assert after < 0.05 * before, (before, after)  # it learned: the weights are no longer their random start
 
     # three cylinders: the training one, one beside the way to the goal, one behind the robot's base
-    scene = [{"center": (0.55, 0.0, 0.3), "radius": 0.05, "height": 0.6},
-             {"center": (0.45, -0.55, 0.3), "radius": 0.05, "height": 0.6},
-             {"center": (-0.3, 0.3, 0.3), "radius": 0.08, "height": 0.6}]
-    env3 = _env(obstacles=scene, test_obstacles=None)
-    tree3 = rmpfusion.build_tree(franka_tree_spec(None, 3), aux_dims=env3.aux_dims())
+    scene = cylinders([(0.55, 0.0, 0.3), (0.45, -0.55, 0.3), (-0.3, 0.3, 0.3)], [0.05, 0.05, 0.08])
+    env3 = _env(scene)
+    tree3 = rmpfusion.build_tree(franka_tree_spec(3), aux_dims=env3.aux_dims())
     copied = copy_weights(learner.tree, tree3)
     assert "attractor" in copied and all(f"cp{i}_obstacle" in copied for i in range(1, 15))
     g3 = torch.Generator().manual_seed(1)

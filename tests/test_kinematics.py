@@ -5,10 +5,18 @@ import torch
 
 import rmpfusion.maps.kinematics  # noqa: F401  (registers forward_kinematics)
 from rmpfusion.maps.kinematics import Chain, ForwardKinematics, rpy_matrix
-from rmpfusion.maps.urdf import PANDA_ARM_JOINTS, load_panda_urdf_path, parse_urdf, parse_urdf_string
+from rmpfusion.maps.urdf import parse_urdf, parse_urdf_string, resolve_urdf_path
 from rmpfusion.registry import TASK_MAPS
 
 from conftest import fd_directional, fd_jacobian
+
+PANDA_URDF = "pkg://pybullet_data/franka_panda/panda.urdf"
+PANDA_ARM_JOINTS = tuple(f"panda_joint{i}" for i in range(1, 8))
+
+
+def load_panda_urdf_path() -> str:
+    return resolve_urdf_path(PANDA_URDF)
+
 
 pybullet = pytest.importorskip("pybullet")
 
@@ -48,6 +56,8 @@ def random_q(chain, n, seed=0):
 def make_map(link="panda_hand", offset=(0.0, 0.0, 0.0), **kw):
     in_dim = kw.pop("in_dim", 7)
     entry = TASK_MAPS.get("forward_kinematics")
+    kw.setdefault("urdf", PANDA_URDF)
+    kw.setdefault("joints", list(PANDA_ARM_JOINTS) if in_dim in (6, 7) else None)
     return entry.obj(entry.validate({"link": link, "offset": list(offset), **kw}), in_dim, {})
 
 
@@ -250,12 +260,13 @@ def test_map_spec_and_errors():
     assert "panda_hand" in fkm.link_names()
     assert torch.equal(fkm.joint_limits()[0], Chain(parse_urdf(load_panda_urdf_path()), PANDA_ARM_JOINTS).lower)
     with pytest.raises(ValueError, match="dimension 6 .* 7 actuated joints"):
-        make_map("panda_hand", in_dim=6)
+        make_map("panda_hand", in_dim=6)  # the 7 arm joints under a 6-D parent
     with pytest.raises(ValueError, match="no link 'panda_hnad'.*panda_hand"):
         make_map("panda_hnad")
-    with pytest.raises(ValueError, match="either 'robot' or 'urdf'"):
-        make_map("panda_hand", robot="panda", urdf=load_panda_urdf_path())
+    with pytest.raises(ValueError, match=r"forward_kinematics.robot \('panda'\) was retired: robots are described in "
+                                         r"conf/robot/<name>.yaml; write that file's urdf and joints here"):
+        make_map("panda_hand", robot="panda")
     with pytest.raises(ValueError, match="is fixed"):
-        make_map("panda_hand", urdf=load_panda_urdf_path(), joints=["panda_joint8"], in_dim=1)
+        make_map("panda_hand", joints=["panda_joint8"], in_dim=1)
     # a URDF with all movable joints actuated: arm + two fingers
-    assert make_map("panda_hand", urdf=load_panda_urdf_path(), in_dim=9).chain.dof == 9
+    assert make_map("panda_hand", in_dim=9).chain.dof == 9

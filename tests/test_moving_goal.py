@@ -11,6 +11,8 @@ import math
 import torch
 
 import rmpfusion
+
+PANDA_ROBOT = {"urdf": "pkg://pybullet_data/franka_panda/panda.urdf", "joints": [f"panda_joint{i}" for i in range(1, 8)]}
 from conftest import assert_energy_identity, assert_lyapunov_non_increasing, rk4_rollout
 
 GAIN, ALPHA, ETA, W = 2.0, 3.0, 2.0, 1.0
@@ -33,7 +35,7 @@ def panda_tracking_tree():
     part); a damper and the identity metric on the joints."""
     torch.manual_seed(0)
     return rmpfusion.build_tree({"root": {"name": "q", "dim": 7}, "aux": AUX_DIMS, "nodes": {
-        "ee": {"parent": "q", "map": {"type": "forward_kinematics", "robot": "panda", "link": "panda_hand",
+        "ee": {"parent": "q", "map": {"type": "forward_kinematics", **PANDA_ROBOT, "link": "panda_hand",
                                       "offset": [0, 0, 0.1034]}},
         "track": {"parent": "ee", "map": {"type": "moving_offset", "origin": "goal", "velocity": "goal_velocity"},
                   "weight": {"type": "mlp", "hidden": [16], "aux": ["goal", "goal_velocity"]},

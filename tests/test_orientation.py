@@ -12,7 +12,8 @@ import rmpfusion
 from conftest import assert_energy_identity, assert_lyapunov_non_increasing, rk4_rollout
 from rmpfusion.maps.kinematics import Chain
 from rmpfusion.maps.orientation import quaternion_matrix
-from rmpfusion.maps.urdf import PANDA_ARM_JOINTS, load_panda_urdf_path, parse_urdf
+from rmpfusion.maps.urdf import parse_urdf
+from test_kinematics import PANDA_ARM_JOINTS, load_panda_urdf_path
 from rmpfusion.registry import TASK_MAPS
 
 IIWA = str(Path(pybullet_data.getDataPath()) / "kuka_iiwa" / "model.urdf")
@@ -46,7 +47,7 @@ def test_quaternions_become_pybullets_rotation_matrices(gen):
                                               (IIWA, None, "lbr_iiwa_link_7"), (IIWA, None, "lbr_iiwa_link_4")],
                          ids=["panda_hand", "iiwa_link_7", "iiwa_link_4"])
 def test_link_axes_are_the_columns_of_pybullets_link_orientation(urdf, joints, link, gen):
-    m = build_map({"type": "link_orientation", "robot": None, "urdf": urdf, "joints": joints, "link": link})
+    m = build_map({"type": "link_orientation", "urdf": urdf, "joints": joints, "link": link})
     lo, hi = m.chain.joint_limits()
     q = lo + (hi - lo) * torch.rand(4, 7, generator=gen)
     axes = m.psi(q, None).reshape(4, 3, 3)  # row k: the link's axis k in the world
@@ -70,13 +71,13 @@ def test_the_potential_measures_the_angle_to_the_target(gen):
     """½|e|² = 1 − cos θ for one axis; with the three axes of the frame, 2(1 − cos φ) with φ the rotation angle."""
     q = HOME + 0.5 * torch.randn(6, 7, generator=gen)
     quat = torch.randn(6, 4, generator=gen)
-    frame = build_map({"type": "link_orientation", "link": "panda_hand", "target": "target"}, {"target": 4})
+    frame = build_map({"type": "link_orientation", "urdf": PANDA, "joints": list(PANDA_ARM_JOINTS), "link": "panda_hand", "target": "target"}, {"target": 4})
     e = frame.psi(q, {"target": quat})
     R, _ = frame.chain.forward_kinematics(q, ["panda_hand"])["panda_hand"]
     phi = rotation_angle(R, quaternion_matrix(quat))
     torch.testing.assert_close(0.5 * (e * e).sum(-1), 2 * (1 - torch.cos(phi)))
     direction = torch.randn(6, 3, generator=gen)
-    tool = build_map({"type": "link_axis", "link": "panda_hand", "axis": [0, 0, 2.0], "target": "d"}, {"d": 3})
+    tool = build_map({"type": "link_axis", "urdf": PANDA, "joints": list(PANDA_ARM_JOINTS), "link": "panda_hand", "axis": [0, 0, 2.0], "target": "d"}, {"d": 3})
     e = tool.psi(q, {"d": direction})
     cos_theta = (R[:, :, 2] * direction).sum(-1) / direction.norm(dim=-1)
     torch.testing.assert_close(0.5 * (e * e).sum(-1), 1 - cos_theta)
@@ -86,11 +87,11 @@ def panda_tool_tree():
     """The end effector to a goal position with the hand's z axis (the tool axis) along a target direction; the
     orientation edge carries a random positive neural weight, so pullback*'s h terms take part."""
     return rmpfusion.build_tree({"root": {"name": "q", "dim": 7}, "aux": {"goal": 3, "tool_direction": 3}, "nodes": {
-        "ee": {"parent": "q", "map": {"type": "forward_kinematics", "robot": "panda", "link": "panda_hand",
+        "ee": {"parent": "q", "map": {"type": "forward_kinematics", "urdf": PANDA, "joints": list(PANDA_ARM_JOINTS), "link": "panda_hand",
                                       "offset": [0, 0, 0.1034]}},
         "reach": {"parent": "ee", "map": {"type": "offset", "origin": "goal"},
                   "rmp": {"type": "goal_attractor", "gain": 5.0, "alpha": 10.0, "eta": 5.0}},
-        "tool": {"parent": "q", "map": {"type": "link_axis", "link": "panda_hand", "target": "tool_direction"},
+        "tool": {"parent": "q", "map": {"type": "link_axis", "urdf": PANDA, "joints": list(PANDA_ARM_JOINTS), "link": "panda_hand", "target": "tool_direction"},
                  "weight": {"type": "mlp", "hidden": [16], "aux": ["tool_direction"]},
                  "rmp": {"type": "orientation_attractor", "gain": 10.0, "eta": 5.0, "w_u": 3.0, "sigma": 0.3}},
         "damper": {"parent": "q", "map": {"type": "identity"}, "rmp": {"type": "damper", "w": 0.1, "eta": 5.0}},
@@ -119,7 +120,7 @@ def test_kuka_iiwa_reaches_a_target_orientation_given_as_a_quaternion():
     """Full orientation on a second robot: from up to 165° away, within 3° of the target quaternion in 3 s, with
     V_r non-increasing on the way."""
     tree = rmpfusion.build_tree({"root": {"name": "q", "dim": 7}, "aux": {"target": 4}, "nodes": {
-        "frame": {"parent": "q", "map": {"type": "link_orientation", "robot": None, "urdf": IIWA,
+        "frame": {"parent": "q", "map": {"type": "link_orientation", "urdf": IIWA,
                                          "link": "lbr_iiwa_link_7", "target": "target"},
                   "rmp": {"type": "orientation_attractor", "gain": 10.0, "eta": 3.0}},
         "damper": {"parent": "q", "map": {"type": "identity"}, "rmp": {"type": "damper", "w": 0.01, "eta": 1.0}},

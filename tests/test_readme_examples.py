@@ -141,8 +141,8 @@ class Unit:
         def one(c: str) -> bool:
             if self.needs_plugin:
                 return False
-            if c.startswith("rmpfusion-validate") or c.startswith("python tools/tracking_demo.py"):
-                return True  # the demo runs 0.1 s of its rollouts here (appended)
+            if c.startswith(("rmpfusion-validate", "rmpfusion-fit-spheres", "python tools/tracking_demo.py")):
+                return True  # the tracking demo runs 0.1 s of its rollouts here (appended)
             return c.startswith("rmpfusion-run ") and " -m " not in c and "data=tiny train=tiny" in c  # the smoke run
         return all(one(c) for c in self.cmds)
 
@@ -179,6 +179,8 @@ def appended(cmd: str, out: Path) -> list[str]:
         return [f"hydra.run.dir={out}"]
     if cmd.startswith("python tools/tracking_demo.py"):
         return ["--seconds", "0.1"]  # every robot and leaf, 10 integration steps
+    if cmd.startswith("rmpfusion-fit-spheres"):
+        return []  # writes where the README says: under outputs/, which git ignores
     if cmd.startswith("python tools/reproduce_2d.py"):
         return ["--scale", "0.0005", "--out", str(out), *TINY]  # 10 iterations of each experiment
     if cmd.startswith("rmpfusion-run"):
@@ -267,6 +269,12 @@ def test_every_run_command_composes():
 
     runs = [shlex.split(c)[1:] for u in UNITS for c in u.cmds if c.startswith("rmpfusion-run")]
     assert len(runs) >= 10
+    for u in UNITS:  # a folder given by --config-dir is made by the README's own command before it (the robot fit)
+        for c in u.cmds:
+            made = [shlex.split(m) for m in u.cmds if m.startswith("rmpfusion-fit-spheres")]
+            if "--config-dir" in c and not (ROOT / shlex.split(c)[shlex.split(c).index("--config-dir") + 1]).exists():
+                assert made, f"README: {c!r} reads a --config-dir that no command before it writes"
+                subprocess.run(made[0], cwd=ROOT, check=True, capture_output=True, env=_env(), timeout=600)
 
     def one_point(a: str) -> str:
         key, _, value = a.partition("=")
@@ -274,6 +282,9 @@ def test_every_run_command_composes():
 
     for args in runs:
         multirun = "-m" in args
+        if "--config-dir" in args:  # what Hydra's --config-dir does: the folder joins the search path
+            k = args.index("--config-dir")
+            args = [*args[:k], *args[k + 2:], f"hydra.searchpath=[file://{ROOT / args[k + 1]}]"]
         over = [one_point(a) if multirun else a for a in args
                 if a != "-m" and "spring" not in a and "glob(" not in a]
         with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):

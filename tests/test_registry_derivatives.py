@@ -86,10 +86,15 @@ def positive_distance_states(gen, n, dim):
     return 0.3 + 1.7 * torch.rand(n, dim, generator=gen), torch.randn(n, dim, generator=gen)
 
 
+PANDA = {"urdf": "pkg://pybullet_data/franka_panda/panda.urdf", "joints": [f"panda_joint{i}" for i in range(1, 8)]}
+#: a rotation about (1, 2, 2)/3 by 0.7 rad, row by row: the box's axes in the world
+BOX_ROTATION = [0.791, -0.3772, 0.4817, 0.4817, 0.8694, -0.1102, -0.3772, 0.3193, 0.8694]
+
+
 def panda_states(gen, n, dim):
-    from rmpfusion.maps.urdf import PANDA_ARM_JOINTS, load_panda_urdf_path, parse_urdf
+    from rmpfusion.maps.urdf import parse_urdf
     from rmpfusion.maps.kinematics import Chain
-    lo, hi = Chain(parse_urdf(load_panda_urdf_path()), PANDA_ARM_JOINTS).joint_limits()
+    lo, hi = Chain(parse_urdf(PANDA["urdf"]), PANDA["joints"]).joint_limits()
     return lo + torch.rand(n, dim, generator=gen) * (hi - lo), torch.randn(n, dim, generator=gen)
 
 
@@ -137,29 +142,39 @@ MAP_EXAMPLES: dict[str, list[Example]] = {
                                   {"type": "sphere_distance", "center": [1.0, 0.0, 0.5], "radius": 0.2}]}, 2, scale=3.0),
                 Example({"maps": [{"type": "offset", "origin": "c"}, {"type": "sphere_distance", "center": [0.0, 0.0]}]},
                         2, scale=3.0)],
-    "forward_kinematics": [Example({"link": "panda_hand", "offset": [0.05, -0.01, 0.02]}, 7, state=panda_states),
-                           Example({"link": "panda_link4"}, 7, state=panda_states)],
-    "link_axis": [Example({"link": "panda_hand", "axis": [0.0, 0.0, 1.0]}, 7, state=panda_states),
-                  Example({"link": "panda_link5", "axis": [1.0, -2.0, 0.5], "target": [0.0, 0.0, -1.0]}, 7,
+    "forward_kinematics": [Example({**PANDA, "link": "panda_hand", "offset": [0.05, -0.01, 0.02]}, 7, state=panda_states),
+                           Example({**PANDA, "link": "panda_link4"}, 7, state=panda_states)],
+    # distances to obstacles, static (velocity absent: ẏ = Jẋ); tests/test_scenes.py checks moving ones in time
+    "sphere_obstacle": [Example({"center": [0.3, -0.2, 0.1], "radius": 0.5}, 3, scale=2.0),
+                        Example({"center": "c3", "radius": "r"}, 3, scale=2.0)],
+    "capsule_obstacle": [Example({"center": [0.1, 0.0, 0.2], "radius": 0.2, "half_length": 0.6,
+                                  "axis": [0.6, 0.0, 0.8]}, 3, scale=1.5)],
+    "cylinder_obstacle": [Example({"center": [0.0, 0.1, 0.0], "radius": 0.4, "half_height": 0.5,
+                                   "axis": [0.0, 0.6, 0.8]}, 3, scale=1.5)],
+    "box_obstacle": [Example({"center": [0.1, 0.0, -0.1], "half_extents": [0.3, 0.5, 0.2],
+                              "rotation": BOX_ROTATION}, 3, scale=1.5)],
+    "plane_distance": [Example({"normal": [0.0, 0.3, 1.0], "height": 0.2}, 3, scale=2.0)],
+    "link_axis": [Example({**PANDA, "link": "panda_hand", "axis": [0.0, 0.0, 1.0]}, 7, state=panda_states),
+                  Example({**PANDA, "link": "panda_link5", "axis": [1.0, -2.0, 0.5], "target": [0.0, 0.0, -1.0]}, 7,
                           state=panda_states),
-                  Example({"robot": None, "urdf": IIWA, "link": "lbr_iiwa_link_7", "target": "c3"}, 7, state=iiwa_states)],
-    "link_orientation": [Example({"link": "panda_hand", "target": [0.0, 1.0, 0.0, 0.0]}, 7, state=panda_states),
-                         Example({"link": "panda_hand", "target": "quaternion", "target_format": "quaternion_wxyz",
+                  Example({"urdf": IIWA, "link": "lbr_iiwa_link_7", "target": "c3"}, 7, state=iiwa_states)],
+    "link_orientation": [Example({**PANDA, "link": "panda_hand", "target": [0.0, 1.0, 0.0, 0.0]}, 7, state=panda_states),
+                         Example({**PANDA, "link": "panda_hand", "target": "quaternion", "target_format": "quaternion_wxyz",
                                   "axes": [[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]}, 7, state=panda_states),
-                         Example({"robot": None, "urdf": IIWA, "link": "lbr_iiwa_link_6", "target": "directions",
+                         Example({"urdf": IIWA, "link": "lbr_iiwa_link_6", "target": "directions",
                                   "target_format": "axes", "axes": [[0.0, 1.0, 0.0], [1.0, 1.0, 0.0]]}, 7,
                                  state=iiwa_states),
-                         Example({"robot": None, "urdf": IIWA, "link": "lbr_iiwa_link_7",
+                         Example({"urdf": IIWA, "link": "lbr_iiwa_link_7",
                                   "target": [0.0, -1.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0], "target_format": "matrix"},
                                  7, state=iiwa_states)],
-    "link_sphere_distance": [Example({"a": {"link": "panda_link3", "offset": [0.1, 0.07, 0.0], "radius": 0.1},
+    "link_sphere_distance": [Example({**PANDA, "a": {"link": "panda_link3", "offset": [0.1, 0.07, 0.0], "radius": 0.1},
                                       "b": {"link": "panda_hand", "offset": [0.0, 0.0, 0.09], "radius": 0.09}}, 7,
                                      state=panda_states),
-                             Example({"robot": None, "urdf": IIWA, "a": {"link": "lbr_iiwa_link_2"},
+                             Example({"urdf": IIWA, "a": {"link": "lbr_iiwa_link_2"},
                                       "b": {"link": "lbr_iiwa_link_6", "offset": [0.0, 0.05, 0.0], "radius": 0.08}}, 7,
                                      state=iiwa_states)],
-    "velocity_scaled_joints": [Example({}, 7, state=panda_states),
-                               Example({"robot": None, "urdf": IIWA, "velocity_limit": [1.0, 2.0, 1.5, 1.0, 3.0, 2.0, 2.5]},
+    "velocity_scaled_joints": [Example(PANDA, 7, state=panda_states),
+                               Example({"urdf": IIWA, "velocity_limit": [1.0, 2.0, 1.5, 1.0, 3.0, 2.0, 2.5]},
                                        7, state=iiwa_states)],
     "moving_offset": [Example({"origin": "c", "velocity": "goal_velocity"}, 2, scale=3.0),
                       Example({"origin": [0.5, -1.0, 0.2], "velocity": [0.1, 0.0, -0.3]}, 3, scale=3.0)],

@@ -11,7 +11,7 @@ from conftest import assert_energy_identity
 from reference_tree import FIELDS, node_by_node
 
 HOME = torch.tensor([0.0, -0.3, 0.0, -2.2, 0.0, 2.0, 0.8])
-PANDA = {"robot": "panda"}
+PANDA = {"urdf": "pkg://pybullet_data/franka_panda/panda.urdf", "joints": [f"panda_joint{i}" for i in range(1, 8)]}
 
 
 def mlp(*aux):

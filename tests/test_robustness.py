@@ -621,8 +621,8 @@ TRAP_TREE = {"root": {"name": "q", "dim": 7}, "nodes": {
 
 
 def franka_setup(B: int = 2):
-    from rmpfusion.envs.franka import Franka
-    env = Franka(control_rate=60.0)
+    from manipulators import franka_env
+    env = franka_env(control_rate=60.0)
     q0 = torch.tensor([NOMINAL] * B, dtype=F64)
     qd0 = torch.zeros(B, 7, dtype=F64)
     aux = {"goal": torch.tensor([[0.4, -0.3, 0.35]] * B, dtype=F64),
@@ -643,7 +643,7 @@ def check_isolated(r, pattern: str) -> str:
 
 
 def _recording_scenes(monkeypatch) -> list:
-    from rmpfusion.envs.franka import torque as fr
+    from rmpfusion.envs.manipulator import torque as fr
     scenes = []
 
     class Recording(fr._Scene):
@@ -868,7 +868,23 @@ for _id, _fault, _overrides, _shows, _needs in [
         ("render-trajectory-missing", "a rendered test trajectory that is not collected",
          ["experiment=franka", "env.render_trajectory=20"],
          "env.render_trajectory: must be < 20, the number of test trajectories (data.test_envs × "
-         "data.test_trajectories, numbered from 0); given 20", ("pybullet",))]:
+         "data.test_trajectories, numbered from 0); given 20", ("pybullet",)),
+        ("robot-joint-misspelt", "a robot description naming a joint its URDF does not have",
+         ["experiment=franka", "env.robot.joints.6=panda_joint_7"],
+         "env.robot: joints[6] = 'panda_joint_7' is not a movable joint of pkg://pybullet_data/franka_panda/panda.urdf; "
+         "did you mean 'panda_joint7', 'panda_joint6', 'panda_joint5'? movable joints: panda_joint1, panda_joint2, "
+         "panda_joint3, panda_joint4, panda_joint5, panda_joint6, panda_joint7, panda_finger_joint1, "
+         "panda_finger_joint2<text>", ("pybullet",)),
+        ("test-scene-other-shapes", "a test scene whose obstacles the training scene's tree cannot measure",
+         ["experiment=franka", "scene@env.test_scene=iiwa_box"],
+         "env: test_scene must have the obstacles of the training scene, with the same shapes in the same order, "
+         "each static or moving as there, and a ground plane if and only if it has one (the tree has one distance "
+         "edge per obstacle); training: [('cylinder', 'static')], given: [('box', 'static')]", ("pybullet",)),
+        ("retired-environment", "a config naming the environment of old, before robots and scenes were data",
+         ["experiment=franka", "env.type=franka"],
+         "env.type: 'franka' was retired: the environment 'franka' became 'manipulator', which takes its robot and "
+         "scene from conf/robot/ and conf/scene/; compose the experiment anew (experiment=franka keeps its name and "
+         "protocol)", ("pybullet",))]:
     row(f"config-{_id}", _fault, "resolve_and_validate on conf/config.yaml with " + " ".join(_overrides), _REFUSED,
         shows=_shows, needs=_needs)(_config_row(*_overrides))
 

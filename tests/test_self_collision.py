@@ -12,11 +12,12 @@ import yaml
 import rmpfusion
 from conftest import assert_energy_identity, assert_lyapunov_non_increasing, rk4_rollout
 from reference_tree import node_by_node
-from rmpfusion.envs.franka_tree import DEFAULT_CONTROL_POINTS
+from manipulators import robot as robot_description
 from rmpfusion.maps import build_map
 from rmpfusion.maps.kinematics import Chain
 from rmpfusion.maps.self_collision import non_adjacent_link_pairs
-from rmpfusion.maps.urdf import PANDA_ARM_JOINTS, load_panda_urdf_path, parse_urdf
+from rmpfusion.maps.urdf import parse_urdf
+from test_kinematics import PANDA_ARM_JOINTS, load_panda_urdf_path
 
 ROOT = Path(__file__).resolve().parents[1]
 IIWA = str(Path(pybullet_data.getDataPath()) / "kuka_iiwa" / "model.urdf")
@@ -26,7 +27,7 @@ HOME = torch.tensor([[0.0, -0.3, 0.0, -2.2, 0.0, 2.0, 0.8]])
 
 def sphere(k: int) -> dict:
     """The Panda tree's control sphere k (0-based): 0-1 on link3, 2-3 on link4, 10 on link7, 11-13 on the hand."""
-    cp = DEFAULT_CONTROL_POINTS[k]
+    cp = robot_description("panda")["control_points"][k]
     return {"link": cp["link"], "offset": list(cp["offset"]), "radius": cp["radius"]}
 
 
@@ -71,7 +72,7 @@ def test_kuka_iiwa_pairs_and_bad_arguments():
     (IIWA, None, {"link": "lbr_iiwa_link_2", "offset": [0.0, 0.03, 0.1], "radius": 0.07},
      {"link": "lbr_iiwa_link_6", "offset": [0.0, 0.05, 0.0], "radius": 0.08})], ids=["panda", "iiwa"])
 def test_the_gap_is_the_distance_of_sphere_centres_placed_by_pybullet(urdf, joints, a, b, gen):
-    m = build_map({"type": "link_sphere_distance", "robot": None, "urdf": urdf, "joints": joints, "a": a, "b": b}, 7, {})
+    m = build_map({"type": "link_sphere_distance", "urdf": urdf, "joints": joints, "a": a, "b": b}, 7, {})
     lo, hi = m.chain.joint_limits()
     q = lo + (hi - lo) * torch.rand(5, 7, generator=gen)
     gap = m.psi(q, None)[:, 0]
@@ -101,7 +102,7 @@ def test_sibling_gaps_evaluate_as_one_group_equal_to_each_gap_alone(gen):
     the node-by-node computation, and the group's rows equal each gap evaluated on its own."""
     pairs = [(0, 13), (2, 12), (3, 10)]
     spec = {"root": {"name": "q", "dim": 7}, "nodes": {
-        **{f"gap{i}_{j}": {"parent": "q", "map": {"type": "link_sphere_distance", "a": sphere(i), "b": sphere(j)},
+        **{f"gap{i}_{j}": {"parent": "q", "map": {"type": "link_sphere_distance", "urdf": PANDA, "joints": list(PANDA_ARM_JOINTS), "a": sphere(i), "b": sphere(j)},
                            "weight": {"type": "mlp", "hidden": [4]},
                            "rmp": {"type": "collision_avoidance", "r_w": 0.5, "alpha": 0.1, "eta": 0.5}} for i, j in pairs},
         "regulariser": {"parent": "q", "map": {"type": "identity"}, "rmp": {"type": "identity_metric"}}}}
@@ -135,13 +136,13 @@ def folding_tree(self_collision: bool):
              "damper": {"parent": "q", "map": {"type": "identity"}, "rmp": {"type": "damper", "w": 0.1, "eta": 2.0}},
              "regulariser": {"parent": "q", "map": {"type": "identity"}, "rmp": {"type": "identity_metric"}}}
     for i, j in PAIRS if self_collision else []:
-        nodes[f"self_{i}_{j}"] = {"parent": "q", "map": {"type": "link_sphere_distance", "a": sphere(i), "b": sphere(j)},
+        nodes[f"self_{i}_{j}"] = {"parent": "q", "map": {"type": "link_sphere_distance", "urdf": PANDA, "joints": list(PANDA_ARM_JOINTS), "a": sphere(i), "b": sphere(j)},
                                   "rmp": preset}
     return rmpfusion.build_tree({"root": {"name": "q", "dim": 7}, "nodes": nodes})
 
 
 def test_the_barrier_keeps_the_hand_off_the_upper_arm_and_theorem_2_holds():
-    gaps = [build_map({"type": "link_sphere_distance", "a": sphere(i), "b": sphere(j)}, 7, {}) for i, j in PAIRS]
+    gaps = [build_map({"type": "link_sphere_distance", "urdf": PANDA, "joints": list(PANDA_ARM_JOINTS), "a": sphere(i), "b": sphere(j)}, 7, {}) for i, j in PAIRS]
     closest = lambda q: torch.cat([m.psi(q, None) for m in gaps], 1).min(1).values  # noqa: E731
     assert float(closest(HOME)) > 0.2 and float(closest(torch.tensor([FOLDED]))) < -0.025
     free = rk4_rollout(folding_tree(False), HOME, torch.zeros(1, 7), {}, dt=0.01, steps=200)

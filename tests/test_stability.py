@@ -136,7 +136,8 @@ def test_energy_identity_on_the_franka_tree_even_with_penetrating_control_points
     import yaml
     from pathlib import Path
 
-    from rmpfusion.envs.franka_tree import franka_tree_spec, with_weights
+    from rmpfusion.envs.manipulator_tree import with_weights
+    from manipulators import franka_tree_spec
 
     expert = yaml.safe_load((Path(__file__).parents[1] / "conf" / "expert" / "franka.yaml").read_text())
     tree = rmpfusion.build_tree(with_weights(franka_tree_spec(), expert))

@@ -1,5 +1,6 @@
-"""Trees declared as a generator and its parameters (build/generated.py): conf/tree/franka.yaml expands to the
-paper's Panda tree, and bad declarations are refused with the path of the key at fault."""
+"""Trees declared as a generator and its parameters (build/generated.py): conf/tree/franka.yaml (conf/tree/fig1b.yaml
+for the Panda of conf/robot/panda.yaml and the cylinder of conf/scene/franka_cylinder.yaml) expands to the paper's
+Panda tree, and bad declarations are refused with the path of the key at fault."""
 from __future__ import annotations
 
 import importlib.util
@@ -23,8 +24,14 @@ PANDA_LIMITS = [(-2.9671, 2.9671), (-1.8326, 1.8326), (-2.9671, 2.9671), (-3.141
                 (-0.0873, 3.8223), (-2.9671, 2.9671)]
 
 
-def declaration() -> dict:
-    return yaml.safe_load((CONF / "tree" / "franka.yaml").read_text())
+def declaration(scene: str = "franka_cylinder") -> dict:
+    """conf/tree/fig1b.yaml with the robot and scene experiment=franka composes into it, as experiment=franka does."""
+    decl = yaml.safe_load((CONF / "tree" / "fig1b.yaml").read_text())
+    decl.update(yaml.safe_load((CONF / "tree" / "franka.yaml").read_text()))
+    decl.pop("defaults")
+    decl["robot"] = yaml.safe_load((CONF / "robot" / "panda.yaml").read_text())
+    decl["scene"] = yaml.safe_load((CONF / "scene" / f"{scene}.yaml").read_text())
+    return decl
 
 
 def issues_of(spec) -> dict[str, str]:
@@ -34,8 +41,8 @@ def issues_of(spec) -> dict[str, str]:
 
 
 def test_the_panda_generator_is_registered_by_importing_rmpfusion():
-    assert "franka_fig1b" in TREE_GENERATORS
-    assert declaration()["generator"] == "franka_fig1b"
+    assert "fig1b" in TREE_GENERATORS
+    assert declaration()["generator"] == "fig1b"
 
 
 @needs_panda
@@ -45,8 +52,8 @@ def test_franka_declaration_expands_to_the_fig1b_tree():
     # ee + attractor, 2 limits x 7 joints, 14 control points with one obstacle each, damper, identity metric
     assert len(nodes) == 2 + 14 + 14 * 2 + 2
     assert tree["root"] == {"name": "q", "dim": 7}
-    assert tree["aux"] == {"goal": 3, "obstacle1_center": 3, "obstacle1_radius": 1,
-                           "obstacle_center": 3, "obstacle_radius": 1}
+    assert tree["aux"] == {"goal": 3, "obstacle1_center": 3, "obstacle1_radius": 1, "obstacle1_axis": 3,
+                           "obstacle1_half_height": 1, "obstacle_center": 3, "obstacle_radius": 1}
     assert set(tree["shared_weights"]) == {f"cp{i}_obstacle" for i in range(1, 15)}
     assert tree["shared_weights"]["cp7_obstacle"] == {"type": "mlp", "hidden": [32, 32], "positivity": "exp",
                                                       "aux": ["obstacle_center", "obstacle_radius"]}
@@ -57,7 +64,8 @@ def test_franka_declaration_expands_to_the_fig1b_tree():
             assert jl["map"] == {"type": "joint_limit", "side": side, "limit": limit, "joints": j - 1}
             assert jl["rmp"] == {"type": "joint_limit", "r_w": 0.25, "sigma": 0.5, "epsilon": 0.1, "alpha": 0.001,
                                  "eta": 0.0}
-    assert nodes["ee"]["map"] == {"type": "forward_kinematics", "robot": "panda", "link": "panda_hand",
+    assert nodes["ee"]["map"] == {"type": "forward_kinematics", "urdf": "pkg://pybullet_data/franka_panda/panda.urdf",
+                                  "joints": [f"panda_joint{i}" for i in range(1, 8)], "link": "panda_hand",
                                   "offset": [0.0, 0.0, 0.1034]}
     assert nodes["attractor"]["parent"] == "ee" and nodes["attractor"]["map"] == {"type": "offset", "origin": "goal"}
     assert nodes["attractor"]["rmp"] == {"type": "goal_attractor", "gain": 5.0, "alpha": 10.0, "eta": 5.0,
@@ -78,8 +86,12 @@ def test_franka_declaration_expands_to_the_fig1b_tree():
 
 @needs_panda
 def test_parameters_change_the_generated_tree():
-    tree = expand_tree({**declaration(), "n_obstacles": 2, "attractor_rmp": {"gain": 3.0}})
+    two = {"obstacles": [{"type": "cylinder", "center": [0.5, 0.0, 0.3], "radius": 0.05, "height": 0.6},
+                         {"type": "sphere", "center": [0.3, 0.4, 0.3], "radius": 0.05}]}
+    tree = expand_tree({**declaration(), "scene": two, "attractor_rmp": {"gain": 3.0}})
     assert sum(n.startswith("cp") and n.endswith("_obstacle2") for n in tree["nodes"]) == 14
+    assert tree["nodes"]["cp1_obstacle2"]["map"]["maps"][0] == {"type": "sphere_obstacle", "center": "obstacle2_center",
+                                                               "radius": "obstacle2_radius"}
     # a partial leaf block changes its own keys only; the rest stay the tuned ones
     assert tree["nodes"]["attractor"]["rmp"] == {"type": "goal_attractor", "gain": 3.0, "alpha": 10.0, "eta": 5.0,
                                                  "w_u": 1.0, "w_l": 1.0, "sigma": 1.0}
@@ -92,29 +104,29 @@ def test_a_written_tree_passes_through_unchanged():
 
 
 def test_unknown_generator_gets_did_you_mean():
-    issues = issues_of({"generator": "franka_fig1", "n_obstacles": 1})
+    issues = issues_of({"generator": "fig1", "scene": {}})
     assert list(issues) == ["tree.generator"]
-    assert "unknown tree generator 'franka_fig1'" in issues["tree.generator"]
-    assert "did you mean 'franka_fig1b'" in issues["tree.generator"]
+    assert "unknown tree generator 'fig1'" in issues["tree.generator"]
+    assert "did you mean 'fig1b'" in issues["tree.generator"]
 
 
 @needs_panda
 def test_misspelt_parameter_names_its_key_and_the_allowed_ones():
     decl = declaration()
-    decl["n_obstacle"] = decl.pop("n_obstacles")
+    decl["scen"] = decl.pop("scene")
     issues = issues_of(decl)
-    assert list(issues) == ["tree.n_obstacle"]
-    msg = issues["tree.n_obstacle"]
-    assert "unknown key" in msg and "allowed: control_points, n_obstacles" in msg and "did you mean 'n_obstacles'" in msg
+    assert list(issues) == ["tree.scen"]
+    msg = issues["tree.scen"]
+    assert "unknown key" in msg and "allowed: robot, scene" in msg and "did you mean 'scene'" in msg
     nested = issues_of({**declaration(), "attractor_rmp": {"gian": 5.0}})
     assert list(nested) == ["tree.attractor_rmp.gian"] and "gain" in nested["tree.attractor_rmp.gian"]
 
 
 @needs_panda
 @pytest.mark.parametrize("key,value,path", [
-    ("control_points", [{"link": "panda_link3", "radius": -0.1}], "tree.control_points.0.radius"),
+    ("scene", {"obstacles": [{"type": "sphere", "center": [0.5, 0.0, 0.3], "radius": -0.1}]},
+     "tree.scene.obstacles.0.sphere.radius"),
     ("attractor_rmp", {"gain": -5.0}, "tree.attractor_rmp.gain"),
-    ("n_obstacles", -1, "tree.n_obstacles"),
 ])
 def test_out_of_range_values_are_refused_naming_the_key(key, value, path):
     issues = issues_of({**declaration(), key: value})
@@ -123,8 +135,11 @@ def test_out_of_range_values_are_refused_naming_the_key(key, value, path):
 
 @needs_panda
 def test_a_control_point_on_an_unknown_link_is_refused():
-    issues = issues_of({**declaration(), "control_points": [{"link": "panda_lnk3", "radius": 0.1}]})
-    assert "did you mean 'panda_link3'" in issues["tree.control_points.0.link"]
+    decl = declaration()
+    decl["robot"]["control_points"] = [{"link": "panda_lnk3", "radius": 0.1}]
+    issues = issues_of(decl)
+    assert "control_points[0].link = 'panda_lnk3' is not a link of" in issues["tree.robot"]
+    assert "did you mean 'panda_link3'" in issues["tree.robot"]
 
 
 @needs_panda

@@ -18,9 +18,9 @@ from pydantic.fields import FieldInfo
 import rmpfusion  # noqa: F401  (registers the built-ins)
 from rmpfusion.learn.config import TrainConfig
 from rmpfusion.pipeline.config import DataConfig, EvalConfig
-from rmpfusion.registry import ENVS, LEAF_RMPS, LEARNERS, TASK_MAPS, TREE_GENERATORS, WEIGHTS
+from rmpfusion.registry import ENVS, LEAF_RMPS, LEARNERS, TASK_MAPS, ROBOTS, TREE_GENERATORS, WEIGHTS
 
-REGISTRIES = (LEAF_RMPS, TASK_MAPS, WEIGHTS, ENVS, LEARNERS, TREE_GENERATORS)
+REGISTRIES = (LEAF_RMPS, TASK_MAPS, WEIGHTS, ROBOTS, ENVS, LEARNERS, TREE_GENERATORS)
 CONFIG_BLOCKS = {"data": DataConfig, "train": TrainConfig, "eval": EvalConfig}
 
 #: Words that make a numeric field a physical quantity, a size, a count or a range (a field name is split at
@@ -38,7 +38,7 @@ PHYSICAL = frozenset({
 EXEMPT = {
     ("Logistic.Params", "switch_distance"): "d0 is a signed distance (< 0 inside the surface): every value is a place",
     ("JointLimit.Params", "limit"): "a joint position, any sign; which side it bounds is `side`",
-    ("FrankaParams", "gravity"): "the world's vertical acceleration, any sign (0: no gravity)",
+    ("ManipulatorParams", "gravity"): "the world's vertical acceleration, any sign (0: no gravity)",
     ("TrainConfig", "snapshots"): "checked against train.iterations by RunConfig, which sees both",
 }
 
@@ -86,8 +86,9 @@ def models() -> dict[str, type[BaseModel]]:
             return
         found[where] = model
         for name, f in model.model_fields.items():
-            for sub in _nested_models(f.annotation):
-                visit(f"{where}.{name}", sub)
+            subs = list(dict.fromkeys(_nested_models(f.annotation)))
+            for sub in subs:  # a union's members each under their own name (obstacle shapes, motions)
+                visit(f"{where}.{name}" + (f"[{sub.__qualname__}]" if len(subs) > 1 else ""), sub)
 
     for reg in REGISTRIES:
         for e in reg.entries():
@@ -123,7 +124,7 @@ def test_the_walk_reaches_what_it_should():
     kinds = {w.split(" '")[0] for w in MODELS}
     assert {r.kind for r in REGISTRIES} <= kinds and set(CONFIG_BLOCKS) <= set(MODELS)
     names = {m.__qualname__ for m in MODELS.values()}
-    assert {"ObstacleSpec", "ControlPoint", "GoalAttractor.Params", "MLPWeight.Params"} <= names  # nested models
+    assert {"Sphere", "Box", "Static", "Waypoints", "ControlPoint", "GoalAttractor.Params", "MLPWeight.Params"} <= names  # nested
     assert sum(len(physical_fields(m)) for m in MODELS.values()) > 80
 
 

@@ -14,23 +14,24 @@ from rmpfusion.rmps.velocity_limit import band_metric
 
 IIWA = str(Path(pybullet_data.getDataPath()) / "kuka_iiwa" / "model.urdf")
 HOME = torch.tensor([[0.0, -0.3, 0.0, -2.2, 0.0, 2.0, 0.8]])
+PANDA = {"urdf": "pkg://pybullet_data/franka_panda/panda.urdf", "joints": [f"panda_joint{i}" for i in range(1, 8)]}
 PANDA_LIMITS = torch.tensor([2.175, 2.175, 2.175, 2.175, 2.61, 2.61, 2.61])  # rad/s, franka_panda/panda.urdf
 
 
 def test_velocity_scaled_joints_divides_by_the_urdfs_limits_or_the_given_ones(gen):
     q, qd = torch.randn(3, 7, generator=gen), torch.randn(3, 7, generator=gen)
-    panda = build_map({"type": "velocity_scaled_joints"}, 7, {})
+    panda = build_map({"type": "velocity_scaled_joints", **PANDA}, 7, {})
     y, yd, J, c = panda(q, qd)
     torch.testing.assert_close(yd, qd / PANDA_LIMITS)
     torch.testing.assert_close(y, q / PANDA_LIMITS)
     assert float(c.abs().max()) == 0.0
-    iiwa = build_map({"type": "velocity_scaled_joints", "robot": None, "urdf": IIWA}, 7, {})
+    iiwa = build_map({"type": "velocity_scaled_joints", "urdf": IIWA}, 7, {})
     torch.testing.assert_close(iiwa(q, qd)[1], qd / 10.0)  # kuka_iiwa/model.urdf: velocity="10" on every joint
     given = [1.0, 2.0, 1.5, 1.0, 3.0, 2.0, 2.5]
-    iiwa = build_map({"type": "velocity_scaled_joints", "robot": None, "urdf": IIWA, "velocity_limit": given}, 7, {})
+    iiwa = build_map({"type": "velocity_scaled_joints", "urdf": IIWA, "velocity_limit": given}, 7, {})
     torch.testing.assert_close(iiwa(q, qd)[1], qd / torch.tensor(given))
     with pytest.raises(ValueError, match="has 2 values for the 7 actuated joints"):
-        build_map({"type": "velocity_scaled_joints", "velocity_limit": [1.0, 2.0]}, 7, {})
+        build_map({"type": "velocity_scaled_joints", **PANDA, "velocity_limit": [1.0, 2.0]}, 7, {})
 
 
 def joint_goal_tree(gain: float, target, cap: dict | None):
@@ -46,7 +47,7 @@ def joint_goal_tree(gain: float, target, cap: dict | None):
 def test_the_cap_keeps_every_panda_joint_below_its_urdf_limit():
     target = (HOME[0] + torch.tensor([1.5, 0.8, -1.5, 1.2, 1.5, -1.0, 1.5])).tolist()
     free = rk4_rollout(joint_goal_tree(12.0, target, None), HOME, torch.zeros(1, 7), {}, dt=0.01, steps=250)
-    tree = joint_goal_tree(12.0, target, {"type": "velocity_scaled_joints"})
+    tree = joint_goal_tree(12.0, target, {"type": "velocity_scaled_joints", **PANDA})
     capped = rk4_rollout(tree, HOME, torch.zeros(1, 7), {}, dt=0.01, steps=250)
     ratio = lambda rec: (rec["qd"][:, 0].abs() / PANDA_LIMITS).max()  # noqa: E731
     assert float(ratio(free)) > 1.3  # the attractor alone exceeds the limits by 30 %
@@ -68,7 +69,7 @@ def test_kuka_iiwa_from_beyond_its_limits_is_braked_back_and_stays_stable():
     """Given limits (overriding the URDF's 10 rad/s), a start at 1.5 times them: the metric is finite there, the
     joints slow down monotonically towards their limits, and V_r never increases."""
     limits = [1.0, 1.0, 1.2, 1.2, 1.5, 1.5, 2.0]
-    tree = joint_goal_tree(3.0, [1.0] * 7, {"type": "velocity_scaled_joints", "robot": None, "urdf": IIWA,
+    tree = joint_goal_tree(3.0, [1.0] * 7, {"type": "velocity_scaled_joints", "urdf": IIWA,
                                             "velocity_limit": limits})
     L = torch.tensor(limits)
     qd0 = 1.5 * L * torch.tensor([[1.0, -1.0, 1.0, -1.0, 1.0, -1.0, 1.0]])

@@ -24,8 +24,8 @@ import rmpfusion
 IIWA = str(Path(pybullet_data.getDataPath()) / "kuka_iiwa" / "model.urdf")
 #: robot -> (how the maps name it, end-effector link, point in it, start configuration, circle centre)
 ROBOTS = {
-    "Panda": ({"robot": "panda"}, "panda_hand", [0.0, 0.0, 0.1034], [0.0, -0.3, 0.0, -2.2, 0.0, 2.0, 0.8], [0.45, 0.0, 0.45]),
-    "KUKA iiwa": ({"robot": None, "urdf": IIWA}, "lbr_iiwa_link_7", [0.0, 0.0, 0.05], [0.0, 0.6, 0.0, -1.4, 0.0, 0.8, 0.0],
+    "Panda": ({"urdf": "pkg://pybullet_data/franka_panda/panda.urdf", "joints": [f"panda_joint{i}" for i in range(1, 8)]}, "panda_hand", [0.0, 0.0, 0.1034], [0.0, -0.3, 0.0, -2.2, 0.0, 2.0, 0.8], [0.45, 0.0, 0.45]),
+    "KUKA iiwa": ({"urdf": IIWA}, "lbr_iiwa_link_7", [0.0, 0.0, 0.05], [0.0, 0.6, 0.0, -1.4, 0.0, 0.8, 0.0],
                   [0.5, 0.0, 0.5]),
 }
 LEAVES = ("goal_attractor", "moving_goal_attractor")

@@ -1,6 +1,8 @@
 """Environments; importing this package registers them in ``rmpfusion.registry.ENVS``."""
 from .demonstrations import Dataset, DatasetError, collect, dataset_meta, load_dataset, save_dataset  # noqa: F401
-from .franka import Franka  # noqa: F401
+from . import manipulator_tree  # noqa: F401  (registers the tree generator fig1b)
+from .manipulator import Manipulator  # noqa: F401
 from .particle2d import Particle2D  # noqa: F401
-from .protocol import Env, HasRatioMetrics, HasTaskMetrics, PlanarWorkspace, RenderSettings, Renders  # noqa: F401
+from .protocol import (Env, HasRatioMetrics, HasTaskMetrics, PlanarWorkspace, RenderSettings, Renders,  # noqa: F401
+                       TimeVaryingAux)
 from .rollout import Rollout  # noqa: F401

@@ -127,6 +127,16 @@ class Renders(Protocol):
 
 
 @runtime_checkable
+class TimeVaryingAux(Protocol):
+    """An environment whose aux state changes during a rollout (moving obstacles). It exists so that the
+    evaluation asks the expert about a learner's state with the aux state of that moment, as the rollout did."""
+
+    def aux_at(self, aux: Mapping[str, Tensor], t: Tensor | float) -> dict[str, Tensor]:
+        """``aux`` (at t = 0) at times ``t`` ((B,) or one time)."""
+        ...
+
+
+@runtime_checkable
 class PlanarWorkspace(Protocol):
     """An environment whose configuration space is the plane with circular obstacles (the 2-D particle). It
     exists so that figures can draw trajectories over the obstacles directly in configuration space, which is

@@ -43,6 +43,9 @@ class Rollout:
     cspace_length: Tensor | None = None  # (B,) Σ‖Δq‖ over the execution's integration steps (rad)
     ee_length: Tensor | None = None  # (B,) Σ‖Δee‖ (m)
     end_goal_distance: Tensor | None = None  # (B,) goal distance when the execution ended (m)
+    # obstacles moved during the rollout: the aux state changed from outside, which Theorem 2 does not cover
+    # (docs/math.md §8), so the Lyapunov monitor reports these rollouts apart
+    moving: bool = False
 
     @property
     def batch_size(self) -> int:

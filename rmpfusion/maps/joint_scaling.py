@@ -15,7 +15,8 @@ from pydantic import Field
 from ..core.auxstate import CONSTANT_DTYPE
 from ..registry import TASK_MAPS
 from .basic import Linear
-from .robot import RobotParams, robot_chain
+from .kinematics import robot_chain
+from .robot import RobotParams
 
 
 @TASK_MAPS.register("velocity_scaled_joints")

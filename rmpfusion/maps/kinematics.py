@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import difflib
 import math
-from typing import Literal, Mapping, Sequence
+from typing import Mapping, Sequence
 
 import torch
 from pydantic import Field, model_validator
@@ -17,7 +17,8 @@ from torch import Tensor, nn
 from ..core.algebra import matmul_small, matvec
 from ..core.taskmap import TaskMap
 from ..registry import TASK_MAPS, Params
-from .urdf import PANDA_ARM_JOINTS, URDFModel, load_panda_urdf_path, parse_urdf
+from .robot import RobotParams
+from .urdf import URDFModel, parse_urdf, resolve_urdf_path
 
 FIXED, REVOLUTE, PRISMATIC = 0, 1, 2
 Pose = tuple[Tensor, Tensor]
@@ -213,22 +214,23 @@ class Chain(nn.Module):
         return self.forward_kinematics(q)
 
 
-def _resolve_urdf(robot: str | None, urdf: str | None) -> tuple[str, list[str] | None]:
-    """URDF path and default actuated joints for a task-map spec."""
-    if urdf is not None:
-        return urdf, None
-    if robot == "panda":
-        return load_panda_urdf_path(), list(PANDA_ARM_JOINTS)
-    raise ValueError(f"unknown robot '{robot}'")  # pragma: no cover - excluded by Params
+def robot_chain(p: RobotParams, in_dim: int, what: str) -> Chain:
+    """The kinematic chain ``p`` names, checked to be the parent space (one coordinate per actuated joint)."""
+    chain = Chain(parse_urdf(resolve_urdf_path(p.urdf)), p.joints)
+    if in_dim != chain.dof:
+        raise ValueError(f"{what}: the parent space has dimension {in_dim} but {p.source()} has {chain.dof} actuated "
+                         f"joints ({', '.join(chain.actuated)}); the parent must be the joint space")
+    return chain
 
 
 @TASK_MAPS.register("forward_kinematics")
 class ForwardKinematics(TaskMap):
     """y = world position of a point fixed in a robot link; x = the actuated joint angles.
 
-    ``robot: panda`` uses pybullet's Panda URDF with panda_joint1..7 actuated (fingers frozen at 0);
-    ``urdf: path`` uses any URDF, by default with all its movable joints actuated. ``joints`` overrides
-    the actuated set and order. J is the geometric Jacobian and J̇ẋ is analytic (no J̇ is formed).
+    ``urdf`` is the robot's URDF (a path, or ``pkg://<package>/<path>`` inside an installed package), ``joints``
+    the actuated joints in configuration order (default: every movable joint; the others are frozen at 0). A
+    robot description (conf/robot/) names both, and the manipulator tree writes them into every such map. J is the
+    geometric Jacobian and J̇ẋ is analytic (no J̇ is formed).
 
     Points on one robot stack (``core/stacking.py``): a group of them reads one pass of the chain (``Chain.frames``)
     and evaluates every point's position, Jacobian and J̇ẋ at once, each with its own link, offset and the mask of
@@ -237,33 +239,13 @@ class ForwardKinematics(TaskMap):
 
     stack_fields = ("link_mask", "offset", "moved_by")
 
-    class Params(Params):
-        robot: Literal["panda"] | None = "panda"
-        urdf: str | None = None
+    class Params(RobotParams):
         link: str
         offset: list[float] = Field(default_factory=lambda: [0.0, 0.0, 0.0], min_length=3, max_length=3)
-        joints: list[str] | None = None
-
-        @model_validator(mode="after")
-        def _one_source(self):
-            if self.urdf is not None and self.robot is not None and "robot" in self.model_fields_set:
-                raise ValueError("forward_kinematics: give either 'robot' or 'urdf', not both")
-            if self.urdf is None and self.robot is None:
-                raise ValueError("forward_kinematics: give 'robot' or 'urdf'")
-            return self
 
     def __init__(self, params: Params, in_dim: int, aux_dims: Mapping[str, int] | None = None):
         super().__init__(in_dim, aux_dims)
-        path, default_joints = _resolve_urdf(params.robot, params.urdf)
-        joints = params.joints if params.joints is not None else default_joints
-        self.chain = Chain(parse_urdf(path), joints)
-        source = f"robot '{params.robot}'" if params.urdf is None else f"URDF '{path}'"
-        if self.in_dim != self.chain.dof:
-            raise ValueError(
-                f"forward_kinematics: the parent space has dimension {self.in_dim} but {source} has "
-                f"{self.chain.dof} actuated joints ({', '.join(self.chain.actuated)}); the parent must be "
-                f"the joint space"
-            )
+        self.chain = robot_chain(params, in_dim, "forward_kinematics")
         self.link = params.link
         path_joints = self.chain.path_joints(self.link)  # raises on an unknown link
         qs = [self.chain._qidx[k] for k in path_joints if self.chain._kind[k] != FIXED]
@@ -278,7 +260,7 @@ class ForwardKinematics(TaskMap):
         one_hot[self.chain.check_link(self.link)] = 1.0
         self.register_buffer("link_mask", one_hot, persistent=False)  # picks the link's pose out of every link's
         self.register_buffer("moved_by", self.chain.moves(self.link), persistent=False)
-        self.source = (str(path), tuple(self.chain.actuated))
+        self.source = (resolve_urdf_path(params.urdf), tuple(self.chain.actuated))
         self.out_dim = 3
 
     def stack_settings(self) -> tuple:

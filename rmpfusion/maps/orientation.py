@@ -26,7 +26,8 @@ from torch import Tensor
 from ..core.auxstate import AuxOrValue, AuxParam, constant
 from ..core.taskmap import TaskMap
 from ..registry import TASK_MAPS
-from .robot import RobotParams, Vector3, path_joints, robot_chain
+from .kinematics import robot_chain
+from .robot import RobotParams, Vector3, path_joints
 
 TargetFormat = Literal["quaternion_xyzw", "quaternion_wxyz", "matrix", "axes"]
 TARGET_DIMS = {"quaternion_xyzw": lambda k: 4, "quaternion_wxyz": lambda k: 4, "matrix": lambda k: 9,

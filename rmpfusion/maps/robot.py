@@ -1,55 +1,46 @@
-"""Which robot a joint-space task map reads: the ``robot:`` / ``urdf:`` / ``joints:`` keys, and the Chain they name.
+"""Which robot a joint-space task map reads: the ``urdf:`` / ``joints:`` keys, and the Chain they name.
 
-The maps of the robot leaves (``link_axis``, ``link_orientation``, ``link_sphere_distance``,
-``velocity_scaled_joints``) take their robot exactly as ``forward_kinematics`` does: ``robot: panda`` (pybullet's
-Panda URDF with panda_joint1..7 actuated), or ``urdf: <path>`` with every movable joint actuated, and ``joints:``
-to choose the actuated joints and their order. Nothing here is specific to one robot but the ``panda`` shortcut.
+Every map on a robot's joint space (``forward_kinematics``, ``link_axis``, ``link_orientation``,
+``link_sphere_distance``, ``velocity_scaled_joints``) takes its robot the same way: ``urdf:`` a file path or
+``pkg://<package>/<path>`` inside an installed package, and ``joints:`` the actuated joints in configuration order
+(default: every movable joint; the others are frozen at 0). A robot description (conf/robot/) names both, and the
+manipulator tree writes them into every such map.
 """
 from __future__ import annotations
 
-from typing import Annotated, Literal
+from typing import TYPE_CHECKING, Annotated
 
 from pydantic import Field, model_validator
 
 from ..registry import Params
-from .kinematics import Chain
-from .urdf import PANDA_ARM_JOINTS, load_panda_urdf_path, parse_urdf
+
+if TYPE_CHECKING:
+    from .kinematics import Chain
 
 #: A point or direction in a link frame.
 Vector3 = Annotated[list[float], Field(min_length=3, max_length=3)]
 
 
 class RobotParams(Params):
-    """The robot of a map: ``robot: panda`` or ``urdf: <path>`` (not both), and optionally the actuated ``joints``."""
+    """The robot of a map: its ``urdf`` and, optionally, its actuated ``joints``."""
 
-    robot: Literal["panda"] | None = "panda"
-    urdf: str | None = None
-    joints: list[str] | None = None
+    urdf: str = Field(description="the URDF: a file path, or pkg://<package>/<path> inside an installed package")
+    joints: list[str] | None = Field(None, description="the actuated joints in configuration order (default: every "
+                                                       "movable joint; the others stay at 0)")
+    robot: str | None = Field(None, description="retired: a robot is named by its urdf and joints")
 
-    @model_validator(mode="after")
-    def _one_source(self):
-        if self.urdf is not None and self.robot is not None and "robot" in self.model_fields_set:
-            raise ValueError("give either 'robot' or 'urdf', not both")
-        if self.urdf is None and self.robot is None:
-            raise ValueError("give 'robot' (panda) or 'urdf' (a path to a URDF file)")
-        return self
+    @model_validator(mode="before")
+    @classmethod
+    def _no_robot_names(cls, data):
+        robot = data.get("robot") if isinstance(data, dict) else None
+        if robot is not None:  # before the other fields: a stored config of old has urdf: null beside it
+            raise ValueError(f"robot ({robot!r}) was retired: robots are described in conf/robot/<name>.yaml; write "
+                             f"that file's urdf and joints here instead (urdf: <its urdf>, joints: [<its joints>])")
+        return data
 
     def source(self) -> str:
         """How error messages name the robot."""
-        return f"robot '{self.robot}'" if self.urdf is None else f"URDF '{self.urdf}'"
-
-
-def robot_chain(p: RobotParams, in_dim: int, what: str) -> Chain:
-    """The kinematic chain ``p`` names, checked to be the parent space (one coordinate per actuated joint)."""
-    if p.urdf is not None:
-        path, default_joints = p.urdf, None
-    else:
-        path, default_joints = load_panda_urdf_path(), list(PANDA_ARM_JOINTS)
-    chain = Chain(parse_urdf(path), p.joints if p.joints is not None else default_joints)
-    if in_dim != chain.dof:
-        raise ValueError(f"{what}: the parent space has dimension {in_dim} but {p.source()} has {chain.dof} actuated "
-                         f"joints ({', '.join(chain.actuated)}); the parent must be the joint space")
-    return chain
+        return f"URDF '{self.urdf}'"
 
 
 def path_joints(chain: Chain, link: str) -> tuple[list[int], list[bool]]:

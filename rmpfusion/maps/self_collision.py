@@ -24,8 +24,8 @@ from ..core.stacking import shallow_clone, spread, stack_values
 from ..core.taskmap import TaskMap
 from ..registry import TASK_MAPS, Params
 from .distances import _radial
-from .kinematics import Chain, ForwardKinematics
-from .robot import RobotParams, Vector3, rigid_body_of, robot_chain
+from .kinematics import Chain, ForwardKinematics, robot_chain
+from .robot import RobotParams, Vector3, rigid_body_of
 
 
 class LinkSphere(Params):

@@ -6,6 +6,7 @@ because simulators such as pybullet report some quantities relative to it.
 from __future__ import annotations
 
 import functools
+import importlib.util
 import math
 import os
 import xml.etree.ElementTree as ET
@@ -14,7 +15,8 @@ from dataclasses import dataclass
 Vec3 = tuple[float, float, float]
 
 JOINT_TYPES = ("revolute", "continuous", "prismatic", "fixed")
-PANDA_ARM_JOINTS: tuple[str, ...] = tuple(f"panda_joint{i}" for i in range(1, 8))
+#: A URDF inside an installed Python package: ``pkg://<package>/<path inside it>`` (Hydra's spelling of the same idea).
+PACKAGE_SCHEME = "pkg://"
 
 
 @dataclass(frozen=True)
@@ -185,17 +187,25 @@ def _parse_cached(path: str, mtime: float) -> URDFModel:
 
 
 def parse_urdf(path: str | os.PathLike) -> URDFModel:
-    """Parse a URDF file; cached per path and modification time since every task map on a robot reads it."""
-    path = os.path.abspath(os.fspath(path))
+    """Parse a URDF file (a path or ``pkg://``, see ``resolve_urdf_path``); cached per path and modification time
+    since every task map on a robot reads it."""
+    path = resolve_urdf_path(path)
     if not os.path.isfile(path):
         raise FileNotFoundError(f"URDF file not found: {path}")
     return _parse_cached(path, os.path.getmtime(path))
 
 
-def load_panda_urdf_path() -> str:
-    """The Franka Panda URDF shipped with pybullet_data, so tests compare against the very same model."""
-    try:
-        import pybullet_data
-    except ImportError as e:  # pragma: no cover - pybullet is a dependency
-        raise ImportError("the panda URDF comes from pybullet_data; install pybullet") from e
-    return os.path.join(pybullet_data.getDataPath(), "franka_panda", "panda.urdf")
+def resolve_urdf_path(location: str | os.PathLike) -> str:
+    """The file a robot's ``urdf`` names: a path (relative to the working directory), or ``pkg://<package>/<path>``,
+    a file inside an installed Python package (``pkg://pybullet_data/kuka_iiwa/model.urdf``), so a config names
+    the URDF it means on every machine without an absolute path."""
+    text = os.fspath(location)
+    if not text.startswith(PACKAGE_SCHEME):
+        return os.path.abspath(text)
+    package, _, inside = text[len(PACKAGE_SCHEME):].partition("/")
+    spec = importlib.util.find_spec(package) if package else None
+    roots = list(spec.submodule_search_locations or []) if spec is not None else []
+    if not roots or not inside:
+        raise FileNotFoundError(f"URDF {text!r}: no installed Python package {package!r} to look in; write "
+                                f"pkg://<package>/<path inside it> for a package that is installed, or a file path")
+    return os.path.join(roots[0], inside)

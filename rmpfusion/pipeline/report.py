@@ -10,7 +10,7 @@ from ..envs.protocol import HasRatioMetrics, PlanarWorkspace, Renders
 from ..evaluate.metrics import StageResult
 from ..files import atomic_write_json
 from ..plots import plot_learning_curves, plot_lyapunov, plot_progression, plot_trajectories, plot_weights
-from ..plots.franka import franka_figures
+from ..plots.manipulator import manipulator_figures
 from .collect import Splits, data_hash
 from .evaluation import ExpertEval, LearnerEval
 from .experiment import Experiment, clean
@@ -75,7 +75,7 @@ def figures(exp: Experiment, splits: Splits, fitted: dict[str, Fitted], expert: 
         t0 = time.time()
         exp.say.say("figures: " + exp.run.name)
         stages = [st for ev in evals.values() for st in ev.task_stages]
-        out += franka_figures(exp.env, exp.dir / "figures", expert.stage, stages, splits.test.initial_states()[2],
+        out += manipulator_figures(exp.env, exp.dir / "figures", expert.stage, stages, splits.test.initial_states()[2],
                               title=exp.run.name)
         exp.timing["figures_s"] = time.time() - t0
     return [str(p) for p in out]

@@ -58,6 +58,24 @@ def _to_container(cfg: DictConfig | Mapping[str, Any]) -> dict[str, Any]:
 
 
 # ------------------------------------------------------------------ before the schema
+#: (block, key, value) of names that configs stored before robots and scenes became data still carry -> what to
+#: write instead (the experiments and config groups of conf/ kept their names: compose them anew)
+RETIRED = {
+    ("env", "type", "franka"): "the environment 'franka' became 'manipulator', which takes its robot and scene from "
+                               "conf/robot/ and conf/scene/; compose the experiment anew (experiment=franka keeps "
+                               "its name and protocol)",
+    ("tree", "generator", "franka_fig1b"): "the generator 'franka_fig1b' became 'fig1b', which takes the robot and the "
+                                           "scene (conf/tree/fig1b.yaml reads the environment's); compose the "
+                                           "experiment anew (tree=franka keeps its name)",
+}
+
+
+def _retired_issues(data: Mapping[str, Any]) -> list[Issue]:
+    """A stored config naming a retired environment or generator gets what to write instead, not 'unknown name'."""
+    return [Issue(f"{block}.{key}", f"{value!r} was retired: {fix}") for (block, key, value), fix in RETIRED.items()
+            if isinstance(data.get(block), Mapping) and data[block].get(key) == value]
+
+
 def _upgrade_issues(data: dict[str, Any]) -> list[Issue]:
     """Renamed keys get their new name (not "unknown key"); a device this machine does not have is named, never
     ignored. Both are removed from ``data`` so the rest of the config is still checked and every problem reported."""
@@ -101,10 +119,14 @@ def _expanded_tree(data: dict[str, Any]) -> list[Issue]:
 
 
 def _dedupe(issues: list[Issue]) -> list[Issue]:
-    """One issue per place: a problem found again inside one already reported is left out."""
+    """One issue per place: a problem found again inside one already reported is left out, and so is a problem
+    of the tree's robot or scene that the environment's, which the tree reads (``${env.robot}``), already has."""
     out: list[Issue] = []
     for i in issues:
         if any(i.path == o.path or i.path.startswith(o.path + ".") for o in out):
+            continue
+        if any(i.path.startswith(f"tree.{k}") and o.path.startswith(f"env.{k}") and o.message.split(" (given")[0]
+               == i.message.split(" (given")[0] for o in issues for k in ("robot", "scene")):
             continue
         out.append(i)
     return out
@@ -117,7 +139,7 @@ def parse_run_config(data: Mapping[str, Any]) -> RunConfig:
     try:
         return model.model_validate(dict(data))
     except ValidationError as e:
-        raise ConfigError(_dedupe(issues_from_pydantic(e, "", model))) from None
+        raise ConfigError(_dedupe(_retired_issues(data) + issues_from_pydantic(e, "", model))) from None
 
 
 def typed(run: RunConfig) -> RunConfig:
@@ -308,8 +330,9 @@ def resolve_and_validate(cfg: DictConfig | Mapping[str, Any]) -> RunConfig:
     otherwise. Building the trees is part of the check (dimensions are only known then).
     """
     data = _to_container(cfg)
+    retired = _retired_issues(data)
     generation = _expanded_tree(data)
-    issues = _upgrade_issues(data) + generation
+    issues = retired + _upgrade_issues(data) + generation
     aux_dims, env_issues = _env_aux_dims(data)
     issues += env_issues
     if aux_dims is not None:

@@ -1,15 +1,15 @@
 #!/usr/bin/env python
-"""Do the Franka expert's weights matter? The expert of conf/expert/franka.yaml beside the same tree with
-unit weights (RMPflow) and with its attractor weight but unit obstacle weights, from the validation split's
-starts (the obstacle in its training placement): designing the expert never looks at the test set.
+"""Do an experiment's expert weights matter? The expert (conf/expert/) beside the same tree with unit weights
+(RMPflow) and with its attractor weight but unit obstacle weights, from the validation split's starts (the obstacles
+in their training placement): designing the expert never looks at the test set.
 
-    python tools/franka_expert_design.py                       # kinematic rollouts at 250 Hz (a few minutes)
-    python tools/franka_expert_design.py --rate 1000 --mode torque
+    python tools/expert_design.py                              # experiment=franka, kinematic rollouts at 250 Hz
+    python tools/expert_design.py --experiment iiwa_reach --rate 1000 --mode torque
 
 Prints, per policy: time to 0.05 m, fraction reached, path lengths, goal distance at the 10 s time-out,
-collisions and the closest approach of any link to the cylinder. An expert whose weights are what make it
+collisions and the closest approach of any link to an obstacle. An expert whose weights are what make it
 succeed reaches the goal where the unit-weight tree does not; obstacle weights that matter keep the arm
-further from the cylinder than unit ones do.
+further from the obstacles than unit ones do.
 """
 from __future__ import annotations
 
@@ -23,7 +23,7 @@ from hydra import compose, initialize_config_dir
 from rmpfusion.cli import CONF_DIR
 from rmpfusion.pipeline.validate import build_all, expert_spec, resolve_and_validate
 from rmpfusion.build.tree import build_tree
-from rmpfusion.pipeline.run import SPLIT_SEED_OFFSET
+from rmpfusion.pipeline.collect import SPLIT_SEED_OFFSET
 
 
 def variants(expert: dict) -> dict[str, dict]:
@@ -36,13 +36,14 @@ def variants(expert: dict) -> dict[str, dict]:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--experiment", default="franka", help="the experiment (conf/experiment/) whose expert to run")
     ap.add_argument("--rate", type=float, default=250.0, help="control rate (Hz); the experiment evaluates at 1000")
     ap.add_argument("--mode", choices=["kinematic", "torque"], default="kinematic")
     ap.add_argument("--trajectories", type=int, default=20)
     ap.add_argument("overrides", nargs="*", help="further Hydra overrides, e.g. expert.attractor.low=20")
     a = ap.parse_args(argv)
     torch.set_num_threads(1)
-    over = ["experiment=franka", "logger=disabled", f"env.mode={a.mode}", f"env.control_rate={a.rate}", *a.overrides]
+    over = [f"experiment={a.experiment}", "logger=disabled", f"env.mode={a.mode}", f"env.control_rate={a.rate}", *a.overrides]
     with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
         run = resolve_and_validate(compose("config", overrides=over))
     env, _, _ = build_all(run)

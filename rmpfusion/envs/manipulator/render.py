@@ -1,4 +1,4 @@
-"""Images of the Franka scene for figures and animations: pybullet's headless tiny renderer through a fixed
+"""Images of a manipulator scene for figures and animations: pybullet's headless tiny renderer through a fixed
 camera, and the projection of world points into those images (to draw paths on them)."""
 from __future__ import annotations
 
@@ -9,23 +9,23 @@ import torch
 from torch import Tensor
 
 from .params import Vec3
-from .scene import _pb
+from .scene import _pb, sample_aux
 
 if TYPE_CHECKING:
-    from .env import Franka
+    from .env import Manipulator
 
-Camera = tuple[float, float, float, Vec3]  # distance, yaw, pitch (deg), target: FrankaParams.camera
+Camera = tuple[float, float, float, Vec3]  # distance, yaw, pitch (deg), target: ManipulatorParams.camera
 
 
-def render(env: "Franka", q: Tensor | Sequence[float], aux: Mapping[str, Tensor], width: int = 320,
+def render(env: "Manipulator", q: Tensor | Sequence[float], aux: Mapping[str, Tensor], width: int = 320,
            height: int = 240, sample: int = 0) -> np.ndarray:
     """(height, width, 3) uint8 image of the robot at ``q`` in environment ``aux[sample]``."""
     p = _pb()
-    q = torch.as_tensor(q, dtype=env.dtype).reshape(-1, 7)
+    q = torch.as_tensor(q, dtype=env.dtype).reshape(-1, env.dim)
     qb = q[min(sample, q.shape[0] - 1)]
     sc = env.worlds.renderer()
     aux = {k: torch.as_tensor(v).reshape(-1, torch.as_tensor(v).shape[-1]) for k, v in aux.items()}
-    sc.set_env(*env.scene_args(aux, sample), visual=True)
+    sc.set_env(env.scene, sample_aux(aux, sample), visual=True)
     sc.reset(qb.cpu().numpy())
     view, proj = camera_matrices(env.params.camera, width, height)
     img = p.getCameraImage(width, height, view, proj, renderer=p.ER_TINY_RENDERER, physicsClientId=sc.cid)

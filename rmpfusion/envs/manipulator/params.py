@@ -1,38 +1,33 @@
-"""The Franka environment's settings: the scene (cylinders, goals, starts), the two rollout modes, the
-demonstrations' length, and how figures render; validated when the environment is built from YAML."""
+"""The manipulator environment's settings: the robot and the scenes (conf/robot/, conf/scene/), goals and starts,
+the two rollout modes, the demonstrations' length, and how figures render; validated when the environment is built
+from YAML."""
 from __future__ import annotations
 
-import functools
 from typing import Literal
 
-from pydantic import Field, ValidationInfo, field_validator
+from pydantic import Field, ValidationInfo, field_validator, model_validator
 
-from ...maps.urdf import PANDA_ARM_JOINTS, load_panda_urdf_path, parse_urdf
 from ...registry import Params
+from ...robots import RobotField
+from ...scenes import Scene, same_layout
 
 Vec3 = tuple[float, float, float]
 Range = tuple[float, float]
 
 
-class ObstacleSpec(Params):
-    center: Vec3
-    radius: float = Field(gt=0)
-    height: float = Field(0.5, gt=0)
+def _per_joint(name: str, v: tuple[float, ...] | float, info: ValidationInfo) -> tuple[float, ...]:
+    """One value per actuated joint (a single number is every joint's)."""
+    robot = info.data.get("robot")
+    n = len(robot.joints) if robot is not None else None
+    if isinstance(v, (int, float)):
+        return (float(v),) * (n or 1)
+    if n is not None and len(v) != n:
+        raise ValueError(f"{name} needs one value per actuated joint ({n}: {', '.join(robot.joints)}); given "
+                         f"{len(v)}: {list(v)}")
+    return tuple(v)
 
 
-@functools.lru_cache(maxsize=1)
-def panda_limits() -> tuple[tuple[float, float], ...]:
-    """(lower, upper) of panda_joint1..7 in the URDF the environment simulates (rad)."""
-    model = parse_urdf(load_panda_urdf_path())
-    return tuple((model.joint(n).lower, model.joint(n).upper) for n in PANDA_ARM_JOINTS)
-
-
-def _per_joint(name: str, v: tuple[float, ...]) -> None:
-    if len(v) != 7:
-        raise ValueError(f"{name} needs 7 values (one per joint); given {len(v)}: {list(v)}")
-
-
-class FrankaParams(Params):
+class ManipulatorParams(Params):
     gui: bool = Field(False, description="open pybullet's GUI for the first torque-mode world (else DIRECT)")
     mode: Literal["torque", "kinematic"] = Field(
         "kinematic", description="how rollouts run policies (evaluation); torque = pybullet, computed torque")
@@ -42,11 +37,10 @@ class FrankaParams(Params):
     integrator: Literal["semi_implicit_euler", "rk4"] = Field(
         "semi_implicit_euler", description="kinematic mode; semi-implicit Euler is what pybullet uses")
     gravity: float = -9.81
-    obstacles: list[ObstacleSpec] = Field(
-        default_factory=lambda: [ObstacleSpec(center=(0.5, 0.0, 0.25), radius=0.06, height=0.5)],
-        description="nominal cylinders (standing, axis z); their number is n_obstacles")
-    test_obstacles: list[ObstacleSpec] | None = Field(
-        None, description="the test split's cylinders (paper: a different placement); null = the same as obstacles")
+    robot: RobotField = Field(description="the robot description (conf/robot/<name>.yaml)")
+    scene: Scene = Field(default_factory=Scene, description="the training and validation splits' scene (conf/scene/)")
+    test_scene: Scene | None = Field(
+        None, description="the test split's scene (paper: a different placement); null = the same as scene")
     obstacle_jitter: Vec3 = Field((0.0, 0.0, 0.0), description="± uniform perturbation of every centre per env")
     goal_per_trajectory: bool = Field(
         True, description="draw a goal per trajectory (paper §4.2); else one goal per environment")
@@ -59,8 +53,9 @@ class FrankaParams(Params):
     goal_region: tuple[Range, Range, Range] = Field(((0.3, 0.6), (-0.45, -0.2), (0.15, 0.55)),
                                                     description="goal ~ uniform in this box (m)")
     goal_clearance: float = Field(0.15, ge=0, description="min horizontal distance from goal to obstacle surfaces")
-    nominal_q: tuple[float, ...] = Field((0.6, -0.3, 0.0, -2.2, 0.0, 2.0, 0.785), description="centre of the starts")
-    start_spread: tuple[float, ...] = Field((0.3, 0.3, 0.3, 0.3, 0.3, 0.3, 0.3), description="± uniform per joint")
+    nominal_q: tuple[float, ...] | None = Field(None, description="centre of the starts (rad); null: the robot's home")
+    start_spread: tuple[float, ...] | float = Field(0.3, description="± uniform per joint (rad): one value for every "
+                                                                      "joint, or one per joint")
     start_speed: float = Field(0.0, ge=0, description="initial joint speeds ~ uniform in ±start_speed")
     start_clearance: float = Field(0.05, ge=0, description="min pybullet clearance of the start configuration")
     joint_margin: float = Field(0.05, ge=0, description="starts stay this far inside the URDF limits (rad)")
@@ -83,20 +78,17 @@ class FrankaParams(Params):
         recording interval and horizon are checked against it before anything runs (``time_grid`` at rollout time)."""
         return 1.0 / self.control_rate, "1/env.control_rate"
 
-    @field_validator("test_obstacles")
-    @classmethod
-    def _as_many_as_obstacles(cls, v: list[ObstacleSpec] | None, info: ValidationInfo):
-        nominal = info.data.get("obstacles")
-        if v is not None and nominal is not None and len(v) != len(nominal):
-            raise ValueError(f"test_obstacles has {len(v)} cylinders but obstacles has {len(nominal)}: the tree has "
-                             f"one distance node per obstacle")
-        return v
+    @model_validator(mode="after")
+    def _test_scene_fits_the_tree(self):
+        if self.test_scene is not None:
+            same_layout(self.scene, self.test_scene, "test_scene")
+        return self
 
     @field_validator("obstacle_jitter", "start_spread")
     @classmethod
-    def _half_widths(cls, v: tuple[float, ...], info: ValidationInfo):
+    def _half_widths(cls, v: tuple[float, ...] | float, info: ValidationInfo):
         if info.field_name == "start_spread":
-            _per_joint("start_spread", v)
+            v = _per_joint("start_spread", v, info)
         if not all(x >= 0 for x in v):
             raise ValueError(f"{info.field_name} must be ≥ 0 in every entry (each is the half-width of a uniform "
                              f"± perturbation); given {list(v)}")
@@ -113,28 +105,43 @@ class FrankaParams(Params):
 
     @field_validator("nominal_q")
     @classmethod
-    def _inside_the_limits(cls, v: tuple[float, ...]):
-        _per_joint("nominal_q", v)
-        for k, (q, (lo, hi)) in enumerate(zip(v, panda_limits())):
+    def _inside_the_limits(cls, v: tuple[float, ...] | None, info: ValidationInfo):
+        robot = info.data.get("robot")
+        if v is None or robot is None:
+            return v
+        v = _per_joint("nominal_q", v, info)
+        for name, q, (lo, hi, _) in zip(robot.joints, v, robot.joint_limits()):
             if not lo <= q <= hi:
-                raise ValueError(f"nominal_q[{k}] must lie within {PANDA_ARM_JOINTS[k]}'s limits [{lo}, {hi}] (starts "
-                                 f"are drawn around it and clamped to the limits); given {q}")
+                raise ValueError(f"nominal_q: {name} = {q} lies outside its limits [{lo}, {hi}] (starts are drawn around "
+                                 f"it and clamped to the limits)")
         return v
 
     @field_validator("joint_margin")
     @classmethod
     def _room_inside_the_limits(cls, v: float, info: ValidationInfo):
-        nominal = info.data.get("nominal_q")  # absent when it was refused itself
-        for k, (lo, hi) in enumerate(panda_limits()):
+        robot = info.data.get("robot")  # absent when it was refused itself
+        if robot is None:
+            return v
+        nominal = info.data.get("nominal_q") or robot.home
+        for k, (name, (lo, hi, _)) in enumerate(zip(robot.joints, robot.joint_limits())):
             if not lo + v < hi - v:
                 raise ValueError(f"joint_margin must be < half of every joint's range (starts are drawn in "
-                                 f"[lower + margin, upper − margin]); {PANDA_ARM_JOINTS[k]} spans [{lo}, {hi}], "
+                                 f"[lower + margin, upper − margin]); {name} spans [{lo:.5g}, {hi:.5g}], "
                                  f"half of it is {(hi - lo) / 2:.4g}; given {v}")
-            if nominal is not None and not lo + v <= nominal[k] <= hi - v:
-                raise ValueError(f"joint_margin puts nominal_q[{k}] = {nominal[k]} outside the start range of "
-                                 f"{PANDA_ARM_JOINTS[k]} [{lo} + margin, {hi} − margin] (every start would be "
-                                 f"clamped to its edge); move nominal_q inward or lower joint_margin; given {v}")
+            if not lo + v <= nominal[k] <= hi - v:
+                raise ValueError(f"joint_margin puts the start centre {name} = {nominal[k]} outside its start range "
+                                 f"[{lo:.5g} + margin, {hi:.5g} − margin] (every start would be clamped to its edge); "
+                                 f"move nominal_q inward or lower joint_margin; given {v}")
         return v
+
+    def start_centre(self) -> tuple[float, ...]:
+        """Where starts are drawn around: ``nominal_q``, else the robot's home."""
+        return tuple(self.nominal_q) if self.nominal_q is not None else tuple(self.robot.home)
+
+    def spread(self) -> tuple[float, ...]:
+        """``start_spread`` per joint."""
+        v = self.start_spread
+        return (float(v),) * len(self.robot.joints) if isinstance(v, (int, float)) else tuple(v)
 
     @field_validator("camera")
     @classmethod

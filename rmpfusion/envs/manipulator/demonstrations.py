@@ -1,4 +1,4 @@
-"""The Franka expert's demonstrations (paper §4.2): trajectories of 5–10 s that end once the expert has settled at
+"""The manipulator expert's demonstrations (paper §4.2): trajectories of 5–10 s that end once the expert has settled at
 the goal, from the split's obstacle placement, with a goal per trajectory."""
 from __future__ import annotations
 
@@ -9,13 +9,13 @@ from torch import Tensor
 
 from ..demonstrations import Dataset
 from ..rollout import Rollout
-from .params import FrankaParams
+from .params import ManipulatorParams
 
 if TYPE_CHECKING:
-    from .env import Franka
+    from .env import Manipulator
 
 
-def demonstration_lengths(p: FrankaParams, ro: Rollout) -> Tensor:
+def demonstration_lengths(p: ManipulatorParams, ro: Rollout) -> Tensor:
     """(B,) records to keep of each demonstration (paper §4.2: trajectories of 5–10 s).
 
     A demonstration runs until the expert has settled at the goal (within ``demo_settle_distance`` and
@@ -32,14 +32,14 @@ def demonstration_lengths(p: FrankaParams, ro: Rollout) -> Tensor:
     return torch.minimum(first_settled + 1, first_bad).clamp(max=T)
 
 
-def demonstrations(env: "Franka", expert: Callable[..., Any], n_envs: int, n_traj: int, n_points: int,
+def demonstrations(env: "Manipulator", expert: Callable[..., Any], n_envs: int, n_traj: int, n_points: int,
                    interval: float, generator: torch.Generator | None = None, split: str = "train",
                    progress: Callable[[int, int], Any] | None = None) -> Dataset:
     """The expert's demonstrations of a data split (paper §4.2) as a ``Dataset``.
 
-    ``n_envs`` obstacle placements of the split (``obstacle_specs``) × ``n_traj`` (start, goal) pairs; the
+    ``n_envs`` obstacle placements of the split's scene (``scene_of``) × ``n_traj`` (start, goal) pairs; the
     expert runs for at most ``(n_points − 1)·interval`` s in ``collect_mode``, recorded every ``interval`` s
-    and cut by ``demonstration_lengths``. Each record is (q, q̇, aux, the expert's q̈ there).
+    and cut by ``demonstration_lengths``. Each record is (q, q̇, aux at that time, the expert's q̈ there).
     """
     envs = env.sample_envs(n_envs, generator, split=split)
     q0, qd0, aux = env.sample_initial_states(envs, n_traj, generator)
@@ -53,6 +53,6 @@ def demonstrations(env: "Franka", expert: Callable[..., Any], n_envs: int, n_tra
     ki = torch.tensor([r[1] for r in rows], dtype=torch.long)
     return Dataset(
         q=ro.q[ki, bi].contiguous(), qd=ro.qd[ki, bi].contiguous(), qdd=ro.qdd[ki, bi].detach().contiguous(),
-        aux={k: v[bi].contiguous() for k, v in aux.items()}, env_id=bi // n_traj, traj_id=bi,
+        aux=env.aux_at({k: v[bi].contiguous() for k, v in aux.items()}, ro.times[ki]), env_id=bi // n_traj, traj_id=bi,
         t=ro.times[ki].contiguous(), collided=ro.collided.clone(), success=ro.success.clone(),
     )

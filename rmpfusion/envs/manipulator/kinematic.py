@@ -11,13 +11,13 @@ from ..common import evaluate_policy, qdd_of, rk4, semi_implicit_euler
 from ..faults import IsolatingPolicy
 from ..rollout import Rollout
 from .recording import GoalTracker, Recorder, finish
-from .scene import _pb
+from .scene import _pb, sample_aux
 
 if TYPE_CHECKING:
-    from .env import Franka
+    from .env import Manipulator
 
 
-def rollout_kinematic(env: "Franka", policy: Callable[..., Any], q0: Tensor, qd0: Tensor, aux: Mapping[str, Tensor],
+def rollout_kinematic(env: "Manipulator", policy: Callable[..., Any], q0: Tensor, qd0: Tensor, aux: Mapping[str, Tensor],
                       n_steps: int, every: int, monitor: Callable[..., Any] | None) -> Rollout:
     """``n_steps`` integration steps recorded every ``every`` steps; a sample whose policy evaluation raises or
     whose state stops being finite ends there with its reason, the others go on."""
@@ -29,7 +29,7 @@ def rollout_kinematic(env: "Franka", policy: Callable[..., Any], q0: Tensor, qd0
     return finish(env, "kinematic", rec, aux, min_clear, first_hit, goal_hit, errors)
 
 
-def _integrate(env: "Franka", policy: IsolatingPolicy, q0, qd0, aux, n_steps, every, monitor, errors):
+def _integrate(env: "Manipulator", policy: IsolatingPolicy, q0, qd0, aux, n_steps, every, monitor, errors):
     """The torch integration: (records, q at every integration step, goal tracker, alive). Semi-implicit Euler
     evaluates the policy once a step (the recorded evaluation drives the step); RK4 reuses it at record steps."""
     dt, B, p = env.dt, q0.shape[0], env.params
@@ -41,13 +41,16 @@ def _integrate(env: "Franka", policy: IsolatingPolicy, q0, qd0, aux, n_steps, ev
     goal_hit.update(0.0, env.ee_position(q), aux["goal"], p.goal_tolerance, alive, q)
     euler = p.integrator == "semi_implicit_euler"
 
-    def accel(x, xd):
-        return qdd_of(policy(x, xd, aux))
+    aux_k = aux
+
+    def accel(x, xd):  # RK4's stages see the obstacles where they are at the start of the step
+        return qdd_of(policy(x, xd, aux_k))
 
     for k in range(n_steps + 1):
         a = None
+        aux_k = env.aux_at(aux, k * dt) if env.moving else aux
         if k % every == 0 or euler:
-            a, V, D = evaluate_policy(policy, q, qd, aux)
+            a, V, D = evaluate_policy(policy, q, qd, aux_k)
             if k % every == 0:
                 rec.add(k * dt, q, qd, a, V, D, alive, monitor)
         if k == n_steps:
@@ -65,20 +68,23 @@ def _integrate(env: "Franka", policy: IsolatingPolicy, q0, qd0, aux, n_steps, ev
     return rec, path, goal_hit, alive
 
 
-def _replay_collisions(env: "Franka", Q: Tensor, aux, n_steps: int, death: list[int],
+def _replay_collisions(env: "Manipulator", Q: Tensor, aux, n_steps: int, death: list[int],
                        errors: list[str | None]) -> tuple[Tensor, Tensor]:
-    """(smallest clearance, first collision time) of every sample from its configurations Q (n_steps+1, B, 7) up
-    to the step it died at, by pybullet's closest points in the env's collision world."""
+    """(smallest clearance, first collision time) of every sample from its configurations Q (n_steps+1, B, dof) up
+    to the step it died at, by pybullet's closest points in the env's collision world (moving obstacles where they
+    were at each step)."""
     dt, B, query = env.dt, Q.shape[1], float(env.params.clearance_query)
     min_clear = torch.full((B,), query, dtype=env.dtype)
     first_hit = torch.full((B,), float("inf"), dtype=env.dtype)
     sc = env.checker()
     for b in range(B):
         try:
-            centers, radii, heights, _ = env.scene_args(aux, b)
-            sc.set_env(centers, radii, heights, None)
+            sc.set_env(env.scene, sample_aux(aux, b))
             last = n_steps if errors[b] is None else death[b]
             for k in range(last + 1):
+                if env.moving:
+                    sc.move_obstacles(env.scene, sample_aux(env.aux_at({n: v[b:b + 1] for n, v in aux.items()},
+                                                                       k * dt), 0))
                 sc.reset(Q[k, b].cpu().numpy())
                 min_clear[b] = min(float(min_clear[b]), sc.clearance(env.params.clearance_query))
                 if min_clear[b] <= 0.0 and first_hit[b].isinf():

@@ -1,4 +1,4 @@
-"""The Franka task's per-trajectory metrics (paper §4.2) and which of them are compared with the expert."""
+"""The reaching task's per-trajectory metrics (paper §4.2) and which of them are compared with the expert."""
 from __future__ import annotations
 
 import torch

@@ -1,5 +1,6 @@
-"""The Franka environment: its aux state (goal, cylinders), reproducible sampling of environments and starts,
-collision geometry, and the entry points that the rollout modes, demonstrations, metrics and rendering serve."""
+"""The manipulator environment: any robot of conf/robot/ reaching goals in a scene of conf/scene/. Its aux state
+(goal, obstacles), reproducible sampling of environments and starts, collision geometry, moving obstacles, and the
+entry points that the rollout modes, demonstrations, metrics and rendering serve."""
 from __future__ import annotations
 
 from typing import Any, Callable, Literal, Mapping, Sequence
@@ -8,54 +9,61 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from ...maps.kinematics import Chain
-from ...maps.urdf import PANDA_ARM_JOINTS, load_panda_urdf_path, parse_urdf
 from ...registry import ENVS
-from ..common import (DTYPES, SeededSampling, check_initial_states, obstacle_aux, obstacle_aux_dims, on_device,
-                      redraw_until_ok, stack_obstacles, time_grid)
+from ...robots import build_robot
+from ...scenes import Scene, aux_at, distances, scene_aux, scene_aux_dims
+from ..common import DTYPES, SeededSampling, check_initial_states, on_device, redraw_until_ok, time_grid
 from ..demonstrations import Dataset
-from ..franka_tree import EE_LINK, EE_OFFSET
 from ..protocol import RenderSettings
 from ..rollout import Rollout
 from . import demonstrations as demos
 from . import render as rendering
 from .kinematic import rollout_kinematic
 from .metrics import RATIO_METRICS, task_metrics
-from .params import FrankaParams, ObstacleSpec
-from .scene import HelperWorlds, _Scene, scene_args
+from .params import ManipulatorParams
+from .scene import HelperWorlds, _Scene, sample_aux
 from .torque import rollout_torque
 
 
-@ENVS.register("franka")
-class Franka(SeededSampling):
-    """Franka Panda goal reaching around cylinders; see the package docstring for the two rollout modes."""
+@ENVS.register("manipulator")
+class Manipulator(SeededSampling):
+    """A robot reaching goals among obstacles; see the package docstring for the two rollout modes."""
 
-    Params = FrankaParams
-    dim = 7
+    Params = ManipulatorParams
     ratio_metrics = RATIO_METRICS
 
-    def __init__(self, params: FrankaParams | None = None, **overrides: Any):
+    def __init__(self, params: ManipulatorParams | None = None, **overrides: Any):
         if params is None:
             params = self.Params(**overrides)
         elif overrides:
             params = self.Params.model_validate({**params.model_dump(), **overrides})
         self.params = params
         self.dtype = DTYPES[params.dtype]
-        self.chain = Chain(parse_urdf(load_panda_urdf_path()), PANDA_ARM_JOINTS)
-        self.lower, self.upper = (t.to(self.dtype) for t in self.chain.joint_limits())
-        self._ee_offset = torch.tensor(EE_OFFSET, dtype=self.dtype)
-        self.worlds = HelperWorlds(params.gravity)
+        self.robot = build_robot(params.robot)
+        self.dim = self.robot.dof
+        self.lower, self.upper = self.robot.lower.to(self.dtype), self.robot.upper.to(self.dtype)
+        self.worlds = HelperWorlds(self.robot, params.gravity)
         self.device = torch.device("cpu")  # where policies compute (``to``); pybullet and the records stay on the CPU
 
-    def to(self, device: torch.device | str) -> "Franka":
+    def to(self, device: torch.device | str) -> "Manipulator":
         """Evaluate policies on ``device``: each step's state goes there and the acceleration comes back."""
         self.device = torch.device(device)
         return self
 
     # ------------------------------------------------------------------ bookkeeping
     @property
+    def scene(self) -> Scene:
+        """The training scene: the shapes and motions every split shares."""
+        return self.params.scene
+
+    @property
     def n_obstacles(self) -> int:
-        return len(self.params.obstacles)
+        return len(self.scene.obstacles)
+
+    @property
+    def moving(self) -> bool:
+        """Whether some obstacle moves (then aux changes with time, ``aux_at``)."""
+        return self.scene.moving
 
     @property
     def dt(self) -> float:
@@ -64,7 +72,11 @@ class Franka(SeededSampling):
 
     def aux_dims(self) -> dict[str, int]:
         """Names and sizes of the per-sample aux state; pass to ``build_tree(..., aux_dims=...)``."""
-        return obstacle_aux_dims(3, self.n_obstacles)
+        return {"goal": 3, **scene_aux_dims(self.scene)}
+
+    def aux_at(self, aux: Mapping[str, Tensor], t: Tensor | float) -> dict[str, Tensor]:
+        """The aux state ``aux`` (at t = 0) at times ``t``: moving obstacles advanced along their paths."""
+        return aux_at(self.scene, aux, torch.as_tensor(t, dtype=self.dtype)) if self.moving else dict(aux)
 
     def close(self) -> None:
         """Disconnect the helper pybullet worlds (collision checking, rendering)."""
@@ -82,27 +94,21 @@ class Franka(SeededSampling):
         except Exception:  # noqa: BLE001 - interpreter shutdown
             pass
 
-    def scene_args(self, aux: Mapping[str, Tensor], b: int):
-        """Sample ``b``'s cylinders and goal as ``_Scene.set_env`` takes them (heights: the nominal cylinders')."""
-        return scene_args(aux, b, [o.height for o in self.params.obstacles])
-
     def checker(self) -> _Scene:
         """The pybullet world that checks collisions (opened on first use)."""
         return self.worlds.checker()
 
     # ------------------------------------------------------------------ geometry
     def ee_position(self, q: Tensor) -> Tensor:
-        """(B, 3) fingertip centre, the point the tree's attractor drives to the goal."""
-        R, p = self.chain.forward_kinematics(q, [EE_LINK])[EE_LINK]
-        return p + (R @ self._ee_offset.to(q).unsqueeze(-1)).squeeze(-1)
+        """(B, 3) end-effector point, the point the tree's attractor drives to the goal."""
+        return self.robot.ee_position(q)
 
     def clearance(self, q: Tensor, aux: Mapping[str, Tensor]) -> Tensor:
         """(B,) pybullet distance from the robot to the nearest obstacle (≤ 0: collision; capped at clearance_query)."""
         sc = self.checker()
         out = []
         for b in range(q.shape[0]):
-            centers, radii, heights, _ = self.scene_args(aux, b)
-            sc.set_env(centers, radii, heights, None)
+            sc.set_env(self.scene, sample_aux(aux, b))
             sc.reset(q[b].detach().cpu().numpy())
             out.append(sc.clearance(self.params.clearance_query))
         return torch.tensor(out, dtype=self.dtype)
@@ -117,30 +123,27 @@ class Franka(SeededSampling):
         hi = torch.as_tensor(hi, dtype=self.dtype)
         return lo + (hi - lo) * torch.rand(shape, generator=g, dtype=self.dtype)
 
-    def _goal_ok(self, goal: Tensor, centers: Tensor, radii: Tensor) -> Tensor:
-        if centers.shape[1] == 0:
-            return torch.ones(goal.shape[0], dtype=torch.bool)
-        horiz = (goal[:, None, :2] - centers[..., :2]).norm(dim=-1) - radii
-        return (horiz >= self.params.goal_clearance).all(1)
+    def _goal_ok(self, goal: Tensor, aux: Mapping[str, Tensor]) -> Tensor:
+        return (distances(self.scene, aux, goal) >= self.params.goal_clearance).all(1)
 
-    def obstacle_specs(self, split: str = "train") -> list[ObstacleSpec]:
-        """The nominal cylinders of a data split: ``test_obstacles`` for ``test`` when set, else ``obstacles`` (the
-        training placement, which the validation split shares)."""
+    def scene_of(self, split: str = "train") -> Scene:
+        """The scene of a data split: ``test_scene`` for ``test`` when set, else ``scene`` (the training
+        placement, which the validation split shares)."""
         if split not in ("train", "val", "test"):
             raise ValueError(f"split must be 'train', 'val' or 'test', got {split!r}")
         p = self.params
-        return list(p.test_obstacles) if split == "test" and p.test_obstacles is not None else list(p.obstacles)
+        return p.test_scene if split == "test" and p.test_scene is not None else p.scene
 
-    def _sample_goals(self, centers: Tensor, radii: Tensor, generator) -> Tensor:
-        """One goal per row of (n, K, 3) centres / (n, K) radii, redrawn until clear of that row's obstacles."""
-        p, n = self.params, centers.shape[0]
+    def _sample_goals(self, aux: Mapping[str, Tensor], generator) -> Tensor:
+        """One goal per row of the obstacle aux state, redrawn until clear of that row's obstacles."""
+        p = self.params
+        n = aux[next(iter(aux))].shape[0] if aux else 0
         lo = [r[0] for r in p.goal_region]
         hi = [r[1] for r in p.goal_region]
         (goal,) = redraw_until_ok(
-            lambda: (self._uniform((n, 3), lo, hi, generator),),
-            lambda v, a: self._goal_ok(v[0], a["centers"], a["radii"]), {"centers": centers, "radii": radii},
+            lambda: (self._uniform((n, 3), lo, hi, generator),), lambda v, a: self._goal_ok(v[0], a), aux,
             p.max_tries,
-            lambda left: f"franka: no goal clear of the obstacles for {left} samples in {p.max_tries} rounds; "
+            lambda left: f"manipulator: no goal clear of the obstacles for {left} samples in {p.max_tries} rounds; "
                          "move goal_region or lower goal_clearance")
         return goal
 
@@ -148,17 +151,20 @@ class Franka(SeededSampling):
                     split: str = "train") -> dict[str, Tensor]:
         """``n_envs`` environments as an aux dict of (n_envs, k) tensors, reproducible given the generator.
 
-        Obstacles are the split's nominal ones (``obstacle_specs``) moved by ``obstacle_jitter``; goals are
-        redrawn until they clear every obstacle horizontally by ``goal_clearance`` (with
-        ``goal_per_trajectory``, ``sample_initial_states`` draws each trajectory's own goal in the same way).
+        Obstacles are the split's scene's (``scene_of``) with every centre moved by ``obstacle_jitter``; goals are
+        redrawn until they clear every obstacle by ``goal_clearance`` (with ``goal_per_trajectory``,
+        ``sample_initial_states`` draws each trajectory's own goal in the same way).
         """
-        p, K = self.params, self.n_obstacles
-        specs = self.obstacle_specs(split)
-        nominal = torch.tensor([o.center for o in specs], dtype=self.dtype).reshape(K, 3)
-        radii = torch.tensor([o.radius for o in specs], dtype=self.dtype).expand(n_envs, K)
-        jit = torch.tensor(p.obstacle_jitter, dtype=self.dtype)
+        scene, K = self.scene_of(split), self.n_obstacles
+        nominal = torch.tensor([o.center for o in scene.obstacles], dtype=self.dtype).reshape(K, 3)
+        jit = torch.tensor(self.params.obstacle_jitter, dtype=self.dtype)
         centers = nominal + self._uniform((n_envs, K, 3), -jit, jit, generator)
-        return obstacle_aux(self._sample_goals(centers, radii, generator), centers, radii)
+        obstacles = scene_aux(scene, centers, self.dtype)
+        if not obstacles:
+            obstacles = {"_n": torch.zeros(n_envs, 1, dtype=self.dtype)}
+        goal = self._sample_goals(obstacles, generator)
+        obstacles.pop("_n", None)
+        return {"goal": goal, **obstacles}
 
     def sample_initial_states(
         self, envs_aux: Mapping[str, Tensor], n_per_env: int, generator: torch.Generator | None = None
@@ -169,14 +175,15 @@ class Franka(SeededSampling):
         aux = {k: v.repeat_interleave(n_per_env, dim=0) for k, v in envs_aux.items()}
         n = aux["goal"].shape[0]
         if p.goal_per_trajectory:
-            aux["goal"] = self._sample_goals(*stack_obstacles(aux, self.n_obstacles), generator)
-        nom = torch.tensor(p.nominal_q, dtype=self.dtype)
-        spread = torch.tensor(p.start_spread, dtype=self.dtype)
+            obstacles = {k: v for k, v in aux.items() if k != "goal"} or {"_n": aux["goal"]}
+            aux["goal"] = self._sample_goals(obstacles, generator)
+        nom = torch.tensor(p.start_centre(), dtype=self.dtype)
+        spread = torch.tensor(p.spread(), dtype=self.dtype)
         lo, hi = self.lower + p.joint_margin, self.upper - p.joint_margin
 
         def draw():
-            q = (nom + self._uniform((n, 7), -spread, spread, generator)).clamp(lo, hi)
-            qd = self._uniform((n, 7), -p.start_speed, p.start_speed, generator)
+            q = (nom + self._uniform((n, self.dim), -spread, spread, generator)).clamp(lo, hi)
+            qd = self._uniform((n, self.dim), -p.start_speed, p.start_speed, generator)
             return q, qd
 
         def ok(v, a):
@@ -189,7 +196,7 @@ class Franka(SeededSampling):
 
         q0, qd0 = redraw_until_ok(
             draw, ok, aux, p.max_tries,
-            lambda left: f"franka: could not place {left} start configurations clear of the obstacles and "
+            lambda left: f"manipulator: could not place {left} start configurations clear of the obstacles and "
                          f"min_start_goal_distance from the goal; move nominal_q or change start_spread")
         return q0, qd0, aux
 
@@ -207,12 +214,12 @@ class Franka(SeededSampling):
         enable_grad: bool = False,
         progress: Callable[[int, int], Any] | None = None,
     ) -> Rollout:
-        """Run q̈ = policy(q, q̇, aux) for ``horizon`` seconds from (q0, q̇0), batched over samples.
+        """Run q̈ = policy(q, q̇, aux(t)) for ``horizon`` seconds from (q0, q̇0), batched over samples; ``aux`` is
+        the aux state at t = 0 (moving obstacles move from there, ``aux_at``).
 
-        ``policy`` returns a (B, 7) tensor or a TreeOutput (then V and q̇ᵀBq̇ are recorded from the same
-        evaluation). ``record_every`` and ``horizon`` must be multiples of 1/control_rate. ``mode``
-        overrides the env's. ``monitor(i, t, q, qd, qdd, V)`` is called at each record, and
-        ``progress(i, total)`` too.
+        ``policy`` returns a (B, dof) tensor or a TreeOutput (then V and q̇ᵀBq̇ are recorded from the same
+        evaluation). ``record_every`` and ``horizon`` must be multiples of 1/control_rate. ``mode`` overrides the
+        env's. ``monitor(i, t, q, qd, qdd, V)`` is called at each record, and ``progress(i, total)`` too.
         """
         n_steps, every = time_grid(horizon, record_every, self.dt, "1/control_rate")
         check_initial_states(q0, qd0, self.dim)
@@ -227,18 +234,18 @@ class Franka(SeededSampling):
 
     # ------------------------------------------------------------------ demonstrations and task metrics
     def demonstration_lengths(self, ro: Rollout) -> Tensor:
-        """(B,) records to keep of each demonstration; see ``franka.demonstrations.demonstration_lengths``."""
+        """(B,) records to keep of each demonstration; see ``manipulator.demonstrations.demonstration_lengths``."""
         return demos.demonstration_lengths(self.params, ro)
 
     def demonstrations(self, expert: Callable[..., Any], n_envs: int, n_traj: int, n_points: int, interval: float,
                        generator: torch.Generator | None = None, split: str = "train",
                        progress: Callable[[int, int], Any] | None = None) -> Dataset:
-        """The expert's demonstrations of a data split (paper §4.2): 5–10 s each, the split's obstacles, a goal per
-        trajectory; see ``franka.demonstrations.demonstrations``."""
+        """The expert's demonstrations of a data split (paper §4.2): 5–10 s each, the split's scene, a goal per
+        trajectory; see ``manipulator.demonstrations.demonstrations``."""
         return demos.demonstrations(self, expert, n_envs, n_traj, n_points, interval, generator, split, progress)
 
     def task_metrics(self, ro: Rollout) -> dict[str, Tensor]:
-        """Per-trajectory (B,) metrics of paper §4.2; see ``franka.metrics.task_metrics``."""
+        """Per-trajectory (B,) metrics of paper §4.2; see ``manipulator.metrics.task_metrics``."""
         return task_metrics(ro, self.dtype)
 
     # ------------------------------------------------------------------ rendering

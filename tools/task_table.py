@@ -1,11 +1,13 @@
 #!/usr/bin/env python
-"""The Franka experiment's table (paper Fig. 5b as numbers) from the metrics.json of one or more runs.
+"""The table of a manipulator experiment (paper Fig. 5b as numbers) from the metrics.json of one or more runs.
 
-    python tools/franka_table.py outputs/franka/metrics.json outputs/franka_unit_start/metrics.json
+    python tools/task_table.py outputs/franka/metrics.json outputs/franka_unit_start/metrics.json
 
 One row per policy (the expert, then every learner snapshot): time to 0.05 m, fraction reached, the ratios
 learner / expert per test trajectory (mean ± std), the goal distance at the 10 s time-out, collisions and the
-Lyapunov monitor. Rows of a second run are labelled with its name (e.g. the unit-start ablation).
+Lyapunov monitor. Rows of a second run are labelled with its name (e.g. the unit-start ablation); its expert row is
+left out when it is the first run's. In a scene with a moving obstacle Theorem 2 does not apply: the V_r column says
+so and gives what was observed in brackets.
 """
 from __future__ import annotations
 
@@ -36,22 +38,29 @@ def rows(metrics: dict, with_expert: bool) -> list[str]:
         mono = lyap.get("monotone_fraction")
         n = r["trajectories"]
         expert = r["policy"] == "expert"
+        count = f"{round(mono * n) if mono is not None else '–'} / {n}"
+        if lyap.get("theorem2_applies") is False:
+            count = f"n/a, obstacle moving ({count})"
         out.append(" | ".join([
             f"| {metrics['name']}", r["policy"], _pm(r.get("time")), f"{round(r['reached']['mean'] * n)} / {n}",
             *("1" if expert else _pm(ratio.get(k)) for k in RATIOS),
             _pm(r.get("timeout_goal_distance"), 1000.0, 1),
             "1" if expert else _pm(ratio.get("timeout_goal_distance"), digits=2),
-            f"{r['collisions']} / {n}", f"{round(mono * n) if mono is not None else '–'} / {n}"]) + " |")
+            f"{r['collisions']} / {n}", count]) + " |")
     return out
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("metrics", nargs="+", type=Path, help="metrics.json of a Franka run")
+    ap.add_argument("metrics", nargs="+", type=Path, help="metrics.json of a manipulator run")
     a = ap.parse_args(argv)
     lines = [HEADER, "|" + "---|" * (HEADER.count("|") - 1)]
-    for i, path in enumerate(a.metrics):
-        lines += rows(json.loads(path.read_text()), with_expert=(i == 0))
+    experts: list = []
+    for path in a.metrics:
+        m = json.loads(path.read_text())
+        expert = next(r for r in m["task_table"] if r["policy"] == "expert")
+        lines += rows(m, with_expert=expert not in experts)
+        experts.append(expert)
     print("\n".join(lines))
     return 0
 

@@ -1,4 +1,4 @@
-"""Figures of the Franka experiment (paper §4.2, Fig. 5b and Fig. 6): the learner/expert ratio chart, V_r(t) per
+"""Figures of the manipulator experiments (paper §4.2, Fig. 5b and Fig. 6): the learner/expert ratio chart, V_r(t) per
 policy, a render strip and an animated GIF of one test execution (pybullet's headless renderer), and the
 end-effector paths seen from above. Written atomically, like every figure of the project; each ``plot_*`` saves what
 a ``_draw_*`` returns, so the tests inspect the ``Figure`` without writing a file."""
@@ -11,7 +11,7 @@ import numpy as np
 import torch
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
-from matplotlib.patches import Circle, Patch
+from matplotlib.patches import Circle, Patch, Rectangle
 
 from ..envs.protocol import Renders
 from ..files import atomic_path
@@ -126,7 +126,7 @@ def plot_lyapunov_stages(path, panels: Sequence[Mapping[str, Any]], title: str =
 #: The marks drawn over a render: the end-effector path so far and the goal (strip and GIF alike).
 TRAIL_LABEL = "end-effector path so far"
 GOAL_LABEL = "goal"
-OBSTACLE_LABEL = "obstacle (red cylinder)"
+OBSTACLE_LABEL = "obstacles (red)"
 
 
 def _draw_render_strip(rows: Sequence[Mapping[str, Any]], title: str = "") -> Figure:
@@ -178,10 +178,7 @@ def _draw_ee_paths(aux: Mapping[str, torch.Tensor], paths: Mapping[str, Any], ti
     fig, ax = subplots(figsize=(6.8, 4.6), layout="constrained")
     k = 1
     while f"obstacle{k}_center" in aux:
-        c = _np(aux[f"obstacle{k}_center"]).reshape(-1)[:2]
-        r = float(_np(aux[f"obstacle{k}_radius"]).reshape(-1)[0])
-        ax.add_patch(Circle(c, r, color="tab:red", alpha=0.5, lw=0, zorder=1,
-                            label="obstacle (cylinder)" if k == 1 else None))
+        ax.add_patch(_footprint(aux, k, label="obstacles (top view)" if k == 1 else None))
         k += 1
     g = _np(aux["goal"]).reshape(-1)
     ax.add_patch(Circle(g[:2], 0.05, fill=False, ls="--", color="orange", zorder=2, label="within 0.05 m of the goal"))
@@ -211,6 +208,20 @@ def _draw_ee_paths(aux: Mapping[str, torch.Tensor], paths: Mapping[str, Any], ti
     legend_outside(ax)
     ax.set_title(title or "end-effector paths of one test execution (top view)", fontsize=TITLE_SIZE)
     return fig
+
+
+def _footprint(aux: Mapping[str, torch.Tensor], k: int, label: str | None):
+    """Obstacle k seen from above: a box as the rectangle its corners span in x-y, a capsule or a tilted cylinder
+    as the disc of its radius around its centre, a sphere or a standing cylinder as its disc."""
+    c = _np(aux[f"obstacle{k}_center"]).reshape(-1)
+    style = {"color": "tab:red", "alpha": 0.5, "lw": 0, "zorder": 1, "label": label}
+    if f"obstacle{k}_half_extents" in aux:
+        e = _np(aux[f"obstacle{k}_half_extents"]).reshape(3)
+        R = _np(aux[f"obstacle{k}_rotation"]).reshape(3, 3)
+        corners = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)]) * e @ R.T
+        lo, hi = corners[:, :2].min(0), corners[:, :2].max(0)
+        return Rectangle(c[:2] + lo, *(hi - lo), **style)
+    return Circle(c[:2], float(_np(aux[f"obstacle{k}_radius"]).reshape(-1)[0]), **style)
 
 
 def plot_ee_paths(path, aux: Mapping[str, torch.Tensor], paths: Mapping[str, Any], title: str = "") -> Path:
@@ -276,7 +287,7 @@ def save_gif(path, frames: Sequence[np.ndarray], fps: float = 10.0) -> Path:
     return path
 
 
-# ---------------------------------------------------------------------------------------------- the Franka set
+# ---------------------------------------------------------------------------------------------- the whole set
 def _example(env: Renders, expert) -> int:
     """The rendered test trajectory: the configured one, else the one where the expert comes closest to the
     obstacle among those it completes (the most interaction)."""
@@ -294,25 +305,26 @@ def _index_at(times: torch.Tensor, t: float) -> int:
     return int((times - t).abs().argmin())
 
 
-def franka_figures(env: Renders, fig_dir, expert, stages, aux: Mapping[str, torch.Tensor], title: str = "franka") -> list[Path]:
-    """All Franka figures; see the module docstring. ``expert``/``stages``: ``StageResult``s."""
+def manipulator_figures(env: Renders, fig_dir, expert, stages, aux: Mapping[str, torch.Tensor],
+                        title: str = "manipulator") -> list[Path]:
+    """All the figures of a manipulator experiment; see the module docstring. ``expert``/``stages``: ``StageResult``s."""
     fig_dir = Path(fig_dir)
     out: list[Path] = []
     ratios = {st.label: st.ratios for st in stages if st.ratios}
     if ratios:
-        out.append(plot_ratio_bars(fig_dir / "franka_ratios.png", ratios, PATH_RATIOS,
+        out.append(plot_ratio_bars(fig_dir / "task_ratios.png", ratios, PATH_RATIOS,
                                    title=f"{title}: learner / expert on the test set (mean ± std over trajectories)"))
-    out.append(plot_goal_distances(fig_dir / "franka_goal_distances.png", [expert, *stages],
+    out.append(plot_goal_distances(fig_dir / "task_goal_distances.png", [expert, *stages],
                                    title=f"{title}: goal distance on the test set (mean ± std over trajectories)"))
     b = _example(env, expert)
     policies = [expert, *stages]
     panels = [{"label": st.label, "times": st.rollout.times, "V": st.rollout.V, "highlight": b}
               for st in policies if st.rollout.V is not None]
     if panels:
-        out.append(plot_lyapunov_stages(fig_dir / "franka_lyapunov.png", panels,
+        out.append(plot_lyapunov_stages(fig_dir / "task_lyapunov.png", panels,
                                         title=f"{title}: $V_r(t)$ on the test set (thick: the rendered execution {b})"))
     ex_aux = {k: v[b:b + 1] for k, v in aux.items()}
-    out.append(plot_ee_paths(fig_dir / "franka_ee_paths.png", ex_aux,
+    out.append(plot_ee_paths(fig_dir / "task_ee_paths.png", ex_aux,
                              {st.label: st.rollout.ee[:, b] for st in policies},
                              title=f"{title}: end-effector paths, test execution {b} (top view)"))
     settings = env.render_settings
@@ -335,7 +347,7 @@ def franka_figures(env: Renders, fig_dir, expert, stages, aux: Mapping[str, torc
     horizon = float(expert.rollout.times[-1])
     times = [t for t in settings.times if t <= horizon + 1e-9] or [0.0]
     rows = [{"label": st.label, "frames": [frame(st, t, w, h, goal_px) for t in times]} for st in policies]
-    out.append(plot_render_strip(fig_dir / "franka_execution.png", rows,
+    out.append(plot_render_strip(fig_dir / "task_execution.png", rows,
                                  title=f"{title}: test execution {b}, left to right in time"))
     # the animation: policies side by side, real time
     gw, gh = (w * 3) // 4, (h * 3) // 4
@@ -343,7 +355,7 @@ def franka_figures(env: Renders, fig_dir, expert, stages, aux: Mapping[str, torc
     n_frames = int(np.floor(horizon * settings.gif_fps + 1e-9)) + 1
     caption = _caption(gw * len(policies), [f"{title}: test execution {b}, policies side by side, real time",
                                             f"yellow line: {TRAIL_LABEL}; orange ring: {GOAL_LABEL}; "
-                                            f"red cylinder: obstacle"])
+                                            f"red: obstacles"])
     frames = []
     for k in range(n_frames):
         t = k / settings.gif_fps
@@ -352,7 +364,7 @@ def franka_figures(env: Renders, fig_dir, expert, stages, aux: Mapping[str, torc
             f = frame(st, t, gw, gh, goal_g)
             tiles.append(_label(_draw_trail(f["image"], f["trail"], goal_g), f"{st.label}, t = {f['t']:.1f} s"))
         frames.append(np.concatenate([caption, np.concatenate(tiles, axis=1)], axis=0))
-    out.append(save_gif(fig_dir / "franka_execution.gif", frames, settings.gif_fps))
+    out.append(save_gif(fig_dir / "task_execution.gif", frames, settings.gif_fps))
     return out
 
 
@@ -369,6 +381,6 @@ def _draw_trail(img: np.ndarray, trail, goal) -> np.ndarray:
     return np.asarray(im)
 
 
-__all__ = ["franka_figures", "plot_ee_paths", "plot_goal_distances", "plot_lyapunov_stages", "plot_ratio_bars",
+__all__ = ["manipulator_figures", "plot_ee_paths", "plot_goal_distances", "plot_lyapunov_stages", "plot_ratio_bars",
            "plot_render_strip",
            "save_gif"]

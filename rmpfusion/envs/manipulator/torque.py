@@ -13,16 +13,13 @@ from ..common import evaluate_policy
 from ..faults import IsolatingPolicy
 from ..rollout import Rollout
 from .recording import GoalTracker, Recorder, finish
-from .scene import _pb, _Scene
+from .scene import _pb, _Scene, sample_aux
 
 if TYPE_CHECKING:
-    from .env import Franka
-
-#: PD gains of the acceleration that holds the fingers closed inside the same inverse dynamics (1/s², 1/s)
-FINGER_KP, FINGER_KD = 400.0, 40.0
+    from .env import Manipulator
 
 
-def rollout_torque(env: "Franka", policy: Callable[..., Any], q0: Tensor, qd0: Tensor, aux: Mapping[str, Tensor],
+def rollout_torque(env: "Manipulator", policy: Callable[..., Any], q0: Tensor, qd0: Tensor, aux: Mapping[str, Tensor],
                    n_steps: int, every: int, monitor: Callable[..., Any] | None) -> Rollout:
     """``n_steps`` pybullet steps recorded every ``every`` steps; a sample whose world fails (a pybullet error)
     or whose policy answers a non-finite acceleration ends there with its reason, the others go on."""
@@ -36,11 +33,13 @@ def rollout_torque(env: "Franka", policy: Callable[..., Any], q0: Tensor, qd0: T
         worlds.read_states()
         goal_hit.update(0.0, env.ee_position(worlds.q), aux["goal"], env.params.goal_tolerance, worlds.alive, worlds.q)
         for k in range(n_steps + 1):
-            a, V, D = evaluate_policy(policy, worlds.q, worlds.qd, aux)
+            a, V, D = evaluate_policy(policy, worlds.q, worlds.qd, env.aux_at(aux, k * dt) if env.moving else aux)
             if k % every == 0:
                 rec.add(k * dt, worlds.q, worlds.qd, a, V, D, worlds.alive, monitor)
             if k == n_steps:
                 break
+            if env.moving:  # the obstacles where they are at the end of the step, which the clearance sees
+                worlds.move_obstacles(env.aux_at(aux, (k + 1) * dt))
             worlds.step(a, k)
             worlds.read_states()
             goal_hit.update((k + 1) * dt, env.ee_position(worlds.q), aux["goal"], env.params.goal_tolerance,
@@ -51,10 +50,10 @@ def rollout_torque(env: "Franka", policy: Callable[..., Any], q0: Tensor, qd0: T
 
 
 class _Worlds:
-    """The batch's pybullet worlds, one a sample, and what each has seen: its state (q, q̇ of the arm, the
-    fingers' apart), whether it is still alive and why not, its smallest clearance and first collision time."""
+    """The batch's pybullet worlds, one a sample, and what each has seen: its state (q, q̇ of the actuated joints,
+    the held joints' apart), whether it is still alive and why not, its smallest clearance and first collision time."""
 
-    def __init__(self, env: "Franka", policy: IsolatingPolicy, q0: Tensor, qd0: Tensor):
+    def __init__(self, env: "Manipulator", policy: IsolatingPolicy, q0: Tensor, qd0: Tensor):
         B = q0.shape[0]
         self.env, self.policy, self.q0, self.qd0 = env, policy, q0, qd0
         self.errors: list[str | None] = [None] * B
@@ -63,8 +62,9 @@ class _Worlds:
         self.min_clear = torch.full((B,), float(env.params.clearance_query), dtype=env.dtype)
         self.first_hit = torch.full((B,), float("inf"), dtype=env.dtype)
         self.q, self.qd = q0.clone(), qd0.clone()
-        self.fingers = [np.zeros(2)] * B
-        self.finger_v = [np.zeros(2)] * B
+        n_held = len(env.robot.held_joints())
+        self.fingers = [np.zeros(n_held)] * B
+        self.finger_v = [np.zeros(n_held)] * B
 
     def open(self, aux: Mapping[str, Tensor]) -> None:
         """A world per sample at its initial state (the GUI, if asked for, shows sample 0)."""
@@ -72,8 +72,8 @@ class _Worlds:
         gui = env.params.gui
         for b in range(self.q0.shape[0]):
             try:
-                sc = _Scene(gui=gui and b == 0, gravity=env.params.gravity)
-                sc.set_env(*env.scene_args(aux, b), visual=gui and b == 0)
+                sc = _Scene(env.robot, gui=gui and b == 0, gravity=env.params.gravity)
+                sc.set_env(env.scene, sample_aux(aux, b), visual=gui and b == 0)
                 p.setTimeStep(env.dt, physicsClientId=sc.cid)
                 sc.reset(self.q0[b].cpu().numpy(), self.qd0[b].cpu().numpy())
                 self.scenes.append(sc)
@@ -103,9 +103,10 @@ class _Worlds:
             except p.error as e:
                 self.kill(b, f"pybullet error reading state: {e}")
                 continue
-            self.q[b] = torch.as_tensor(qa[:7], dtype=self.env.dtype)
-            self.qd[b] = torch.as_tensor(qda[:7], dtype=self.env.dtype)
-            self.fingers[b], self.finger_v[b] = qa[7:], qda[7:]
+            n = self.env.dim
+            self.q[b] = torch.as_tensor(qa[:n], dtype=self.env.dtype)
+            self.qd[b] = torch.as_tensor(qda[:n], dtype=self.env.dtype)
+            self.fingers[b], self.finger_v[b] = qa[n:], qda[n:]
 
     def step(self, a: Tensor, k: int) -> None:
         """One pybullet step of every live world under the torques that realise the accelerations ``a`` at step k."""
@@ -123,7 +124,8 @@ class _Worlds:
 
     def _step_one(self, b: int, sc: _Scene, a: np.ndarray, k: int) -> None:
         p, dt = _pb(), self.env.dt
-        acc_f = -FINGER_KP * self.fingers[b] - FINGER_KD * self.finger_v[b]
+        gains = self.env.robot.params.held_joint_gains
+        acc_f = -gains.kp * self.fingers[b] - gains.kd * self.finger_v[b]
         qs = self.q[b].tolist() + self.fingers[b].tolist()
         vs = self.qd[b].tolist() + self.finger_v[b].tolist()
         tau = p.calculateInverseDynamics(sc.robot, qs, vs, a.tolist() + acc_f.tolist(), physicsClientId=sc.cid)
@@ -132,6 +134,12 @@ class _Worlds:
         self.min_clear[b] = min(float(self.min_clear[b]), sc.clearance(self.env.params.clearance_query))
         if self.min_clear[b] <= 0.0 and self.first_hit[b].isinf():
             self.first_hit[b] = (k + 1) * dt
+
+    def move_obstacles(self, aux: Mapping[str, Tensor]) -> None:
+        """Every live world's moving obstacles to where ``aux`` (at the current time) has them."""
+        for b, sc in enumerate(self.scenes):
+            if self.alive[b]:
+                sc.move_obstacles(self.env.scene, sample_aux(aux, b))
 
     def close(self) -> None:
         for sc in self.scenes:

@@ -10,7 +10,7 @@ from torch import Tensor
 from ..rollout import Rollout
 
 if TYPE_CHECKING:
-    from .env import Franka
+    from .env import Manipulator
 
 
 class Recorder:
@@ -82,13 +82,13 @@ class GoalTracker:
         self.reached |= hit
 
 
-def finish(env: "Franka", mode: str, rec: Recorder, aux: Mapping[str, Tensor], min_clear: Tensor, first_hit: Tensor,
+def finish(env: "Manipulator", mode: str, rec: Recorder, aux: Mapping[str, Tensor], min_clear: Tensor, first_hit: Tensor,
            goal_hit: GoalTracker, errors: list[str | None]) -> Rollout:
     """The ``Rollout`` of the records: end-effector paths and goal distances from the recorded q (NaN where a
     sample had died), collision from the smallest clearance, success = reached, never collided, no error."""
     q = rec.stack(rec.q)
     T, B = q.shape[:2]
-    ee = env.ee_position(q.nan_to_num().reshape(T * B, 7)).reshape(T, B, 3)
+    ee = env.ee_position(q.nan_to_num().reshape(T * B, env.dim)).reshape(T, B, 3)
     ee = torch.where(q.isnan().any(-1, keepdim=True), torch.full_like(ee, float("nan")), ee)
     gd = (ee - aux["goal"].unsqueeze(0)).norm(dim=-1)
     collided = min_clear <= 0.0
@@ -100,6 +100,6 @@ def finish(env: "Franka", mode: str, rec: Recorder, aux: Mapping[str, Tensor], m
         collided=collided, min_clearance=min_clear, first_collision_time=first_hit, reached=goal_hit.reached,
         time_to_goal=goal_hit.time, success=goal_hit.reached & ~collided & ok, error=list(errors),
         cspace_length=goal_hit.cspace_length, ee_length=goal_hit.ee_length, end_goal_distance=goal_hit.end_distance,
-        V=rec.stack(rec.V) if rec.V else None,
+        V=rec.stack(rec.V) if rec.V else None, moving=env.moving,
         dissipation=rec.stack(rec.D) if rec.D else None,
     )
