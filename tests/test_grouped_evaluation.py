@@ -242,3 +242,40 @@ def test_only_a_non_finite_answer_is_walked_down_node_by_node(monkeypatch):
     with pytest.raises(NumericalError, match=r"non-finite weight at node 'o0' \(weight shared:near\)"):
         tree(q, qd, aux)
     assert calls == [1]
+
+
+def test_a_manipulator_tree_with_every_option_equals_the_node_by_node_computation():
+    """The Panda among a cylinder, a sphere and a box, with self-collision barriers, a tool axis and a velocity cap:
+    distances to each shape one group, the gaps one group; values equal node by node, Theorem 2's identity holds."""
+    from conftest import assert_energy_identity
+    from manipulators import robot
+    from rmpfusion.envs.manipulator_tree import manipulator_tree_spec
+
+    shapes = {"obstacles": [{"type": "cylinder", "center": [0.5, 0.0, 0.3], "radius": 0.05, "height": 0.6},
+                            {"type": "sphere", "center": [0.4, 0.3, 0.4], "radius": 0.08},
+                            {"type": "box", "center": [0.3, -0.3, 0.2], "half_extents": [0.05, 0.1, 0.2]}]}
+    spec = manipulator_tree_spec(robot("panda"), shapes, self_collision={"min_separation": 3},
+                                 orientation={"target": [0.0, 0.0, -1.0]}, velocity_limits={})
+    tree = rmpfusion.build_tree(spec)
+    _randomise(tree, 3)
+    assert sorted(len(g.nodes) for g in tree.plan.groups if len(g.nodes) > 2) == [14, 14, 14, 14, 15, 20]
+    g = torch.Generator().manual_seed(3)
+    lo, hi = tree.maps["ee"].chain.joint_limits()
+    B = 4
+    q = lo + (hi - lo) * (0.25 + 0.5 * torch.rand(B, 7, generator=g, dtype=torch.float64))
+    qd = 0.5 * torch.randn(B, 7, generator=g, dtype=torch.float64)
+    aux = {"goal": torch.tensor([[0.4, -0.3, 0.4]], dtype=torch.float64).expand(B, 3)}
+    for k, o in enumerate(shapes["obstacles"], start=1):
+        aux[f"obstacle{k}_center"] = torch.tensor([o["center"]], dtype=torch.float64).expand(B, 3)
+    aux.update({"obstacle1_radius": torch.full((B, 1), 0.05, dtype=torch.float64),
+                "obstacle1_axis": torch.tensor([[0.0, 0.0, 1.0]], dtype=torch.float64).expand(B, 3),
+                "obstacle1_half_height": torch.full((B, 1), 0.3, dtype=torch.float64),
+                "obstacle2_radius": torch.full((B, 1), 0.08, dtype=torch.float64),
+                "obstacle3_half_extents": torch.tensor([[0.05, 0.1, 0.2]], dtype=torch.float64).expand(B, 3),
+                "obstacle3_rotation": torch.eye(3, dtype=torch.float64).reshape(1, 9).expand(B, 9),
+                "obstacle3_radius": torch.full((B, 1), 0.1, dtype=torch.float64)})
+    aux = {k: v for k, v in aux.items() if k in tree.aux_dims}
+    missing = sorted(set(tree.aux_dims) - set(aux) - {"obstacle_center", "obstacle_radius"})
+    assert not missing, missing
+    _assert_equal(tree(q, qd, aux), node_by_node(tree, q, qd, aux))
+    assert_energy_identity(tree, q, qd, aux)

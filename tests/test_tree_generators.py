@@ -169,3 +169,58 @@ def test_a_generator_registered_from_outside_expands_the_same_way():
         assert list(issues_of({"generator": "test_damper_chain", "length": 0})) == ["tree.length"]
     finally:
         TREE_GENERATORS.unregister("test_damper_chain")
+
+
+def _panda_spec(**options):
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from manipulators import robot, scene
+    from rmpfusion.envs.manipulator_tree import manipulator_tree_spec
+
+    return manipulator_tree_spec(robot("panda"), scene("franka_three_obstacles"), **options)
+
+
+def test_the_arm_leaves_are_options_of_the_manipulator_tree():
+    """Self-collision pairs (links far enough apart, spheres apart at home), a tool axis and a velocity cap are
+    added only when asked for, each with the settings given (the rest tuned)."""
+    plain = _panda_spec()
+    assert not any(n.startswith("self_") or n in ("tool_axis", "velocity_limit") for n in plain["nodes"])
+    spec = _panda_spec(self_collision={"min_separation": 3, "rmp": {"alpha": 0.2}},
+                       orientation={"target": "tool_direction", "axis": [0.0, 0.0, 1.0]}, velocity_limits={})
+    pairs = [n for n in spec["nodes"] if n.startswith("self_")]
+    assert pairs and "20 self-collision barriers" in spec["description"]
+    gap = spec["nodes"][pairs[0]]
+    assert gap["map"]["type"] == "link_sphere_distance" and gap["rmp"]["alpha"] == 0.2 and gap["rmp"]["r_w"] == 0.2
+    assert spec["nodes"]["tool_axis"]["map"]["target"] == "tool_direction" and spec["aux"]["tool_direction"] == 3
+    assert spec["nodes"]["velocity_limit"]["map"]["type"] == "velocity_scaled_joints"
+    two = _panda_spec(self_collision={"min_separation": 2})
+    assert "left out" in two["description"]  # the Panda's conservative spheres two joints apart overlap at home
+    tree = rmpfusion.build_tree(spec)
+    assert {len(g.nodes) for g in tree.plan.groups} >= {15, 14, 20}  # points, barriers per shape, gaps: one group each
+
+
+def test_self_collision_pairs_leave_out_spheres_that_overlap_at_home():
+    import torch
+
+    from rmpfusion.envs.manipulator_tree import self_collision_pairs
+    from rmpfusion.maps.kinematics import Chain
+    from rmpfusion.robots.description import RobotDescription
+
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from manipulators import robot
+
+    desc = RobotDescription.model_validate(robot("panda"))
+    pairs, overlapping = self_collision_pairs(desc, 2)
+    assert overlapping > 0 and pairs
+    chain = Chain(desc.model(), desc.joints)
+    home = torch.tensor([list(desc.home)], dtype=torch.float64)
+    for i, j in pairs:
+        a, b = desc.control_points[i - 1], desc.control_points[j - 1]
+        pa = chain.forward_kinematics(home, [a.link])[a.link]
+        pb = chain.forward_kinematics(home, [b.link])[b.link]
+        ca = pa[1][0] + pa[0][0] @ torch.tensor(a.offset, dtype=torch.float64)
+        cb = pb[1][0] + pb[0][0] @ torch.tensor(b.offset, dtype=torch.float64)
+        assert float((ca - cb).norm()) > a.radius + b.radius

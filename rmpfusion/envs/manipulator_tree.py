@@ -17,8 +17,14 @@ import torch
 from pydantic import Field, field_validator
 
 from ..build.weighting import tree_with_weights as with_weights  # noqa: F401  (expert configs: node or shared-weight names)
+from ..core.auxstate import AuxOrValue
+from ..maps.kinematics import Chain
+from ..maps.robot import Vector3
+from ..maps.self_collision import non_adjacent_link_pairs
 from ..registry import TREE_GENERATORS, Params
 from ..rmps.gds_leaves import CollisionAvoidance, Damper, GoalAttractor, IdentityMetric, JointLimitBarrier
+from ..rmps.orientation import OrientationAttractor
+from ..rmps.velocity_limit import VelocityLimit
 from ..robots import RobotField
 from ..scenes import Scene, obstacle_map, scene_aux_dims
 from ..weights.neural import MLPWeight
@@ -33,6 +39,11 @@ OBSTACLE_RMP = {"type": "collision_avoidance", "r_w": 0.15, "sigma": 0.5, "epsil
 JOINT_LIMIT_RMP = {"type": "joint_limit", "r_w": 0.25, "sigma": 0.5, "epsilon": 0.1, "alpha": 1e-3, "eta": 0.0}
 DAMPER_RMP = {"type": "damper", "w": 1.0, "eta": 20.0}
 IDENTITY_RMP = {"type": "identity_metric", "scale": 0.01}
+# The optional leaves' settings (conf/rmp/ presets of the same names): all ours, the paper's tree has none of them.
+SELF_COLLISION_RMP = {"type": "collision_avoidance", "r_w": 0.2, "sigma": 0.5, "epsilon": 0.2, "alpha": 0.1, "eta": 0.0,
+                      "min_distance": 0.005}
+ORIENTATION_RMP = {"type": "orientation_attractor", "gain": 1.0, "eta": 2.0, "w_u": 1.0, "w_l": 1.0, "sigma": 0.5}
+VELOCITY_LIMIT_RMP = {"type": "velocity_limit", "limit": 1.0, "onset": 0.8, "w": 1.0, "eta": 1.0, "linear_from": 0.99}
 
 # The learner's weight functions: positive MLPs of the parent configuration and the relevant aux state, randomly
 # initialised (learner-0 is the paper's untrained tree). w = floor + exp(MLP): the expert's weights span 1 to 200,
@@ -47,6 +58,8 @@ _LEAVES: dict[str, Mapping[str, Any]] = {
     "attractor_rmp": ATTRACTOR_RMP, "obstacle_rmp": OBSTACLE_RMP, "joint_limit_rmp": JOINT_LIMIT_RMP,
     "damper_rmp": DAMPER_RMP, "identity_rmp": IDENTITY_RMP,
     "attractor_weight": ATTRACTOR_WEIGHT, "obstacle_weight": OBSTACLE_WEIGHT, "ground_weight": GROUND_WEIGHT,
+    "self_collision_rmp": SELF_COLLISION_RMP, "orientation_rmp": ORIENTATION_RMP,
+    "velocity_limit_rmp": VELOCITY_LIMIT_RMP,
 }
 
 
@@ -58,6 +71,47 @@ def _tuned_field(model: type[Params], field: str, what: str) -> Any:
     """A leaf's (or weight's) settings, checked by that entry's own parameter model, defaulting to the tuned ones."""
     return Field(default_factory=lambda: model(**_tuned(field)),
                  description=f"{what} ({_LEAVES[field]['type']}); keys given replace the tuned values one by one")
+
+
+class SelfCollision(Params):
+    """Barriers between the robot's control spheres on links at least ``min_separation`` actuated joints apart."""
+
+    min_separation: int = Field(2, ge=1, description="actuated joints between two links for their spheres to be "
+                                                     "paired (2: not neighbours)")
+    rmp: CollisionAvoidance.Params = _tuned_field(CollisionAvoidance.Params, "self_collision_rmp",
+                                                  "barrier on each pair's gap")
+
+    @field_validator("rmp", mode="before")
+    @classmethod
+    def _onto_tuned(cls, v: Any) -> Any:
+        return {**_tuned("self_collision_rmp"), **v} if isinstance(v, Mapping) else v
+
+
+class Orientation(Params):
+    """An attractor of a direction fixed in a link (a tool axis) onto a target direction."""
+
+    link: str | None = Field(None, description="the link (default: the end effector's)")
+    axis: Vector3 = Field(default_factory=lambda: [0.0, 0.0, 1.0], description="the direction in the link frame")
+    target: AuxOrValue = Field(description="the target direction (3 numbers, normalised) or an aux name")
+    rmp: OrientationAttractor.Params = _tuned_field(OrientationAttractor.Params, "orientation_rmp",
+                                                    "attractor on the axis's error")
+
+    @field_validator("rmp", mode="before")
+    @classmethod
+    def _onto_tuned(cls, v: Any) -> Any:
+        return {**_tuned("orientation_rmp"), **v} if isinstance(v, Mapping) else v
+
+
+class VelocityLimits(Params):
+    """A cap keeping every actuated joint below its velocity limit (the robot's, from its URDF or description)."""
+
+    rmp: VelocityLimit.Params = _tuned_field(VelocityLimit.Params, "velocity_limit_rmp",
+                                             "cap on the velocity-scaled joints (limit 1: the joint's own)")
+
+    @field_validator("rmp", mode="before")
+    @classmethod
+    def _onto_tuned(cls, v: Any) -> Any:
+        return {**_tuned("velocity_limit_rmp"), **v} if isinstance(v, Mapping) else v
 
 
 class ManipulatorTreeParams(Params):
@@ -87,8 +141,13 @@ class ManipulatorTreeParams(Params):
                                                      "learnable weight shared by one control point's obstacle edges")
     ground_weight: MLPWeight.Params = _tuned_field(MLPWeight.Params, "ground_weight",
                                                    "learnable weight shared by every control point's ground edge")
+    self_collision: SelfCollision | None = Field(None, description="barriers between control spheres on links far "
+                                                                   "enough apart (none: no self-collision leaves)")
+    orientation: Orientation | None = Field(None, description="a tool-axis attractor (none: position only)")
+    velocity_limits: VelocityLimits | None = Field(None, description="a joint velocity cap (none: uncapped)")
 
-    @field_validator(*_LEAVES, mode="before")
+    @field_validator(*(f for f in _LEAVES if f not in ("self_collision_rmp", "orientation_rmp", "velocity_limit_rmp")),
+                     mode="before")
     @classmethod
     def _onto_tuned(cls, v: Any, info: Any) -> Any:
         # a partial block ({gain: 3}) changes those keys only, not the rest back to the entry's generic defaults
@@ -172,17 +231,76 @@ def fig1b(p: ManipulatorTreeParams) -> dict[str, Any]:
         shared.update(weights)
     nodes["damper"] = {"parent": "q", "map": {"type": "identity"}, "rmp": _entry(p, "damper_rmp")}
     nodes["identity_metric"] = {"parent": "q", "map": {"type": "identity"}, "rmp": _entry(p, "identity_rmp")}
+    extras = _optional_leaves(p, nodes, aux)
     n_limits, n_obs = len(r.finite_limits()), len(p.scene.obstacles)
     ground = " and the ground" if p.scene.ground is not None else ""
     return {
         "description": (f"{r.name} (paper Fig. 1b): end-effector attractor, {n_limits} joint-limit barriers, "
                         f"{len(r.control_points)} control points x {n_obs} obstacle(s){ground} with weights shared "
-                        f"across obstacles, damper and identity metric on the root"),
+                        f"across obstacles, damper and identity metric on the root{extras}"),
         "root": {"name": "q", "dim": len(r.joints)},
         "aux": aux,
         "shared_weights": shared,
         "nodes": nodes,
     }
+
+
+def _robot_map(p: ManipulatorTreeParams, kind: str, **keys: Any) -> dict[str, Any]:
+    """A joint-space map of ``kind`` on the robot (its urdf and joints written in)."""
+    return {"type": kind, "urdf": p.robot.urdf, "joints": list(p.robot.joints), **keys}
+
+
+def _optional_leaves(p: ManipulatorTreeParams, nodes: dict[str, Any], aux: dict[str, int]) -> str:
+    """The leaves the paper's tree does not have, when asked for: self-collision barriers, a tool-axis attractor,
+    a joint velocity cap (unweighted edges on the root). Returns what they add to the tree's description."""
+    said = []
+    if p.self_collision is not None:
+        pairs, overlapping = self_collision_pairs(p.robot, p.self_collision.min_separation)
+        for i, j in pairs:
+            a, b = (p.robot.control_points[k - 1] for k in (i, j))
+            sphere = lambda cp: {"link": cp.link, "offset": [float(v) for v in cp.offset], "radius": float(cp.radius)}  # noqa: E731
+            nodes[f"self_cp{i}_cp{j}"] = {"parent": "q", "map": _robot_map(p, "link_sphere_distance", a=sphere(a),
+                                                                            b=sphere(b)),
+                                          "rmp": {"type": "collision_avoidance",
+                                                  **p.self_collision.rmp.model_dump(exclude_unset=True)}}
+        said.append(f"{len(pairs)} self-collision barriers" + (f" ({overlapping} sphere pairs overlapping at home "
+                                                                 f"left out)" if overlapping else ""))
+    if p.orientation is not None:
+        o = p.orientation
+        if isinstance(o.target, str):
+            aux.setdefault(o.target, 3)
+        nodes["tool_axis"] = {"parent": "q", "map": _robot_map(p, "link_axis", link=o.link or p.robot.end_effector.link,
+                                                               axis=list(o.axis), target=o.target),
+                              "rmp": {"type": "orientation_attractor", **o.rmp.model_dump(exclude_unset=True)}}
+        said.append("a tool-axis attractor")
+    if p.velocity_limits is not None:
+        nodes["velocity_limit"] = {"parent": "q", "map": _robot_map(p, "velocity_scaled_joints"),
+                                   "rmp": {"type": "velocity_limit",
+                                           **p.velocity_limits.rmp.model_dump(exclude_unset=True)}}
+        said.append("a joint velocity cap")
+    return "; " + ", ".join(said) if said else ""
+
+
+def self_collision_pairs(robot, min_separation: int) -> tuple[list[tuple[int, int]], int]:
+    """Pairs (i, j) of control points (numbered from 1) on links ``min_separation`` or more actuated joints apart,
+    and how many such pairs were left out because their spheres already overlap at the robot's home configuration
+    (conservative spheres on links two joints apart can: a barrier there would push the arm from its own home)."""
+    chain = Chain(robot.model(), list(robot.joints))
+    far = set(non_adjacent_link_pairs(chain, min_separation=min_separation))
+    cps = robot.control_points
+    home = torch.tensor([list(robot.home)], dtype=torch.float64)
+    poses = chain.forward_kinematics(home, sorted({cp.link for cp in cps}))
+    centre = [poses[cp.link][1][0] + poses[cp.link][0][0] @ torch.tensor(cp.offset, dtype=torch.float64) for cp in cps]
+    pairs, overlapping = [], 0
+    for i in range(len(cps)):
+        for j in range(i + 1, len(cps)):
+            if (cps[i].link, cps[j].link) not in far and (cps[j].link, cps[i].link) not in far:
+                continue
+            if float((centre[i] - centre[j]).norm()) <= cps[i].radius + cps[j].radius:
+                overlapping += 1
+                continue
+            pairs.append((i + 1, j + 1))
+    return pairs, overlapping
 
 
 def manipulator_tree_spec(robot: Mapping[str, Any], scene: Mapping[str, Any] | Scene | None = None,

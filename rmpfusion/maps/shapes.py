@@ -61,9 +61,16 @@ class ShapeParams(Params):
 
 
 class ObstacleDistance(TaskMap):
-    """Base: the distance to a shape around ``center`` moving at ``velocity``; subclasses give ``measure``."""
+    """Base: the distance to a shape around ``center`` moving at ``velocity``; subclasses give ``measure``.
+
+    Distances to obstacles of one shape stack (``core/stacking.py``): the (control point × obstacle) edges of a
+    tree evaluate as one group, each member reading its own obstacle's aux state."""
 
     Params = ShapeParams
+    stack_fields = ("center", "velocity")
+
+    def stack_settings(self) -> tuple:
+        return (self.velocity is None,)  # static and moving obstacles compute different rates
 
     def __init__(self, params: ShapeParams, in_dim: int, aux_dims: Mapping[str, int] | None = None):
         super().__init__(in_dim, aux_dims)
@@ -89,7 +96,7 @@ class ObstacleDistance(TaskMap):
     def forward(self, x, xd, aux=None):
         rel = xd if self.velocity is None else xd - self.velocity(aux)
         d, g, c = self.measure(x - self.center(aux), rel, aux)
-        return d, _dot(g, rel), g.unsqueeze(1), c
+        return d, _dot(g, rel), g.unsqueeze(-2), c
 
 
 @TASK_MAPS.register("sphere_obstacle")
@@ -97,6 +104,7 @@ class SphereObstacle(ObstacleDistance):
     """|x − c| − R."""
 
     registered = "sphere_obstacle"
+    stack_fields = ObstacleDistance.stack_fields + ("radius",)
 
     class Params(ShapeParams):
         radius: AuxOrValue = Field(description="> 0, or an aux name")
@@ -116,6 +124,7 @@ class CapsuleObstacle(ObstacleDistance):
     """Distance to the segment c ± h·a, minus R: a cylinder of radius R with hemispherical caps."""
 
     registered = "capsule_obstacle"
+    stack_fields = ObstacleDistance.stack_fields + ("radius", "axis", "half_length")
 
     class Params(ShapeParams):
         radius: AuxOrValue = Field(description="> 0, or an aux name")
@@ -146,6 +155,7 @@ class CylinderObstacle(ObstacleDistance):
     """Signed distance to a finite cylinder: radius R around the axis a through c, |z| ≤ h along it."""
 
     registered = "cylinder_obstacle"
+    stack_fields = ObstacleDistance.stack_fields + ("radius", "axis", "half_height")
 
     class Params(ShapeParams):
         radius: AuxOrValue = Field(description="> 0, or an aux name")
@@ -184,6 +194,7 @@ class BoxObstacle(ObstacleDistance):
     """Signed distance to a box with half extents e, rotated by R (world = R · box frame), around c."""
 
     registered = "box_obstacle"
+    stack_fields = ObstacleDistance.stack_fields + ("half_extents", "rotation")
 
     class Params(ShapeParams):
         half_extents: AuxOrValue = Field(description="> 0 along every axis of the box (3), or an aux name")
@@ -229,6 +240,8 @@ class BoxObstacle(ObstacleDistance):
 class PlaneDistance(TaskMap):
     """nᵀx − h: the height of the point above a plane with unit normal n (a table top, the floor)."""
 
+    stack_fields = ("n", "height")
+
     class Params(Params):
         normal: list[float] = Field([0.0, 0.0, 1.0], min_length=1, description="the plane's normal (normalised)")
         height: AuxOrValue = Field(0.0, description="offset of the plane along the normal (m), or an aux name")
@@ -255,8 +268,9 @@ class PlaneDistance(TaskMap):
         self.out_dim = 1
 
     def psi(self, x, aux=None):
-        return x @ self.n.unsqueeze(-1) - self.height(aux)
+        return (x * self.n).sum(-1, keepdim=True) - self.height(aux)
 
     def forward(self, x, xd, aux=None):
-        J = self.n.expand(x.shape[0], 1, self.in_dim)
-        return self.psi(x, aux), xd @ self.n.unsqueeze(-1), J, x.new_zeros(x.shape[0], 1)
+        y = self.psi(x, aux)
+        J = self.n.unsqueeze(-2).expand(*y.shape[:-1], 1, self.in_dim)
+        return y, (xd * self.n).sum(-1, keepdim=True), J, torch.zeros_like(y)
