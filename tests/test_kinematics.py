@@ -263,7 +263,7 @@ def test_map_spec_and_errors():
         make_map("panda_hand", in_dim=6)  # the 7 arm joints under a 6-D parent
     with pytest.raises(ValueError, match="no link 'panda_hnad'.*panda_hand"):
         make_map("panda_hnad")
-    with pytest.raises(ValueError, match=r"forward_kinematics.robot \('panda'\) was retired: robots are described in "
+    with pytest.raises(ValueError, match=r"robot \('panda'\) was retired: robots are described in "
                                          r"conf/robot/<name>.yaml; write that file's urdf and joints here"):
         make_map("panda_hand", robot="panda")
     with pytest.raises(ValueError, match="is fixed"):

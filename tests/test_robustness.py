@@ -621,13 +621,12 @@ TRAP_TREE = {"root": {"name": "q", "dim": 7}, "nodes": {
 
 
 def franka_setup(B: int = 2):
-    from manipulators import franka_env
+    from manipulators import franka_env, make_aux
     env = franka_env(control_rate=60.0)
     q0 = torch.tensor([NOMINAL] * B, dtype=F64)
     qd0 = torch.zeros(B, 7, dtype=F64)
-    aux = {"goal": torch.tensor([[0.4, -0.3, 0.35]] * B, dtype=F64),
-           "obstacle1_center": torch.tensor([[-0.8, -0.8, 0.25]] * B, dtype=F64),
-           "obstacle1_radius": torch.tensor([[0.05]] * B, dtype=F64)}
+    one = make_aux([0.4, -0.3, 0.35], [(-0.8, -0.8, 0.25)], [0.05])  # the cylinder out of the way
+    aux = {k: v.expand(B, -1).contiguous() for k, v in one.items()}
     return env, q0, qd0, aux
 
 
