@@ -19,6 +19,7 @@ from pydantic import Field, field_validator
 from ..build.weighting import tree_with_weights as with_weights  # noqa: F401  (expert configs: node or shared-weight names)
 from ..core.auxstate import AuxOrValue
 from ..maps.kinematics import Chain
+from ..maps.orientation import check_direction
 from ..maps.robot import Vector3
 from ..maps.self_collision import non_adjacent_link_pairs
 from ..registry import TREE_GENERATORS, Params
@@ -95,6 +96,12 @@ class Orientation(Params):
     target: AuxOrValue = Field(description="the target direction (3 numbers, normalised) or an aux name")
     rmp: OrientationAttractor.Params = _tuned_field(OrientationAttractor.Params, "orientation_rmp",
                                                     "attractor on the axis's error")
+
+    @field_validator("axis")
+    @classmethod
+    def _direction(cls, v: list[float]) -> list[float]:
+        check_direction(v, "axis")  # link_axis's own check
+        return v
 
     @field_validator("rmp", mode="before")
     @classmethod

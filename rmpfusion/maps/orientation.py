@@ -35,7 +35,7 @@ TARGET_DIMS = {"quaternion_xyzw": lambda k: 4, "quaternion_wxyz": lambda k: 4, "
 AXES_XYZ = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
 
 
-def _non_zero(v: Sequence[float], what: str) -> None:
+def check_direction(v: Sequence[float], what: str) -> None:
     if not any(float(a) != 0.0 for a in v):
         raise ValueError(f"{what} must be a non-zero vector (it is a direction in the link frame); given {list(v)}")
 
@@ -92,7 +92,7 @@ class LinkOrientation(TaskMap):
         @classmethod
         def _distinct_directions(cls, v: list[list[float]]) -> list[list[float]]:
             for i, a in enumerate(v):
-                _non_zero(a, f"axes[{i}]")
+                check_direction(a, f"axes[{i}]")
             unit = [constant(a) / constant(a).norm() for a in v]
             for i in range(len(v)):
                 for j in range(i):
@@ -174,7 +174,7 @@ def _check_constant_target(t: Tensor, fmt: str, k: int, what: str) -> None:
         raise ValueError(f"{what}.target: a quaternion of norm 0 is no rotation; given {t.tolist()}")
     if fmt == "axes":
         for i, d in enumerate(t.reshape(k, 3)):
-            _non_zero(d.tolist(), f"{what}.target direction {i}")
+            check_direction(d.tolist(), f"{what}.target direction {i}")
     if fmt == "matrix":
         R = t.reshape(3, 3)
         err = float((R @ R.T - torch.eye(3, dtype=R.dtype)).abs().max())
@@ -198,7 +198,7 @@ class LinkAxis(LinkOrientation):
         @field_validator("axis")
         @classmethod
         def _direction(cls, v: list[float]) -> list[float]:
-            _non_zero(v, "axis")
+            check_direction(v, "axis")
             return v
 
     def __init__(self, params: Params, in_dim: int, aux_dims: Mapping[str, int] | None = None):
