@@ -2,5 +2,6 @@
 from .demonstrations import Dataset, DatasetError, collect, dataset_meta, load_dataset, save_dataset  # noqa: F401
 from .franka import Franka  # noqa: F401
 from .particle2d import Particle2D  # noqa: F401
-from .protocol import Env, HasRatioMetrics, HasTaskMetrics, PlanarWorkspace, RenderSettings, Renders  # noqa: F401
+from .protocol import (DifferentiableRollouts, Env, HasRatioMetrics, HasTaskMetrics, PlanarWorkspace,  # noqa: F401
+                       RenderSettings, Renders)
 from .rollout import Rollout  # noqa: F401

@@ -19,7 +19,7 @@ from ..evaluate.metrics import StageResult, evaluate_learner, online_loss, rollo
 from ..evaluate.weights import edge_weights, learned_edges, summarize_weights
 from ..learn.learner import Learner
 from ..learn.objectives import dataset_loss
-from ..learn.train import load_snapshot
+from ..learn.loop import load_snapshot
 from .collect import Splits
 from .experiment import Experiment, clean
 from .fit import Fitted
@@ -121,13 +121,13 @@ class _SnapshotEvaluator:
         exp, ev = self.exp, self.exp.run.eval
         return evaluate_learner(model, exp.expert, exp.env, self.splits.test, exp.horizon, exp.run.data.interval,
                                 ev.lyapunov_rtol, ev.lyapunov_atol, exp.fine_interval, exp.say.bar(bar_label),
-                                loss=lambda m, ds: dataset_loss(m, ds, exp.run.train.objective))
+                                loss=lambda m, ds: dataset_loss(m, ds, exp.run.train.batch_loss_objective))
 
     def snapshot(self, model: Learner, it: int, out: LearnerEval):
         met, onl = self.metrics(model, f"eval {self.name}@{it}")
         met = self.with_task(met, onl.rollout, it, out)
         if self.splits.val is not None:
-            met["val_loss"] = dataset_loss(model, self.splits.val, self.exp.run.train.objective)
+            met["val_loss"] = dataset_loss(model, self.splits.val, self.exp.run.train.batch_loss_objective)
         if out.weights is not None:
             met["weights"] = out.weights.snapshot(f"{self.name} @ {it}", model)
         ro = onl.rollout
@@ -165,7 +165,7 @@ def evaluate_fitted(exp: Experiment, name: str, fitted: Fitted, splits: Splits, 
         met, onl = ev.metrics(model, f"eval {name}")
         met = ev.with_task(met, onl.rollout, exp.run.train.iterations, out)
         if splits.val is not None:
-            met["val_loss"] = dataset_loss(model, splits.val, exp.run.train.objective)
+            met["val_loss"] = dataset_loss(model, splits.val, exp.run.train.batch_loss_objective)
         final = (met, onl)
     out.final, out.final_rollout = final[0], final[1].rollout
     model.to(dtype)
