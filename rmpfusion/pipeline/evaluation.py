@@ -15,6 +15,7 @@ from torch import Tensor
 
 from ..envs.demonstrations import Dataset
 from ..envs.protocol import HasTaskMetrics
+from ..evaluate.certificate import certify_rollout
 from ..evaluate.metrics import StageResult, evaluate_learner, online_loss, rollout_rates, task_stage
 from ..evaluate.weights import edge_weights, learned_edges, summarize_weights
 from ..learn.learner import Learner
@@ -144,6 +145,14 @@ def evaluate_model(exp: Experiment, model: Learner, splits: Splits, label: str):
     return _SnapshotEvaluator(exp, label, splits, ExpertEval(None, {}, None)).metrics(model, label)
 
 
+def certificate(model: Learner, rollout, aux) -> dict:
+    """Theorem 2's premises and identity checked at every record of the trained tree's test rollouts
+    (``evaluate/certificate.py``): positive weights, positive-definite M_r, dV_r/dt = −q̇ᵀB_r q̇ ≤ 0. What a
+    trained tree (learned weights, learnable leaf parameters) must still satisfy; the failing records counted."""
+    d = certify_rollout(model.tree, rollout, aux).as_dict()
+    return {**d, "failing_states": len(d["failing_states"]), "non_finite_states": len(d["non_finite_states"])}
+
+
 def evaluate_fitted(exp: Experiment, name: str, fitted: Fitted, splits: Splits, expert: ExpertEval) -> LearnerEval:
     """Every snapshot of one trained learner, in float64 (docs/math.md §11); the model is left in its dtype."""
     t0 = time.time()
@@ -168,6 +177,8 @@ def evaluate_fitted(exp: Experiment, name: str, fitted: Fitted, splits: Splits, 
             met["val_loss"] = dataset_loss(model, splits.val, exp.run.train.batch_loss_objective)
         final = (met, onl)
     out.final, out.final_rollout = final[0], final[1].rollout
+    if model.tree is not None:
+        out.final["certificate"] = certificate(model, out.final_rollout, splits.test.initial_states()[2])
     model.to(dtype)
     out.seconds = time.time() - t0
     return out
