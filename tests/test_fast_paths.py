@@ -1,6 +1,7 @@
 """The optimised paths compute the same numbers as the plain ones (float64, to 1e-10): the torch.compile'd
-tree, the shared forward-kinematics pass, the pullback* shortcuts (tested in test_tree), the fused GDS terms
-(test_leaves) and the forward-mode MLP tangent (test_weights). No test here looks at wall time."""
+tree, the one kinematics pass for every control point, the pullback* shortcuts (tested in test_tree), the fused GDS
+terms (test_leaves) and the forward-mode MLP tangent (test_weights); level-batched evaluation against the
+node-by-node computation is test_grouped_evaluation. No test here looks at wall time."""
 import copy
 
 import pytest
@@ -48,31 +49,22 @@ def test_compiled_tree_falls_back_to_the_pseudo_inverse_where_the_solve_fails():
     torch.testing.assert_close(out_c.qdd, torch.stack([-qd[:, 0], torch.zeros(3, dtype=torch.float64)], -1))
 
 
-def test_shared_forward_kinematics_pass_equals_one_pass_per_control_point():
-    """The Franka tree computes one kinematics pass for all 15 points; switching the sharing off (each map
-    runs its own chain) gives the same tree output, and each map's prepared output equals its forward."""
+def test_one_kinematics_pass_serves_every_control_point():
+    """The Franka tree's 15 kinematic points form one group reading one pass of the chain; the group's position,
+    Jacobian and J̇q̇ of every point equal that point's map evaluated on its own."""
     from rmpfusion.envs.franka_tree import franka_tree_spec
 
-    spec = franka_tree_spec(n_obstacles=2)
-    aux_dims = dict(spec["aux"])
-    shared = rmpfusion.build_tree(spec)
-    plain = rmpfusion.build_tree(spec)
-    plain.load_state_dict(shared.state_dict())  # the same (random) weight networks in both
-    fk = [m for m in plain.maps.values() if m.shared_key is not None]
-    assert len(fk) == 15
-    for m in fk:
-        m.shared_key = None
+    tree = rmpfusion.build_tree(franka_tree_spec(n_obstacles=2))
+    (group,) = [g for g in tree.plan.groups if g.nodes[0] == "ee"]
+    assert len(group.nodes) == 15 and all(tree.maps[n].chain is not None for n in group.nodes)
     g = torch.Generator().manual_seed(1)
-    lo, hi = fk[0].chain.joint_limits()
+    lo, hi = tree.maps["ee"].chain.joint_limits()
     q = lo + (hi - lo) * torch.rand(6, 7, generator=g, dtype=torch.float64)
     qd = torch.randn(6, 7, generator=g, dtype=torch.float64)
-    aux = {k: torch.rand(6, d, generator=g, dtype=torch.float64) + (0.3 if "center" in k else 0.05)
-           for k, d in aux_dims.items()}
-    _assert_same(shared(q, qd, aux), plain(q, qd, aux), tol=1e-12)
-    prepared = fk[0].prepare(q, qd)
-    for m in fk:
-        for a, b in zip(m.from_prepared(prepared, q, qd), m(q, qd)):
-            torch.testing.assert_close(a, b, rtol=1e-13, atol=1e-13)
+    together = group.map(q.unsqueeze(0), qd.unsqueeze(0), None)
+    for row, n in enumerate(group.nodes):
+        for a, b in zip(together, tree.maps[n](q, qd)):
+            torch.testing.assert_close(a[row], b, rtol=1e-13, atol=1e-13)
 
 
 @pytest.mark.parametrize("name", ["identity", "offset"])

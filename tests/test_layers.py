@@ -15,7 +15,7 @@ RANK = {"core": 0, "files": 0,
         "build": 2, "envs": 3, "learn": 4, "evaluate": 4, "plots": 5, "pipeline": 6, "cli": 7}
 SIDE_BY_SIDE = {frozenset({"learn", "evaluate"})}
 #: what core/ may import besides itself: the math needs torch and the standard library only
-CORE_ALLOWED = {"torch", "__future__", "collections", "dataclasses", "logging", "math", "types", "typing", "warnings"}
+CORE_ALLOWED = {"torch", "__future__", "collections", "copy", "dataclasses", "logging", "math", "types", "typing", "warnings"}
 
 
 def _layer(module: str) -> str | None:

@@ -113,20 +113,20 @@ def test_energy_identity_fails_without_h_terms():
     from rmpfusion.core import algebra
 
     tree, q, qd, aux = setup(5, 2, B=16)
-    original = algebra.pullback_star
+    original = algebra.edge_contribution
 
-    def without_h(xd, children):
-        return original(xd, [(e._replace(grad_w=None), ch) for e, ch in children])
+    def without_h(xd, edge, child):
+        return original(xd, edge._replace(grad_w=None), child)
 
-    import rmpfusion.core.tree as tree_mod
-    tree_mod.pullback_star = without_h
+    import rmpfusion.core.passes as tree_mod
+    tree_mod.edge_contribution = without_h
     try:
         with torch.no_grad():
             o = tree(q, qd, aux)
             eps = 1e-5
             dVdt = (tree(q + eps * qd, qd + eps * o.qdd, aux).V - tree(q - eps * qd, qd - eps * o.qdd, aux).V) / (2 * eps)
     finally:
-        tree_mod.pullback_star = original
+        tree_mod.edge_contribution = original
     expect = -torch.einsum("bi,bij,bj->b", qd, o.B, qd)
     assert (dVdt - expect).abs().max() > 1e-3
 

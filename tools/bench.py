@@ -90,7 +90,7 @@ def compose(experiment: str):
 
 def learner_2d2level(seed: int = 0):
     from rmpfusion.learn.learners import build_learner
-    from rmpfusion.pipeline.run import make_env
+    from rmpfusion.pipeline.validate import make_env
 
     cfg = compose("2d2level")
     env = make_env(cfg)
@@ -102,7 +102,7 @@ def learner_2d2level(seed: int = 0):
 
 def franka_expert():
     from rmpfusion.pipeline.validate import expert_spec
-    from rmpfusion.pipeline.run import make_env
+    from rmpfusion.pipeline.validate import make_env
 
     cfg = compose("franka")
     env = make_env(cfg)

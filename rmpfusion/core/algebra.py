@@ -23,11 +23,17 @@ class NodeRMP:
 
     f: Tensor
     M: Tensor
-    G: Tensor
-    B: Tensor
-    Phi: Tensor
-    L: Tensor
-    V: Tensor
+    G: Tensor | None
+    B: Tensor | None
+    Phi: Tensor | None
+    L: Tensor | None
+    V: Tensor | None
+
+    @classmethod
+    def lean(cls, f: Tensor, M: Tensor) -> "NodeRMP":
+        """Only the natural form (f, M): all resolve needs, when no varying weight asks for L and G and nobody
+        monitors V (``RMPTree.policy``)."""
+        return cls(f, M, None, None, None, None, None)
 
     def items(self):
         return ((f.name, getattr(self, f.name)) for f in fields(self))
@@ -57,64 +63,86 @@ def matmul_small(A: Tensor, Bm: Tensor) -> Tensor:
 
 def pushforward(J: Tensor, xd: Tensor) -> Tensor:
     """Child velocity ẏ = J ẋ."""
-    return torch.einsum("bnm,bm->bn", J, xd)
+    return matvec(J, xd)
 
 
 def _jt(J: Tensor, v: Tensor) -> Tensor:
-    """Jᵀ v for v of shape (B, n)."""
-    if J.shape[1] == 1:
-        return J[:, 0, :] * v
-    return torch.einsum("bnm,bn->bm", J, v)
+    """Jᵀ v for J (..., n, m) and v (..., n)."""
+    if J.shape[-2] == 1:
+        return J[..., 0, :] * v
+    return (J * v.unsqueeze(-1)).sum(-2)
+
+
+class _Pull:
+    """Pulls a child's quantities back through one edge: vectors by w Jᵀv, matrices by w JᵀXJ, scalars by w s.
+    A 1-D child (distance spaces, the common case) scales its scalars and spreads them with one outer product
+    jjᵀ; an identity edge skips J."""
+
+    def __init__(self, J: Tensor, w: Tensor | None, identity: bool):
+        self.J, self.w, self.identity = J, w, identity
+        self.one_d = J.shape[-2] == 1 and not identity
+        if self.one_d:
+            self.j = J[..., 0, :]
+            self.jj = self.j.unsqueeze(-1) * self.j.unsqueeze(-2)
+
+    def scalar(self, s: Tensor) -> Tensor:
+        return s if self.w is None else self.w * s
+
+    def vector(self, v: Tensor) -> Tensor:
+        if self.one_d:
+            return self.scalar(v[..., 0])[..., None] * self.j
+        out = v if self.identity else _jt(self.J, v)
+        return out if self.w is None else self.w[..., None] * out
+
+    def matrix(self, X: Tensor) -> Tensor:
+        if self.one_d:
+            return self.scalar(X[..., 0, 0])[..., None, None] * self.jj
+        out = X if self.identity else self.J.transpose(-1, -2) @ X @ self.J
+        return out if self.w is None else self.w[..., None, None] * out
+
+
+def edge_contribution(xd: Tensor, edge: Edge, child: NodeRMP) -> NodeRMP:
+    """One child's term of pullback* (paper eq. 6) in the parent's coordinates, h_i included:
+    ``w Jᵀ(f − M c) + h``, ``w JᵀMJ``, ``w JᵀGJ``, ``w JᵀBJ``, ``w Φ``, ``w L``, ``w V``.
+
+    Any leading dimensions: a single edge's (B, ...) or a whole group's (G, B, ...) at once (the parent's ``xd``
+    may be (1, B, m) when every member has the same parent). h_i = L_i ∇w_i − (ẋᵀ∇w_i) Jᵢᵀ Gᵢ Jᵢ ẋ uses the
+    child's own, unweighted L_i and G_i. A child carrying only f and M (``NodeRMP.lean``, no varying weight
+    above it) gives only the parent's f and M.
+    """
+    J, c, yd, w, gw, identity = edge
+    pull = _Pull(J, w, identity)
+    f = pull.vector(child.f - matvec(child.M, c))
+    M = pull.matrix(child.M)
+    if child.G is None:
+        return NodeRMP.lean(f, M)
+    if gw is not None:
+        # h_i uses the child's G_i and L_i unweighted (paper eq. 6): Jᵀ G_i (J ẋ) = Jᵀ G_i ẏ
+        Gyd = matvec(child.G, yd)
+        JtGyd = Gyd if identity else _jt(J, Gyd)
+        f = f + child.L[..., None] * gw - (xd * gw).sum(-1, keepdim=True) * JtGyd
+    return NodeRMP(f=f, M=M, G=pull.matrix(child.G), B=pull.matrix(child.B), Phi=pull.scalar(child.Phi),
+                   L=pull.scalar(child.L), V=pull.scalar(child.V))
+
+
+def add_rmps(a: NodeRMP | None, b: NodeRMP) -> NodeRMP:
+    """Field-wise sum of two RMPs (a None: b); a field either lacks is left out (lean RMPs carry f and M only)."""
+    if a is None:
+        return b
+    return NodeRMP(*(None if x is None or y is None else x + y for (_, x), (_, y) in zip(a.items(), b.items())))
 
 
 def pullback_star(xd: Tensor, children: Iterable[tuple[Edge, NodeRMP]]) -> NodeRMP:
-    """pullback* of paper eq. 6, including h_i = L_i ∇w_i − (ẋᵀ∇w_i) Jᵢᵀ Gᵢ Jᵢ ẋ.
+    """pullback* of paper eq. 6: the sum of every child's ``edge_contribution``.
 
     With every weight None (constant 1) this is exactly RMPflow's pullback, plus the carried G, B, Φ, L, V.
     """
-    f = M = G = Bm = Phi = L = V = None
-    for edge, ch in children:
-        J, c, yd, w, gw, identity = edge
-        fi = ch.f - matvec(ch.M, c)
-        Phi_i, L_i, V_i = ch.Phi, ch.L, ch.V
-        if identity:
-            f_i, M_i, G_i_w, B_i = fi, ch.M, ch.G, ch.B
-            if w is not None:
-                ww = w[:, None, None]
-                f_i, M_i, G_i_w, B_i = w[:, None] * f_i, ww * M_i, ww * G_i_w, ww * B_i
-        elif J.shape[1] == 1:
-            # 1-D child (distance spaces, the common case): one outer product jjᵀ serves M, G and B,
-            # and the weight multiplies the scalars before they are spread over the matrix
-            j = J[:, 0, :]
-            jj = j[:, :, None] * j[:, None, :]
-            m, g, b, fs = ch.M[:, 0, 0], ch.G[:, 0, 0], ch.B[:, 0, 0], fi[:, 0]
-            if w is not None:
-                m, g, b, fs = w * m, w * g, w * b, w * fs
-            f_i = fs[:, None] * j
-            M_i, G_i_w, B_i = m[:, None, None] * jj, g[:, None, None] * jj, b[:, None, None] * jj
-        else:
-            Jt = J.transpose(-1, -2)
-            f_i = (Jt @ fi.unsqueeze(-1)).squeeze(-1)
-            M_i, G_i_w, B_i = Jt @ ch.M @ J, Jt @ ch.G @ J, Jt @ ch.B @ J
-            if w is not None:
-                ww = w[:, None, None]
-                f_i, M_i, G_i_w, B_i = w[:, None] * f_i, ww * M_i, ww * G_i_w, ww * B_i
-        if w is not None:
-            Phi_i, L_i, V_i = w * Phi_i, w * L_i, w * V_i
-        if gw is not None:
-            # h_i uses the child's G_i and L_i unweighted (paper eq. 6): Jᵀ G_i (J ẋ) = Jᵀ G_i ẏ
-            Gyd = matvec(ch.G, yd)
-            JtGyd = Gyd if identity else _jt(J, Gyd)
-            h = ch.L[:, None] * gw - (xd * gw).sum(-1, keepdim=True) * JtGyd
-            f_i = f_i + h
-        if f is None:
-            f, M, G, Bm, Phi, L, V = f_i, M_i, G_i_w, B_i, Phi_i, L_i, V_i
-        else:
-            f, M, G, Bm = f + f_i, M + M_i, G + G_i_w, Bm + B_i
-            Phi, L, V = Phi + Phi_i, L + L_i, V + V_i
-    if f is None:
+    total = None
+    for edge, child in children:
+        total = add_rmps(total, edge_contribution(xd, edge, child))
+    if total is None:
         raise ValueError("pullback* needs at least one child")
-    return NodeRMP(f=f, M=M, G=G, B=Bm, Phi=Phi, L=L, V=V)
+    return total
 
 
 class SingularInertiaWarning(RuntimeWarning):

@@ -19,11 +19,11 @@ def directional(fn: Callable[[Tensor], Tensor], x: Tensor, v: Tensor) -> Tensor:
 
 
 def jacobian(fn: Callable[[Tensor], Tensor], x: Tensor) -> Tensor:
-    """Per-sample Jacobian (B, n, m) of fn: (B, m) -> (B, n), one jvp per input coordinate."""
-    B, m = x.shape
-    eye = torch.eye(m, dtype=x.dtype, device=x.device).unsqueeze(1).expand(m, B, m)
-    cols = vmap(lambda t: jvp(fn, (x,), (t,))[1])(eye)  # (m, B, n)
-    return cols.permute(1, 2, 0)
+    """Per-sample Jacobian (..., n, m) of fn: (..., m) -> (..., n), one jvp per input coordinate."""
+    m = x.shape[-1]
+    eye = torch.eye(m, dtype=x.dtype, device=x.device).reshape(m, *([1] * (x.dim() - 1)), m).expand(m, *x.shape)
+    cols = vmap(lambda t: jvp(fn, (x,), (t,))[1])(eye)  # (m, ..., n)
+    return cols.movedim(0, -1)
 
 
 def second_directional(fn: Callable[[Tensor], Tensor], x: Tensor, v: Tensor) -> Tensor:
@@ -32,6 +32,6 @@ def second_directional(fn: Callable[[Tensor], Tensor], x: Tensor, v: Tensor) -> 
 
 
 def gradient(fn: Callable[[Tensor], Tensor], x: Tensor) -> Tensor:
-    """Per-sample gradient (B, m) of a scalar-per-sample fn: (B, m) -> (B,)."""
+    """Per-sample gradient (..., m) of a scalar-per-sample fn: (..., m) -> (...)."""
     out, pull = vjp(fn, x)
     return pull(torch.ones_like(out))[0]

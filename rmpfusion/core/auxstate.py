@@ -52,5 +52,59 @@ class AuxParam(nn.Module):
             raise KeyError(f"aux state '{self.name}' is required by this tree but was not passed")
         return aux[self.name]
 
+    def renamed(self, name: str) -> "AuxParam":
+        """The same parameter reading the aux entry ``name`` (a shared weight bound to one edge's entries)."""
+        if self.name is None:
+            return self
+        other = AuxParam.__new__(AuxParam)
+        nn.Module.__init__(other)
+        other.name, other.dim = name, self.dim
+        other.register_buffer("const", None)
+        return other
+
     def extra_repr(self) -> str:
         return f"aux={self.name!r}" if self.name else f"const={self.const.tolist()}"
+
+
+class StackedAux(nn.Module):
+    """The ``AuxParam`` s of a group's members as one tensor: ``(G, B, k)`` rows, member g reading its own aux entry
+    or constant (docs/math.md §9). Where every member reads the same entry it stays ``(1, B, k)``, and where every
+    member has a constant it is ``(G, 1, k)`` (``(1, 1, k)`` if they are all equal): both broadcast against
+    ``(G, B, k)`` without copies. The aux entries a group reads are gathered with one ``stack`` and one index."""
+
+    def __init__(self, params: Sequence[AuxParam]):
+        super().__init__()
+        dims = {p.dim for p in params}
+        if len(dims) != 1:
+            raise ValueError(f"stacked aux parameters must share one dimension, got {sorted(dims)}")
+        self.dim = dims.pop()
+        self.size = len(params)
+        names = [p.name for p in params]
+        self.names = list(dict.fromkeys(n for n in names if n is not None))  # each entry read once, in order
+        consts = [p.const for p in params if p.name is None]
+        self.register_buffer("consts", torch.stack(consts) if consts else None, persistent=False)
+        if consts and len(consts) == len(params) and all(torch.equal(c, consts[0]) for c in consts):
+            self.register_buffer("consts", consts[0].unsqueeze(0), persistent=False)
+        # member g's row in cat([stacked aux entries, constants]): read when members mix entries and constants
+        order, k = [], 0
+        for n in names:
+            if n is None:
+                order.append(len(self.names) + k)
+                k += 1
+            else:
+                order.append(self.names.index(n))
+        identity = order == list(range(len(params))) and not consts
+        self.register_buffer("index", None if identity or not self.names else torch.tensor(order), persistent=False)
+
+    def forward(self, aux: AuxDict | None) -> Tensor:
+        if not self.names:  # constants only: (G or 1, 1, k)
+            return self.consts.unsqueeze(1)
+        if aux is None or any(n not in aux for n in self.names):
+            missing = [n for n in self.names if aux is None or n not in aux]
+            raise KeyError(f"aux state {missing} is required by this tree but was not passed")
+        if len(self.names) == 1 and self.consts is None:
+            return aux[self.names[0]].unsqueeze(0)  # one entry for every member: (1, B, k)
+        rows = torch.stack([aux[n] for n in self.names])
+        if self.consts is not None:
+            rows = torch.cat([rows, self.consts.unsqueeze(1).expand(-1, rows.shape[1], -1).to(rows)])
+        return rows if self.index is None else rows.index_select(0, self.index)

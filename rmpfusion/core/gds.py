@@ -11,10 +11,14 @@ from torch import Tensor, nn
 
 from . import autodiff
 from .algebra import NodeRMP, matvec
+from .stacking import Stackable
 
 
-class LeafRMP(nn.Module):
-    """A leaf of the tree: anything that returns a NodeRMP for a batch of (y, ẏ)."""
+class LeafRMP(Stackable, nn.Module):
+    """A leaf of the tree: anything that returns a NodeRMP for a batch of (y, ẏ).
+
+    Leaves of one kind evaluate as one batch when the class declares how its members stack (``core/stacking.py``):
+    then ``forward`` also takes ``(G, B, n)`` inputs, its numbers broadcasting as ``(G, 1)``."""
 
     dim: int | None = None  # None: any dimension
 
@@ -27,10 +31,16 @@ class LeafRMP(nn.Module):
     def forward(self, y: Tensor, yd: Tensor) -> NodeRMP:  # pragma: no cover - abstract
         raise NotImplementedError
 
+    def force(self, y: Tensor, yd: Tensor) -> NodeRMP:
+        """Only the natural form (f, M) (``NodeRMP.lean``): what a tree's policy needs when nothing asks for the
+        leaf's L, V. A leaf whose potential is costly overrides it to skip that."""
+        r = self(y, yd)
+        return NodeRMP.lean(r.f, r.M)
+
 
 def quad(v: Tensor, A: Tensor) -> Tensor:
-    """vᵀ A v per sample."""
-    return torch.einsum("bi,bij,bj->b", v, A, v)
+    """vᵀ A v per sample (any leading dimensions)."""
+    return (matvec(A, v) * v).sum(-1)
 
 
 class GDS(LeafRMP):
@@ -73,7 +83,9 @@ class GDS(LeafRMP):
 
     def forward(self, y: Tensor, yd: Tensor) -> NodeRMP:
         G, Bm, Phi, dPhi, Xi, xi = self.terms(y, yd)
-        M = G + Xi
-        f = -dPhi - matvec(Bm, yd) - xi
         K = 0.5 * quad(yd, G)
-        return NodeRMP(f=f, M=M, G=G, B=Bm, Phi=Phi, L=K - Phi, V=K + Phi)
+        return NodeRMP(f=-dPhi - matvec(Bm, yd) - xi, M=G + Xi, G=G, B=Bm, Phi=Phi, L=K - Phi, V=K + Phi)
+
+    def force(self, y: Tensor, yd: Tensor) -> NodeRMP:
+        G, Bm, _, dPhi, Xi, xi = self.terms(y, yd)
+        return NodeRMP.lean(-dPhi - matvec(Bm, yd) - xi, G + Xi)

@@ -7,21 +7,22 @@ from torch import Tensor, nn
 
 from . import autodiff
 from .auxstate import AuxDict
+from .stacking import Stackable
 
 
-class TaskMap(nn.Module):
+class TaskMap(Stackable, nn.Module):
     """Base of every task map.
 
     Subclasses implement ``psi(x, aux)``; they may override ``jacobian`` and ``curvature`` with analytic
     forms (the default is exact forward-mode autodiff). ``out_dim`` is fixed at build time from
     ``in_dim`` and the declared aux dimensions, so trees are dimension-checked before they run.
+
+    Maps of one kind under one parent group evaluate as one batch when the class declares how its members stack
+    (``core/stacking.py``): then ``forward`` also takes inputs with a leading member dimension, ``(G, B, m)``.
     """
 
     in_dim: int
     out_dim: int
-    # Sibling maps with equal keys share one ``prepare(x, ẋ, aux)`` per parent state (see RMPTree): e.g. one
-    # forward-kinematics pass serves every control point of a robot. None: the map is evaluated on its own.
-    shared_key: tuple | None = None
     identity_jacobian: bool = False  # J = I always (identity, offset): pullback* then skips its products with J
 
     def __init__(self, in_dim: int, aux_dims: Mapping[str, int] | None = None):
@@ -46,15 +47,3 @@ class TaskMap(nn.Module):
         yd = (J @ xd.unsqueeze(-1)).squeeze(-1)
         c = self.curvature(x, xd, aux, J)
         return y, yd, J, c
-
-    def prepare(self, x: Tensor, xd: Tensor, aux: AuxDict | None = None):
-        """The part shared by all maps with this ``shared_key`` (only called when ``shared_key`` is set)."""
-        raise NotImplementedError
-
-    def adopt_shared(self, other: "TaskMap") -> None:
-        """Called by the tree on maps sharing ``other``'s key: take over its shared submodules (e.g. one robot
-        model for all control points), so the tree stores and feeds them once."""
-
-    def from_prepared(self, prepared, x: Tensor, xd: Tensor, aux: AuxDict | None = None):
-        """(y, ẏ, J, J̇ẋ) from ``prepare``'s result; must equal ``forward(x, xd, aux)``."""
-        raise NotImplementedError

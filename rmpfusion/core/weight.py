@@ -7,10 +7,11 @@ import torch
 from torch import Tensor, nn
 
 from . import autodiff
-from .auxstate import AuxDict
+from .auxstate import AuxDict, AuxParam
+from .stacking import Stackable, shallow_clone
 
 
-class WeightFunction(nn.Module):
+class WeightFunction(Stackable, nn.Module):
     """Base of every weight function.
 
     ``value(x, aux)`` returns (B,) and must be positive by construction. ``forward`` returns the value
@@ -31,9 +32,51 @@ class WeightFunction(nn.Module):
     def forward(self, x: Tensor, aux: AuxDict | None = None) -> tuple[Tensor, Tensor | None]:
         return self.value(x, aux), autodiff.gradient(lambda z: self.value(z, aux), x)
 
+    def with_bind(self, bind: Mapping[str, str]) -> "WeightFunction":
+        """This function reading its aux inputs under other names (``bind``: its name -> the aux entry read), sharing
+        its parameters: how a stacked group sees one shared weight bound differently on each edge. The default
+        renames the aux entries of its ``AuxParam`` fields; a weight reading aux otherwise overrides it."""
+        if not bind:
+            return self
+        view = shallow_clone(self)
+        for name in self.stack_fields or ():
+            p = getattr(self, name)
+            if isinstance(p, AuxParam) and p.name in bind:
+                object.__setattr__(view, name, p.renamed(bind[p.name]))
+                view.__dict__["_modules"].pop(name, None)
+        return view
 
-def aux_features(names: Sequence[str], aux: AuxDict | None, batch: int) -> Tensor | None:
-    """Concatenate the named aux tensors into (B, k) features (None when there are none)."""
+
+class BoundWeight(Stackable, nn.Module):
+    """A (possibly shared) weight function as seen from one edge: aux inputs renamed by ``bind``."""
+
+    def __init__(self, fn: nn.Module, bind: Mapping[str, str] | None = None):
+        super().__init__()
+        self.fn = fn
+        self.bind = dict(bind or {})
+
+    @property
+    def is_constant(self) -> bool:
+        return bool(self.fn.is_constant)
+
+    def forward(self, x: Tensor, aux: AuxDict | None):
+        if self.bind and aux is not None:
+            aux = {**aux, **{k: aux[v] for k, v in self.bind.items()}}
+        return self.fn(x, aux)
+
+    def stack_key(self):
+        return self.fn.stack_key()
+
+    @classmethod
+    def stacked(cls, members: Sequence["BoundWeight"], like: Tensor) -> nn.Module:
+        """The members' functions, each reading its own edge's aux, stacked by their own class."""
+        fns = [m.fn.with_bind(m.bind) for m in members]
+        return type(fns[0]).stacked(fns, like)
+
+
+def aux_features(names: Sequence[str], aux: AuxDict | None, batch: int | Sequence[int]) -> Tensor | None:
+    """Concatenate the named aux tensors into (B, k) features (None when there are none); ``batch`` may be the
+    leading shape, e.g. (1, B) for a group of one."""
     if not names:
         return None
     if aux is None:
@@ -42,5 +85,5 @@ def aux_features(names: Sequence[str], aux: AuxDict | None, batch: int) -> Tenso
     for n in names:
         if n not in aux:
             raise KeyError(f"aux state '{n}' is required by a weight function but was not passed")
-        parts.append(aux[n].expand(batch, -1))
+        parts.append(aux[n].expand(*([batch] if isinstance(batch, int) else batch), -1))
     return torch.cat(parts, dim=-1)

@@ -1,4 +1,5 @@
-"""Affine task maps and composition. All have analytic J and J̇ẋ."""
+"""Affine task maps and composition. All have analytic J and J̇ẋ, and all stack (``core/stacking.py``): their
+constants broadcast against the samples, so maps of one type under one parent group evaluate as one batch."""
 from __future__ import annotations
 
 from typing import Any, Literal, Mapping, Sequence
@@ -7,13 +8,16 @@ import torch
 from pydantic import Field, field_validator
 from torch import Tensor
 
+from ..core.algebra import matvec
 from ..core.auxstate import CONSTANT_DTYPE, AuxOrValue, AuxParam, constant
+from ..core.stacking import shallow_clone
 from ..core.taskmap import TaskMap
 from ..registry import TASK_MAPS, Params
 
 
 def _eye(n: int, x: Tensor) -> Tensor:
-    return torch.eye(n, dtype=x.dtype, device=x.device).expand(x.shape[0], n, n)
+    """The identity for every sample of x: (..., n, n)."""
+    return torch.eye(n, dtype=x.dtype, device=x.device).expand(*x.shape[:-1], n, n)
 
 
 def _coordinates(v: int | list[int], key: str) -> int | list[int]:
@@ -30,6 +34,7 @@ class Identity(TaskMap):
     """y = x: attach several RMPs to the same space, or weight a whole subtree."""
 
     identity_jacobian = True
+    stack_fields = ()
 
     class Params(Params):
         pass
@@ -50,6 +55,7 @@ class Offset(TaskMap):
     """y = x − origin: an attractor space with the goal at 0 (origin may be aux state)."""
 
     identity_jacobian = True
+    stack_fields = ("origin",)
 
     class Params(Params):
         origin: AuxOrValue
@@ -68,8 +74,27 @@ class Offset(TaskMap):
         return self.psi(x, aux), xd, _eye(self.in_dim, x), torch.zeros_like(x)
 
 
+class _Affine(TaskMap):
+    """y = A x + b with constant A (n, m) and b (n,): J = A, J̇ẋ = 0."""
+
+    stack_fields = ("A", "b")
+
+    def _set(self, A: Tensor, b: Tensor, persistent: bool = True) -> None:
+        self.out_dim = A.shape[0]
+        self.register_buffer("A", A, persistent=persistent)
+        self.register_buffer("b", b, persistent=persistent)
+
+    def psi(self, x, aux):
+        return matvec(self.A, x) + self.b
+
+    def forward(self, x, xd, aux=None):
+        y = self.psi(x, aux)
+        J = self.A.expand(*y.shape[:-1], *self.A.shape[-2:])
+        return y, matvec(self.A, xd), J, torch.zeros_like(y)
+
+
 @TASK_MAPS.register("linear")
-class Linear(TaskMap):
+class Linear(_Affine):
     """y = A x + b."""
 
     class Params(Params):
@@ -81,19 +106,10 @@ class Linear(TaskMap):
         A = constant(params.matrix)
         if A.dim() != 2 or A.shape[1] != self.in_dim:
             raise ValueError(f"linear.matrix must be (n, {self.in_dim}) for this parent, got {tuple(A.shape)}")
-        self.out_dim = A.shape[0]
-        self.register_buffer("A", A)
-        b = torch.zeros(self.out_dim, dtype=CONSTANT_DTYPE) if params.bias is None else constant(params.bias)
-        if b.numel() != self.out_dim:
-            raise ValueError(f"linear.bias must have {self.out_dim} entries, got {b.numel()}")
-        self.register_buffer("b", b)
-
-    def psi(self, x, aux):
-        return x @ self.A.T + self.b
-
-    def forward(self, x, xd, aux=None):
-        J = self.A.expand(x.shape[0], *self.A.shape)
-        return self.psi(x, aux), xd @ self.A.T, J, x.new_zeros(x.shape[0], self.out_dim)
+        b = torch.zeros(A.shape[0], dtype=CONSTANT_DTYPE) if params.bias is None else constant(params.bias)
+        if b.numel() != A.shape[0]:
+            raise ValueError(f"linear.bias must have {A.shape[0]} entries, got {b.numel()}")
+        self._set(A, b)
 
 
 @TASK_MAPS.register("select")
@@ -118,7 +134,7 @@ class Select(Linear):
 
 
 @TASK_MAPS.register("joint_limit")
-class JointLimit(TaskMap):
+class JointLimit(_Affine):
     """Distance to a joint limit: ``upper − q`` (side=upper) or ``q − lower`` (side=lower), per joint.
 
     ``limit`` holds one value per selected joint; ``joints`` selects them (default: all).
@@ -147,19 +163,13 @@ class JointLimit(TaskMap):
         if lim.numel() != len(idx):
             raise ValueError(f"joint_limit.limit has {lim.numel()} values for {len(idx)} joints")
         self.sign = -1.0 if params.side == "upper" else 1.0
-        self.out_dim = len(idx)
         self.register_buffer("idx", torch.tensor(idx))
         self.register_buffer("limit", lim)
         S = torch.zeros(len(idx), in_dim, dtype=CONSTANT_DTYPE)
         S[torch.arange(len(idx)), torch.tensor(idx)] = self.sign
         self.register_buffer("S", S)
-
-    def psi(self, x, aux):
-        return self.sign * (x[:, self.idx] - self.limit)
-
-    def forward(self, x, xd, aux=None):
-        J = self.S.to(x.dtype).expand(x.shape[0], *self.S.shape)
-        return self.psi(x, aux), self.sign * xd[:, self.idx], J, x.new_zeros(x.shape[0], self.out_dim)
+        # y = sign·(x[idx] − limit) = S x − sign·limit: the affine map, exactly (S has one ±1 a row)
+        self._set(S, -self.sign * lim, persistent=False)
 
 
 class MapSpec(Params):
@@ -191,10 +201,25 @@ class Compose(TaskMap):
             x = m.psi(x, aux)
         return x
 
+    def stack_key(self):
+        """Compositions stack when their stages do, stage by stage."""
+        keys = tuple(m.stack_key() for m in self.stages)
+        return None if any(k is None for k in keys) else (Compose, keys)
+
+    @classmethod
+    def stacked(cls, members, like: Tensor):
+        group = shallow_clone(members[0])
+        stages = [type(ms[0]).stacked(ms, like) for ms in zip(*(m.stages for m in members))]
+        group.__dict__["_modules"].pop("stages")
+        object.__setattr__(group, "stages", stages)
+        return group
+
     def forward(self, x, xd, aux=None):
         J = c = None
         for m in self.stages:
             x, xd, Jk, ck = m(x, xd, aux)
+            if J is not None and m.identity_jacobian:
+                continue  # J = I and J̇ẋ = 0: the chain so far stands
             if J is None:
                 J, c = Jk, ck
             else:

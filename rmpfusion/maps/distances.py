@@ -1,4 +1,5 @@
-"""Distance task maps to obstacles: 1-D coordinates for barrier RMPs."""
+"""Distance task maps to obstacles: 1-D coordinates for barrier RMPs. Each stacks (``core/stacking.py``): one
+group evaluates the distances of many (point, obstacle) pairs at once, each reading its own obstacle's aux."""
 from __future__ import annotations
 
 from typing import Any, Mapping, Sequence
@@ -7,6 +8,7 @@ import torch
 from pydantic import Field, field_validator
 from torch import Tensor
 
+from ..core.algebra import matvec
 from ..core.auxstate import CONSTANT_DTYPE, AuxOrValue, AuxParam, constant
 from ..core.taskmap import TaskMap
 from ..registry import TASK_MAPS, Params
@@ -40,6 +42,8 @@ def _positive_radius(v: AuxOrValue, shape: str) -> AuxOrValue:
 class SphereDistance(TaskMap):
     """Distance to a sphere (circle in 2D): ``|y−c| − R``, or ``|y−c|/R − 1`` when ``normalized``."""
 
+    stack_fields = ("center", "radius")
+
     class Params(Params):
         center: AuxOrValue
         radius: AuxOrValue = Field(1.0, description="> 0, or the name of an aux entry")
@@ -61,6 +65,9 @@ class SphereDistance(TaskMap):
         self.normalized = params.normalized
         self.out_dim = 1
 
+    def stack_settings(self) -> tuple:
+        return (self.normalized,)
+
     def psi(self, x, aux):
         r = (x - self.center(aux)).norm(dim=-1, keepdim=True)
         R = self.radius(aux)
@@ -71,13 +78,14 @@ class SphereDistance(TaskMap):
         scale = R if self.normalized else 1.0
         r, j, c = _radial(x - self.center(aux), xd, scale)
         y = r / R - 1.0 if self.normalized else r - R
-        J = j.unsqueeze(1)
-        return y, (j * xd).sum(-1, keepdim=True), J, c
+        return y, (j * xd).sum(-1, keepdim=True), j.unsqueeze(-2), c
 
 
 @TASK_MAPS.register("cylinder_distance")
 class CylinderDistance(TaskMap):
     """Distance to an infinite cylinder with a given axis through ``center``: ``|P(y−c)| − R``."""
+
+    stack_fields = ("center", "radius", "P")
 
     class Params(Params):
         center: AuxOrValue
@@ -111,18 +119,20 @@ class CylinderDistance(TaskMap):
         self.out_dim = 1
 
     def psi(self, x, aux):
-        return ((x - self.center(aux)) @ self.P).norm(dim=-1, keepdim=True) - self.radius(aux)
+        return matvec(self.P, x - self.center(aux)).norm(dim=-1, keepdim=True) - self.radius(aux)
 
     def forward(self, x, xd, aux=None):
-        P = self.P.to(x.dtype)
-        r, j, c = _radial((x - self.center(aux)) @ P, xd @ P, 1.0)
-        j = j @ P  # chain through the projection
-        return r - self.radius(aux), (j * xd).sum(-1, keepdim=True), j.unsqueeze(1), c
+        P = self.P  # symmetric: P v = vᵀ P
+        r, j, c = _radial(matvec(P, x - self.center(aux)), matvec(P, xd), 1.0)
+        j = matvec(P, j)  # chain through the projection
+        return r - self.radius(aux), (j * xd).sum(-1, keepdim=True), j.unsqueeze(-2), c
 
 
 @TASK_MAPS.register("box_distance")
 class BoxDistance(TaskMap):
     """Signed distance to an axis-aligned box (``center``, ``half_extents``); derivatives by autodiff."""
+
+    stack_fields = ("center", "half_extents")
 
     class Params(Params):
         center: AuxOrValue

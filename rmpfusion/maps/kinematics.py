@@ -53,6 +53,10 @@ class Chain(nn.Module):
     Movable joints that are not actuated (e.g. the Panda fingers for the 7-DOF arm) are frozen at 0. The
     root link frame is the world frame. Constants are float64 buffers cast to the input's dtype on use, so
     float64 inputs get full precision whatever the default dtype was at construction.
+
+    One pass (``frames``) computes every link's pose as a homogeneous transform, every joint's world origin and
+    axis: the local transforms of all joints at once (rotations by Rodrigues' formula folded into the origin),
+    then one product per joint down the tree. Every kinematic point of a robot reads that one pass.
     """
 
     def __init__(self, model: URDFModel, actuated: Sequence[str] | None = None):
@@ -93,6 +97,27 @@ class Chain(nn.Module):
         self.register_buffer("lower", torch.tensor([j.lower for j in joints], dtype=torch.float64))
         self.register_buffer("upper", torch.tensor([j.upper for j in joints], dtype=torch.float64))
         self.register_buffer("velocity_limit", torch.tensor([j.velocity for j in joints], dtype=torch.float64))
+        self._frame_constants(axis)
+
+    def _frame_constants(self, axis: Tensor) -> None:
+        """What ``frames`` reads besides the origins: each joint's axis in its own frame, which configuration
+        coordinate moves it (and whether it turns or slides), and the actuated joints in URDF order."""
+        K = len(self._kind)
+        act = [k for k in range(K) if self._kind[k] != FIXED]
+        self.register_buffer("axis_local", axis, persistent=False)
+        self.register_buffer("q_of_joint", torch.tensor([max(i, 0) for i in self._qidx], dtype=torch.long),
+                             persistent=False)
+        kinds = torch.tensor(self._kind, dtype=torch.long)
+        self.register_buffer("turns", (kinds == REVOLUTE).to(torch.float64), persistent=False)
+        self.register_buffer("slides", (kinds == PRISMATIC).to(torch.float64), persistent=False)
+        self.register_buffer("actuated_joints", torch.tensor(act, dtype=torch.long), persistent=False)
+        self.register_buffer("actuated_turns", torch.tensor([self._kind[k] == REVOLUTE for k in act]), persistent=False)
+        q_of_act = [self._qidx[k] for k in act]
+        self.register_buffer("actuated_q", torch.tensor(q_of_act, dtype=torch.long), persistent=False)
+        # the actuated joints' columns in configuration order (None: URDF order is the configuration's)
+        order = sorted(range(len(act)), key=lambda i: q_of_act[i])
+        self.register_buffer("columns", None if order == list(range(len(act))) else torch.tensor(order),
+                             persistent=False)
 
     # -- queries -----------------------------------------------------------------------------------
     def link_names(self) -> list[str]:
@@ -116,74 +141,63 @@ class Chain(nn.Module):
             i = self._parent[i - 1]
         return path[::-1]
 
+    def moves(self, link: str) -> Tensor:
+        """(A,) 1.0 for each actuated joint (in URDF order) on the path to ``link``, else 0.0."""
+        on_path = set(self.path_joints(link))
+        return torch.tensor([float(k in on_path) for k in self.actuated_joints.tolist()], dtype=torch.float64)
+
     # -- kinematics --------------------------------------------------------------------------------
     def _check_q(self, q: Tensor) -> None:
-        if q.dim() != 2 or q.shape[1] != self.dof:
+        if q.dim() < 2 or q.shape[-1] != self.dof:
             raise ValueError(f"q must be (B, {self.dof}) for actuated joints {list(self.actuated)}, got {tuple(q.shape)}")
 
-    def _step(self, k: int, parent: Pose, q: Tensor) -> tuple[Pose, Tensor, Tensor]:
-        """Child pose of joint k, plus the joint's world origin and world axis (before its own motion)."""
-        Rp, pp = parent
-        c = lambda name: getattr(self, name)[k].to(q)  # noqa: E731
-        o = pp + matvec(Rp, c("origin_p"))
-        z = matvec(Rp, c("origin_axis"))
-        kind, qi = self._kind[k], self._qidx[k]
-        if kind == REVOLUTE:
-            s, cq = torch.sin(q[:, qi]), torch.cos(q[:, qi])
-            Rl = c("origin_R") + s[:, None, None] * c("rot_sin") + (1 - cq)[:, None, None] * c("rot_cos")
-            return (matmul_small(Rp, Rl), o), o, z
-        if kind == PRISMATIC:
-            return (matmul_small(Rp, c("origin_R")), o + z * q[:, qi, None]), o, z
-        return (matmul_small(Rp, c("origin_R")), o), o, z
+    _CONSTANTS = ("origin_R", "origin_p", "origin_axis", "rot_sin", "rot_cos", "turns", "slides", "axis_local")
 
-    def _root(self, q: Tensor) -> Pose:
-        B = q.shape[0]
-        return torch.eye(3, dtype=q.dtype, device=q.device).expand(B, 3, 3), q.new_zeros(B, 3)
+    def _constants(self, like: Tensor) -> dict[str, Tensor]:
+        """The pass's constants in ``like``'s dtype and device (cast only when they differ: a tree's chain is
+        already in the tree's dtype)."""
+        return {n: _as(getattr(self, n), like) for n in self._CONSTANTS}
+
+    def _local(self, q: Tensor) -> tuple[Tensor, Tensor]:
+        """Every joint's transform from its parent link at ``q``: (..., K, 4, 4), and each joint's slide (..., K)."""
+        c = self._constants(q)
+        qj = q.index_select(-1, self.q_of_joint) if len(self._kind) else q[..., :0]
+        turn, slide = qj * c["turns"], qj * c["slides"]  # 0 for fixed and frozen joints: their origins exactly
+        sin, cos = torch.sin(turn)[..., None, None], (1 - torch.cos(turn))[..., None, None]
+        R = c["origin_R"] + sin * c["rot_sin"] + cos * c["rot_cos"]
+        p = c["origin_p"] + c["origin_axis"] * slide[..., None]
+        bottom = torch.tensor([0.0, 0.0, 0.0, 1.0], dtype=q.dtype, device=q.device).expand(*R.shape[:-2], 1, 4)
+        return torch.cat([torch.cat([R, p[..., None]], -1), bottom], -2), slide
+
+    def frames(self, q: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        """One pass: every link's world pose (..., L, 4, 4) (link order of ``link_names``), and every joint's
+        world origin O and axis Z (..., K, 3) (O: where the joint sits before its own motion)."""
+        self._check_q(q)
+        local, slide = self._local(q)
+        eye = torch.eye(4, dtype=q.dtype, device=q.device).expand(*q.shape[:-1], 4, 4)
+        world = [eye]
+        for k, parent in enumerate(self._parent):
+            world.append(world[parent] @ local[..., k, :, :])
+        T = torch.stack(world, -3)
+        children = T[..., 1:, :, :]
+        Z = (children[..., :3, :3] * self._constants(q)["axis_local"][..., None, :]).sum(-1)
+        O = children[..., :3, 3] - Z * slide[..., None]
+        return T, O, Z
 
     def forward_kinematics(self, q: Tensor, links: Sequence[str] | None = None) -> dict[str, Pose]:
-        """World poses {link: (R (B,3,3), p (B,3))} of ``links`` (default all); only their ancestors are computed."""
-        self._check_q(q)
+        """World poses {link: (R (B,3,3), p (B,3))} of ``links`` (default all)."""
         wanted = list(self._links) if links is None else list(links)
-        need = set()
-        for name in wanted:
-            need.update(self.path_joints(name))
-        poses: dict[int, Pose] = {0: self._root(q)}
-        for k in sorted(need):
-            poses[k + 1] = self._step(k, poses[self._parent[k]], q)[0]
-        return {name: poses[self._link_index[name]] for name in wanted}
+        index = [self.check_link(n) for n in wanted]
+        T = self.frames(q)[0]
+        return {n: (T[..., i, :3, :3], T[..., i, :3, 3]) for n, i in zip(wanted, index)}
 
     def path_frames(self, q: Tensor, link: str) -> tuple[Pose, list[int], Tensor, Tensor]:
         """Pose of ``link`` and, for the actuated joints on its path, (q indices, world origins O (B,k,3),
-        world axes Z (B,k,3)): everything the geometric Jacobian needs, in one pass."""
-        self._check_q(q)
-        pose, qs, Os, Zs = self._root(q), [], [], []
-        for k in self.path_joints(link):
-            pose, o, z = self._step(k, pose, q)
-            if self._kind[k] != FIXED:
-                qs.append(self._qidx[k])
-                Os.append(o)
-                Zs.append(z)
-        B = q.shape[0]
-        empty = q.new_zeros(B, 0, 3)
-        O = torch.stack(Os, 1) if Os else empty
-        Z = torch.stack(Zs, 1) if Zs else empty
-        return pose, qs, O, Z
-
-    def all_frames(self, q: Tensor) -> tuple[list[Pose], Tensor, Tensor]:
-        """Every link's world pose (by link index) and every joint's world origin and axis, (B, K, 3) each:
-        one pass that serves the Jacobians of points on any links."""
-        self._check_q(q)
-        poses: list[Pose] = [self._root(q)]
-        Os, Zs = [], []
-        for k in range(len(self._parent)):
-            pose, o, z = self._step(k, poses[self._parent[k]], q)
-            poses.append(pose)
-            Os.append(o)
-            Zs.append(z)
-        B = q.shape[0]
-        O = torch.stack(Os, 1) if Os else q.new_zeros(B, 0, 3)
-        Z = torch.stack(Zs, 1) if Zs else q.new_zeros(B, 0, 3)
-        return poses, O, Z
+        world axes Z (B,k,3))."""
+        T, O, Z = self.frames(q)
+        i = self.check_link(link)
+        moving = [k for k in self.path_joints(link) if self._kind[k] != FIXED]
+        return (T[..., i, :3, :3], T[..., i, :3, 3]), [self._qidx[k] for k in moving], O[..., moving, :], Z[..., moving, :]
 
     def forward(self, q: Tensor) -> dict[str, Pose]:
         return self.forward_kinematics(q)
@@ -205,7 +219,13 @@ class ForwardKinematics(TaskMap):
     ``robot: panda`` uses pybullet's Panda URDF with panda_joint1..7 actuated (fingers frozen at 0);
     ``urdf: path`` uses any URDF, by default with all its movable joints actuated. ``joints`` overrides
     the actuated set and order. J is the geometric Jacobian and J̇ẋ is analytic (no J̇ is formed).
+
+    Points on one robot stack (``core/stacking.py``): a group of them reads one pass of the chain (``Chain.frames``)
+    and evaluates every point's position, Jacobian and J̇ẋ at once, each with its own link, offset and the mask of
+    the joints that move it.
     """
+
+    stack_fields = ("link_mask", "offset", "moved_by")
 
     class Params(Params):
         robot: Literal["panda"] | None = "panda"
@@ -242,14 +262,17 @@ class ForwardKinematics(TaskMap):
         if qs:
             S[torch.arange(len(qs)), torch.tensor(qs)] = 1.0
         self.register_buffer("select", S)
-        self.register_buffer("path_q", torch.tensor(qs, dtype=torch.long), persistent=False)
-        moving = [k for k in path_joints if self.chain._kind[k] != FIXED]
-        self.register_buffer("path_index", torch.tensor(moving, dtype=torch.long), persistent=False)
-        self.link_index = self.chain.check_link(self.link)
-        self.shared_key = ("forward_kinematics", str(path), tuple(self.chain.actuated))
         self.register_buffer("revolute", torch.tensor(revolute, dtype=torch.bool))
         self.register_buffer("offset", torch.tensor(params.offset, dtype=torch.float64))
+        one_hot = torch.zeros(len(self.chain.link_names()), dtype=torch.float64)
+        one_hot[self.chain.check_link(self.link)] = 1.0
+        self.register_buffer("link_mask", one_hot, persistent=False)  # picks the link's pose out of every link's
+        self.register_buffer("moved_by", self.chain.moves(self.link), persistent=False)
+        self.source = (str(path), tuple(self.chain.actuated))
         self.out_dim = 3
+
+    def stack_settings(self) -> tuple:
+        return self.source  # points on one robot model
 
     def link_names(self) -> list[str]:
         return self.chain.link_names()
@@ -257,65 +280,58 @@ class ForwardKinematics(TaskMap):
     def joint_limits(self) -> tuple[Tensor, Tensor]:
         return self.chain.joint_limits()
 
-    def _point(self, pose: Pose, x: Tensor) -> Tensor:
-        R, p = pose
-        return p + matvec(R, self.offset.to(x))
-
     def psi(self, x, aux=None):
-        R, p = self.chain.forward_kinematics(x, [self.link])[self.link]
-        return self._point((R, p), x)
-
-    def _columns(self, y: Tensor, O: Tensor, Z: Tensor) -> Tensor:
-        """(B,k,3): z × (y − o) for revolute joints, z for prismatic ones."""
-        rev = self.revolute[:, None]
-        return torch.where(rev, torch.linalg.cross(Z, y.unsqueeze(1) - O), Z)
-
-    def _full(self, cols: Tensor, x: Tensor) -> Tensor:
-        """(B, 3, dof): the path joints' columns in their configuration slots, zeros elsewhere."""
-        return cols.new_zeros(cols.shape[0], 3, self.in_dim).index_copy(-1, self.path_q, cols.transpose(1, 2))
+        return self.forward(x, x, aux)[0]
 
     def jacobian(self, x, aux=None):
-        pose, _, O, Z = self.chain.path_frames(x, self.link)
-        return self._full(self._columns(self._point(pose, x), O, Z), x)
+        return self.forward(x, x, aux)[2]
 
     def curvature(self, x, xd, aux=None, J=None):
         return self.forward(x, xd, aux)[3]
 
     def forward(self, x, xd, aux=None):
-        pose, _, O, Z = self.chain.path_frames(x, self.link)
-        return self._outputs(pose, O, Z, x, xd)
-
-    def prepare(self, x, xd, aux=None):
-        return self.chain.all_frames(x)
-
-    def adopt_shared(self, other: "ForwardKinematics") -> None:
-        self.chain = other.chain  # one set of robot constants per tree
-
-    def from_prepared(self, prepared, x, xd, aux=None):
-        poses, O, Z = prepared
-        return self._outputs(poses[self.link_index], O[:, self.path_index], Z[:, self.path_index], x, xd)
-
-    def _outputs(self, pose: Pose, O: Tensor, Z: Tensor, x: Tensor, xd: Tensor):
-        y = self._point(pose, x)
-        cols = self._columns(y, O, Z)
-        J = self._full(cols, x)
+        """(y, ẏ, J, J̇ẋ) of the point(s): the geometric Jacobian's columns z × (y − o) (turning joints) and z
+        (sliding joints), masked to the joints that move the point, placed in their configuration slots."""
+        chain = self.chain
+        T, O, Z = chain.frames(x)
+        O, Z = O[..., chain.actuated_joints, :], Z[..., chain.actuated_joints, :]  # (..., A, 3), URDF order
+        pose = _take(T, _as(self.link_mask, x))
+        y = pose[..., :3, 3] + matvec(pose[..., :3, :3], _as(self.offset, x))
+        turns = chain.actuated_turns[:, None]
+        moved = _as(self.moved_by, x)[..., None]
+        cols = moved * torch.where(turns, torch.linalg.cross(Z, y[..., None, :] - O), Z)  # (..., A, 3)
+        J = cols.transpose(-1, -2)
+        qd = xd
+        if chain.columns is not None:  # actuated joints listed in another order than the URDF's
+            J = J.index_select(-1, chain.columns)
+            qd = xd.index_select(-1, chain.actuated_q)  # (..., A) in URDF order
         yd = matvec(J, xd)
-        c = self._jdot_qdot(y, yd, O, Z, xd[:, self.path_q])
-        return y, yd, J, c
+        return y, yd, J, _jdot_qdot(y, yd, O, Z, qd, moved, turns)
 
-    def _jdot_qdot(self, y: Tensor, yd: Tensor, O: Tensor, Z: Tensor, qd: Tensor) -> Tensor:
-        """J̇q̇ = Σ_i q̇_i d/dt col_i, with ż_i = ω_i⁻ × z_i (ω_i⁻: angular velocity of joint i's parent) and
-        ȯ_i = ω_i⁻ × o_i − Σ_{j<i} q̇_j z_j × o_j + Σ_{j<i, prismatic} q̇_j z_j (o_i moves with the parent)."""
-        if Z.shape[1] == 0:
-            return torch.zeros_like(y)
-        rev = self.revolute[:, None]
-        zero = torch.zeros_like(Z)
-        w = torch.where(rev, qd.unsqueeze(-1) * Z, zero)  # angular velocity added by each joint
-        lin = torch.where(rev, zero, qd.unsqueeze(-1) * Z)  # linear velocity added by each prismatic joint
-        excl = lambda t: torch.cumsum(t, 1) - t  # noqa: E731  (sum over j < i)
-        w_before = excl(w)
-        od = torch.linalg.cross(w_before, O) - excl(torch.linalg.cross(w, O)) + excl(lin)
-        zd = torch.linalg.cross(w_before, Z)
-        dcol_rev = torch.linalg.cross(zd, y.unsqueeze(1) - O) + torch.linalg.cross(Z, yd.unsqueeze(1) - od)
-        dcol = torch.where(rev, dcol_rev, zd)
-        return (qd.unsqueeze(-1) * dcol).sum(1)
+
+def _as(t: Tensor, like: Tensor) -> Tensor:
+    return t if t.dtype == like.dtype and t.device == like.device else t.to(like)
+
+
+def _take(T: Tensor, one_hot: Tensor) -> Tensor:
+    """Link poses (..., 4, 4) picked from every link's (..., L, 4, 4) by a one-hot (L,) over the links ((G, 1, L) for
+    a group): a product and a sum, exact, and free of the batch size (so it exports for any batch)."""
+    return (one_hot[..., None, None] * T).sum(-3)
+
+
+def _jdot_qdot(y: Tensor, yd: Tensor, O: Tensor, Z: Tensor, qd: Tensor, moved: Tensor, turns: Tensor) -> Tensor:
+    """J̇q̇ = Σ_i q̇_i d/dt col_i over the joints that move the point, with ż_i = ω_i⁻ × z_i (ω_i⁻: angular velocity
+    of joint i's parent) and ȯ_i = ω_i⁻ × o_i − Σ_{j<i} q̇_j z_j × o_j + Σ_{j<i, sliding} q̇_j z_j (o_i moves with
+    the parent). Joints off the point's path are masked out (``moved``), so sums over j < i run over its ancestors."""
+    if Z.shape[-2] == 0:
+        return torch.zeros_like(y)
+    zero = torch.zeros_like(Z)
+    w = moved * torch.where(turns, qd[..., None] * Z, zero)  # angular velocity added by each joint
+    lin = moved * torch.where(turns, zero, qd[..., None] * Z)  # linear velocity added by each sliding joint
+    excl = lambda t: torch.cumsum(t, -2) - t  # noqa: E731  (sum over j < i)
+    w_before = excl(w)
+    od = torch.linalg.cross(w_before, O) - excl(torch.linalg.cross(w, O)) + excl(lin)
+    zd = torch.linalg.cross(w_before, Z)
+    dcol_rev = torch.linalg.cross(zd, y[..., None, :] - O) + torch.linalg.cross(Z, yd[..., None, :] - od)
+    dcol = torch.where(turns, dcol_rev, zd)
+    return (moved * qd[..., None] * dcol).sum(-2)

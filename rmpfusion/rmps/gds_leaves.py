@@ -2,6 +2,9 @@
 
 Every leaf here is a true GDS, so Theorem 2 holds exactly for trees built from them with positive
 weights; the autodiff curvature of the base class is the reference the tests compare against.
+
+Their numbers (gains, radii, ...) only ever meet per-sample scalars, so leaves of one type evaluate as one batch
+with their numbers stacked (``core/stacking.py``); on its own a leaf computes with plain floats.
 """
 from __future__ import annotations
 
@@ -10,12 +13,15 @@ from pydantic import Field, model_validator
 from torch import Tensor
 
 from ..core.gds import GDS
+from ..core.stacking import spread
 from ..registry import LEAF_RMPS, Params
 from .potentials import logcosh
 
 
 def _eye_like(y: Tensor) -> Tensor:
-    return torch.eye(y.shape[-1], dtype=y.dtype, device=y.device).expand(y.shape[0], -1, -1)
+    """The identity of y's space, for every sample: (..., n, n)."""
+    n = y.shape[-1]
+    return torch.eye(n, dtype=y.dtype, device=y.device).expand(*y.shape[:-1], n, n)
 
 
 @LEAF_RMPS.register("goal_attractor")
@@ -35,6 +41,8 @@ class GoalAttractor(GDS):
         w_l: float = Field(1.0, gt=0, description="metric scale far from the goal")
         sigma: float = Field(1.0, gt=0)
 
+    stack_fields = ("gain", "alpha", "eta", "w_u", "w_l", "sigma")
+
     def __init__(self, params: Params, dim: int):
         super().__init__(dim)
         p = params
@@ -43,29 +51,41 @@ class GoalAttractor(GDS):
     def _w(self, y: Tensor) -> tuple[Tensor, Tensor]:
         beta = torch.exp(-(y * y).sum(-1) / (2 * self.sigma**2))
         w = (self.w_u - self.w_l) * beta + self.w_l
-        grad_w = -((self.w_u - self.w_l) * beta / self.sigma**2)[:, None] * y
+        grad_w = -((self.w_u - self.w_l) * beta / self.sigma**2)[..., None] * y
         return w, grad_w
 
     def metric(self, y, yd):
-        return self._w(y)[0][:, None, None] * _eye_like(y)
+        return self._w(y)[0][..., None, None] * _eye_like(y)
 
     def damping(self, y, yd):
-        return self.eta * self.metric(y, yd)
+        return (self.eta * self._w(y)[0])[..., None, None] * _eye_like(y)
 
     def potential(self, y):
         return self.gain * logcosh(self.alpha * y.norm(dim=-1)) / self.alpha
 
     def potential_grad(self, y):
-        r = y.norm(dim=-1, keepdim=True)
+        r = y.norm(dim=-1)
         # tanh(αr)/r → α as r → 0; the series keeps the goal itself finite and smooth
         small = r < 1e-8
-        ratio = torch.where(small, torch.full_like(r, self.alpha), torch.tanh(self.alpha * r) / torch.where(small, torch.ones_like(r), r))
-        return self.gain * ratio * y
+        ratio = torch.where(small, self.alpha + torch.zeros_like(r),
+                            torch.tanh(self.alpha * r) / torch.where(small, torch.ones_like(r), r))
+        return (self.gain * ratio)[..., None] * y
 
     def curvature(self, y, yd):
-        _, grad_w = self._w(y)
+        return self._curvature(y, yd, self._w(y)[1])
+
+    @staticmethod
+    def _curvature(y: Tensor, yd: Tensor, grad_w: Tensor) -> tuple[Tensor, Tensor]:
         xi = yd * (yd * grad_w).sum(-1, keepdim=True) - 0.5 * (yd * yd).sum(-1, keepdim=True) * grad_w
         return torch.zeros_like(_eye_like(y)), xi
+
+    def terms(self, y, yd):
+        """All six terms from one evaluation of the metric scale w(|y|)."""
+        w, grad_w = self._w(y)
+        eye = _eye_like(y)
+        Xi, xi = self._curvature(y, yd, grad_w)
+        return w[..., None, None] * eye, (self.eta * w)[..., None, None] * eye, self.potential(y), \
+            self.potential_grad(y), Xi, xi
 
 
 class Barrier1D(GDS):
@@ -96,6 +116,8 @@ class Barrier1D(GDS):
                                  f"r_w={self.r_w}")
             return self
 
+    stack_fields = ("r_w", "sigma", "epsilon", "alpha", "eta", "min_distance")
+
     def __init__(self, params: Params, dim: int = 1):
         super().__init__(dim)
         p = params
@@ -121,33 +143,36 @@ class Barrier1D(GDS):
         return u, du
 
     def metric(self, y, yd):
-        w, _ = self._w(y[:, 0])
-        u, _ = self._u(yd[:, 0])
-        return (w * u)[:, None, None]
+        w, _ = self._w(y[..., 0])
+        u, _ = self._u(yd[..., 0])
+        return (w * u)[..., None, None]
 
     def damping(self, y, yd):
-        return self.eta * self.metric(y, yd)
+        w, _ = self._w(y[..., 0])
+        u, _ = self._u(yd[..., 0])
+        return (self.eta * w * u)[..., None, None]
 
     def potential(self, y):
-        w, _ = self._w(y[:, 0])
+        w, _ = self._w(y[..., 0])
         return 0.5 * self.alpha * w**2
 
     def potential_grad(self, y):
-        w, gw = self._w(y[:, 0])
-        return (self.alpha * w * gw)[:, None]
+        w, gw = self._w(y[..., 0])
+        return (self.alpha * w * gw)[..., None]
 
     def curvature(self, y, yd):
         return self.terms(y, yd)[4:]
 
     def terms(self, y, yd):
         """All six terms from one evaluation of w(x) and u(ẋ) (the methods above are views of it)."""
-        x, xd = y[:, 0], yd[:, 0]
+        x, xd = y[..., 0], yd[..., 0]
         w, gw = self._w(x)
         u, du = self._u(xd)
-        g = (w * u)[:, None, None]
+        g = w * u
         Xi = 0.5 * xd * w * du
         xi = 0.5 * xd**2 * u * gw
-        return g, self.eta * g, 0.5 * self.alpha * w**2, (self.alpha * w * gw)[:, None], Xi[:, None, None], xi[:, None]
+        return (g[..., None, None], (self.eta * g)[..., None, None], 0.5 * self.alpha * w**2,
+                (self.alpha * w * gw)[..., None], Xi[..., None, None], xi[..., None])
 
 
 @LEAF_RMPS.register("collision_avoidance")
@@ -174,24 +199,34 @@ class Damper(GDS):
         w: float = Field(1.0, gt=0)
         eta: float = Field(1.0, ge=0)
 
+    stack_fields = ("w", "eta")
+
     def __init__(self, params: Params, dim: int):
         super().__init__(dim)
         self.w, self.eta = params.w, params.eta
 
     def metric(self, y, yd):
-        return self.w * _eye_like(y)
+        return spread(self.w, 2) * _eye_like(y)
 
     def damping(self, y, yd):
-        return self.eta * self.w * _eye_like(y)
+        return spread(self.eta * self.w, 2) * _eye_like(y)
 
     def potential(self, y):
-        return y.new_zeros(y.shape[0])
+        return y.new_zeros(y.shape[:-1])
 
     def potential_grad(self, y):
         return torch.zeros_like(y)
 
     def curvature(self, y, yd):
         return torch.zeros_like(_eye_like(y)), torch.zeros_like(yd)
+
+    def terms(self, y, yd):
+        G = self.metric(y, yd)
+        return G, self.damping(y, yd), self.potential(y), torch.zeros_like(y), torch.zeros_like(G), \
+            torch.zeros_like(yd)
+
+    def stack_key(self):
+        return (Damper, self.stack_settings())  # the identity metric is a damper without damping: one group
 
 
 @LEAF_RMPS.register("identity_metric")

@@ -19,16 +19,17 @@ def logcosh(z: Tensor) -> Tensor:
 
 
 def radial_integral(integrand: Callable[[Tensor], Tensor], lo: Tensor, hi: Tensor, panels: int = 8) -> Tensor:
-    """∫_lo^hi integrand(s) ds per sample (lo, hi of shape (B,)), composite 16-point Gauss–Legendre.
+    """∫_lo^hi integrand(s) ds per sample (lo, hi of one shape, e.g. (B,)), composite 16-point Gauss–Legendre.
+    ``integrand`` receives the nodes as (..., panels, 16).
 
     Accurate to rounding for the smooth, Gaussian-decaying integrands the attractors use.
     """
     t = _GL_NODES.to(dtype=lo.dtype, device=lo.device)
     wq = _GL_WEIGHTS.to(dtype=lo.dtype, device=lo.device)
     k = torch.arange(panels, dtype=lo.dtype, device=lo.device)
-    width = (hi - lo) / panels  # (B,)
+    width = (hi - lo) / panels  # (...,)
     # panel p spans [lo + p·width, lo + (p+1)·width]; node = panel centre + ½ width · t
-    centers = lo[:, None] + (k[None, :] + 0.5) * width[:, None]  # (B, P)
-    s = centers[:, :, None] + 0.5 * width[:, None, None] * t  # (B, P, 16)
+    centers = lo[..., None] + (k + 0.5) * width[..., None]  # (..., P)
+    s = centers[..., None] + 0.5 * width[..., None, None] * t  # (..., P, 16)
     vals = integrand(s)
     return 0.5 * width * (vals * wq).sum(dim=(-1, -2))

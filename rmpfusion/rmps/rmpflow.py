@@ -1,7 +1,8 @@
 """Exact ports of the three leaves of RMPflow's reference implementation.
 
 An RMPflow user can move a tree here and get identical accelerations. Beyond RMPflow's (f, M), each
-leaf also reports G, B, Φ so L and V exist for pullback* and for the Lyapunov monitor.
+leaf also reports G, B, Φ so L and V exist for pullback* and for the Lyapunov monitor. Their numbers only
+meet per-sample scalars, so leaves of one type stack (``core/stacking.py``).
 """
 from __future__ import annotations
 
@@ -12,7 +13,8 @@ from pydantic import Field
 from torch import Tensor
 
 from ..core.algebra import NodeRMP
-from ..core.gds import LeafRMP, quad
+from ..core.gds import LeafRMP
+from ..core.stacking import spread
 from ..registry import LEAF_RMPS, Params
 from .potentials import logcosh, radial_integral
 
@@ -32,12 +34,14 @@ class RMPflowCollisionAvoidance(LeafRMP):
         alpha: float = Field(1e-5, ge=0)
         eta: float = Field(0.0, ge=0)
 
+    stack_fields = ("epsilon", "alpha", "eta")
+
     def __init__(self, params: Params, dim: int = 1):
         super().__init__(dim)
         self.epsilon, self.alpha, self.eta = params.epsilon, params.alpha, params.eta
 
     def forward(self, y: Tensor, yd: Tensor) -> NodeRMP:
-        x, xd = y[:, 0], yd[:, 0]
+        x, xd = y[..., 0], yd[..., 0]
         inside = x < 0
         xs = torch.where(inside, torch.ones_like(x), x)  # keeps the unused branch finite
         w = torch.where(inside, torch.full_like(x, 1e10), xs**-4)
@@ -53,8 +57,8 @@ class RMPflowCollisionAvoidance(LeafRMP):
         f = (-grad_Phi - xi - Bx).clamp(-1e10, 1e10)
         Phi = 0.5 * self.alpha * w**2
         K = 0.5 * xd**2 * g
-        as_mat = lambda s: s[:, None, None]  # noqa: E731
-        return NodeRMP(f=f[:, None], M=as_mat(M), G=as_mat(g), B=as_mat(self.eta * g), Phi=Phi, L=K - Phi, V=K + Phi)
+        as_mat = lambda s: s[..., None, None]  # noqa: E731
+        return NodeRMP(f=f[..., None], M=as_mat(M), G=as_mat(g), B=as_mat(self.eta * g), Phi=Phi, L=K - Phi, V=K + Phi)
 
 
 @LEAF_RMPS.register("rmpflow_goal_attractor")
@@ -74,6 +78,8 @@ class RMPflowGoalAttractor(LeafRMP):
         gain: float = Field(1.0, ge=0)
         tol: float = Field(0.005, ge=0)
 
+    stack_fields = ("w_u", "w_l", "sigma", "alpha", "eta", "gain", "tol")
+
     def __init__(self, params: Params, dim: int):
         super().__init__(dim)
         p = params
@@ -82,33 +88,41 @@ class RMPflowGoalAttractor(LeafRMP):
 
     def potential(self, r: Tensor) -> Tensor:
         """Φ(r) = ∫_tol^r gain·w(s)·tanh(αs) ds for r > tol, else 0."""
-        a, s2 = self.alpha, self.sigma**2
-        lo = torch.full_like(r, self.tol)
+        lo = self.tol + torch.zeros_like(r)
         hi = torch.maximum(r, lo)
-        base = self.w_l / a * (logcosh(a * hi) - logcosh(a * lo))
+        base = self.w_l / self.alpha * (logcosh(self.alpha * hi) - logcosh(self.alpha * lo))
         # the Gaussian part is negligible beyond 12σ: integrate it only there, so panels stay fine
         hi_g = torch.minimum(hi, lo + 12.0 * self.sigma)
+        a, s2 = spread(self.alpha, 2), spread(self.sigma**2, 2)  # beside the (…, panel, node) grid
         bump = radial_integral(lambda s: torch.exp(-(s**2) / (2 * s2)) * torch.tanh(a * s), lo, hi_g)
         return self.gain * (base + (self.w_u - self.w_l) * bump)
 
-    def forward(self, y: Tensor, yd: Tensor) -> NodeRMP:
-        n = y.shape[-1]
+    def _natural(self, y: Tensor, yd: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
+        """(f, M = G, w, |ẏ|², |y|): everything but the potential."""
         r = y.norm(dim=-1)
         beta = torch.exp(-(r**2) / (2 * self.sigma**2))
         w = (self.w_u - self.w_l) * beta + self.w_l
         far = r > self.tol
         r_safe = torch.where(far, r, torch.ones_like(r))
         s = torch.tanh(self.alpha * r)
-        grad_Phi = torch.where(far[:, None], (self.gain * w * s / r_safe)[:, None] * y, torch.zeros_like(y))
-        grad_w = -(beta * (self.w_u - self.w_l) / self.sigma**2)[:, None] * y
+        grad_Phi = torch.where(far[..., None], (self.gain * w * s / r_safe)[..., None] * y, torch.zeros_like(y))
+        grad_w = -(beta * (self.w_u - self.w_l) / self.sigma**2)[..., None] * y
         yd2 = (yd * yd).sum(-1)
-        xi = yd * (yd * grad_w).sum(-1, keepdim=True) - 0.5 * yd2[:, None] * grad_w
-        f = -grad_Phi - self.eta * w[:, None] * yd - xi
-        eye = torch.eye(n, dtype=y.dtype, device=y.device)
-        G = w[:, None, None] * eye
+        xi = yd * (yd * grad_w).sum(-1, keepdim=True) - 0.5 * yd2[..., None] * grad_w
+        f = -grad_Phi - (self.eta * w)[..., None] * yd - xi
+        G = w[..., None, None] * torch.eye(y.shape[-1], dtype=y.dtype, device=y.device)
+        return f, G, w, yd2, r
+
+    def forward(self, y: Tensor, yd: Tensor) -> NodeRMP:
+        f, G, w, yd2, r = self._natural(y, yd)
         Phi = self.potential(r)
         K = 0.5 * w * yd2
-        return NodeRMP(f=f, M=G, G=G, B=self.eta * G, Phi=Phi, L=K - Phi, V=K + Phi)
+        eye = torch.eye(y.shape[-1], dtype=y.dtype, device=y.device)
+        return NodeRMP(f=f, M=G, G=G, B=(self.eta * w)[..., None, None] * eye, Phi=Phi, L=K - Phi, V=K + Phi)
+
+    def force(self, y: Tensor, yd: Tensor) -> NodeRMP:
+        f, G, *_ = self._natural(y, yd)
+        return NodeRMP.lean(f, G)  # no quadrature: Φ is only for L and V
 
 
 @LEAF_RMPS.register("rmpflow_damper")
@@ -119,13 +133,17 @@ class RMPflowDamper(LeafRMP):
         w: float = Field(1.0, gt=0)
         eta: float = Field(1.0, ge=0)
 
+    stack_fields = ("w", "eta")
+
     def __init__(self, params: Params, dim: int):
         super().__init__(dim)
         self.w, self.eta = params.w, params.eta
 
     def forward(self, y: Tensor, yd: Tensor) -> NodeRMP:
-        eye = torch.eye(y.shape[-1], dtype=y.dtype, device=y.device)
-        G = (self.w * eye).expand(y.shape[0], -1, -1)
+        n = y.shape[-1]
+        eye = torch.eye(n, dtype=y.dtype, device=y.device).expand(*yd.shape[:-1], n, n)
+        G = spread(self.w, 2) * eye
         K = 0.5 * self.w * (yd * yd).sum(-1)
         Phi = torch.zeros_like(K)
-        return NodeRMP(f=-self.eta * self.w * yd, M=G, G=G, B=self.eta * G, Phi=Phi, L=K, V=K)
+        return NodeRMP(f=-spread(self.eta * self.w, 1) * yd, M=G, G=G, B=spread(self.eta * self.w, 2) * eye, Phi=Phi,
+                       L=K, V=K)

@@ -1,4 +1,5 @@
-"""Hand-designed weight functions with analytic gradients: the fixed weights of expert policies."""
+"""Hand-designed weight functions with analytic gradients: the fixed weights of expert policies. Their numbers
+broadcast against the samples, so weights of one type stack (``core/stacking.py``)."""
 from __future__ import annotations
 
 from typing import Mapping, Sequence
@@ -17,6 +18,7 @@ class Constant(WeightFunction):
     """w = value > 0 everywhere; ∇w = 0, so pullback* skips h_i."""
 
     is_constant = True
+    stack_fields = ("c",)
 
     class Params(Params):
         value: float = Field(1.0, description="> 0: positive weights keep the policy Lyapunov-stable (Theorem 2)")
@@ -34,7 +36,7 @@ class Constant(WeightFunction):
         self.c = params.value
 
     def value(self, x, aux):
-        return x.new_full((x.shape[0],), self.c)
+        return self.c + torch.zeros_like(x[..., 0])
 
     def forward(self, x, aux=None):
         return self.value(x, aux), None
@@ -58,6 +60,8 @@ def _surface_radius(v: AuxOrValue) -> AuxOrValue:
 class _DistanceWeight(WeightFunction):
     """Base for weights of the distance d = |x − center| − radius (center/radius constant or aux)."""
 
+    stack_fields = ("center", "radius", "low", "high")
+
     def __init__(self, params, in_dim: int, aux_dims: Mapping[str, int] | None = None):
         super().__init__(in_dim, aux_dims)
         self.center = AuxParam(params.center, self.aux_dims, f"{type(self).__name__}.center")
@@ -69,7 +73,7 @@ class _DistanceWeight(WeightFunction):
     def _distance(self, x, aux) -> tuple[Tensor, Tensor]:
         diff = x - self.center(aux)
         r = diff.norm(dim=-1).clamp(min=1e-12)
-        return r - self.radius(aux).reshape(-1), diff / r[:, None]
+        return r - self.radius(aux)[..., 0], diff / r[..., None]
 
     def shape(self, d: Tensor) -> tuple[Tensor, Tensor]:  # pragma: no cover - abstract
         raise NotImplementedError
@@ -81,7 +85,7 @@ class _DistanceWeight(WeightFunction):
         d, dd_dx = self._distance(x, aux)
         s, ds = self.shape(d)
         w = self.low + (self.high - self.low) * s
-        return w, ((self.high - self.low) * ds)[:, None] * dd_dx
+        return w, ((self.high - self.low) * ds)[..., None] * dd_dx
 
 
 @WEIGHTS.register("rbf")
@@ -97,6 +101,8 @@ class RBF(_DistanceWeight):
         @classmethod
         def _radius(cls, v: AuxOrValue) -> AuxOrValue:
             return _surface_radius(v)
+
+    stack_fields = _DistanceWeight.stack_fields + ("sigma",)
 
     def __init__(self, params: Params, in_dim: int, aux_dims: Mapping[str, int] | None = None):
         super().__init__(params, in_dim, aux_dims)
@@ -132,6 +138,8 @@ class Logistic(_DistanceWeight):
                 raise ValueError(f"steepness must be non-zero (k = 0 is a constant weight: use type constant "
                                  f"instead); given {v}")
             return v
+
+    stack_fields = _DistanceWeight.stack_fields + ("k", "d0")
 
     def __init__(self, params: Params, in_dim: int, aux_dims: Mapping[str, int] | None = None):
         super().__init__(params, in_dim, aux_dims)

@@ -2,6 +2,10 @@
 
 ∇_x w is computed by forward-mode propagation through the layers alongside the value (the input
 dimension is small), so it needs no double backward and stays differentiable in the parameters.
+
+The math is written for D networks of one architecture at once (``mlp_with_gradient``: one batched matrix
+product per layer), which is how a tree evaluates all its weight networks of one kind (``core/stacking.py``);
+a single network is the case D = 1.
 """
 from __future__ import annotations
 
@@ -14,7 +18,8 @@ import torch.nn.functional as F
 from pydantic import Field, field_validator, model_validator
 from torch import Tensor, nn
 
-from ..core.auxstate import CONSTANT_DTYPE, AuxDict
+from ..core.auxstate import CONSTANT_DTYPE, AuxDict, AuxParam, StackedAux
+from ..core.stacking import shallow_clone
 from ..core.weight import WeightFunction, aux_features
 from ..registry import WEIGHTS, Params
 
@@ -124,30 +129,96 @@ class MLPWeight(WeightFunction):
             nn.init.zeros_(self.layers[-1].weight)
             nn.init.constant_(self.layers[-1].bias, b)
 
+    def stack_key(self):
+        """Networks of one architecture reading inputs of the same sizes evaluate as one batch."""
+        dims = tuple(self.aux_dims[a] for a in self.aux_names)
+        sizes = tuple((l.in_features, l.out_features) for l in self.layers)
+        return (MLPWeight, self.in_dim, dims, sizes, self.activation, self.positivity, self.floor, self.use_config)
+
+    def with_bind(self, bind: Mapping[str, str]) -> "MLPWeight":
+        if not bind:
+            return self
+        view = shallow_clone(self)
+        view.aux_names = [bind.get(a, a) for a in self.aux_names]
+        return view
+
+    @classmethod
+    def stacked(cls, members, like: Tensor) -> "StackedMLP":
+        return StackedMLP(members)
+
+    def layer_parameters(self) -> list[tuple[Tensor, Tensor]]:
+        """Each layer's (W (1, out, in), b (1, out)): this network as a stack of one."""
+        return [(l.weight.unsqueeze(0), l.bias.unsqueeze(0)) for l in self.layers]
+
     def forward(self, x: Tensor, aux: AuxDict | None = None):
-        B = x.shape[0]
-        feats = aux_features(self.aux_names, aux, B)
+        lead = x.shape[:-1]  # (B,), or (1, B) as a group of one
+        feats = aux_features(self.aux_names, aux, lead)
         parts = ([x] if self.use_config else []) + ([feats] if feats is not None else [])
         h = torch.cat(parts, dim=-1) if len(parts) > 1 else parts[0]
-        # tangent (dh/dx)ᵀ, (B, in_dim, width), seeded only on the configuration inputs: with the width last,
-        # each layer maps it by one plain matrix product (no batched copies of the weight matrices)
-        W0 = self.layers[0].weight
-        z = F.linear(h, W0, self.layers[0].bias)
-        dz = W0[:, : self.in_dim].T.unsqueeze(0) if self.use_config else None
-        for layer in self.layers[1:]:
-            a, da = self.act(z)
-            dz = F.linear(da.unsqueeze(1) * dz, layer.weight) if dz is not None else None
-            z = layer(a)
-        out = z[:, 0]
-        if self.positivity == "exp":
-            pos = torch.exp(out)
-            dpos = pos
-        else:
-            pos = F.softplus(out)
-            dpos = torch.sigmoid(out)
-        w = self.floor + pos
-        grad = dpos[:, None] * dz[..., 0] if dz is not None else None  # no config input: ∇_x w = 0
-        return w, grad
+        w, grad = mlp_with_gradient(self.layer_parameters(), h.reshape(1, -1, h.shape[-1]),
+                                    self.in_dim if self.use_config else 0, self.act, self.positivity, self.floor)
+        return w.reshape(lead), None if grad is None else grad.reshape(*lead, -1)
 
     def value(self, x, aux):
         return self.forward(x, aux)[0]
+
+
+def mlp_with_gradient(layers: list[tuple[Tensor, Tensor]], h: Tensor, n_config: int, act, positivity: str,
+                      floor: float) -> tuple[Tensor, Tensor | None]:
+    """w = floor + pos(MLP(h)) and ∇w with respect to the first ``n_config`` inputs, for D networks at once.
+
+    ``layers``: per layer (W (D, out, in), b (D, out)); ``h``: (D, N, in), network d's inputs. The tangent
+    (dh/dx)ᵀ is carried forward as (D, N, n_config, width), seeded by the first layer's configuration columns, so
+    each layer maps it by one batched matrix product (no per-sample copies of the weights). Returns w (D, N) and
+    ∇w (D, N, n_config) (None without configuration inputs)."""
+    (W0, b0), rest = layers[0], layers[1:]
+    D, N = h.shape[0], h.shape[1]
+    z = torch.baddbmm(b0.unsqueeze(1), h, W0.transpose(1, 2))
+    dz = W0[:, :, :n_config].transpose(1, 2).unsqueeze(1) if n_config else None  # (D, 1, n_config, width)
+    for W, b in rest:
+        a, da = act(z)
+        if dz is not None:
+            t = da.unsqueeze(2) * dz  # (D, N, n_config, width)
+            dz = torch.bmm(t.reshape(D, N * n_config, -1), W.transpose(1, 2)).reshape(D, N, n_config, -1)
+        z = torch.baddbmm(b.unsqueeze(1), a, W.transpose(1, 2))
+    out = z[..., 0]
+    if positivity == "exp":
+        pos = torch.exp(out)
+        dpos = pos
+    else:
+        pos = F.softplus(out)
+        dpos = torch.sigmoid(out)
+    grad = dpos[..., None] * dz[..., 0] if dz is not None else None
+    return floor + pos, grad
+
+
+class StackedMLP(nn.Module):
+    """Weight networks of one architecture evaluated as one batch: the group's edges in member order, the edges of
+    one network contiguous and every network used equally often (the tree plans them so), each edge reading its
+    own aux entries. Parameters are read from the members at every call, so gradients reach each network."""
+
+    def __init__(self, members):
+        super().__init__()
+        first = members[0]
+        distinct = list({id(m.layers): m for m in members}.values())
+        if len(members) % len(distinct) or any(
+                id(m.layers) != id(distinct[i // (len(members) // len(distinct))].layers) for i, m in enumerate(members)):
+            raise ValueError("stacked weight networks must be contiguous and equally often used")
+        object.__setattr__(self, "networks", distinct)  # the members own the parameters
+        self.size, self.in_dim, self.use_config = len(members), first.in_dim, first.use_config
+        self.act, self.positivity, self.floor = first.act, first.positivity, first.floor
+        self.features = nn.ModuleList(
+            StackedAux([AuxParam(m.aux_names[k], m.aux_dims, "mlp.aux") for m in members])
+            for k in range(len(first.aux_names)))
+
+    def forward(self, x: Tensor, aux: AuxDict | None = None):
+        G, B = self.size, x.shape[1]
+        parts = [x.expand(G, B, -1)] if self.use_config else []
+        parts += [f(aux).expand(G, B, -1) for f in self.features]
+        h = torch.cat(parts, -1) if len(parts) > 1 else parts[0]
+        D = len(self.networks)
+        layers = [(torch.stack([net.layers[i].weight for net in self.networks]),
+                   torch.stack([net.layers[i].bias for net in self.networks])) for i in range(len(self.networks[0].layers))]
+        w, grad = mlp_with_gradient(layers, h.reshape(D, -1, h.shape[-1]), self.in_dim if self.use_config else 0,
+                                    self.act, self.positivity, self.floor)
+        return w.reshape(G, B), None if grad is None else grad.reshape(G, B, -1)

@@ -1,0 +1,107 @@
+"""Pushforward and pullback* over a tree's plan (docs/math.md §9): the evaluation of eq. 6, level-batched.
+
+Every group's quantities carry a leading member dimension, ``(G, B, ...)``: states, Jacobians, curvature terms,
+weights, and RMPs. The math is the one of ``core/algebra.py``; a group only evaluates it for all its members at
+once and sums each member's term of pullback* into its parent's row.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Mapping
+
+from torch import Tensor
+
+from .algebra import Edge, NodeRMP, edge_contribution
+from .groups import ROOT, Plan, assemble
+
+
+@dataclass
+class Passes:
+    """What the passes computed, per node group: states ``(y, ẏ)``, edges and RMPs, each ``(G, B, ...)``."""
+
+    states: list[tuple[Tensor, Tensor]]
+    edges: list[Edge]
+    rmps: list[NodeRMP]
+    root: NodeRMP  # (B, ...)
+
+
+def _full(t: Tensor | None, size: int) -> Tensor | None:
+    """A group quantity with its member dimension spelled out (a map may answer ``(1, B, ...)`` for all)."""
+    if t is None or t.shape[0] == size:
+        return t
+    return t.expand(size, *t.shape[1:])
+
+
+def _maps(plan: Plan, q: Tensor, qd: Tensor, aux) -> tuple[dict[int, Tensor], dict[int, Tensor], list]:
+    """Pushforward through every node group's map, parents' groups first."""
+    x = {ROOT: q.unsqueeze(0)}
+    xd = {ROOT: qd.unsqueeze(0)}
+    jc = []
+    for i, g in enumerate(plan.groups):
+        y, yd, J, c = (_full(t, g.size) for t in g.map(g.parent.gather(x), g.parent.gather(xd), aux))
+        x[i], xd[i] = y, yd
+        jc.append((J, c))
+    return x, xd, jc
+
+
+def _weights(plan: Plan, x: Mapping[int, Tensor], aux) -> tuple[dict[int, Tensor], dict[int, Tensor | None]]:
+    """Every weight group evaluated at its edges' parents' configurations."""
+    w, gw = {}, {}
+    for k, wg in enumerate(plan.weights):
+        xs = wg.inputs.gather(x)
+        value, grad = wg.fn(xs, aux)
+        w[k], gw[k] = _full(value, len(wg.edges)), _full(grad, len(wg.edges))
+    return w, gw
+
+
+def pushforward(plan: Plan, q: Tensor, qd: Tensor, aux: Mapping[str, Tensor] | None):
+    """Every node group's state ``(y, ẏ)`` and edge. ``q``, ``qd``: the root's (B, d)."""
+    x, xd, jc = _maps(plan, q, qd, aux)
+    w, gw = _weights(plan, x, aux)
+    edges = []
+    for i, g in enumerate(plan.groups):
+        J, c = jc[i]
+        wi = gwi = None
+        if g.weights is not None:
+            wi = g.weights.gather(w)
+            gwi = None if g.constant_weights else g.weights.gather(gw)
+        edges.append(Edge(J=J, c=c, yd=xd[i], w=wi, grad_w=gwi, identity=g.identity))
+    return x, xd, edges
+
+
+def pullback(plan: Plan, x, xd, edges, lean: bool = False) -> Passes:
+    """Every group's RMP, deepest groups first: a leaf group's from its leaf, an inner group's from the summed
+    terms of its child groups; then the root's. ``lean``: f and M only (``Plan.lean`` trees, unmonitored)."""
+    terms: dict[int, list[tuple[int, NodeRMP]]] = {}  # per group (and the root): its members' children's terms
+    rmps: list[NodeRMP | None] = [None] * len(plan.groups)
+    for i in reversed(range(len(plan.groups))):
+        g = plan.groups[i]
+        if g.leaf is None:
+            rmp = _gathered(terms[i], g.size)
+        else:
+            rmp = g.leaf.force(x[i], xd[i]) if lean else g.leaf(x[i], xd[i])
+        rmps[i] = rmp
+        term = edge_contribution(g.parent.gather(xd), edges[i], rmp)
+        first, f = g.parent.scatter_sum(term.f)
+        summed = NodeRMP(f, *(None if v is None else g.parent.scatter_sum(v)[1] for k, v in term.items() if k != "f"))
+        terms.setdefault(g.parent.sources[0], []).append((first, summed))
+    if ROOT not in terms:
+        raise ValueError("the tree has no nodes below its root: pullback* needs at least one child")
+    states = [(x[i], xd[i]) for i in range(len(plan.groups))]
+    root = NodeRMP(*(None if v is None else v[0] for _, v in _gathered(terms[ROOT], 1).items()))
+    return Passes(states=states, edges=edges, rmps=rmps, root=root)
+
+
+def _gathered(pieces: list[tuple[int, NodeRMP]], size: int) -> NodeRMP:
+    """A group's RMP from its members' children's terms (``pieces``: each covering rows from its first on)."""
+    fields = {}
+    for k, v in pieces[0][1].items():
+        fields[k] = None if v is None else assemble([(first, getattr(r, k)) for first, r in pieces], size)
+    return NodeRMP(**fields)
+
+
+def evaluate(plan: Plan, q: Tensor, qd: Tensor, aux: Mapping[str, Tensor] | None, lean: bool = False) -> Passes:
+    """Pushforward, the weights, then pullback*: the root's RMP and every group's quantities (``lean``: f and M
+    only, for a ``Plan.lean`` tree's policy)."""
+    x, xd, edges = pushforward(plan, q, qd, aux)
+    return pullback(plan, x, xd, edges, lean)

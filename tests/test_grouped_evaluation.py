@@ -1,0 +1,225 @@
+"""Level-batched evaluation (docs/math.md §9) against an independent node-by-node computation of eq. 6
+(tests/reference_tree.py), in float64 to 1e-12: random trees whose siblings group with a number per member, the
+Franka tree, and plugins' leaves (one that declares how it stacks, with a learned number, and one that does not)."""
+import random
+
+import pytest
+import torch
+from pydantic import Field
+
+import rmpfusion
+from reference_tree import FIELDS, node_by_node
+from rmpfusion.core.gds import GDS
+from rmpfusion.registry import LEAF_RMPS, Params
+
+TOL = 1e-12
+
+
+def _assert_equal(out, ref, tol=TOL):
+    for k in (*FIELDS, "qdd"):
+        a, b = getattr(out, k), ref[k]
+        scale = 1.0 + b.abs().max()
+        assert (a - b).abs().max() <= tol * scale, f"{k}: {(a - b).abs().max():.3e} (scale {scale:.3g})"
+
+
+def grouping_tree_spec(seed: int, dim: int = 3) -> dict:
+    """A tree whose nodes group: several attractors, barriers, joint limits, dampers and distances of each kind,
+    every member with its own numbers, aux entries or constants; shared and unshared neural weights, designed
+    weights and unweighted edges; three levels."""
+    rng = random.Random(seed)
+    u = rng.uniform
+    vec = lambda: [u(-1.5, 1.5) for _ in range(dim)]  # noqa: E731
+    mlp = lambda aux: {"type": "mlp", "hidden": [6, 6], "activation": rng.choice(["tanh", "silu"]), "aux": aux}  # noqa: E731
+    barrier = lambda: {"type": "collision_avoidance", "r_w": u(1.5, 3.0), "sigma": u(0.3, 1.0), "epsilon": u(0.05, 0.5),  # noqa: E731
+                       "alpha": u(0.0, 0.5), "eta": u(0.0, 1.0), "min_distance": u(1e-3, 0.1)}
+    attractor = lambda: {"type": "goal_attractor", "w_u": u(1, 8), "w_l": u(0.5, 2), "sigma": u(0.5, 2),  # noqa: E731
+                         "gain": u(0.5, 3), "alpha": u(0.5, 3), "eta": u(0.5, 3)}
+    nodes = {
+        "regulariser": {"parent": "q", "map": {"type": "identity"}, "rmp": {"type": "identity_metric", "scale": u(0.01, 0.1)}},
+        "damper": {"parent": "q", "map": {"type": "identity"}, "rmp": {"type": "damper", "w": u(0.1, 1), "eta": u(0.5, 2)}},
+        "obstacles": {"parent": "q", "map": {"type": "linear", "matrix": [[u(-1, 1) + (1.5 if i == j else 0) for j in range(dim)]
+                                                                          for i in range(dim)]},
+                      "weight": mlp(["c1"])},
+        "inner": {"parent": "q", "map": {"type": "identity"}, "weight": mlp([])},
+    }
+    for k in range(3):  # attractors: aux or constant goals, shared and own weights
+        nodes[f"goal{k}"] = {"parent": "q", "map": {"type": "offset", "origin": "goal" if k < 2 else vec()},
+                             "weight": {"shared": "goal_weight"} if k < 2 else mlp(["goal"]), "rmp": attractor()}
+    for k in range(2):  # attractors without weights
+        nodes[f"plain{k}"] = {"parent": "q", "map": {"type": "offset", "origin": vec()}, "rmp": attractor()}
+    for j in range(dim):  # joint limits: one per side and joint, each its own limit
+        for side in ("upper", "lower"):
+            nodes[f"jl{j}_{side}"] = {"parent": "q", "rmp": {"type": "joint_limit", "r_w": u(0.2, 0.6)},
+                                      "map": {"type": "joint_limit", "side": side, "limit": u(2, 3) * (1 if side == "upper" else -1),
+                                              "joints": j}}
+    for k, c in enumerate(("c1", "c2", "c3")):  # distances to aux or constant centres, under a linear map
+        nodes[f"o{k}"] = {"parent": "obstacles", "rmp": barrier(),
+                          "map": {"type": "sphere_distance", "center": c if k < 2 else vec(), "radius": u(0.2, 0.6)},
+                          "weight": {"shared": "near", "bind": {"c": c}}}
+        nodes[f"cyl{k}"] = {"parent": "obstacles", "rmp": barrier(),
+                            "map": {"type": "cylinder_distance", "center": c, "radius": u(0.2, 0.6), "axis": vec()},
+                            "weight": {"type": "logistic", "low": u(0.3, 1), "high": u(2, 4), "center": c, "steepness": -2.0,
+                                       "switch_distance": u(0.2, 0.8)}}
+        nodes[f"box{k}"] = {"parent": "inner", "rmp": barrier(),
+                            "map": {"type": "box_distance", "center": c, "half_extents": [u(0.1, 0.4) for _ in range(dim)]}}
+        nodes[f"deep{k}"] = {"parent": "inner", "map": {"type": "compose", "maps": [
+            {"type": "sphere_distance", "center": c, "radius": u(0.1, 0.3)}, {"type": "offset", "origin": [u(0, 0.1)]}]},
+            "weight": {"type": "rbf", "low": u(0.3, 1), "high": u(2, 4), "center": c, "sigma": u(0.5, 1.5)},
+            "rmp": barrier()}
+    return {"root": {"name": "q", "dim": dim}, "aux": {"goal": dim, "c": dim, "c1": dim, "c2": dim, "c3": dim},
+            "shared_weights": {"goal_weight": mlp(["goal"]), "near": mlp(["c"])}, "nodes": nodes}
+
+
+def _inputs(seed: int, dim: int, B: int):
+    g = torch.Generator().manual_seed(seed)
+    q = 2 * torch.rand(B, dim, generator=g, dtype=torch.float64) - 1
+    qd = torch.randn(B, dim, generator=g, dtype=torch.float64)
+    aux = {k: 3 * torch.rand(B, dim, generator=g, dtype=torch.float64) - 1.5 for k in ("goal", "c", "c1", "c2", "c3")}
+    return q, qd, aux
+
+
+def _randomise(tree, seed):
+    g = torch.Generator().manual_seed(seed)
+    with torch.no_grad():
+        for p in tree.parameters():
+            p.copy_(0.4 * torch.randn(p.shape, generator=g, dtype=p.dtype))
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_random_trees_equal_the_node_by_node_computation(seed):
+    tree = rmpfusion.build_tree(grouping_tree_spec(seed))
+    _randomise(tree, seed)
+    sizes = sorted((len(g.nodes) for g in tree.plan.groups), reverse=True)
+    assert sizes[0] >= 6 and sum(1 for s in sizes if s > 1) >= 5, f"the tree should group: {sizes}"
+    assert any(len(w.edges) > 1 for w in tree.plan.weights)
+    q, qd, aux = _inputs(seed, 3, 5)
+    _assert_equal(tree(q, qd, aux), node_by_node(tree, q, qd, aux))
+
+
+def test_parameter_gradients_equal_the_node_by_node_computation():
+    """Gradients reach every weight network through the stacked weights and the h_i terms, as node by node."""
+    tree = rmpfusion.build_tree(grouping_tree_spec(7))
+    _randomise(tree, 7)
+    q, qd, aux = _inputs(7, 3, 4)
+    grads = []
+    for evaluate in (lambda: tree(q, qd, aux), lambda: node_by_node(tree, q, qd, aux)):
+        tree.zero_grad()
+        out = evaluate()
+        qdd, V = (out.qdd, out.V) if hasattr(out, "qdd") else (out["qdd"], out["V"])
+        (qdd.square().sum() + V.sum()).backward()
+        grads.append({n: p.grad.clone() for n, p in tree.named_parameters()})
+    assert grads[0]
+    for n, g in grads[0].items():
+        assert (g - grads[1][n]).abs().max() <= TOL * (1 + grads[1][n].abs().max()), n
+
+
+def test_policy_equals_the_full_evaluation_where_only_f_and_m_are_needed():
+    """A tree without configuration-dependent weights evaluates only f and M for ``policy`` (no potentials)."""
+    spec = grouping_tree_spec(3)
+    spec["nodes"] = {n: {k: v for k, v in nd.items() if k != "weight"} for n, nd in spec["nodes"].items()}
+    spec["shared_weights"] = {}
+    tree = rmpfusion.build_tree(spec)
+    assert tree.plan.lean
+    q, qd, aux = _inputs(3, 3, 6)
+    torch.testing.assert_close(tree.policy(q, qd, aux), node_by_node(tree, q, qd, aux)["qdd"], rtol=TOL, atol=TOL)
+    assert not rmpfusion.build_tree(grouping_tree_spec(3)).plan.lean
+
+
+@pytest.mark.parametrize("n_obstacles", [1, 3])
+@pytest.mark.parametrize("weights", ["expert", "learner"])
+def test_the_franka_tree_equals_the_node_by_node_computation(n_obstacles, weights):
+    from rmpfusion.build.weighting import tree_with_weights
+    from rmpfusion.envs.franka_tree import franka_tree_spec
+
+    spec = franka_tree_spec(n_obstacles=n_obstacles)
+    if weights == "expert":
+        logistic = {"type": "logistic", "center": "obstacle_center", "radius": "obstacle_radius", "steepness": -20.0,
+                    "switch_distance": 0.2, "low": 1.0, "high": 200.0}
+        spec = tree_with_weights(spec, {"attractor": {"type": "rbf", "center": "goal", "sigma": 0.2, "low": 40.0,
+                                                      "high": 60.0}, **{n: logistic for n in spec["shared_weights"]}})
+    tree = rmpfusion.build_tree(spec)
+    _randomise(tree, n_obstacles)
+    kinds = {g.nodes[0]: len(g.nodes) for g in tree.plan.groups}
+    assert kinds["ee"] == 15 and kinds["jl1_upper"] == 14 and kinds["cp1_obstacle1"] == 14 * n_obstacles
+    g = torch.Generator().manual_seed(n_obstacles)
+    lo, hi = tree.maps["ee"].chain.joint_limits()
+    q = lo + (hi - lo) * torch.rand(4, 7, generator=g, dtype=torch.float64)
+    qd = torch.randn(4, 7, generator=g, dtype=torch.float64)
+    aux = {"goal": torch.tensor([[0.4, -0.3, 0.4]], dtype=torch.float64).expand(4, 3)}
+    for k in range(1, n_obstacles + 1):
+        aux[f"obstacle{k}_center"] = torch.tensor([[0.5, 0.1 * k, 0.3]], dtype=torch.float64).expand(4, 3)
+        aux[f"obstacle{k}_radius"] = torch.full((4, 1), 0.05 * k, dtype=torch.float64)
+    _assert_equal(tree(q, qd, aux), node_by_node(tree, q, qd, aux))
+
+
+class Spring(GDS):
+    """A plugin's leaf that declares how it stacks: G = m·I, B = c·I, Φ = ½k|y|², its stiffness learned."""
+
+    stack_fields = ("m", "c", "k")
+
+    class Params(Params):
+        m: float = Field(1.0, gt=0)
+        c: float = Field(1.0, ge=0)
+        k: float = Field(1.0, gt=0)
+
+    def __init__(self, params, dim):
+        super().__init__(dim)
+        self.m, self.c = params.m, params.c
+        self.log_k = torch.nn.Parameter(torch.tensor(params.k, dtype=torch.float64).log())
+
+    @property
+    def k(self):
+        return self.log_k.exp()
+
+    def metric(self, y, yd):
+        return (self.m + torch.zeros_like(y[..., 0]))[..., None, None] * torch.eye(y.shape[-1], dtype=y.dtype)
+
+    def damping(self, y, yd):
+        return (self.c + torch.zeros_like(y[..., 0]))[..., None, None] * torch.eye(y.shape[-1], dtype=y.dtype)
+
+    def potential(self, y):
+        return 0.5 * self.k * (y * y).sum(-1)
+
+    def curvature(self, y, yd):
+        return torch.zeros(*y.shape, y.shape[-1], dtype=y.dtype), torch.zeros_like(y)
+
+
+class Rubber(Spring):
+    """The same leaf from a plugin that declares nothing: it runs alone."""
+
+    stack_fields = None
+
+
+@pytest.fixture
+def plugin_leaves():
+    LEAF_RMPS.register("test_spring")(Spring)
+    LEAF_RMPS.register("test_rubber")(Rubber)
+    yield
+    LEAF_RMPS.unregister("test_spring")
+    LEAF_RMPS.unregister("test_rubber")
+
+
+def test_plugin_leaves_group_when_they_declare_how_and_run_alone_otherwise(plugin_leaves):
+    nodes = {}
+    for k in range(3):
+        for kind in ("spring", "rubber"):
+            nodes[f"{kind}{k}"] = {"parent": "q", "map": {"type": "offset", "origin": [0.3 * k, -0.2 * k]},
+                                   "weight": {"type": "mlp", "hidden": [4]},
+                                   "rmp": {"type": f"test_{kind}", "m": 1.0 + k, "c": 0.5 * k, "k": 2.0 + k}}
+    tree = rmpfusion.build_tree({"root": {"name": "q", "dim": 2}, "nodes": nodes})
+    sizes = {g.nodes[0]: len(g.nodes) for g in tree.plan.groups}
+    assert sizes["spring0"] == 3 and all(sizes[f"rubber{k}"] == 1 for k in range(3))
+    q, qd, _ = _inputs(1, 2, 5)
+    grads = []
+    for evaluate in (lambda: tree(q, qd), lambda: node_by_node(tree, q, qd)):
+        tree.zero_grad()
+        out = evaluate()
+        qdd = out.qdd if hasattr(out, "qdd") else out["qdd"]
+        if not grads:
+            _assert_equal(out, node_by_node(tree, q, qd))
+        qdd.square().sum().backward()
+        grads.append({n: p.grad.clone() for n, p in tree.named_parameters() if "log_k" in n})
+    assert len(grads[0]) == 6
+    for n, g in grads[0].items():
+        assert g.abs().max() > 0, f"the learned stiffness {n} gets a gradient through its group"
+        torch.testing.assert_close(g, grads[1][n], rtol=TOL, atol=TOL)
