@@ -403,3 +403,16 @@ def test_a_misaligned_cost_to_go_is_caught_as_biased():
 def test_cost_to_go_sums_the_costs_from_each_decision_on():
     c = torch.tensor([[1.0, 2.0], [3.0, 4.0], [5.0, 6.0]], dtype=F64)
     assert torch.equal(cost_to_go(c), torch.tensor([[9.0, 12.0], [8.0, 10.0], [5.0, 6.0]], dtype=F64))
+
+
+def test_apg_trains_on_its_own_step_and_leaves_the_environment_s_to_evaluation(splits):
+    """``train.dt``: the training rollouts integrate on the coarser step, the environment itself keeps its own."""
+    env = Particle2D(n_obstacles=1, dt=0.01)
+    q0, qd0, aux = splits[2]["train"].initial_states()
+    params = APGParams(horizon=1.0, record_every=0.1, dt=0.05)
+    coarse = RolloutCost(env, params)
+    assert coarse.env.dt == 0.05 and env.dt == 0.01
+    with torch.no_grad():
+        got = coarse(Linear(), q0, qd0, aux, backward=False)
+        same = RolloutCost(_env(), params.model_copy(update={"dt": None}))(Linear(), q0, qd0, aux, backward=False)
+    assert got == same

@@ -151,6 +151,10 @@ class Particle2D(SeededSampling):
             return q.new_full(q.shape[:-1], float("inf"))
         return ((q[..., None, :] - c).norm(dim=-1) - r).min(dim=-1).values
 
+    def with_step(self, dt: float) -> "Particle2D":
+        """The same particle and sampling, integrated on the step ``dt``."""
+        return Particle2D(self.params, dt=dt)
+
     def goal_distance(self, q: Tensor, aux: Mapping[str, Tensor]) -> Tensor:
         """(..., B) distance of positions q (..., B, 2) to the goal; differentiable in q."""
         return (q - aux["goal"]).norm(dim=-1)

@@ -140,3 +140,8 @@ class DifferentiableRollouts(Protocol):
         """(..., B) signed distance of configurations q (..., B, d) to the nearest obstacle (< 0 inside),
         differentiable in q."""
         ...
+
+    def with_step(self, dt: float) -> "DifferentiableRollouts":
+        """The same environment integrated on another step: gradients through long rollouts cost less on a
+        coarser one, while evaluation keeps the experiment's own step."""
+        ...

@@ -131,6 +131,8 @@ class _SnapshotEvaluator:
             met["val_loss"] = dataset_loss(model, self.splits.val, self.exp.run.train.batch_loss_objective)
         if out.weights is not None:
             met["weights"] = out.weights.snapshot(f"{self.name} @ {it}", model)
+        if learned := model.learned_numbers():
+            met["learned_leaf_parameters"] = learned
         ro = onl.rollout
         out.snapshots[str(it)] = clean(met)
         out.panels.append({"label": f"{self.name} @ {it}", "q": ro.q[:, self.plot_idx], "times": ro.times,
