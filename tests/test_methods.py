@@ -406,8 +406,13 @@ def test_cost_to_go_sums_the_costs_from_each_decision_on():
 
 
 def test_apg_trains_on_its_own_step_and_leaves_the_environment_s_to_evaluation(splits):
-    """``train.dt``: the training rollouts integrate on the coarser step, the environment itself keeps its own."""
-    env = Particle2D(n_obstacles=1, dt=0.01)
+    """``train.dt``: the training rollouts integrate on the coarser step, the environment itself keeps its own
+    (an environment built from a run config, as the pipeline builds it)."""
+    from rmpfusion.pipeline.validate import make_env
+
+    env = make_env(resolve_and_validate(_config({"method": "apg", "dt": 0.05, "horizon": 1.0})))
+    env = env.with_step(0.01)
+    assert isinstance(env, Particle2D) and env.params.n_obstacles == 1
     q0, qd0, aux = splits[2]["train"].initial_states()
     params = APGParams(horizon=1.0, record_every=0.1, dt=0.05)
     coarse = RolloutCost(env, params)

@@ -153,7 +153,8 @@ class Particle2D(SeededSampling):
 
     def with_step(self, dt: float) -> "Particle2D":
         """The same particle and sampling, integrated on the step ``dt``."""
-        return Particle2D(self.params, dt=dt)
+        settings = self.params.model_dump(include=set(self.Params.model_fields))  # not a config block's `type`
+        return Particle2D(self.Params.model_validate({**settings, "dt": dt}))
 
     def goal_distance(self, q: Tensor, aux: Mapping[str, Tensor]) -> Tensor:
         """(..., B) distance of positions q (..., B, 2) to the goal; differentiable in q."""
