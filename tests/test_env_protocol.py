@@ -5,15 +5,16 @@ from __future__ import annotations
 import pytest
 import torch
 
-from rmpfusion.envs import (Env, HasRatioMetrics, HasTaskMetrics, Particle2D, PlanarWorkspace, RenderSettings,
-                            Renders, collect)
+from rmpfusion.envs import (DifferentiableRollouts, Env, HasRatioMetrics, HasTaskMetrics, Particle2D,
+                            PlanarWorkspace, RenderSettings, Renders, collect)
 from rmpfusion.registry import ENVS
 
 
-def test_particle2d_is_an_env_with_a_planar_workspace_only():
+def test_particle2d_is_an_env_with_a_planar_workspace_task_metrics_and_differentiable_rollouts():
     env = Particle2D(n_obstacles=2)
-    assert isinstance(env, Env) and isinstance(env, PlanarWorkspace)
-    assert not isinstance(env, (Renders, HasTaskMetrics, HasRatioMetrics))
+    assert isinstance(env, Env) and isinstance(env, PlanarWorkspace) and isinstance(env, HasTaskMetrics)
+    assert isinstance(env, DifferentiableRollouts)
+    assert not isinstance(env, (Renders, HasRatioMetrics))
     assert env.dim == 2 and env.dt == env.params.dt
     assert ENVS.get("particle2d").obj is Particle2D
 
@@ -39,7 +40,7 @@ def test_the_manipulator_is_an_env_with_task_metrics_ratios_and_renders():
     try:
         assert isinstance(env, Env)
         assert isinstance(env, HasTaskMetrics) and isinstance(env, HasRatioMetrics) and isinstance(env, Renders)
-        assert not isinstance(env, PlanarWorkspace)
+        assert not isinstance(env, (PlanarWorkspace, DifferentiableRollouts))  # pybullet: no gradients
         assert env.dim == 7 and env.dt == pytest.approx(1.0 / env.params.control_rate)
         assert set(env.ratio_metrics) <= {"time", "cspace_length", "ee_length", "goal_distance",
                                           "timeout_goal_distance", "min_goal_distance"}
@@ -49,3 +50,18 @@ def test_the_manipulator_is_an_env_with_task_metrics_ratios_and_renders():
         assert ENVS.get("manipulator").obj is Manipulator
     finally:
         env.close()
+
+
+def test_particle2d_task_metrics_and_goal_distances_follow_its_records():
+    """A particle driven straight at its goal: the records carry the distance to the goal, the task metrics the
+    time it first came within the tolerance, the polyline's length and the end distance."""
+    env = Particle2D(n_obstacles=0, dt=0.01)
+    aux = {"goal": torch.tensor([[1.0, 0.0]], dtype=torch.float64)}
+    q0, qd0 = torch.zeros(1, 2, dtype=torch.float64), torch.tensor([[0.5, 0.0]], dtype=torch.float64)
+    ro = env.rollout(lambda q, qd, a: torch.zeros_like(q), q0, qd0, aux, horizon=3.0, record_every=0.1)
+    x = 0.5 * ro.times
+    assert torch.allclose(ro.goal_distance[:, 0], (1.0 - x).abs(), atol=1e-12)
+    m = env.task_metrics(ro)
+    assert float(m["time"]) == pytest.approx(1.8)  # |1 − 0.5 t| ≤ 0.1 first at the record t = 1.8
+    assert float(m["path_length"]) == pytest.approx(1.5) and float(m["final_distance"]) == pytest.approx(0.5)
+    assert float(m["success"]) == 0.0 and float(m["collided"]) == 0.0 and float(m["min_clearance"]) == float("inf")

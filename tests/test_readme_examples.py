@@ -102,6 +102,9 @@ FAILS = {"rmpfusion-validate expert.goal.type=rfb +tree.nodes.goal.rmp.gian=2 tr
 #: Appended to every command that runs the pipeline (rmpfusion-run, tools/reproduce_2d.py): tiny data, 3 training
 #: steps, evaluation without figures or torch.compile, no wandb. The README's commands stay as written before them.
 TINY = ["data=tiny", "train=tiny", "eval=fast", "logger=disabled", "eval.compile=false"]
+#: The tools that compare training methods choose the method themselves: tiny splits and evaluation only.
+TINY_EVAL = ["data.test_envs=1", "data.test_trajectories=2", "data.val_envs=1", "data.val_trajectories=2",
+             "data.points=3", "data.interval=0.1", "eval=fast", "eval.compile=false"]
 
 
 def strip_comment(line: str) -> str:
@@ -183,6 +186,16 @@ def appended(cmd: str, out: Path) -> list[str]:
         return []  # writes where the README says: under outputs/, which git ignores
     if cmd.startswith("python tools/reproduce_2d.py"):
         return ["--scale", "0.0005", "--out", str(out), *TINY]  # 10 iterations of each experiment
+    if cmd.startswith("python tools/dagger_table.py"):  # 30 iterations, 2 demonstrations per environment
+        return ["--scale", "0.0015", "--out", str(out), *TINY_EVAL, "train.compile=false"]
+    if cmd.startswith("python tools/pg_franka.py"):
+        return ["--out", str(out), *TINY_EVAL, "data.train_trajectories=2", "train.iterations=2",
+                "train.snapshots=[0,2]", "train.horizon=0.1", "train.episodes=2", "train.log_every=1",
+                "train.checkpoint_every=1", "eval.horizon=0.1", "eval.figures=false"]
+    if cmd.startswith("python tools/apg_table.py"):
+        return ["--out", str(out), "data=tiny", *TINY_EVAL, "train.compile=false", "train.iterations=2",
+                "train.snapshots=[0,2]", "train.horizon=0.5", "train.truncation=0.5", "train.batch_size=2",
+                "train.log_every=1", "train.checkpoint_every=1"]
     if cmd.startswith("rmpfusion-run"):
         extra = list(TINY)
         if " -m " in f" {cmd} ":

@@ -182,8 +182,12 @@ MAP_EXAMPLES: dict[str, list[Example]] = {
 
 LEAF_EXAMPLES: dict[str, list[Example]] = {
     "goal_attractor": [Example({}, 2),
-                       Example({"w_u": 10.0, "w_l": 1.0, "sigma": 0.7, "gain": 2.0, "alpha": 3.0, "eta": 1.0}, 3)],
-    "collision_avoidance": [Example({"r_w": 2.0, "eta": 0.5, "alpha": 0.1}, 1, state=barrier_states)],
+                       Example({"w_u": 10.0, "w_l": 1.0, "sigma": 0.7, "gain": 2.0, "alpha": 3.0, "eta": 1.0}, 3),
+                       Example({"w_u": {"learn": True, "init": 10.0}, "sigma": {"learn": True, "init": 0.7},  # learned
+                                "gain": {"learn": True, "init": 2.0, "max": 5.0}}, 3)],
+    "collision_avoidance": [Example({"r_w": 2.0, "eta": 0.5, "alpha": 0.1}, 1, state=barrier_states),
+                            Example({"r_w": {"learn": True, "init": 2.0}, "eta": {"learn": True, "init": 0.5},
+                                     "sigma": {"learn": True, "init": 0.5}}, 1, state=barrier_states)],
     "joint_limit": [Example({}, 1, state=barrier_states)],
     "damper": [Example({"w": 2.0, "eta": 3.0}, 2)],
     "identity_metric": [Example({}, 3)],

@@ -860,6 +860,24 @@ for _id, _fault, _overrides, _shows, _needs in [
         ("snapshot-beyond-training", "a snapshot after the last training iteration", ["train.snapshots=[0,30000]"],
          "train.snapshots: snapshots [30000] lie outside 0..train.iterations=20000 (a snapshot is the learner after "
          "that many iterations); given [0, 30000]", ()),
+        ("method-unknown", "a training method that is not registered", ["train.method=dager"],
+         "train.method: unknown training method 'dager'; did you mean 'dagger', 'apg'? registered: apg, bc, dagger, "
+         "pg", ()),
+        ("dagger-too-few-demonstrations", "DAgger asked for more demonstrations than the training split holds",
+         ["train=dagger", "data=tiny"],
+         "train.initial_trajectories: round 0 would draw 500 demonstrations but the training split has 4 "
+         "(data.train_envs × data.train_trajectories); lower it or collect more", ()),
+        ("dagger-beta-unused", "a β that the DAgger schedule would ignore", ["train=dagger", "+train.beta=0.3"],
+         "train: beta is not used by beta_schedule=indicator (β = 0 after round 0); use beta_schedule=exponential or "
+         "constant, or leave beta out; given beta=0.3", ()),
+        ("pg-decision-off-grid", "a policy-gradient decision interval off the environment's step grid",
+         ["train=pg", "train.decision_interval=0.025"],
+         "train.decision_interval: must be a positive multiple of the environment's step 0.01 s; given 0.025", ()),
+        ("apg-not-differentiable", "APG asked to back-propagate through a simulator stepped outside torch",
+         ["experiment=franka", "train=apg"],
+         "train.method: apg back-propagates through rollouts, which the environment 'Franka' does not offer (it is not "
+         "simulated in torch with a differentiable goal distance and clearance); use method pg, or an environment "
+         "such as particle2d", ("pybullet",)),
         ("joint-margin-no-room", "a joint margin that leaves lower ≥ upper for the starts",
          ["experiment=franka", "+env.joint_margin=2.0"],
          "env.joint_margin: joint_margin must be < half of every joint's range (starts are drawn in [lower + margin, "

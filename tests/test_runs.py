@@ -333,6 +333,47 @@ def test_sigkill_during_a_checkpoint_write_leaves_no_half_written_checkpoint(out
     _assert_same_weights(run_dir, reference)
 
 
+DAGGER_ITERS = 300
+DAGGER = ["data=tiny", "train=dagger", "eval=fast", "logger=disabled", "weights@learners.rmp.weights=mlp_small",
+          f"train.iterations={DAGGER_ITERS}", "train.checkpoint_every=10", "train.log_every=50",
+          f"train.snapshots=[0,{DAGGER_ITERS}]", "train.compile=false", "train.batch_size=16", "train.rounds=2",
+          "train.initial_trajectories=2", "train.trajectories_per_round=3"]
+
+
+@pytest.mark.slow
+def test_dagger_killed_after_a_round_resumes_to_the_weights_and_data_of_an_uninterrupted_run(tmp_path):
+    """DAgger's state is more than the weights: the data aggregated from the learner's rollouts so far. SIGKILL
+    after round 1 (iteration 100) and before round 2 (200); the rerun resumes from the last checkpoint, keeps
+    round 1's data, aggregates round 2 and ends at the weights, losses and expert queries of an uninterrupted run."""
+    ref_dir, run_dir = tmp_path / "uninterrupted", tmp_path / "run"
+    reference = Proc(_app("train") + DAGGER + [f"hydra.run.dir={ref_dir}"], tmp_path / "logs-ref")
+    ck = run_dir / "checkpoints" / "rmp"
+
+    def past_round_one() -> bool:
+        last = latest_checkpoint(ck)
+        return last is not None and int(last.stem.split("-")[1]) >= 110
+
+    first = Proc(_app("train") + DAGGER + [f"hydra.run.dir={run_dir}"], tmp_path / "logs1")
+    first.wait_until(past_round_one, "a checkpoint after DAgger's first round")
+    os.kill(first.pid, signal.SIGKILL)
+    assert first.wait() == -signal.SIGKILL
+    killed = _ckpt(latest_checkpoint(ck))
+    assert 100 < killed["iteration"] < 200, "the kill did not land between the rounds"
+    assert [r["round"] for r in killed["method_state"]["rounds"]] == [0, 1]
+    again = _done(Proc(_app("train") + DAGGER + [f"hydra.run.dir={run_dir}"], tmp_path / "logs2"))
+    assert f"learner rmp: resumed from iteration {killed['iteration']}" in again.stdout
+    assert "dagger round 2/2 at iteration 200" in again.stdout and "dagger round 1/2" not in again.stdout
+    _done(reference)
+    final = f"ckpt-{DAGGER_ITERS:08d}.pt"
+    ref, got = _ckpt(ref_dir / "checkpoints" / "rmp" / final), _ckpt(ck / final)
+    for k, v in ref["model"].items():
+        assert torch.equal(got["model"][k], v), f"{k} differs from the uninterrupted run"
+    assert got["curve"] == ref["curve"] and got["val_curve"] == ref["val_curve"]
+    assert got["method_state"]["rounds"] == ref["method_state"]["rounds"]
+    for k, v in ref["method_state"]["data"].items():
+        assert torch.equal(got["method_state"]["data"][k], v), k
+
+
 # ------------------------------------------------------------------------------------- one run per dir
 @pytest.mark.slow
 def test_rerun_with_another_config_is_refused_and_changes_nothing(outdir, reference):

@@ -16,12 +16,12 @@ from pydantic import BaseModel
 from pydantic.fields import FieldInfo
 
 import rmpfusion  # noqa: F401  (registers the built-ins)
-from rmpfusion.learn.config import TrainConfig
+from rmpfusion.learn.config import TrainParams
 from rmpfusion.pipeline.config import DataConfig, EvalConfig
-from rmpfusion.registry import ENVS, LEAF_RMPS, LEARNERS, TASK_MAPS, ROBOTS, TREE_GENERATORS, WEIGHTS
+from rmpfusion.registry import ENVS, LEAF_RMPS, LEARNERS, ROBOTS, TASK_MAPS, TRAIN_METHODS, TREE_GENERATORS, WEIGHTS
 
-REGISTRIES = (LEAF_RMPS, TASK_MAPS, WEIGHTS, ROBOTS, ENVS, LEARNERS, TREE_GENERATORS)
-CONFIG_BLOCKS = {"data": DataConfig, "train": TrainConfig, "eval": EvalConfig}
+REGISTRIES = (LEAF_RMPS, TASK_MAPS, WEIGHTS, ROBOTS, ENVS, LEARNERS, TREE_GENERATORS, TRAIN_METHODS)
+CONFIG_BLOCKS = {"data": DataConfig, "train": TrainParams, "eval": EvalConfig}
 
 #: Words that make a numeric field a physical quantity, a size, a count or a range (a field name is split at
 #: ``_``). Positions and linear maps (center, offset, origin, matrix, bias) are left out: any value is a place.
@@ -34,12 +34,12 @@ PHYSICAL = frozenset({
     "indices", "joints", "limit", "snapshots", "gravity",
 })
 
-#: (model qualname, field) -> why it has no range of its own.
+#: (model qualname, field) -> why it has no range of its own (a model's subclasses share its exemptions).
 EXEMPT = {
     ("Logistic.Params", "switch_distance"): "d0 is a signed distance (< 0 inside the surface): every value is a place",
     ("JointLimit.Params", "limit"): "a joint position, any sign; which side it bounds is `side`",
     ("ManipulatorParams", "gravity"): "the world's vertical acceleration, any sign (0: no gravity)",
-    ("TrainConfig", "snapshots"): "checked against train.iterations by RunConfig, which sees both",
+    ("TrainParams", "snapshots"): "checked against train.iterations by RunConfig, which sees both",
 }
 
 _BOUNDS = (annotated_types.Gt, annotated_types.Ge, annotated_types.Lt, annotated_types.Le, annotated_types.Interval)
@@ -104,7 +104,7 @@ def physical_fields(model: type[BaseModel]) -> list[str]:
 
 
 def unranged(model: type[BaseModel]) -> list[str]:
-    return [n for n in physical_fields(model) if (model.__qualname__, n) not in EXEMPT
+    return [n for n in physical_fields(model) if not any((base.__qualname__, n) in EXEMPT for base in model.__mro__)
             and not _bounded(model.model_fields[n].annotation, model.model_fields[n].metadata)
             and not _validated(model, n)]
 

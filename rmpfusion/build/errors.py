@@ -89,8 +89,10 @@ def model_at(model: type | None, loc: Sequence[Any]) -> type[BaseModel] | None:
 
 
 def _is_tag(key: str, field: Any) -> bool:
-    """The ``type`` of a registry-typed block: the union's tag, said by the block, not one of its parameters."""
-    return key == "type" and get_origin(field.annotation) is Literal
+    """The ``type`` (or ``method``) of a registry-typed block: the union's tag, said by the block, not one of its
+    parameters (``build.spec.spec_model`` marks it)."""
+    extra = field.json_schema_extra if isinstance(field.json_schema_extra, Mapping) else {}
+    return bool(extra.get("registry_tag")) and get_origin(field.annotation) is Literal
 
 
 def _unknown_key(e: Mapping[str, Any], model: type | None) -> str:
@@ -106,13 +108,14 @@ def _unknown_key(e: Mapping[str, Any], model: type | None) -> str:
 
 
 def _unknown_type(e: Mapping[str, Any]) -> tuple[str, str]:
-    """(path suffix, message) for a block whose ``type`` names no entry of its registry, or has none."""
-    registry, given = e["ctx"]["registry"], e.get("input")
+    """(path suffix, message) for a block whose ``type`` (the union's key) names no entry of its registry, or
+    has none."""
+    registry, key, given = e["ctx"]["registry"], e["ctx"].get("key", "type"), e.get("input")
     if not isinstance(given, Mapping):
-        return "", f"expected a mapping with a 'type' key, got {_show(given)}"
-    if "type" not in given:
-        return ".type", f"required key is missing; one of: {', '.join(registry.names())}"
-    return ".type", registry.unknown_message(given["type"])
+        return "", f"expected a mapping with a '{key}' key, got {_show(given)}"
+    if key not in given:
+        return f".{key}", f"required key is missing; one of: {', '.join(registry.names())}"
+    return f".{key}", registry.unknown_message(given[key])
 
 
 def _message(e: Mapping[str, Any], model: type | None) -> tuple[str, str]:

@@ -32,18 +32,23 @@ class TypedBlock(BaseModel):
 
 
 # ------------------------------------------------------------------ unions generated from a registry
-_SPEC_MODELS: dict[tuple[int, str], type[Params]] = {}
-_UNIONS: dict[tuple[int, int], Any] = {}
+_SPEC_MODELS: dict[tuple[int, str, str], type[Params]] = {}
+_UNIONS: dict[tuple[int, int, str, str | None], Any] = {}
+
+#: Marks the field a union adds to an entry's model to say which entry a block is (``type``, or ``method`` for
+#: the training block): the union's tag, not one of the entry's parameters (messages never list it as one).
+TAG_FIELD_MARK = {"registry_tag": True}
 
 
-def spec_model(registry: Registry, name: str) -> type[Params]:
-    """The entry's parameter model with its ``type`` tag: what a validated block of that type is."""
+def spec_model(registry: Registry, name: str, key: str = "type") -> type[Params]:
+    """The entry's parameter model with its tag field ``key`` (``type: name``): what a validated block of that
+    entry is."""
     entry = registry.get(name)
-    key = (id(entry.params), name)
-    if key not in _SPEC_MODELS:
-        _SPEC_MODELS[key] = create_model(f"{entry.params.__name__}Spec", __base__=entry.params,
-                                         type=(Literal[name], name))
-    return _SPEC_MODELS[key]
+    cache = (id(entry.params), name, key)
+    if cache not in _SPEC_MODELS:
+        _SPEC_MODELS[cache] = create_model(f"{entry.params.__name__}Spec", __base__=entry.params,
+                                           **{key: (Literal[name], Field(name, json_schema_extra=TAG_FIELD_MARK))})
+    return _SPEC_MODELS[cache]
 
 
 def registry_tag(registry: Registry, name: str) -> str:
@@ -62,25 +67,29 @@ class _RegistryDiscriminator(Discriminator):
         return self is other
 
 
-def typed_union(registry: Registry) -> Any:
-    """``{type: name, ...}`` validated by the named entry of ``registry``: a discriminated union of every entry,
-    regenerated when the registry changes. An unknown or missing type is a ``registry_type`` error that the
-    error formatter turns into the registry's did-you-mean message."""
+def typed_union(registry: Registry, key: str = "type", default: str | None = None) -> Any:
+    """``{key: name, ...}`` validated by the named entry of ``registry``: a discriminated union of every entry,
+    regenerated when the registry changes. A block without ``key`` is the ``default`` entry when one is given
+    (the training block: no ``method`` is behavior cloning, as every config was before methods existed). An
+    unknown or missing name is a ``registry_type`` error that the error formatter turns into the registry's
+    did-you-mean message."""
     registry.load_plugins()  # first, so they are part of the union and of its cache key
-    key = (id(registry), registry.version)
-    if key not in _UNIONS:
+    cache = (id(registry), registry.version, key, default)
+    if cache not in _UNIONS:
         names = registry.names()
-        members = tuple(Annotated[spec_model(registry, n), Tag(registry_tag(registry, n))] for n in names)
+        members = tuple(Annotated[spec_model(registry, n, key), Tag(registry_tag(registry, n))] for n in names)
 
         def tag_of(value: Any) -> str | None:
-            t = value.get("type") if isinstance(value, Mapping) else value.type if isinstance(value, BaseModel) else None
+            t = value.get(key, default) if isinstance(value, Mapping) else getattr(value, key, None) \
+                if isinstance(value, BaseModel) else None
             return registry_tag(registry, t) if isinstance(t, str) and t in names else None
 
         union = Union[members] if members else Literal["<nothing registered>"]  # type: ignore[valid-type]
-        _UNIONS[key] = Annotated[union, _RegistryDiscriminator(tag_of, custom_error_type="registry_type",
-                                                               custom_error_message=f"unknown {registry.kind}",
-                                                               custom_error_context={"registry": registry})]
-    return _UNIONS[key]
+        _UNIONS[cache] = Annotated[union, _RegistryDiscriminator(tag_of, custom_error_type="registry_type",
+                                                                 custom_error_message=f"unknown {registry.kind}",
+                                                                 custom_error_context={"registry": registry,
+                                                                                       "key": key})]
+    return _UNIONS[cache]
 
 
 def check_typed(spec: Any, registry: Registry, path: str) -> tuple[Any, list[Issue]]:

@@ -21,7 +21,7 @@ from ..envs.demonstrations import FORMAT as DATASET_FORMAT
 from ..envs.demonstrations import DatasetError
 from ..envs.protocol import PlanarWorkspace, Renders
 from ..files import atomic_write_json, torch_file_format
-from ..learn.train import CHECKPOINT_FORMAT, CHECKPOINT_NAME, CheckpointError, latest_checkpoint, load_checkpoint
+from ..learn.checkpoints import CHECKPOINT_FORMAT, CHECKPOINT_NAME, CheckpointError, latest_checkpoint, load_checkpoint
 from ..pipeline.collect import collect
 from ..pipeline.config import RunConfig, upgrade_run_config
 from ..pipeline.evaluation import evaluate_model

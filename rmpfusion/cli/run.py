@@ -91,7 +91,8 @@ def train(cfg: DictConfig) -> None:
             if f.result.resumed_from is not None:
                 print(f"learner {name}: resumed from iteration {f.result.resumed_from} ({j.dir / 'checkpoints' / name})")
             last = f.result.curve[-1][1] if f.result.curve else float("nan")
-            print(f"learner {name}: {j.run.train.iterations} iterations, final train loss {last:.4g}")
+            print(f"learner {name}: {j.run.train.iterations} iterations ({j.run.train.method}), final train "
+                  f"{f.result.measure} {last:.4g}")
             summary[name] = {"final_train_loss": last, "resumed_from": f.result.resumed_from}
         j.logger.finish({"learners": summary})
 

@@ -30,7 +30,7 @@ def summary(run, env, expert, learners) -> str:
     lines += [
         f"data: {d.train_envs} envs x {d.train_trajectories} trajectories x {d.points} points (test "
         f"{d.test_envs} x {d.test_trajectories}, validation {d.val_envs} x {d.val_trajectories}), every {d.interval}s",
-        f"train: {t.optimizer} lr={t.lr} batch={t.batch_size} iterations={t.iterations} snapshots={t.snapshots}",
+        f"train: {t.method}, {t.describe()}",
         f"logger: wandb {run.logger.mode}",
         "OK: the configuration is valid and builds; nothing was run.",
     ]

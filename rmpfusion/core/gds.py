@@ -11,6 +11,7 @@ from torch import Tensor, nn
 
 from . import autodiff
 from .algebra import NodeRMP, matvec
+from .learnable import install_numbers
 from .stacking import Stackable
 
 
@@ -22,6 +23,12 @@ class LeafRMP(Stackable, nn.Module):
 
     dim: int | None = None  # None: any dimension
     coordinates: str | None = None  # the map output it reads when not plain coordinates (TaskMap.coordinates)
+
+    def __init_subclass__(cls, **kwargs):
+        """Each number the class declares (``stack_fields``) may be learned (``core/learnable.py``): reading it
+        computes it from its raw parameter when the config made it learnable, and gives the constant otherwise."""
+        super().__init_subclass__(**kwargs)
+        install_numbers(cls, cls.__dict__.get("stack_fields"))
 
     def __init__(self, dim: int):
         super().__init__()

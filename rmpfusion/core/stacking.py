@@ -35,6 +35,7 @@ import torch
 from torch import Tensor, nn
 
 from .auxstate import AuxParam, StackedAux
+from .learnable import learned_ranges
 
 
 def shallow_clone(module: nn.Module) -> nn.Module:
@@ -93,7 +94,12 @@ class Stackable:
         """Modules with equal keys can be evaluated as one group; None: this module runs alone."""
         if self.stack_fields is None:
             return None
-        return (type(self), self.stack_settings())
+        return (type(self), self.stack_settings(), self.learned_signature())
+
+    def learned_signature(self) -> tuple:
+        """Which numbers are learned and in which ranges: members share them or no group (a group computes every
+        member's learned numbers from restacked raw parameters through the first member's ranges)."""
+        return tuple(sorted(learned_ranges(self).items()))
 
     @classmethod
     def stacked(cls, members: Sequence["Stackable"], like: Tensor) -> nn.Module:

@@ -3,6 +3,6 @@ from .demonstrations import Dataset, DatasetError, collect, dataset_meta, load_d
 from . import manipulator_tree  # noqa: F401  (registers the tree generator fig1b)
 from .manipulator import Manipulator  # noqa: F401
 from .particle2d import Particle2D  # noqa: F401
-from .protocol import (Env, HasRatioMetrics, HasTaskMetrics, PlanarWorkspace, RenderSettings, Renders,  # noqa: F401
-                       TimeVaryingAux)
+from .protocol import (DifferentiableRollouts, Env, HasRatioMetrics, HasTaskMetrics, PlanarWorkspace,  # noqa: F401
+                       RenderSettings, Renders, TimeVaryingAux)
 from .rollout import Rollout  # noqa: F401

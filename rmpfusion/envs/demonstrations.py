@@ -64,6 +64,24 @@ class Dataset:
         first = self.t == self.t.min()
         return self.q[first], self.qd[first], {k: v[first] for k, v in self.aux.items()}
 
+    def trajectories(self, ids: Tensor) -> "Dataset":
+        """The records of the trajectories ``ids`` (``traj_id`` values), in their order here; their per-trajectory
+        flags (``collided``, ``success``, one per trajectory in increasing ``traj_id``) come along."""
+        rows = torch.isin(self.traj_id, ids)
+        kept = torch.isin(self.traj_id.unique(), ids)
+        flag = lambda f: f[kept] if f.numel() == kept.numel() else f  # noqa: E731 - absent flags stay absent
+        return Dataset(q=self.q[rows], qd=self.qd[rows], aux={k: v[rows] for k, v in self.aux.items()},
+                       qdd=self.qdd[rows], env_id=self.env_id[rows], traj_id=self.traj_id[rows], t=self.t[rows],
+                       collided=flag(self.collided), success=flag(self.success))
+
+    @classmethod
+    def concat(cls, parts: "list[Dataset]") -> "Dataset":
+        """One dataset of several (in order), as an aggregating learner (DAgger) grows its data."""
+        cat = lambda name: torch.cat([getattr(p, name) for p in parts])  # noqa: E731
+        return cls(q=cat("q"), qd=cat("qd"), aux={k: torch.cat([p.aux[k] for p in parts]) for k in parts[0].aux},
+                   qdd=cat("qdd"), env_id=cat("env_id"), traj_id=cat("traj_id"), t=cat("t"),
+                   collided=cat("collided"), success=cat("success"))
+
     def select(self, idx: Tensor) -> tuple[Tensor, Tensor, dict[str, Tensor], Tensor]:
         return self.q[idx], self.qd[idx], {k: v[idx] for k, v in self.aux.items()}, self.qdd[idx]
 

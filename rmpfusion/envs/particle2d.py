@@ -150,11 +150,21 @@ class Particle2D(SeededSampling):
         return stack_obstacles(aux, self.n_obstacles)
 
     def clearance(self, q: Tensor, aux: Mapping[str, Tensor]) -> Tensor:
-        """(B,) signed distance to the nearest obstacle surface (+inf without obstacles)."""
+        """(..., B) signed distance of positions q (..., B, 2) to the nearest obstacle surface (+inf without
+        obstacles); differentiable in q (policy optimisation through rollouts penalises it)."""
         c, r = self.obstacles(aux)
         if c.shape[1] == 0:
-            return q.new_full((q.shape[0],), float("inf"))
-        return ((q[:, None, :] - c).norm(dim=-1) - r).min(dim=1).values
+            return q.new_full(q.shape[:-1], float("inf"))
+        return ((q[..., None, :] - c).norm(dim=-1) - r).min(dim=-1).values
+
+    def with_step(self, dt: float) -> "Particle2D":
+        """The same particle and sampling, integrated on the step ``dt``."""
+        settings = self.params.model_dump(include=set(self.Params.model_fields))  # not a config block's `type`
+        return Particle2D(self.Params.model_validate({**settings, "dt": dt}))
+
+    def goal_distance(self, q: Tensor, aux: Mapping[str, Tensor]) -> Tensor:
+        """(..., B) distance of positions q (..., B, 2) to the goal; differentiable in q."""
+        return (q - aux["goal"]).norm(dim=-1)
 
     def in_collision(self, q: Tensor, aux: Mapping[str, Tensor]) -> Tensor:
         """(B,) bool: strictly inside some obstacle."""
@@ -162,7 +172,21 @@ class Particle2D(SeededSampling):
 
     def success(self, q: Tensor, aux: Mapping[str, Tensor]) -> Tensor:
         """(B,) bool: within goal_tolerance of the goal."""
-        return (q - aux["goal"]).norm(dim=-1) <= self.params.goal_tolerance
+        return self.goal_distance(q, aux) <= self.params.goal_tolerance
+
+    def task_metrics(self, rollout: Rollout) -> dict[str, Tensor]:
+        """Per-trajectory (B,) metrics of the reaching task, from a rollout's records: ``time`` to come within
+        ``goal_tolerance`` (the first such record; the horizon if never), ``path_length`` (the polyline through
+        the records), ``final_distance`` to the goal, ``min_clearance`` (over every integration step, < 0 inside
+        an obstacle), ``collided`` and ``success`` (at the goal at the end, never inside an obstacle)."""
+        d = rollout.goal_distance
+        near = d <= self.params.goal_tolerance
+        first = torch.where(near.any(0), near.double().argmax(0), torch.full_like(near[0], len(rollout.times) - 1,
+                                                                                  dtype=torch.long))
+        return {"time": rollout.times[first].to(d.dtype),
+                "path_length": (rollout.q[1:] - rollout.q[:-1]).norm(dim=-1).sum(0),
+                "final_distance": d[-1], "min_clearance": rollout.min_clearance,
+                "collided": rollout.collided.to(d.dtype), "success": rollout.success.to(d.dtype)}
 
     # ------------------------------------------------------------------ sampling
     def _uniform(self, shape: tuple[int, ...], r: Range, g: torch.Generator | None) -> Tensor:
@@ -271,7 +295,7 @@ class Particle2D(SeededSampling):
 
     def _rollout(self, policy, step, q0, qd0, aux, dt, n_steps, every, monitor, progress) -> Rollout:
         q, qd = q0, qd0
-        qs, qds, qdds, Vs, Ds, ts = [], [], [], [], [], []
+        qs, qds, qdds, Vs, Ds, ts, dists = [], [], [], [], [], [], []
         clear = self.clearance(q, aux)
         min_clear = clear
         first_hit = torch.where(clear < 0, 0.0, float("inf")).to(q0)
@@ -284,7 +308,7 @@ class Particle2D(SeededSampling):
             a = None
             if k % every == 0:
                 a, V, D = evaluate_policy(policy, q, qd, aux)
-                qs.append(q), qds.append(qd), qdds.append(a), ts.append(k * dt)
+                qs.append(q), qds.append(qd), qdds.append(a), ts.append(k * dt), dists.append(self.goal_distance(q, aux))
                 if V is not None:
                     Vs.append(V)
                     if D is not None:
@@ -313,6 +337,7 @@ class Particle2D(SeededSampling):
             first_collision_time=first_hit,
             V=torch.stack(Vs) if Vs else None,
             dissipation=torch.stack(Ds) if Ds else None,
+            goal_distance=torch.stack(dists),
         )
 
     # ------------------------------------------------------------------ demonstrations

@@ -145,3 +145,25 @@ class PlanarWorkspace(Protocol):
     def obstacles(self, aux: Mapping[str, Tensor]) -> tuple[Tensor, Tensor]:
         """Centres (B, K, 2) and radii (B, K) of the obstacles of each sample."""
         ...
+
+
+@runtime_checkable
+class DifferentiableRollouts(Protocol):
+    """An environment simulated in torch, whose ``rollout(..., enable_grad=True)`` keeps the autograd graph from
+    the policy's parameters to every recorded state, and whose task geometry is differentiable too (the 2-D
+    particle). It exists because policy optimisation through the simulator (``train.method=apg``) back-propagates
+    a task cost through rollouts, which a simulator stepped outside torch (pybullet) cannot offer."""
+
+    def goal_distance(self, q: Tensor, aux: Mapping[str, Tensor]) -> Tensor:
+        """(..., B) distance of configurations q (..., B, d) to the goal, differentiable in q."""
+        ...
+
+    def clearance(self, q: Tensor, aux: Mapping[str, Tensor]) -> Tensor:
+        """(..., B) signed distance of configurations q (..., B, d) to the nearest obstacle (< 0 inside),
+        differentiable in q."""
+        ...
+
+    def with_step(self, dt: float) -> "DifferentiableRollouts":
+        """The same environment integrated on another step: gradients through long rollouts cost less on a
+        coarser one, while evaluation keeps the experiment's own step."""
+        ...

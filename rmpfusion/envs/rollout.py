@@ -34,11 +34,11 @@ class Rollout:
     V: Tensor | None = None  # (T, B)
     dissipation: Tensor | None = None  # (T, B): q̇ᵀBq̇ at the root
     error: list[str | None] = field(default_factory=list)  # (B,) why each sample ended early, None if it did not
+    goal_distance: Tensor | None = None  # (T, B) the controlled point (particle, end effector) to the goal
     # a manipulator's end effector and its execution (paper §4.2): from t = 0 until the goal tolerance is first
     # reached, else the whole horizon
     mode: str | None = None  # how the rollout was integrated (Franka: "torque" or "kinematic")
     ee: Tensor | None = None  # (T, B, 3) end-effector position
-    goal_distance: Tensor | None = None  # (T, B) end effector to goal
     time_to_goal: Tensor | None = None  # (B,) first time within the goal tolerance (s), NaN if never
     cspace_length: Tensor | None = None  # (B,) Σ‖Δq‖ over the execution's integration steps (rad)
     ee_length: Tensor | None = None  # (B,) Σ‖Δee‖ (m)

@@ -52,6 +52,11 @@ class Learner(nn.Module, ABC):
         """What metrics.json reports about this learner beside its metrics (JSON-ready); nothing by default."""
         return {}
 
+    def learned_numbers(self) -> dict[str, float]:
+        """Named numbers of its policy it learns besides network weights (a tree's learnable leaf parameters);
+        reported at every evaluated snapshot. None by default."""
+        return {}
+
     def compile(self) -> "Learner":
         """Route the learner's tree through torch.compile (same numbers, fused kernels); calling it again keeps
         the compiled tree. A learner without a tree is left eager: a plain network gains little from it."""

@@ -12,6 +12,7 @@ from torch import Tensor
 from ..build.errors import ConfigError, Issue
 from ..build.tree import build_tree
 from ..build.weighting import expand_aux, tree_with_weights
+from ..core.learnable import learned_values
 from ..core.tree import RMPTree, TreeOutput
 from ..registry import LEARNERS, Params
 from .learner import Learner
@@ -36,6 +37,9 @@ class RMPLearner(Learner):
         edge_weights: dict[str, dict[str, Any]] = Field(
             default_factory=dict, description="per-edge keys merged over `weights`, e.g. "
                                               "{obstacle1: {aux: [obstacle1_center, obstacle1_radius]}}")
+        leaves: dict[str, dict[str, Any]] = Field(
+            default_factory=dict, description="per-leaf settings merged over the tree's for this learner only, e.g. "
+                                              "{goal: {gain: {learn: true, init: 0.5}}}: leaf numbers it learns")
 
     @classmethod
     def from_params(cls, params: Params, tree_spec: Mapping[str, Any] | None, aux_dims: Mapping[str, int], dim: int,
@@ -53,7 +57,8 @@ class RMPLearner(Learner):
                                      f"'{e}' is not a learned edge; learned edges: {', '.join(edges)} "
                                      f"(add it to {where}.edges or remove the entry)") for e in stray])
         per_edge = {e: expand_aux({**params.weights, **params.edge_weights.get(e, {})}, aux_dims) for e in edges}
-        spec = tree_with_weights(tree_spec, per_edge, where=f"{where}.edges")
+        spec = tree_with_weights(with_leaves(tree_spec, params.leaves, f"{where}.leaves"), per_edge,
+                                 where=f"{where}.edges")
         self.edges = edges
         # registered as the submodule "tree" (state_dict keys tree.…); read back through the ``tree`` property
         self.tree = build_tree(spec, aux_dims=dict(aux_dims), weight_paths={e: f"{where}.weights" for e in edges})
@@ -72,9 +77,34 @@ class RMPLearner(Learner):
         return [n for n, nd in nodes.items()
                 if not ((nd.get("rmp") or {}).get("type") in REGULARISER_LEAVES)]
 
+    def learned_numbers(self) -> dict[str, float]:
+        """``<leaf>.<number>`` → value of every leaf number it learns."""
+        return {f"{n}.{k}": v for n, leaf in self.tree.rmps.items() for k, v in learned_values(leaf).items()}
+
+    def describe(self) -> dict[str, Any]:
+        """The values its learnable leaf numbers have reached (none for a learner of weights only)."""
+        learned = self.learned_numbers()
+        return {"learned_leaf_parameters": learned} if learned else {}
+
     def policy(self, q: Tensor, qd: Tensor, aux: Mapping[str, Tensor] | None = None) -> TreeOutput:
         """The full TreeOutput, so rollouts can record V_r and q̇ᵀBq̇."""
         return self.tree(q, qd, aux)
 
     def forward(self, q: Tensor, qd: Tensor, aux: Mapping[str, Tensor] | None = None) -> Tensor:
         return self.tree(q, qd, aux).qdd
+
+
+def with_leaves(tree_spec: Mapping[str, Any], leaves: Mapping[str, Mapping[str, Any]], where: str) -> dict[str, Any]:
+    """The tree spec with each named leaf's rmp settings updated by ``leaves`` (a learner's own leaf numbers)."""
+    nodes = dict(tree_spec["nodes"])
+    issues = []
+    for name, settings in leaves.items():
+        rmp = (nodes.get(name) or {}).get("rmp")
+        if rmp is None:
+            leaf_names = [n for n, nd in nodes.items() if nd.get("rmp")]
+            issues.append(Issue(f"{where}.{name}", f"'{name}' is not a leaf of the tree; leaves: {', '.join(leaf_names)}"))
+            continue
+        nodes[name] = {**nodes[name], "rmp": {**rmp, **settings}}
+    if issues:
+        raise ConfigError(issues)
+    return {**tree_spec, "nodes": nodes}

@@ -6,16 +6,17 @@ entry's own model in ``validate_run_config``, so errors name paths like ``learne
 """
 from __future__ import annotations
 
-from typing import Any, Literal, Mapping
+from typing import Annotated, Any, Literal, Mapping
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, create_model, model_validator
+from pydantic import (BaseModel, BeforeValidator, ConfigDict, Field, ValidationError, create_model,
+                      model_validator)
 from pydantic_core import InitErrorDetails, PydanticCustomError
 
 from ..build.spec import TreeSpec, TypedBlock, tree_spec_model, typed_union, weight_field
 from ..envs.common import time_grid
-from ..registry import ENVS, LEAF_RMPS, LEARNERS, TASK_MAPS, WEIGHTS
-
-from ..learn.config import RENAMED_KEYS, TrainConfig, _renamed, upgrade_train_config  # noqa: F401
+from ..learn import methods  # noqa: F401  (the built-in training methods register themselves)
+from ..learn.config import DEFAULT_METHOD, RENAMED_KEYS, TrainConfig, TrainParams, _renamed, upgrade_train_config  # noqa: F401
+from ..registry import ENVS, LEAF_RMPS, LEARNERS, TASK_MAPS, TRAIN_METHODS, WEIGHTS
 
 
 class _Frozen(BaseModel):
@@ -48,6 +49,21 @@ def upgrade_run_config(run: Mapping[str, Any]) -> dict[str, Any]:
     if isinstance(out.get("train"), Mapping):
         out["train"] = upgrade_train_config(out["train"])
     return out
+
+
+def train_union() -> Any:
+    """The training block: ``{method: name, ...}`` validated by the named entry of ``TRAIN_METHODS``; a block
+    without ``method`` is behavior cloning (``DEFAULT_METHOD``), as every block was before methods existed."""
+    return typed_union(TRAIN_METHODS, key="method", default=DEFAULT_METHOD)
+
+
+def _typed_train(value: Any) -> Any:
+    """The static ``RunConfig``'s training block, typed by its method's entry at validation time (so a plugin's
+    method is known once its plugin loads); ``run_config_model`` types it the same way with error locations."""
+    if isinstance(value, TrainParams):
+        return value
+    block = create_model("TrainBlock", train=(train_union(), ...))
+    return block.model_validate({"train": value if value is not None else {}}).train
 
 
 class EvalConfig(_Frozen):
@@ -84,7 +100,9 @@ class RunConfig(_Frozen):
     expert: dict[str, Any] = Field(default_factory=dict, description="node or shared-weight name -> weight spec")
     learners: dict[str, TypedBlock] = Field(default_factory=dict, description="learner name -> {type: rmp|unstructured, ...}")
     data: DataConfig = DataConfig()
-    train: TrainConfig = TrainConfig()
+    train: Annotated[Any, BeforeValidator(_typed_train)] = Field(
+        default_factory=dict, validate_default=True,
+        description="the training method (method: bc | dagger | apg | pg | a plugin's) and its settings")
     eval: EvalConfig = EvalConfig()
     logger: LoggerConfig = LoggerConfig()
 
@@ -97,7 +115,8 @@ class RunConfig(_Frozen):
             found.append(InitErrorDetails(type=PydanticCustomError("run_config", "{message}", {"message": message}),
                                           loc=loc, input=given))
 
-        bad = [s for s in self.train.snapshots if s < 0 or s > self.train.iterations]
+        bad = [s for s in self.train.snapshots if s < 0 or s > self.train.iterations] \
+            if isinstance(self.train, TrainParams) else []
         if bad:
             refuse(("train", "snapshots"), bad,
                    f"snapshots {bad} lie outside 0..train.iterations={self.train.iterations} (a snapshot is the "
@@ -134,16 +153,18 @@ _RUN_MODELS: dict[tuple, type[RunConfig]] = {}
 
 
 def run_config_model() -> type[RunConfig]:
-    """``RunConfig`` typed by the registries as they are now: env, tree blocks, expert weights and learners are
-    validated by their entries' own models (regenerated when an entry is registered, plugins included)."""
-    for r in (ENVS, LEARNERS, TASK_MAPS, WEIGHTS, LEAF_RMPS):
+    """``RunConfig`` typed by the registries as they are now: env, tree blocks, expert weights, learners and the
+    training method are validated by their entries' own models (regenerated when an entry is registered, plugins included)."""
+    registries = (ENVS, LEARNERS, TASK_MAPS, WEIGHTS, LEAF_RMPS, TRAIN_METHODS)
+    for r in registries:
         r.load_plugins()  # first: a plugin's entries belong to the schema and to its cache key
-    key = tuple((id(r), r.version) for r in (ENVS, LEARNERS, TASK_MAPS, WEIGHTS, LEAF_RMPS))
+    key = tuple((id(r), r.version) for r in registries)
     if key not in _RUN_MODELS:
         _RUN_MODELS[key] = create_model(
             "TypedRunConfig", __base__=RunConfig,
             env=(typed_union(ENVS), ...),
             tree=(tree_spec_model(), Field(description="the tree spec without learned weights")),
             expert=(dict[str, weight_field()], Field(default_factory=dict)),
-            learners=(dict[str, typed_union(LEARNERS)], Field(default_factory=dict)))
+            learners=(dict[str, typed_union(LEARNERS)], Field(default_factory=dict)),
+            train=(train_union(), Field(default_factory=dict, validate_default=True)))
     return _RUN_MODELS[key]

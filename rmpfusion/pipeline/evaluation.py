@@ -15,11 +15,12 @@ from torch import Tensor
 
 from ..envs.demonstrations import Dataset
 from ..envs.protocol import HasTaskMetrics
+from ..evaluate.certificate import certify_rollout
 from ..evaluate.metrics import StageResult, evaluate_learner, online_loss, rollout_rates, task_stage
 from ..evaluate.weights import edge_weights, learned_edges, summarize_weights
 from ..learn.learner import Learner
 from ..learn.objectives import dataset_loss
-from ..learn.train import load_snapshot
+from ..learn.loop import load_snapshot
 from .collect import Splits
 from .experiment import Experiment, clean
 from .fit import Fitted
@@ -121,15 +122,17 @@ class _SnapshotEvaluator:
         exp, ev = self.exp, self.exp.run.eval
         return evaluate_learner(model, exp.expert_at(), exp.env, self.splits.test, exp.horizon, exp.run.data.interval,
                                 ev.lyapunov_rtol, ev.lyapunov_atol, exp.fine_interval, exp.say.bar(bar_label),
-                                loss=lambda m, ds: dataset_loss(m, ds, exp.run.train.objective))
+                                loss=lambda m, ds: dataset_loss(m, ds, exp.run.train.batch_loss_objective))
 
     def snapshot(self, model: Learner, it: int, out: LearnerEval):
         met, onl = self.metrics(model, f"eval {self.name}@{it}")
         met = self.with_task(met, onl.rollout, it, out)
         if self.splits.val is not None:
-            met["val_loss"] = dataset_loss(model, self.splits.val, self.exp.run.train.objective)
+            met["val_loss"] = dataset_loss(model, self.splits.val, self.exp.run.train.batch_loss_objective)
         if out.weights is not None:
             met["weights"] = out.weights.snapshot(f"{self.name} @ {it}", model)
+        if learned := model.learned_numbers():
+            met["learned_leaf_parameters"] = learned
         ro = onl.rollout
         out.snapshots[str(it)] = clean(met)
         out.panels.append({"label": f"{self.name} @ {it}", "q": ro.q[:, self.plot_idx], "times": ro.times,
@@ -142,6 +145,14 @@ class _SnapshotEvaluator:
 def evaluate_model(exp: Experiment, model: Learner, splits: Splits, label: str):
     """One model's metrics on the test split and its online rollout (``rmpfusion-evaluate-checkpoint``)."""
     return _SnapshotEvaluator(exp, label, splits, ExpertEval(None, {}, None)).metrics(model, label)
+
+
+def certificate(model: Learner, rollout, aux) -> dict:
+    """Theorem 2's premises and identity checked at every record of the trained tree's test rollouts
+    (``evaluate/certificate.py``): positive weights, positive-definite M_r, dV_r/dt = −q̇ᵀB_r q̇ ≤ 0. What a
+    trained tree (learned weights, learnable leaf parameters) must still satisfy; the failing records counted."""
+    d = certify_rollout(model.tree, rollout, aux).as_dict()
+    return {**d, "failing_states": len(d["failing_states"]), "non_finite_states": len(d["non_finite_states"])}
 
 
 def evaluate_fitted(exp: Experiment, name: str, fitted: Fitted, splits: Splits, expert: ExpertEval) -> LearnerEval:
@@ -165,9 +176,11 @@ def evaluate_fitted(exp: Experiment, name: str, fitted: Fitted, splits: Splits, 
         met, onl = ev.metrics(model, f"eval {name}")
         met = ev.with_task(met, onl.rollout, exp.run.train.iterations, out)
         if splits.val is not None:
-            met["val_loss"] = dataset_loss(model, splits.val, exp.run.train.objective)
+            met["val_loss"] = dataset_loss(model, splits.val, exp.run.train.batch_loss_objective)
         final = (met, onl)
     out.final, out.final_rollout = final[0], final[1].rollout
+    if model.tree is not None:
+        out.final["certificate"] = certificate(model, out.final_rollout, splits.test.initial_states()[2])
     model.to(dtype)
     out.seconds = time.time() - t0
     return out

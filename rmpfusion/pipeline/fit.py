@@ -1,4 +1,5 @@
-"""Stage 2, fit: every learner built from its own seed and trained by behavior cloning on the train split.
+"""Stage 2, fit: every learner built from its own seed and trained by the run's training method (``train.method``,
+a ``TRAIN_METHODS`` entry: behavior cloning on the train split, DAgger, APG, a policy gradient, a plugin's).
 
 Checkpoints go to ``checkpoints/<learner>/`` (resumed on a rerun, also after SIGKILL); the trained learner is
 written to ``final.pt`` in the same checksummed format. ``require_trained`` turns the stage into loading only:
@@ -12,8 +13,11 @@ from dataclasses import dataclass
 
 import torch
 
+from ..learn.checkpoints import latest_checkpoint, load_checkpoint, save_checkpoint
 from ..learn.learner import Learner
-from ..learn.train import TrainResult, latest_checkpoint, load_checkpoint, save_checkpoint, train
+from ..learn.loop import TrainResult
+from ..learn.method import MethodContext, TrainingMethod
+from ..registry import TRAIN_METHODS
 from .collect import Splits
 from .experiment import Experiment
 from .validate import build_learners
@@ -59,17 +63,30 @@ def _require_trained(exp: Experiment) -> None:
                               f"rmpfusion-train with the same overrides and hydra.run.dir={exp.dir} first")
 
 
+def method(exp: Experiment) -> TrainingMethod:
+    """The run's training method, built from its validated ``train`` block."""
+    return TRAIN_METHODS.get(exp.run.train.method).obj(exp.run.train)
+
+
+def context(exp: Experiment, name: str, splits: Splits) -> MethodContext:
+    """What a training method may use for learner ``name``: the splits, the environment, the expert, the
+    demonstrations' recording grid, its checkpoint directory, progress and logging."""
+    return MethodContext(data=dict(splits.data), seed=exp.learner_seed(name) + 1, env=exp.env, expert=exp.expert,
+                         interval=exp.run.data.interval, points=exp.run.data.points,
+                         checkpoint_dir=exp.dir / "checkpoints" / name, run_config=exp.config,
+                         progress=exp.say.bar(f"train {name}"), say=exp.say.say,
+                         log=(lambda m: exp.log_scalars(name, m)) if exp.log is not None else None)
+
+
 def fit_one(exp: Experiment, name: str, model: Learner, splits: Splits) -> Fitted:
-    """Train one learner (resuming from its checkpoints) and write ``final.pt``."""
+    """Train one learner by the run's method (resuming from its checkpoints) and write ``final.pt``."""
     t0 = time.time()
     if exp.run.train.compile:
         model.compile()
     ckdir = exp.dir / "checkpoints" / name
     if (ck := latest_checkpoint(ckdir)) is not None:
         exp.say.say(f"learner {name}: resuming from {ck}")
-    tr = train(model, splits.train, exp.run.train, seed=exp.learner_seed(name) + 1, test_data=splits.test,
-               val_data=splits.val, checkpoint_dir=ckdir, run_config=exp.config, progress=exp.say.bar(f"train {name}"),
-               log=(lambda m: exp.log_scalars(name, m)) if exp.log is not None else None)
+    tr = method(exp).train(model, context(exp, name, splits))
     save_checkpoint({"model": model.state_dict(), "learner": exp.run.learners[name].model_dump(),
                      "config": exp.config, "iteration": exp.run.train.iterations}, ckdir / "final.pt")
     return Fitted(model, tr, time.time() - t0)

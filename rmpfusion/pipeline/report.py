@@ -49,8 +49,9 @@ def _learner_figures(exp: Experiment, name: str, f: Fitted, ev: LearnerEval, exp
     if planar:
         out += _planar_figures(exp, name, ev, expert, splits.test)
     out.append(plot_learning_curves(fig_dir / f"learning_curve_{name}.png", {name: _curves(f)},
-                                    {name: sorted(f.result.snapshots)}, title=f"{exp.run.name}: learning curve of {name}",
-                                    unit="a.u./s²" if planar else "rad/s²"))
+                                    {name: sorted(f.result.snapshots)},
+                                    title=f"{exp.run.name}: learning curve of {name} ({exp.run.train.method})",
+                                    unit="a.u./s²" if planar else "rad/s²", measure=f.result.measure))
     if ev.weights is not None and ev.weights.traces:
         out.append(plot_weights(fig_dir / f"weights_{name}.png", ev.weights.times, ev.weights.expert_traces(),
                                 ev.weights.traces, title=f"{exp.run.name}: {name}'s weights vs the expert's (dashed) "
@@ -69,8 +70,10 @@ def figures(exp: Experiment, splits: Splits, fitted: dict[str, Fitted], expert: 
     if evals:
         out.append(plot_learning_curves(exp.dir / "figures" / "learning_curves.png",
                                         {n: _curves(f) for n, f in fitted.items()},
-                                        title=f"{exp.run.name}: learning curves of every learner",
-                                        unit="a.u./s²" if isinstance(exp.env, PlanarWorkspace) else "rad/s²"))
+                                        title=f"{exp.run.name}: learning curves of every learner "
+                                              f"({exp.run.train.method})",
+                                        unit="a.u./s²" if isinstance(exp.env, PlanarWorkspace) else "rad/s²",
+                                        measure=next(iter(fitted.values())).result.measure))
     if isinstance(exp.env, Renders) and expert.stage is not None:
         t0 = time.time()
         exp.say.say("figures: " + exp.run.name)
@@ -86,7 +89,9 @@ def _learner_entry(exp: Experiment, name: str, f: Fitted, ev: LearnerEval) -> di
     res.update({"num_parameters": f.model.num_parameters(), "type": exp.run.learners[name].type,
                 "train_seconds": f.seconds, "eval_seconds": ev.seconds, "snapshots": ev.snapshots,
                 "final_train_loss": f.result.curve[-1][1] if f.result.curve else None,
-                "resumed_from": f.result.resumed_from, **f.model.describe()})
+                "resumed_from": f.result.resumed_from,
+                "training": clean({"method": exp.run.train.method, "measure": f.result.measure, **f.result.info}),
+                **f.model.describe()})
     return res
 
 

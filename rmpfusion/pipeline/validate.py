@@ -27,7 +27,7 @@ from ..build.weighting import plain_data, tree_with_weights
 from ..core.auxstate import AuxOrValue
 from ..core.tree import RMPTree
 from ..learn.learners import build_learner, build_order
-from ..registry import ENVS, LEAF_RMPS, TASK_MAPS, WEIGHTS, Registry
+from ..registry import ENVS, LEAF_RMPS, TASK_MAPS, TRAIN_METHODS, WEIGHTS, Registry
 from .config import RENAMED_KEYS, RunConfig, run_config_model
 
 #: Weight-spec keys whose string values (or lists of strings) name aux state.
@@ -154,16 +154,23 @@ def make_env(run: RunConfig):
     return ENVS.get(run.env.type).obj(run.env)
 
 
-def _env_aux_dims(data: Mapping[str, Any]) -> tuple[dict[str, int] | None, list[Issue]]:
-    """The aux state the config's environment provides (None if it cannot be made: its problems are reported
-    by the schema, or here when creating it fails)."""
+def _make_env(data: Mapping[str, Any]) -> tuple[Any, list[Issue]]:
+    """The config's environment (None if it cannot be made: its problems are reported by the schema, or here
+    when creating it fails)."""
     block, issues = check_typed(data.get("env"), ENVS, "env")
     if block is None:
         return None, []
     try:
-        return dict(ENVS.get(block.type).obj(block).aux_dims()), []
+        return ENVS.get(block.type).obj(block), []
     except Exception as e:  # noqa: BLE001 - reported with its path
         return None, [Issue("env", f"could not be created: {e}")]
+
+
+def _method_issues(run: RunConfig, env: Any) -> list[Issue]:
+    """What the training method needs of the run (an environment it can roll out in, enough demonstrations)."""
+    method = TRAIN_METHODS.get(run.train.method).obj
+    return [Issue(path, message) for path, message in
+            method.requirements(run.train, env, run.data.train_envs * run.data.train_trajectories)]
 
 
 def _expert_issues(run: RunConfig) -> list[Issue]:
@@ -333,7 +340,8 @@ def resolve_and_validate(cfg: DictConfig | Mapping[str, Any]) -> RunConfig:
     retired = _retired_issues(data)
     generation = _expanded_tree(data)
     issues = retired + _upgrade_issues(data) + generation
-    aux_dims, env_issues = _env_aux_dims(data)
+    env, env_issues = _make_env(data)
+    aux_dims = dict(env.aux_dims()) if env is not None else None
     issues += env_issues
     if aux_dims is not None:
         issues += _aux_issues(data, _mapping(data.get("env")).get("type"), aux_dims)
@@ -349,6 +357,8 @@ def resolve_and_validate(cfg: DictConfig | Mapping[str, Any]) -> RunConfig:
     except ConfigError as e:
         issues += e.issues
     issues += _expert_issues(run) + _learner_issues(run)
+    if env is not None:
+        issues += _method_issues(run, env)
     if aux_dims is not None and not issues:
         issues += _build_issues(run, aux_dims)
     if issues:

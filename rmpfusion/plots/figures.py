@@ -217,47 +217,59 @@ def _loss_label(unit: str | None) -> str:
     return f"MSE of q̈ (({unit})²)" if unit else "MSE of q̈ ((unit of q̈)²)"
 
 
+def _snapshot_marks(ax, line: np.ndarray, snapshots: Sequence[int], marked: bool) -> bool:
+    """Red dots on ``line`` (iteration, value) at the snapshots' own iterations, even between two evaluations
+    (straight segments of a log axis: interpolate the logarithm); returns whether the legend has its entry."""
+    for s in snapshots:
+        y = np.exp(np.interp(s, line[:, 0], np.log(np.maximum(line[:, 1], 1e-300))))
+        ax.plot(s, y, "o", color="red", ms=5, zorder=5, label=None if marked else "evaluated snapshot")
+        marked = True
+    return marked
+
+
 def _draw_learning_curves(curves, snapshots=None, smooth: int = 50, title: str = "",
-                          unit: str | None = None) -> Figure:
+                          unit: str | None = None, measure: str = "loss") -> Figure:
     fig, ax = subplots(figsize=(7.6, 3.8), layout="constrained")
     marked = False
+    step = "train minibatch" if measure == "loss" else "training rollouts"
     for (name, c), colour in zip(curves.items(), colour_cycle()):
         tr = np.asarray(c.get("train") or [], dtype=float).reshape(-1, 2)
         if len(tr):
             k = max(1, min(smooth, len(tr) // 10 or 1))
             y = np.convolve(tr[:, 1], np.ones(k) / k, mode="valid")
             mean = f", mean of {k} iterations" if k > 1 else ""
-            ax.plot(tr[k - 1:, 0], y, color=colour, alpha=0.6, lw=1, label=f"{name}: train minibatch{mean}")
+            ax.plot(tr[k - 1:, 0], y, color=colour, alpha=0.6, lw=1, label=f"{name}: {step}{mean}")
         va = np.asarray(c.get("val") or [], dtype=float).reshape(-1, 2)
         if len(va):
             ax.plot(va[:, 0], va[:, 1], "--", color=colour, lw=1.4, label=f"{name}: validation set")
         te = np.asarray(c.get("test") or [], dtype=float).reshape(-1, 2)
         if len(te):
             ax.plot(te[:, 0], te[:, 1], color=colour, lw=1.8, label=f"{name}: test set (batch-loss)")
-            for s in (snapshots or {}).get(name, []):
-                # on the drawn test line at the snapshot's own iteration, even between two test evaluations
-                # (straight segments of a log axis: interpolate the logarithm)
-                y = np.exp(np.interp(s, te[:, 0], np.log(np.maximum(te[:, 1], 1e-300))))
-                ax.plot(s, y, "o", color="red", ms=5, zorder=5, label=None if marked else "evaluated snapshot")
-                marked = True
+        marks = te if len(te) else va  # cost curves have no test line: mark the validation one
+        if len(marks):
+            marked = _snapshot_marks(ax, marks, (snapshots or {}).get(name, []), marked)
     ax.set_yscale("log")
     ax.set_xlabel("training iteration")
     ax.xaxis.set_major_locator(MaxNLocator(nbins=5, integer=True))  # long runs: 20000 needs room for its digits
     ax.xaxis.set_major_formatter(FuncFormatter(_iterations))
-    ax.set_ylabel(_loss_label(unit))
+    ax.set_ylabel(_loss_label(unit) if measure == "loss" else "task cost per rollout")
     legend_outside(ax)
-    ax.set_title(title or "learning curves: loss against the expert's accelerations", fontsize=TITLE_SIZE)
+    default = ("learning curves: loss against the expert's accelerations" if measure == "loss" else
+               "learning curves: task cost of the rollouts")
+    ax.set_title(title or default, fontsize=TITLE_SIZE)
     return fig
 
 
 def plot_learning_curves(path, curves: Mapping[str, Mapping[str, Sequence]], snapshots: Mapping[str, Sequence[int]] | None = None,
-                         smooth: int = 50, title: str = "", unit: str | None = None) -> Path:
+                         smooth: int = 50, title: str = "", unit: str | None = None, measure: str = "loss") -> Path:
     """Train loss (smoothed), validation (dashed) and test batch-loss per learner on a log scale, snapshot
-    iterations marked in red. ``unit`` is the unit of q̈ (the loss is in its square).
+    iterations marked in red. ``unit`` is the unit of q̈ (the loss is in its square). ``measure="cost"``: the
+    curves hold a task cost (policy optimisation without an expert): the training rollouts' and the validation
+    starts'.
 
     ``curves[name] = {"train": [(it, loss)...], "val": [...], "test": [(it, loss)...]}`` ("val" optional).
     """
-    return save_figure(_draw_learning_curves(curves, snapshots, smooth, title, unit), path)
+    return save_figure(_draw_learning_curves(curves, snapshots, smooth, title, unit, measure), path)
 
 
 def _draw_progression(aux, expert_q, stages, q0=None, qd0=None, limits: Sequence[float] = (-5, 5),

@@ -14,7 +14,8 @@ from torch import Tensor
 
 from ..core.gds import GDS
 from ..core.stacking import spread
-from ..registry import LEAF_RMPS, Params
+from ..registry import LEAF_RMPS
+from .learnable import LeafParams
 from .potentials import soft_norm, soft_norm_grad
 
 
@@ -29,7 +30,7 @@ class RadialMetricAttractor(GDS):
     (constant when w_u = w_l), and damping B = η·G; subclasses choose the potential Φ(y) (``potential`` and
     ``potential_grad``) and list their numbers in ``stack_fields``."""
 
-    def __init__(self, params: Params, dim: int):
+    def __init__(self, params: LeafParams, dim: int):
         super().__init__(dim)
         self.eta, self.w_u, self.w_l, self.sigma = params.eta, params.w_u, params.w_l, params.sigma
 
@@ -71,7 +72,7 @@ class GoalAttractor(RadialMetricAttractor):
     damping B = η·w·I.
     """
 
-    class Params(Params):
+    class Params(LeafParams):
         gain: float = Field(1.0, gt=0)
         alpha: float = Field(1.0, gt=0, description="softness: 1/alpha is the distance where Φ turns linear")
         eta: float = Field(2.0, ge=0, description="damping relative to the metric")
@@ -103,7 +104,7 @@ class Barrier1D(GDS):
 
     dim = 1
 
-    class Params(Params):
+    class Params(LeafParams):
         r_w: float = Field(1.0, gt=0, description="support radius: no effect beyond this distance")
         sigma: float = Field(0.5, gt=0, description="velocity gating scale")
         epsilon: float = Field(0.2, ge=0, description="metric floor (always-on part of the gating)")
@@ -199,7 +200,7 @@ class JointLimitBarrier(Barrier1D):
 class Damper(GDS):
     """G = w·I, B = η·w·I, Φ = 0: damps motion in its space."""
 
-    class Params(Params):
+    class Params(LeafParams):
         w: float = Field(1.0, gt=0)
         eta: float = Field(1.0, ge=0)
 
@@ -230,14 +231,14 @@ class Damper(GDS):
             torch.zeros_like(yd)
 
     def stack_key(self):
-        return (Damper, self.stack_settings())  # the identity metric is a damper without damping: one group
+        return (Damper, self.stack_settings(), self.learned_signature())  # identity metric: a damper, undamped
 
 
 @LEAF_RMPS.register("identity_metric")
 class IdentityMetric(Damper):
     """G = scale·I, no force: keeps the root inertia well conditioned so resolve is numerically stable."""
 
-    class Params(Params):
+    class Params(LeafParams):
         scale: float = Field(1e-2, gt=0)
 
     def __init__(self, params: Params, dim: int):

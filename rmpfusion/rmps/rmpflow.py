@@ -15,7 +15,8 @@ from torch import Tensor
 from ..core.algebra import NodeRMP
 from ..core.gds import LeafRMP
 from ..core.stacking import spread
-from ..registry import LEAF_RMPS, Params
+from ..registry import LEAF_RMPS
+from .learnable import LeafParams
 from .potentials import logcosh, radial_integral
 
 
@@ -29,7 +30,7 @@ class RMPflowCollisionAvoidance(LeafRMP):
 
     dim = 1
 
-    class Params(Params):
+    class Params(LeafParams):
         epsilon: float = Field(0.2, gt=0)
         alpha: float = Field(1e-5, ge=0)
         eta: float = Field(0.0, ge=0)
@@ -69,7 +70,7 @@ class RMPflowGoalAttractor(LeafRMP):
     |x| ≤ tol), f = −∇Φ − η·w·ẋ − ξ_G. Φ is the radial integral of |∇Φ| from tol, by quadrature.
     """
 
-    class Params(Params):
+    class Params(LeafParams):
         w_u: float = Field(10.0, gt=0)
         w_l: float = Field(1.0, gt=0)
         sigma: float = Field(1.0, gt=0)
@@ -129,7 +130,7 @@ class RMPflowGoalAttractor(LeafRMP):
 class RMPflowDamper(LeafRMP):
     """RMPflow's Damper: G = M = wI, f = −η·w·ẋ, in any dimension."""
 
-    class Params(Params):
+    class Params(LeafParams):
         w: float = Field(1.0, gt=0)
         eta: float = Field(1.0, ge=0)
 

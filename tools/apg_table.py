@@ -1,0 +1,141 @@
+#!/usr/bin/env python
+"""Policy optimisation through the simulator on 2d2level (experiment=2d2level_apg): the tree optimised by APG
+against the expert and against the same tree with unit weights (RMPflow), on the test split's starts.
+
+Runs the experiment (no expert data in training; conf/train/apg.yaml), then evaluates the unit-weight tree with
+the pipeline's own evaluation, and the task cost APG minimises on the test starts for every policy. Writes
+<out>/table.md beside the run directory <out>/run/ (metrics.json; figures/learning_curve_rmp.png is the learning
+curve, figures/progression_rmp.png the snapshots' trajectories).
+
+    python tools/apg_table.py                     # conf/train/apg.yaml as it is
+    python tools/apg_table.py --table-only        # the table of the run already in --out
+    python tools/apg_table.py train.iterations=20 train.snapshots=[0,20]   # any overrides
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import torch
+
+from rmpfusion.evaluate.lyapunov import lyapunov_monotone
+from rmpfusion.evaluate.metrics import summarize
+from rmpfusion.learn.learners import build_learner
+from rmpfusion.learn.loop import load_snapshot
+from rmpfusion.learn.methods.apg import RolloutCost
+from rmpfusion.pipeline.collect import collect
+from rmpfusion.pipeline.evaluation import evaluate_model
+from rmpfusion.pipeline.fit import fit
+from rmpfusion.pipeline.run import run_experiment, start
+
+TASK = ("time", "path_length", "final_distance", "min_clearance")
+
+
+def config(extra: list[str], experiment: str = "2d2level_apg"):
+    from hydra import compose, initialize_config_dir
+
+    from rmpfusion.cli import CONF_DIR
+    from rmpfusion.pipeline.validate import resolve_and_validate
+
+    with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
+        return resolve_and_validate(compose("config", overrides=[f"experiment={experiment}", "logger=disabled",
+                                                                  *extra]))
+
+
+def unit_weights(exp):
+    """learner-rmp's tree with every learned edge at weight 1: RMPflow's combination of the same leaves."""
+    block = {"type": "rmp", "weights": {"type": "constant", "value": 1.0}}
+    return build_learner(block, exp.run.tree.model_dump(), exp.env.aux_dims(), exp.env.dim,
+                         expert={k: {} for k in exp.run.expert})
+
+
+def _row(label: str, task: dict, rates: dict, cost: float, fine: float) -> dict:
+    return {"policy": label, "success": rates.get("success"), "collision": rates.get("collision"),
+            "lyapunov": rates.get("lyapunov_monotone_fraction"), "lyapunov_fine": fine, "cost": cost,
+            **{k: task[k]["mean"] for k in TASK if k in task}}
+
+
+def monotone_on_a_finer_step(exp, policy, starts, dt: float) -> float:
+    """The fraction of the test rollouts whose V_r never rises when integrated on the step ``dt``: tells an
+    integration error of the experiment's step (on stiff learned dynamics) from a policy that breaks Theorem 2."""
+    ev = exp.run.eval
+    with torch.no_grad():
+        ro = exp.env.with_step(dt).rollout(policy, *starts, horizon=exp.horizon, record_every=exp.fine_interval)
+    return float(lyapunov_monotone(ro.V, ev.lyapunov_rtol, ev.lyapunov_atol).double().mean())
+
+
+def rows(run_dir: Path, cfg, fine_dt: float) -> list[dict]:
+    """Expert, unit weights and every snapshot of the optimised tree on the test starts."""
+    exp = start(cfg, run_dir, progress=False)
+    splits = collect(exp)
+    fitted = fit(exp, splits, require_trained=True)["rmp"]
+    model = fitted.model.to(torch.float64)
+    metrics = json.loads((run_dir / "metrics.json").read_text())
+    cost = RolloutCost(exp.env, exp.run.train)
+    starts = splits.test.initial_states()
+
+    def task_cost(policy) -> float:
+        with torch.no_grad():
+            return cost(policy, *starts, backward=False)["total"]
+
+    fine = lambda policy: monotone_on_a_finer_step(exp, policy, starts, fine_dt)  # noqa: E731
+    out = [_row("expert", metrics["expert"]["task"], metrics["expert"],
+                task_cost(lambda q, qd, a: exp.expert(q, qd, a).qdd), fine(exp.expert))]
+    unit = unit_weights(exp)
+    met, onl = evaluate_model(exp, unit, splits, "unit weights")
+    out.append(_row("unit weights (RMPflow)", summarize(exp.env.task_metrics(onl.rollout)), met, task_cost(unit),
+                    fine(unit.policy)))
+    for it, state in sorted(fitted.result.snapshots.items()):
+        s = metrics["learners"]["rmp"]["snapshots"][str(it)]
+        snap = load_snapshot(model, state)
+        out.append(_row(f"APG @ {it}", s["task"], s, task_cost(snap), fine(snap.policy)))
+        out[-1]["leaves"] = s.get("learned_leaf_parameters")
+    return out
+
+
+def _f(x, pct: bool = False) -> str:
+    if x is None:
+        return "–"
+    return f"{100 * x:.0f} %" if pct else f"{x:.3g}"
+
+
+def table(rs: list[dict], dt: float, fine_dt: float) -> str:
+    head = ("| policy | task cost (APG's, test starts) | success | collisions | time to 0.1 (s) | path length "
+            f"| final distance | closest approach to an obstacle | V_r monotone (RK4 at {dt} s) "
+            f"| V_r monotone (RK4 at {fine_dt} s) |")
+    lines = [head, "|---" * (head.count("|") - 1) + "|"]
+    for r in rs:
+        lines.append(f"| {r['policy']} | {_f(r['cost'])} | {_f(r['success'], True)} | {_f(r['collision'], True)} "
+                     f"| {_f(r.get('time'))} | {_f(r.get('path_length'))} | {_f(r.get('final_distance'))} "
+                     f"| {_f(r.get('min_clearance'))} | {_f(r['lyapunov'], True)} | {_f(r['lyapunov_fine'], True)} |")
+    leaves = [f"- {r['policy']}: " + ", ".join(f"{k} = {v:.3g}" for k, v in r["leaves"].items())
+              for r in rs if r.get("leaves")]
+    return "\n".join(lines) + "\n" + ("\nLearned leaf numbers:\n" + "\n".join(leaves) + "\n" if leaves else "")
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--out", type=Path, default=Path("outputs/apg_table"))
+    ap.add_argument("--experiment", default="2d2level_apg", help="2d2level_apg, 2d2level_apg_leaves, or another "
+                                                                  "experiment trained by apg")
+    ap.add_argument("--table-only", action="store_true", help="run nothing new: the table of <out>/run")
+    ap.add_argument("--fine-dt", type=float, default=0.002,
+                    help="the finer RK4 step on which every policy's V_r is checked again (s)")
+    ap.add_argument("overrides", nargs="*", help="Hydra overrides of experiment=2d2level_apg")
+    a = ap.parse_args(argv)
+    t0 = time.time()
+    cfg = config(a.overrides, a.experiment)
+    if not a.table_only:
+        run_experiment(cfg, a.out / "run")
+    md = (f"# {cfg.name}: the tree optimised through the simulator vs the expert and unit weights "
+          f"({time.time() - t0:.0f} s)\n\n" + table(rows(a.out / "run", cfg, a.fine_dt), cfg.env.dt, a.fine_dt))
+    (a.out / "table.md").write_text(md)
+    print(md)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
