@@ -875,7 +875,7 @@ for _id, _fault, _overrides, _shows, _needs in [
          "train.decision_interval: must be a positive multiple of the environment's step 0.01 s; given 0.025", ()),
         ("apg-not-differentiable", "APG asked to back-propagate through a simulator stepped outside torch",
          ["experiment=franka", "train=apg"],
-         "train.method: apg back-propagates through rollouts, which the environment 'Franka' does not offer (it is not "
+         "train.method: apg back-propagates through rollouts, which the environment 'Manipulator' does not offer (it is not "
          "simulated in torch with a differentiable goal distance and clearance); use method pg, or an environment "
          "such as particle2d", ("pybullet",)),
         ("joint-margin-no-room", "a joint margin that leaves lower ≥ upper for the starts",

@@ -47,6 +47,19 @@ def stack_obstacles(aux: Mapping[str, Tensor], n_obstacles: int) -> tuple[Tensor
     return c, r
 
 
+class ComputesOnDevice:
+    """The ``to`` of an environment that computes policies on a device (``envs.protocol.ComputesOn``): what runs
+    there is the environment's to say (the particle integrates there; the manipulator sends each step's state);
+    sampling, records and simulators stay on the CPU, and rollouts come back on it."""
+
+    device: torch.device = torch.device("cpu")
+
+    def to(self, device: torch.device | str):
+        """Compute policies on ``device`` from now on; returns the environment."""
+        self.device = torch.device(device)
+        return self
+
+
 class OnDevice:
     """A policy that computes on ``device`` for a caller holding its states elsewhere (pybullet's CPU, a dataset):
     the state goes over, the answer (a tensor or a tree's output) comes back to the state's device, once a call."""

@@ -14,8 +14,8 @@ from pydantic import Field, ValidationInfo, field_validator
 from torch import Tensor
 
 from ..registry import ENVS, Params
-from .common import (DTYPES, SeededSampling, check_initial_states, evaluate_policy, obstacle_aux, obstacle_aux_dims,
-                     qdd_of, redraw_until_ok, rk4, semi_implicit_euler, stack_obstacles, time_grid)
+from .common import (DTYPES, ComputesOnDevice, SeededSampling, check_initial_states, evaluate_policy, obstacle_aux,
+                     obstacle_aux_dims, qdd_of, redraw_until_ok, rk4, semi_implicit_euler, stack_obstacles, time_grid)
 from .demonstrations import Dataset, collect
 from .rollout import Rollout
 
@@ -31,7 +31,7 @@ def _check_range(name: str, r: Range, strict: bool = False) -> None:
 
 
 @ENVS.register("particle2d")
-class Particle2D(SeededSampling):
+class Particle2D(ComputesOnDevice, SeededSampling):
     """Goal reaching around 1 (2d1level) or 2 (2d2level) circular obstacles in a [-5, 5]² workspace.
 
     A ``rollout`` records collisions (strictly inside an obstacle) and success (within ``goal_tolerance`` at the
@@ -124,12 +124,6 @@ class Particle2D(SeededSampling):
             params = self.Params.model_validate(params.model_dump())
         self.params = params
         self.dtype = DTYPES[params.dtype]
-        self.device = torch.device("cpu")  # where rollouts integrate (``to``); sampling stays on the CPU
-
-    def to(self, device: torch.device | str) -> "Particle2D":
-        """Integrate rollouts on ``device`` (the policy must compute there); they are returned on the CPU."""
-        self.device = torch.device(device)
-        return self
 
     # ------------------------------------------------------------------ auxiliary state
     @property

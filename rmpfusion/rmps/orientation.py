@@ -4,8 +4,9 @@ from __future__ import annotations
 from pydantic import Field
 
 from ..core.stacking import spread
-from ..registry import LEAF_RMPS, Params
+from ..registry import LEAF_RMPS
 from .gds_leaves import RadialMetricAttractor
+from .learnable import LeafParams
 
 
 @LEAF_RMPS.register("orientation_attractor")
@@ -20,7 +21,7 @@ class OrientationAttractor(RadialMetricAttractor):
     The metric rises from w_l to w_u within σ of the target (|e| = 2 sin(θ/2) ≈ θ).
     """
 
-    class Params(Params):
+    class Params(LeafParams):
         gain: float = Field(1.0, gt=0, description="potential gain: the pull on an axis is gain·sin θ")
         eta: float = Field(2.0, ge=0, description="damping relative to the metric")
         w_u: float = Field(1.0, gt=0, description="metric scale at the target")

@@ -12,7 +12,7 @@ from torch import Tensor
 from ...registry import ENVS
 from ...robots import build_robot
 from ...scenes import Scene, aux_at, distances, scene_aux, scene_aux_dims
-from ..common import DTYPES, SeededSampling, check_initial_states, on_device, redraw_until_ok, time_grid
+from ..common import DTYPES, ComputesOnDevice, SeededSampling, check_initial_states, on_device, redraw_until_ok, time_grid
 from ..demonstrations import Dataset
 from ..protocol import RenderSettings
 from ..rollout import Rollout
@@ -26,7 +26,7 @@ from .torque import rollout_torque
 
 
 @ENVS.register("manipulator")
-class Manipulator(SeededSampling):
+class Manipulator(ComputesOnDevice, SeededSampling):
     """A robot reaching goals among obstacles; see the package docstring for the two rollout modes."""
 
     Params = ManipulatorParams
@@ -43,12 +43,6 @@ class Manipulator(SeededSampling):
         self.dim = self.robot.dof
         self.lower, self.upper = self.robot.lower.to(self.dtype), self.robot.upper.to(self.dtype)
         self.worlds = HelperWorlds(self.robot, params.gravity)
-        self.device = torch.device("cpu")  # where policies compute (``to``); pybullet and the records stay on the CPU
-
-    def to(self, device: torch.device | str) -> "Manipulator":
-        """Evaluate policies on ``device``: each step's state goes there and the acceleration comes back."""
-        self.device = torch.device(device)
-        return self
 
     # ------------------------------------------------------------------ bookkeeping
     @property
