@@ -1,7 +1,7 @@
 #!/usr/bin/env python
 """The score-function policy gradient on the Franka (experiment=franka_pg): learner-rmp from its random weights,
 no demonstrations, the kinematic simulator. Runs the experiment, then writes <out>/table.md: the task table of
-tools/franka_table.py (expert and every snapshot on the test starts, 10 s each) and the learning curve in numbers
+tools/task_table.py (expert and every snapshot on the test starts, 10 s each) and the learning curve in numbers
 (the mean policy's task cost on the validation starts, every ``train.log_every`` steps); the figure is
 <out>/run/figures/learning_curve_rmp.png.
 
@@ -21,7 +21,7 @@ import torch
 from rmpfusion.learn.checkpoints import load_checkpoint
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from franka_table import HEADER, rows  # noqa: E402
+from task_table import HEADER, rows  # noqa: E402
 
 
 def config(extra: list[str]):

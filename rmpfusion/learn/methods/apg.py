@@ -5,7 +5,10 @@ initial states is back-propagated through the integrator into them.
 
 The training rollouts may run on a coarser integration step than the environment's (``dt``): the gradient of a
 20-s rollout costs 5× less at 0.05 s than at 0.01 s, and the evaluation of the optimised tree still runs on the
-experiment's own step, where the Lyapunov monitor and the task metrics are accurate.
+experiment's own step, where the Lyapunov monitor and the task metrics are accurate. The optimiser may then find
+weights whose dynamics are too fast for the coarse step (on 2d2level at 0.05 s it did, from step 15 on: the coarse
+rollouts blew up while the same trees were stable at the fine step), so the shipped preset trains on the
+environment's own step.
 
 Truncated back-propagation: the horizon is cut into windows of ``truncation`` seconds; each window's cost is
 back-propagated within the window (the gradients of all windows add up) and the next window starts from the
