@@ -50,3 +50,15 @@ def test_evaluating_before_training_says_what_to_run(tmp_path):
                                               r"run rmpfusion-train with the same overrides"):
         fit(exp, collect(exp), require_trained=True)
     assert not (tmp_path / "checkpoints").exists()  # nothing was trained
+
+
+def test_compare_holds_residuals_to_an_absolute_tolerance_and_everything_else_to_a_relative_one():
+    """A residual that is zero in exact arithmetic (3.41e-9 vs 3.47e-9: rounding, 1.7 % apart) is equal; one that
+    moved by 1e-3 is not; an ordinary number 1e-6 apart relatively is not equal at rtol 1e-9."""
+    a = {"rmp": {"certificate": {"max_energy_identity_error": 3.41e-9}, "online_loss": 1.0}}
+    b = {"rmp": {"certificate": {"max_energy_identity_error": 3.47e-9}, "online_loss": 1.0}}
+    assert compare(a, b, rtol=1e-9)[2] == []
+    b["rmp"]["certificate"]["max_energy_identity_error"] = 1e-3
+    b["rmp"]["online_loss"] = 1.0 + 1e-6
+    differ = compare(a, b, rtol=1e-9)[2]
+    assert len(differ) == 2 and "a residual" in differ[0] and "online_loss" in differ[1], differ

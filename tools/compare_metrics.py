@@ -6,8 +6,11 @@ Every number present in both files is compared (nested keys flattened to paths l
 ``learners.rmp.snapshots.60.online_loss``), except what says how a run went rather than what it found:
 wall-clock times, file paths, whether data was reused or training resumed, and the config hash (which
 changes with the config's spelling, not its meaning). Dataset checksums are compared: equal checksums mean
-bit-identical demonstrations. Prints the count compared, the largest relative difference, every number
-that differs beyond ``--rtol`` and every key only one side has; exits 1 when any number differs.
+bit-identical demonstrations. Residuals that are zero in exact arithmetic (the certificate's energy-identity
+error, a finite difference of V_r against −q̇ᵀB_r q̇) are rounding and truncation error, whose relative
+differences say nothing: they are compared by absolute difference, ``--residual-atol``, far below the
+certificate's own tolerance. Prints the count compared, the largest relative difference, every number that
+differs beyond its tolerance and every key only one side has; exits 1 when any number differs.
 """
 from __future__ import annotations
 
@@ -17,6 +20,9 @@ import math
 import sys
 from pathlib import Path
 from typing import Any, Iterator
+
+#: keys of residuals that are zero in exact arithmetic: compared by absolute difference
+RESIDUALS = {"max_energy_identity_error"}
 
 #: keys about how the run went (time, places, resumption), not about what it found
 IGNORED = {"timing", "train_seconds", "eval_seconds", "seconds", "path", "figures", "config_hash", "reused",
@@ -46,12 +52,23 @@ def relative_difference(a: Any, b: Any) -> float:
     return abs(a - b) / max(abs(a), abs(b))
 
 
-def compare(a: dict, b: dict, rtol: float) -> tuple[int, float, list[str], list[str]]:
-    """(numbers compared, largest relative difference, lines for differing numbers, lines for one-sided keys)."""
+def _residual_differs(a: Any, b: Any, atol: float) -> bool:
+    """Two residuals differ when they are not equal and not two numbers within ``atol`` of each other."""
+    numbers = all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in (a, b))
+    return relative_difference(a, b) > 0 and not (numbers and abs(a - b) <= atol)
+
+
+def compare(a: dict, b: dict, rtol: float, residual_atol: float = 1e-7) -> tuple[int, float, list[str], list[str]]:
+    """(numbers compared, largest relative difference of the numbers compared relatively, lines for differing
+    numbers, lines for one-sided keys)."""
     la, lb = dict(leaves(a)), dict(leaves(b))
     shared = [k for k in la if k in lb]
     worst, differ = 0.0, []
     for k in shared:
+        if k.rsplit(".", 1)[-1] in RESIDUALS:
+            if _residual_differs(la[k], lb[k], residual_atol):
+                differ.append(f"  {k}: {la[k]!r} vs {lb[k]!r} (a residual: more than {residual_atol:g} apart)")
+            continue
         d = relative_difference(la[k], lb[k])
         worst = max(worst, d)
         if d > rtol:
@@ -66,9 +83,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("first", type=Path)
     ap.add_argument("second", type=Path)
     ap.add_argument("--rtol", type=float, default=1e-12, help="largest relative difference counted as equal")
+    ap.add_argument("--residual-atol", type=float, default=1e-7,
+                    help="largest absolute difference of two residuals counted as equal")
     args = ap.parse_args(argv)
     a, b = (json.loads(p.read_text()) for p in (args.first, args.second))
-    n, worst, differ, one_sided = compare(a, b, args.rtol)
+    n, worst, differ, one_sided = compare(a, b, args.rtol, args.residual_atol)
     print(f"{n} values compared, largest relative difference {worst:.3g}; {len(differ)} differ beyond "
           f"rtol={args.rtol:g}; {len(one_sided)} keys on one side only")
     for line in differ + one_sided:
