@@ -421,3 +421,32 @@ def test_apg_trains_on_its_own_step_and_leaves_the_environment_s_to_evaluation(s
         got = coarse(Linear(), q0, qd0, aux, backward=False)
         same = RolloutCost(_env(), params.model_copy(update={"dt": None}))(Linear(), q0, qd0, aux, backward=False)
     assert got == same
+
+
+@pytest.mark.slow
+def test_a_sweep_over_a_method_s_setting_runs_every_job_with_that_method(tmp_path):
+    """``rmpfusion-run -m`` sweeps APG's step size as it sweeps behavior cloning's: two jobs, each trained by APG
+    with its own lr, each with its metrics, checkpoints and the method's report."""
+    import json
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    script = Path(sys.executable).with_name("rmpfusion-run")
+    cmd = [str(script), "-m", "experiment=2d2level_apg", "data=tiny", "eval=fast", "logger=disabled",
+           "train.iterations=2", "train.snapshots=[0,2]", "train.horizon=0.5", "train.truncation=0.5",
+           "train.batch_size=2", "train.log_every=1", "train.checkpoint_every=1", "train.lr=1e-3,3e-3",
+           f"hydra.sweep.dir={tmp_path}"]
+    env = {**os.environ, "WANDB_MODE": "disabled", "OMP_NUM_THREADS": "1", "MPLBACKEND": "Agg"}
+    r = subprocess.run(cmd, capture_output=True, text=True, timeout=1200, env=env, cwd=tmp_path)
+    assert r.returncode == 0, r.stderr[-3000:]
+    jobs = sorted(p for p in tmp_path.iterdir() if p.is_dir() and not p.name.startswith("."))
+    assert len(jobs) == 2, jobs
+    for job, lr in zip(jobs, (1e-3, 3e-3)):
+        metrics = json.loads((job / "metrics.json").read_text())
+        training = metrics["learners"]["rmp"]["training"]
+        assert training["method"] == "apg" and training["expert_queries"] == 0, training
+        assert json.loads((job / "config.json").read_text())["train"]["lr"] == lr
+        assert (job / "checkpoints" / "rmp" / "final.pt").is_file()
+        assert metrics["learners"]["rmp"]["certificate"]["ok"], metrics["learners"]["rmp"]["certificate"]
