@@ -104,28 +104,28 @@ def learner_2d2level(seed: int = 0):
 
 
 def franka_expert(n_obstacles: int = 1):
-    """The Franka experiment's expert tree with ``n_obstacles`` obstacles (14 control points each), and a batch of
-    aux states for it: the experiment's first test environment's goal, and obstacles spread around the robot."""
+    """The Franka experiment's expert tree among ``n_obstacles`` standing cylinders (14 control points each, the
+    experiment's cylinder's size, spread in a row in front of the robot), and one sample of its aux state from the
+    environment of that scene: a goal and the cylinders."""
     from hydra import compose as hcompose, initialize_config_dir
     from omegaconf import OmegaConf
 
     from rmpfusion.build.generated import expand_tree
     from rmpfusion.build.weighting import tree_with_weights
     from rmpfusion.cli import CONF_DIR
-    from rmpfusion.pipeline.validate import make_env
+    from rmpfusion.registry import ENVS
 
-    cfg = compose("franka")
-    env = make_env(cfg)
     with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):  # the tree as declared: its generator
         raw = OmegaConf.to_container(hcompose("config", overrides=["experiment=franka"]), resolve=True)
-    spec = tree_with_weights(expand_tree({**raw["tree"], "n_obstacles": n_obstacles}), raw["expert"])
+    cylinder = raw["env"]["scene"]["obstacles"][0]
+    scene = {"obstacles": [{**cylinder, "center": [0.5, -0.6 + 1.2 * k / (n_obstacles + 1), cylinder["center"][2]]}
+                           for k in range(1, n_obstacles + 1)]}
+    spec = tree_with_weights(expand_tree({**raw["tree"], "scene": scene}), raw["expert"])
     tree = rmpfusion.build_tree(spec)
-    g = torch.Generator().manual_seed(0)
-    aux = {"goal": env.sample_envs(1, g)["goal"]}
-    for k in range(1, n_obstacles + 1):
-        aux[f"obstacle{k}_center"] = torch.tensor([[0.5, -0.6 + 1.2 * k / (n_obstacles + 1), 0.3]], dtype=torch.float64)
-        aux[f"obstacle{k}_radius"] = torch.tensor([[0.05]], dtype=torch.float64)
-    return tree, aux
+    settings = {**raw["env"], "scene": scene, "test_scene": None}
+    entry = ENVS.get(settings.pop("type"))
+    env = entry.obj(entry.validate(settings))
+    return tree, env.sample_envs(1, torch.Generator().manual_seed(0))
 
 
 # ---------------------------------------------------------------------------------------------- the hand-fused reference
