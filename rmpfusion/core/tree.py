@@ -103,6 +103,8 @@ class RMPTree(nn.Module):
             if name not in out:
                 continue
             t = out[name]
+            if isinstance(t, Tensor) and t.shape == (batch, d):  # already as the tree takes it: the common case
+                continue
             if not isinstance(t, Tensor):
                 t = torch.as_tensor(t, dtype=dtype or self._dtype() or torch.get_default_dtype())
             if t.dim() == 1 and d == 1 and t.shape[0] == batch:
@@ -111,7 +113,7 @@ class RMPTree(nn.Module):
                 t = t.unsqueeze(0)
             if t.shape[-1] != d:
                 raise ValueError(f"aux '{name}' has trailing dimension {t.shape[-1]}, the tree declares {d}")
-            out[name] = t.expand(batch, d) if t.shape[0] == 1 else t
+            out[name] = t.expand(batch, d) if t.shape[0] == 1 and batch != 1 else t
         return out
 
     def _inputs(self, q: Tensor, qd: Tensor, aux: AuxDict | None) -> dict[str, Tensor] | None:
