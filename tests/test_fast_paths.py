@@ -3,6 +3,7 @@ tree, the one kinematics pass for every control point, the pullback* shortcuts (
 terms (test_leaves) and the forward-mode MLP tangent (test_weights); level-batched evaluation against the
 node-by-node computation is test_grouped_evaluation. No test here looks at wall time."""
 import copy
+import warnings
 
 import pytest
 import torch
@@ -111,3 +112,25 @@ def test_fixed_structure_compile_still_sees_new_weights(gen):
             p.add_(0.1 * torch.randn(p.shape, generator=gen, dtype=p.dtype))
         fast.load_state_dict(eager.state_dict())
         _assert_same(fast(q, qd, aux), eager(q, qd, aux))
+
+
+def test_a_tree_whose_compile_fails_runs_eagerly_and_says_why(gen, monkeypatch):
+    """A backend failure (here a missing C++ compiler, as dynamo wraps it: its first line names only the backend)
+    turns the tree eager with the same numbers, and the warning names the cause, once."""
+    from rmpfusion.core.tree import CompileFallbackWarning
+
+    def compile_that_fails(fn, **kwargs):
+        def call(*args):
+            raise torch._dynamo.exc.BackendCompilerFailed(lambda *a: None, RuntimeError("no C++ compiler found"), None)
+        return call
+
+    eager = rmpfusion.build_tree(TWO_LEVEL)
+    tree = copy.deepcopy(eager).compile(dynamic=False)
+    monkeypatch.setattr(torch, "compile", compile_that_fails)
+    q, qd, aux = two_level_inputs(4, gen)
+    with pytest.warns(CompileFallbackWarning, match=r"RuntimeError: no C\+\+ compiler found\); it now runs eagerly"):
+        out = tree(q, qd, aux)
+    _assert_same(out, eager(q, qd, aux))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        tree(q, qd, aux)  # said once: the tree is eager now

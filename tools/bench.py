@@ -350,6 +350,8 @@ def section_latency(compile_: bool) -> None:
             ct, t = _compiled_time(tv, (q, qd), policy=True)
             row("latency", f"test-vector tree, policy, compiled ({ct:.0f} s)", _fmt_time(t), ref, f"{t / t_np:.2f}",
                 "≤ 0.5", t / t_np <= 0.5)
+    if compile_:
+        _exported_latency("test-vector tree", tv, {}, reference=t_np)
     learner, env = learner_2d2level()
     args = env.sample(n_envs=1, n_per_env=1, seed=3)
     fr, faux = franka_expert()
@@ -366,29 +368,36 @@ def section_latency(compile_: bool) -> None:
                 target = dict(target=f"≤ {_fmt_time(compiled_target)}", ok=t <= compiled_target) if compiled_target else {}
                 row("latency", f"{name}, compiled ({ct:.0f} s)", _fmt_time(t), **target)
     if compile_:
-        _exported_latency(fr, faux)
+        _exported_latency("Franka expert tree", fr, faux)
 
 
-def _exported_latency(tree, aux) -> None:
-    """The Franka tree exported and compiled ahead of time (what rmpfusion-export --aoti writes), at B = 1."""
+def _exported_latency(name: str, tree, aux: dict, reference: float | None = None, target: float | None = None) -> None:
+    """The tree exported and compiled ahead of time (what rmpfusion-export --aoti writes), at B = 1, beside
+    ``reference`` (seconds) when given."""
     import tempfile
 
     from rmpfusion.core.export import export_tree
 
     names = sorted(aux)
     g = torch.Generator().manual_seed(0)
-    q2, qd2 = 0.3 * torch.rand(2, 7, generator=g, dtype=torch.float64), torch.randn(2, 7, generator=g, dtype=torch.float64)
+    q2, qd2 = 0.3 * torch.rand(2, tree.dim, generator=g, dtype=torch.float64), torch.randn(2, tree.dim, generator=g,
+                                                                                          dtype=torch.float64)
     program = export_tree(tree, q2, qd2, {k: v.expand(2, -1) for k, v in aux.items()}, names)
     with tempfile.TemporaryDirectory() as d:
         t0 = time.perf_counter()
-        path = torch._inductor.aoti_compile_and_package(program, package_path=os.path.join(d, "franka.pt2"))
+        path = torch._inductor.aoti_compile_and_package(program, package_path=os.path.join(d, "tree.pt2"))
         ct = time.perf_counter() - t0
         runner = torch._inductor.aoti_load_package(path)
     x = (q2[:1], qd2[:1], *(aux[n] for n in names))
     with torch.inference_mode():
         err = (runner(*x) - tree(q2[:1], qd2[:1], aux).qdd).abs().max().item()
         t = median_time(lambda: runner(*x))
-    row("latency", f"Franka expert tree, AOTInductor package ({ct:.0f} s, |Δq̈| {err:.0e})", _fmt_time(t))
+    compared = {}
+    if reference is not None:
+        compared = dict(reference=f"RMPflow numpy {_fmt_time(reference)}", ratio=f"{t / reference:.2f}")
+    if target is not None:
+        compared.update(target=f"≤ {target}", ok=t / reference <= target)
+    row("latency", f"{name}, AOTInductor package ({ct:.0f} s, |Δq̈| {err:.0e})", _fmt_time(t), **compared)
 
 
 COMPILE_CHILD = """

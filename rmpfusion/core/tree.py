@@ -243,7 +243,7 @@ class RMPTree(nn.Module):
 
     def _fall_back(self, error: Exception) -> None:
         dynamic, options = self._compile_args
-        reason = str(error).strip().splitlines()[0][:200] if str(error).strip() else type(error).__name__
+        reason = _compile_failure(error)
         if dynamic is not False:
             self._compile_args, self._compiled = (False, options), None
             warnings.warn(CompileFallbackWarning(
@@ -312,3 +312,15 @@ class RMPTree(nn.Module):
 
         walk(self.root_name, "")
         return "\n".join(lines)
+
+
+def _compile_failure(error: BaseException) -> str:
+    """What made torch.compile fail, in one line: the innermost cause (a backend's own exception, which dynamo
+    wraps in a message whose first line only names the backend), as ``Type: first line``."""
+    while True:
+        inner = getattr(error, "inner_exception", None) or error.__cause__
+        if inner is None or inner is error:
+            break
+        error = inner
+    text = str(error).strip()
+    return f"{type(error).__name__}: {text.splitlines()[0][:200]}" if text else type(error).__name__
