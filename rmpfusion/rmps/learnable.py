@@ -1,7 +1,8 @@
 """Leaf parameters a config may declare learnable: ``gain: {learn: true, init: 1.0}`` instead of ``gain: 1.0``.
 
 Every number of a leaf whose field has a valid range (``Field(gt=0)``, ``ge=0``, ...) may be learned, in every leaf
-whose ``Params`` extend ``LeafParams`` (all the built-in GDS leaves, and a plugin's that do): the number is
+whose ``Params`` extend ``LeafParams`` (the built-in GDS leaves but ``moving_goal_attractor`` and
+``velocity_limit``, which declare no stacked numbers yet; the RMPflow ports; a plugin's that do): the number is
 validated as written (its field's own checks and the leaf's cross-field checks see the initial value), then
 handed to the leaf as a ``core.learnable.LearnedFloat`` carrying the field's range, narrowed by ``min``/``max``
 when given. The leaf stores it as it stores a constant (``self.gain = params.gain``) and it becomes a parameter
