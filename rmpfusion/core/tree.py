@@ -113,7 +113,7 @@ class RMPTree(nn.Module):
                 t = t.unsqueeze(0)
             if t.shape[-1] != d:
                 raise ValueError(f"aux '{name}' has trailing dimension {t.shape[-1]}, the tree declares {d}")
-            out[name] = t.expand(batch, d) if t.shape[0] == 1 and batch != 1 else t
+            out[name] = t.expand(batch, d) if t.shape[0] == 1 else t
         return out
 
     def _inputs(self, q: Tensor, qd: Tensor, aux: AuxDict | None) -> dict[str, Tensor] | None:

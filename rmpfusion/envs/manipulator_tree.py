@@ -68,6 +68,17 @@ def _tuned(field: str) -> dict[str, Any]:
     return {k: copy.deepcopy(v) for k, v in _LEAVES[field].items() if k != "type"}
 
 
+def _onto_tuned(field: str, v: Any) -> Any:
+    """A partial block ({gain: 3}) changes those keys of the tuned settings only, not the rest back to the entry's
+    generic defaults."""
+    return {**_tuned(field), **v} if isinstance(v, Mapping) else v
+
+
+def _rmp_onto_tuned(field: str) -> Any:
+    """The validator of an option block's ``rmp``: what is given laid onto the tuned settings ``field``."""
+    return field_validator("rmp", mode="before")(lambda v: _onto_tuned(field, v))
+
+
 def _tuned_field(model: type[Params], field: str, what: str) -> Any:
     """A leaf's (or weight's) settings, checked by that entry's own parameter model, defaulting to the tuned ones."""
     return Field(default_factory=lambda: model(**_tuned(field)),
@@ -82,10 +93,7 @@ class SelfCollision(Params):
     rmp: CollisionAvoidance.Params = _tuned_field(CollisionAvoidance.Params, "self_collision_rmp",
                                                   "barrier on each pair's gap")
 
-    @field_validator("rmp", mode="before")
-    @classmethod
-    def _onto_tuned(cls, v: Any) -> Any:
-        return {**_tuned("self_collision_rmp"), **v} if isinstance(v, Mapping) else v
+    _rmp_tuned = _rmp_onto_tuned("self_collision_rmp")
 
 
 class Orientation(Params):
@@ -103,10 +111,7 @@ class Orientation(Params):
         check_direction(v, "axis")  # link_axis's own check
         return v
 
-    @field_validator("rmp", mode="before")
-    @classmethod
-    def _onto_tuned(cls, v: Any) -> Any:
-        return {**_tuned("orientation_rmp"), **v} if isinstance(v, Mapping) else v
+    _rmp_tuned = _rmp_onto_tuned("orientation_rmp")
 
 
 class VelocityLimits(Params):
@@ -115,10 +120,7 @@ class VelocityLimits(Params):
     rmp: VelocityLimit.Params = _tuned_field(VelocityLimit.Params, "velocity_limit_rmp",
                                              "cap on the velocity-scaled joints (limit 1: the joint's own)")
 
-    @field_validator("rmp", mode="before")
-    @classmethod
-    def _onto_tuned(cls, v: Any) -> Any:
-        return {**_tuned("velocity_limit_rmp"), **v} if isinstance(v, Mapping) else v
+    _rmp_tuned = _rmp_onto_tuned("velocity_limit_rmp")
 
 
 class ManipulatorTreeParams(Params):
@@ -156,9 +158,8 @@ class ManipulatorTreeParams(Params):
     @field_validator(*(f for f in _LEAVES if f not in ("self_collision_rmp", "orientation_rmp", "velocity_limit_rmp")),
                      mode="before")
     @classmethod
-    def _onto_tuned(cls, v: Any, info: Any) -> Any:
-        # a partial block ({gain: 3}) changes those keys only, not the rest back to the entry's generic defaults
-        return {**_tuned(info.field_name), **v} if isinstance(v, Mapping) else v
+    def _leaf_onto_tuned(cls, v: Any, info: Any) -> Any:
+        return _onto_tuned(info.field_name, v)
 
     @field_validator("obstacle_maps")
     @classmethod
