@@ -9,8 +9,9 @@ from pathlib import Path
 import pytest
 from hydra import compose, initialize_config_dir
 
-from rmpfusion.build.errors import ConfigError
-from rmpfusion.pipeline.validate import build_all, resolve_and_validate
+from rmpfusion.assembly.errors import ConfigError
+from rmpfusion.pipeline.construct import build_all
+from rmpfusion.pipeline.validate import resolve_and_validate
 from rmpfusion.registry import LEAF_RMPS
 
 CONF = Path(__file__).resolve().parents[1] / "conf"

@@ -15,7 +15,7 @@ from hydra import compose, initialize_config_dir
 from pydantic import ValidationError
 
 import rmpfusion
-from rmpfusion.build.errors import ConfigError
+from rmpfusion.assembly.errors import ConfigError
 from rmpfusion.core.passes import evaluate
 from rmpfusion.envs.common import OnDevice, on_device
 from rmpfusion.envs.protocol import ComputesOn

@@ -120,7 +120,8 @@ def test_a_learner_without_a_tree_exports_its_policy(tmp_path):
 
     from rmpfusion.cli import CONF_DIR
     from rmpfusion.learn.export import export_learner
-    from rmpfusion.pipeline.validate import build_learners, make_env, resolve_and_validate
+    from rmpfusion.pipeline.construct import build_learners, make_env
+    from rmpfusion.pipeline.validate import resolve_and_validate
 
     with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
         cfg = resolve_and_validate(compose("config", overrides=["experiment=2d2level_unstructured", "logger=disabled"]))

@@ -128,7 +128,7 @@ def test_policy_equals_the_full_evaluation_where_only_f_and_m_are_needed():
 @pytest.mark.parametrize("n_obstacles", [1, 3])
 @pytest.mark.parametrize("weights", ["expert", "learner"])
 def test_the_franka_tree_equals_the_node_by_node_computation(n_obstacles, weights):
-    from rmpfusion.build.weighting import tree_with_weights
+    from rmpfusion.assembly.weighting import tree_with_weights
     from manipulators import franka_tree_spec
 
     spec = franka_tree_spec(n_obstacles=n_obstacles)

@@ -12,7 +12,7 @@ PACKAGE = pathlib.Path(__file__).resolve().parents[1] / "rmpfusion"
 #: Bottom to top. Folders of one rank that must not import each other are listed in SIDE_BY_SIDE.
 RANK = {"core": 0, "files": 0,
         "registry": 1, "maps": 1, "rmps": 1, "weights": 1,
-        "build": 2, "robots": 2, "scenes": 2, "envs": 3, "learn": 4, "evaluate": 4, "plots": 5, "pipeline": 6, "cli": 7}
+        "assembly": 2, "robots": 2, "scenes": 2, "envs": 3, "learn": 4, "evaluate": 4, "plots": 5, "pipeline": 6, "cli": 7}
 SIDE_BY_SIDE = {frozenset({"learn", "evaluate"})}
 #: what core/ may import besides itself: the math needs torch and the standard library only
 CORE_ALLOWED = {"torch", "__future__", "collections", "copy", "dataclasses", "logging", "math", "types", "typing", "warnings"}
@@ -90,10 +90,10 @@ def test_the_package_keeps_its_layers():
 
 
 @pytest.mark.parametrize("module,source,expected", [
-    ("rmpfusion.core.tree", "from ..build.tree import build_tree\n", "build/ is above core/"),
+    ("rmpfusion.core.tree", "from ..assembly.tree import build_tree\n", "assembly/ is above core/"),
     ("rmpfusion.envs.particle2d", "from ..plots import plot_trajectories\n", "plots/ is above envs/"),
     ("rmpfusion.evaluate.metrics", "from ..learn.objectives import dataset_loss\n", "side by side"),
-    ("rmpfusion.build.tree", "def f():\n    from ..maps import basic\n", "inside a function"),
+    ("rmpfusion.assembly.tree", "def f():\n    from ..maps import basic\n", "inside a function"),
     ("rmpfusion.core.gds", "import pydantic\n", "core imports pydantic"),
     ("rmpfusion.maps.basic", "import rmpfusion.pipeline.run\n", "pipeline/ is above maps/"),
 ])

@@ -13,8 +13,8 @@ import math
 import pytest
 import torch
 
-from rmpfusion.build.errors import ConfigError
-from rmpfusion.build.tree import build_tree
+from rmpfusion.assembly.errors import ConfigError
+from rmpfusion.assembly.tree import build_tree
 from rmpfusion.core.learnable import LearnedFloat, Range, learned_values
 from rmpfusion.envs import Particle2D, collect
 from rmpfusion.evaluate.certificate import certify

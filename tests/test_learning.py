@@ -7,13 +7,13 @@ import os
 import pytest
 import torch
 
-from rmpfusion.build.errors import ConfigError
+from rmpfusion.assembly.errors import ConfigError
 from rmpfusion.learn.config import TrainConfig
 from rmpfusion.pipeline.config import RunConfig
-from rmpfusion.build.tree import build_tree
+from rmpfusion.assembly.tree import build_tree
 from rmpfusion.envs import DatasetError, Particle2D, collect, load_dataset, save_dataset
 from rmpfusion.learn import RMPLearner, train, width_for_parameters
-from rmpfusion.build import tree_with_weights
+from rmpfusion.assembly import tree_with_weights
 from rmpfusion.learn.learners import build_learner
 from rmpfusion.learn.unstructured import mlp_parameters
 from rmpfusion.pipeline.run import run_experiment

@@ -20,9 +20,9 @@ import pytest
 import torch
 from torch import nn
 
-from rmpfusion.build import tree_with_weights
-from rmpfusion.build.errors import ConfigError
-from rmpfusion.build.tree import build_tree
+from rmpfusion.assembly import tree_with_weights
+from rmpfusion.assembly.errors import ConfigError
+from rmpfusion.assembly.tree import build_tree
 from rmpfusion.envs import Particle2D, collect
 from rmpfusion.learn import RMPLearner
 from rmpfusion.learn.config import BCParams, upgrade_train_config
@@ -408,7 +408,7 @@ def test_cost_to_go_sums_the_costs_from_each_decision_on():
 def test_apg_trains_on_its_own_step_and_leaves_the_environment_s_to_evaluation(splits):
     """``train.dt``: the training rollouts integrate on the coarser step, the environment itself keeps its own
     (an environment built from a run config, as the pipeline builds it)."""
-    from rmpfusion.pipeline.validate import make_env
+    from rmpfusion.pipeline.construct import make_env
 
     env = make_env(resolve_and_validate(_config({"method": "apg", "dt": 0.05, "horizon": 1.0})))
     env = env.with_step(0.01)

@@ -804,7 +804,7 @@ def validation_issue(overrides) -> str:
     composed with ``overrides``, as the line a user reads."""
     from hydra import compose, initialize_config_dir
 
-    from rmpfusion.build.errors import ConfigError
+    from rmpfusion.assembly.errors import ConfigError
     from rmpfusion.pipeline.validate import resolve_and_validate
 
     with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):

@@ -222,7 +222,7 @@ def test_signals_during_training_in_process_checkpoint_then_defer_to_the_install
     signal still writes a checkpoint at once, the manager's handler runs, and training goes on; Ctrl-C with
     Python's default handler checkpoints, then raises KeyboardInterrupt. Handlers are restored afterwards."""
     from rmpfusion.learn.config import TrainConfig
-    from rmpfusion.build.tree import build_tree
+    from rmpfusion.assembly.tree import build_tree
     from rmpfusion.envs import Particle2D
     from rmpfusion.envs import collect
     from rmpfusion.learn import train

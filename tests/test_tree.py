@@ -6,7 +6,7 @@ import torch
 
 import rmpflow_reference as ref
 import rmpfusion
-from rmpfusion.build import ConfigError
+from rmpfusion.assembly import ConfigError
 from rmpfusion.core.algebra import Edge, NodeRMP, pullback_star, resolve
 
 TEST_VECTOR_SPEC = {

@@ -1,4 +1,4 @@
-"""Trees declared as a generator and its parameters (build/generated.py): conf/tree/franka.yaml (conf/tree/fig1b.yaml
+"""Trees declared as a generator and its parameters (assembly/generated.py): conf/tree/franka.yaml (conf/tree/fig1b.yaml
 for the Panda of conf/robot/panda.yaml and the cylinder of conf/scene/franka_cylinder.yaml) expands to the paper's
 Panda tree, and bad declarations are refused with the path of the key at fault."""
 from __future__ import annotations
@@ -11,8 +11,8 @@ import yaml
 from pydantic import Field
 
 import rmpfusion  # noqa: F401  (registers the built-in generators)
-from rmpfusion.build.errors import ConfigError
-from rmpfusion.build.generated import expand_tree
+from rmpfusion.assembly.errors import ConfigError
+from rmpfusion.assembly.generated import expand_tree
 from rmpfusion.registry import TREE_GENERATORS, Params
 
 CONF = Path(__file__).resolve().parents[1] / "conf"

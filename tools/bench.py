@@ -96,7 +96,7 @@ def compose(experiment: str, overrides: list[str] | None = None):
 
 
 def learner_2d2level(seed: int = 0):
-    from rmpfusion.pipeline.validate import build_learners, make_env
+    from rmpfusion.pipeline.construct import build_learners, make_env
 
     cfg = compose("2d2level")
     env = make_env(cfg)
@@ -111,8 +111,8 @@ def franka_expert(n_obstacles: int = 1):
     from hydra import compose as hcompose, initialize_config_dir
     from omegaconf import OmegaConf
 
-    from rmpfusion.build.generated import expand_tree
-    from rmpfusion.build.weighting import tree_with_weights
+    from rmpfusion.assembly.generated import expand_tree
+    from rmpfusion.assembly.weighting import tree_with_weights
     from rmpfusion.cli import CONF_DIR
     from rmpfusion.registry import ENVS
 

@@ -21,8 +21,9 @@ import torch
 from hydra import compose, initialize_config_dir
 
 from rmpfusion.cli import CONF_DIR
-from rmpfusion.pipeline.validate import build_all, expert_spec, resolve_and_validate
-from rmpfusion.build.tree import build_tree
+from rmpfusion.pipeline.construct import build_all, expert_spec
+from rmpfusion.pipeline.validate import resolve_and_validate
+from rmpfusion.assembly.tree import build_tree
 from rmpfusion.pipeline.collect import SPLIT_SEED_OFFSET
 
 

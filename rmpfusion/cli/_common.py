@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from typing import Any, Callable, Iterator
 
 import hydra
-from ..build.errors import ConfigError
+from ..assembly.errors import ConfigError
 from ..registry import PluginError, RegistryError
 from ..files import atomic_write_bytes
 from .rundir import RESOLVED

@@ -7,10 +7,11 @@ from __future__ import annotations
 
 from omegaconf import DictConfig
 
-from ..build.spec import weight_label
+from ..assembly.spec import weight_label
 from ..evaluate.weights import learned_edges
 from ._common import config_errors_exit, hydra_app
-from ..pipeline.validate import build_all, resolve_and_validate
+from ..pipeline.construct import build_all
+from ..pipeline.validate import resolve_and_validate
 
 
 def summary(run, env, expert, learners) -> str:

@@ -1,6 +1,6 @@
 """RMPTree: built modules arranged as a tree, evaluating RMPfusion's policy.
 
-The tree knows its shape (``TreeLayout``) and its modules, nothing of YAML or registries: ``build/`` turns
+The tree knows its shape (``TreeLayout``) and its modules, nothing of YAML or registries: ``assembly/`` turns
 a validated spec into both.
 
 Evaluation is level-batched (docs/math.md §9): the tree plans once which nodes evaluate together
@@ -24,7 +24,7 @@ from .algebra import Edge, NodeRMP, lu_solve, resolve
 from .auxstate import AuxDict
 from .diagnosis import NumericalError, bad_input, bad_node
 from .groups import Plan, plan as plan_tree
-from .layout import NodeLabel, TreeLayout, breadth_first  # noqa: F401  (re-exported: build/ and tests use them here)
+from .layout import NodeLabel, TreeLayout, breadth_first  # noqa: F401  (re-exported: assembly/ and tests use them here)
 from .passes import Passes, evaluate
 from .weight import BoundWeight  # noqa: F401  (re-exported)
 

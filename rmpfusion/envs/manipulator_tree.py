@@ -16,7 +16,7 @@ from typing import Any, Literal, Mapping
 import torch
 from pydantic import Field, field_validator
 
-from ..build.weighting import tree_with_weights as with_weights  # noqa: F401  (expert configs: node or shared-weight names)
+from ..assembly.weighting import tree_with_weights as with_weights  # noqa: F401  (expert configs: node or shared-weight names)
 from ..core.auxstate import AuxOrValue
 from ..maps.kinematics import Chain
 from ..maps.orientation import check_direction

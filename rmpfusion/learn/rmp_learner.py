@@ -9,9 +9,9 @@ from typing import Any, Mapping
 from pydantic import Field
 from torch import Tensor
 
-from ..build.errors import ConfigError, Issue
-from ..build.tree import build_tree
-from ..build.weighting import expand_aux, tree_with_weights
+from ..assembly.errors import ConfigError, Issue
+from ..assembly.tree import build_tree
+from ..assembly.weighting import expand_aux, tree_with_weights
 from ..core.learnable import learned_values
 from ..core.tree import RMPTree, TreeOutput
 from ..registry import LEARNERS, Params

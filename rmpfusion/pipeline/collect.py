@@ -9,7 +9,7 @@ from pathlib import Path
 
 import torch
 
-from ..build.weighting import plain_data
+from ..assembly.weighting import plain_data
 from ..envs.demonstrations import Dataset, load_dataset, save_dataset
 from .config import RunConfig
 from .experiment import Experiment

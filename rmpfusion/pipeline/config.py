@@ -12,7 +12,7 @@ from pydantic import (BaseModel, BeforeValidator, ConfigDict, Field, ValidationE
                       model_validator)
 from pydantic_core import InitErrorDetails, PydanticCustomError
 
-from ..build.spec import TreeSpec, TypedBlock, tree_spec_model, typed_union, weight_field
+from ..assembly.spec import TreeSpec, TypedBlock, tree_spec_model, typed_union, weight_field
 from ..envs.common import time_grid
 from ..learn import methods  # noqa: F401  (the built-in training methods register themselves)
 from ..learn.config import DEFAULT_METHOD, RENAMED_KEYS, TrainConfig, TrainParams, _renamed, upgrade_train_config  # noqa: F401

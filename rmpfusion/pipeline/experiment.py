@@ -11,14 +11,15 @@ from typing import Any, Callable, Mapping
 import torch
 from torch import Tensor
 
-from ..build.errors import ConfigError, Issue
+from ..assembly.errors import ConfigError, Issue
 from ..core.tree import RMPTree
 from ..envs.common import on_device
 from ..envs.demonstrations import Dataset
 from ..envs.protocol import ComputesOn, Env
 from .config import RunConfig
+from .construct import build_expert, make_env
 from .progress import Progress
-from .validate import build_expert, make_env, typed
+from .validate import typed
 
 #: metrics.json's and the logger's sink for scalar metrics: ``log({"iteration": i, "<name>/<key>": value})``
 Log = Callable[[dict[str, float]], Any]

@@ -20,7 +20,7 @@ from ..learn.method import MethodContext, TrainingMethod
 from ..registry import TRAIN_METHODS
 from .collect import Splits
 from .experiment import Experiment
-from .validate import build_learners
+from .construct import build_learners
 
 
 class NotTrainedError(RuntimeError):

@@ -7,11 +7,13 @@ aux names against the chosen environment, expert names against the tree, learner
 the tree, map dimensions against RMP dimensions by building the trees. All issues are collected into one
 :class:`ConfigError` whose lines name config paths, so a user fixes a config in one pass and nothing is ever
 run on a config that would fail later.
+
+Of the three jobs between a composed config and a run, this module is the middle one: ``migrate.py`` answers
+keys and names that stored configs still carry, ``construct.py`` builds the experiment's objects.
 """
 from __future__ import annotations
 
 import difflib
-from contextlib import nullcontext
 from typing import Any, Mapping, Sequence
 
 import torch
@@ -19,16 +21,14 @@ from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 from pydantic import BaseModel, ValidationError
 
-from ..build.errors import ConfigError, Issue, issues_from_pydantic
-from ..build.generated import expand_tree
-from ..build.spec import check_typed, shared_ref, validate_tree_spec
-from ..build.tree import build_tree
-from ..build.weighting import plain_data, tree_with_weights
+from ..assembly.errors import ConfigError, Issue, issues_from_pydantic
+from ..assembly.generated import expand_tree
+from ..assembly.spec import check_typed, validate_tree_spec
 from ..core.auxstate import AuxOrValue
-from ..core.tree import RMPTree
-from ..learn.learners import build_learner, build_order
 from ..registry import ENVS, LEAF_RMPS, TASK_MAPS, TRAIN_METHODS, WEIGHTS, Registry
-from .config import RENAMED_KEYS, RunConfig, run_config_model
+from .config import RunConfig, run_config_model
+from .construct import build_expert, build_learners
+from .migrate import renamed_issues, retired_issues
 
 #: Weight-spec keys whose string values (or lists of strings) name aux state.
 _AUX_LIST_KEYS = ("aux",)
@@ -57,40 +57,13 @@ def _to_container(cfg: DictConfig | Mapping[str, Any]) -> dict[str, Any]:
         raise ConfigError([Issue(str(key), f"cannot resolve: {getattr(e, 'msg', None) or e}")]) from None
 
 
-# ------------------------------------------------------------------ before the schema
-#: (block, key, value) of names that configs stored before robots and scenes became data still carry -> what to
-#: write instead (the experiments and config groups of conf/ kept their names: compose them anew)
-RETIRED = {
-    ("env", "type", "franka"): "the environment 'franka' became 'manipulator', which takes its robot and scene from "
-                               "conf/robot/ and conf/scene/; compose the experiment anew (experiment=franka keeps "
-                               "its name and protocol)",
-    ("tree", "generator", "franka_fig1b"): "the generator 'franka_fig1b' became 'fig1b', which takes the robot and the "
-                                           "scene (conf/tree/fig1b.yaml reads the environment's); compose the "
-                                           "experiment anew (tree=franka keeps its name)",
-}
-
-
-def _retired_issues(data: Mapping[str, Any]) -> list[Issue]:
-    """A stored config naming a retired environment or generator gets what to write instead, not 'unknown name'."""
-    return [Issue(f"{block}.{key}", f"{value!r} was retired: {fix}") for (block, key, value), fix in RETIRED.items()
-            if isinstance(data.get(block), Mapping) and data[block].get(key) == value]
-
-
-def _upgrade_issues(data: dict[str, Any]) -> list[Issue]:
-    """Renamed keys get their new name (not "unknown key"); a device this machine does not have is named, never
-    ignored. Both are removed from ``data`` so the rest of the config is still checked and every problem reported."""
-    issues = []
-    for block, names in RENAMED_KEYS.items():
-        for old, new in names.items():
-            if isinstance(data.get(block), Mapping) and old in data[block]:
-                issues.append(Issue(f"{block}.{old}", f"was renamed {block}.{new}; write {block}.{new}="
-                                                      f"{data[block][old]!r} instead"))
-                data[block] = {k: v for k, v in data[block].items() if k != old}
+def _device_issues(data: dict[str, Any]) -> list[Issue]:
+    """A device this machine does not have is named, never ignored; the rest is checked as on the CPU."""
     missing = device_problem(data.get("device", "cpu"))
-    if missing is not None:
-        issues.append(Issue("device", missing))
-        data["device"] = "cpu"
-    return issues
+    if missing is None:
+        return []
+    data["device"] = "cpu"
+    return [Issue("device", missing)]
 
 
 def device_problem(device: Any) -> str | None:
@@ -139,7 +112,7 @@ def parse_run_config(data: Mapping[str, Any]) -> RunConfig:
     try:
         return model.model_validate(dict(data))
     except ValidationError as e:
-        raise ConfigError(_dedupe(_retired_issues(data) + issues_from_pydantic(e, "", model))) from None
+        raise ConfigError(_dedupe(retired_issues(data) + issues_from_pydantic(e, "", model))) from None
 
 
 def typed(run: RunConfig) -> RunConfig:
@@ -149,11 +122,6 @@ def typed(run: RunConfig) -> RunConfig:
 
 
 # ------------------------------------------------------------------ cross-field checks
-def make_env(run: RunConfig):
-    """The run's environment, built from its validated block."""
-    return ENVS.get(run.env.type).obj(run.env)
-
-
 def _make_env(data: Mapping[str, Any]) -> tuple[Any, list[Issue]]:
     """The config's environment (None if it cannot be made: its problems are reported by the schema, or here
     when creating it fails)."""
@@ -286,40 +254,6 @@ def _aux_issues(data: Mapping[str, Any], env_type: str, aux_dims: Mapping[str, i
     return issues
 
 
-# ------------------------------------------------------------------ building
-def expert_spec(run: RunConfig) -> dict:
-    """The tree with the expert's weights: on edges by node name, or replacing a shared weight by its name."""
-    return tree_with_weights(run.tree, run.expert, where="expert")
-
-
-def build_expert(run: RunConfig, aux_dims: Mapping[str, int]) -> RMPTree:
-    """The expert tree; a problem with one of the expert's weights is reported at ``expert.<name>``."""
-    return build_tree(expert_spec(run), aux_dims=aux_dims,
-                      weight_paths={n: f"expert.{n}" for n in run.expert if n in run.tree.nodes})
-
-
-def build_learners(run: RunConfig, aux_dims: Mapping[str, int], seeded=None) -> dict:
-    """Every learner, in an order where ``match_parameters_of`` targets come first. ``seeded(name)`` is a
-    context entered around each construction (the pipeline draws each learner's initial weights from its
-    own seed); problems are reported at ``learners.<name>``."""
-    blocks = {n: b.model_dump() for n, b in run.learners.items()}
-    tree, expert = run.tree.model_dump(), {k: plain_data(w) for k, w in run.expert.items()}
-    built: dict = {}
-    issues: list[Issue] = []
-    for n in build_order(blocks):
-        try:
-            with (seeded(n) if seeded is not None else nullcontext()):
-                built[n] = build_learner(blocks[n], tree, aux_dims, run.tree.root.dim, expert=expert,
-                                         built=built, where=f"learners.{n}")
-        except ConfigError as e:
-            issues += e.issues
-        except (ValueError, KeyError, TypeError) as e:
-            issues.append(Issue(f"learners.{n}", str(e)))
-    if issues:
-        raise ConfigError(issues)
-    return built
-
-
 def _build_issues(run: RunConfig, aux_dims: Mapping[str, int]) -> list[Issue]:
     """Build the expert tree and the learners once: dimensions are only known then."""
     try:
@@ -337,9 +271,9 @@ def resolve_and_validate(cfg: DictConfig | Mapping[str, Any]) -> RunConfig:
     otherwise. Building the trees is part of the check (dimensions are only known then).
     """
     data = _to_container(cfg)
-    retired = _retired_issues(data)
+    retired = retired_issues(data)
     generation = _expanded_tree(data)
-    issues = retired + _upgrade_issues(data) + generation
+    issues = retired + renamed_issues(data) + _device_issues(data) + generation
     env, env_issues = _make_env(data)
     aux_dims = dict(env.aux_dims()) if env is not None else None
     issues += env_issues
@@ -371,8 +305,3 @@ def validate_graph(run: RunConfig) -> None:
     validate_tree_spec(run.tree, "tree")
 
 
-def build_all(run: RunConfig):
-    """``(env, expert_tree, learners)`` for a validated config: everything an experiment runs on."""
-    env = make_env(run)
-    aux_dims = dict(env.aux_dims())
-    return env, build_expert(run, aux_dims), build_learners(run, aux_dims)
