@@ -1,0 +1,95 @@
+"""One recorded demonstration as a user's file holds it, and the one error every reader raises.
+
+A recording is what a person measured (kinesthetic teaching, teleoperation, motion capture, a planner's output),
+not what an RMP tree produced: timestamps may be irregular, velocities may be absent, and the first and last
+seconds are often the arm at rest. Everything downstream (resampling, differentiation, trimming, splits) reads
+this one type, whatever the file format was.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+class RecordingError(ValueError):
+    """A recording that cannot be used: the message names the file, and the row and column where there is one."""
+
+
+def where(source: str, row: int | None = None, column: str | None = None) -> str:
+    """``file``, ``file, row 12`` or ``file, row 12, column 'q3'``: the place a RecordingError points at.
+    Rows count from 1 as a spreadsheet or an editor shows them (for a CSV, the header is row 1)."""
+    out = source
+    if row is not None:
+        out += f", row {row}"
+    if column is not None:
+        out += f", column {column!r}"
+    return out
+
+
+@dataclass
+class Recording:
+    """One demonstration: positions ``pos`` (T, d) at times ``t`` (T,) in seconds, strictly increasing.
+
+    ``vel`` and ``acc`` are (T, d) when the file gave them (else None: they are derived by one smoothing
+    differentiator for the whole dataset, never mixed). ``aux`` holds per-demonstration auxiliary state (a goal,
+    an obstacle pose): name -> (k,) constant over the demonstration. ``source`` names the file (and the
+    demonstration inside it) for every later error; ``columns`` names the coordinates.
+    """
+
+    t: np.ndarray
+    pos: np.ndarray
+    source: str
+    columns: tuple[str, ...]
+    vel: np.ndarray | None = None
+    acc: np.ndarray | None = None
+    aux: dict[str, np.ndarray] = field(default_factory=dict)
+    #: file rows of the samples (for messages): row_of[i] is the file row of sample i
+    rows: np.ndarray | None = None
+
+    def __post_init__(self):
+        self.t = np.asarray(self.t, dtype=np.float64)
+        self.pos = np.asarray(self.pos, dtype=np.float64)
+        if self.pos.ndim == 1:
+            self.pos = self.pos[:, None]
+        check_recording(self)
+
+    @property
+    def dim(self) -> int:
+        return self.pos.shape[1]
+
+    @property
+    def duration(self) -> float:
+        return float(self.t[-1] - self.t[0])
+
+    def row(self, i: int) -> int | None:
+        return int(self.rows[i]) if self.rows is not None else None
+
+
+def check_recording(rec: Recording) -> None:
+    """Refuse what no later step can repair, naming the file, row and column: a time column that is not
+    strictly increasing, non-finite values, arrays whose lengths or widths disagree."""
+    if rec.t.ndim != 1 or rec.pos.shape[0] != rec.t.shape[0]:
+        raise RecordingError(f"{rec.source}: {rec.t.shape[0]} timestamps but {rec.pos.shape[0]} positions; every "
+                             "sample needs one time and one position")
+    if rec.pos.shape[1] != len(rec.columns):
+        raise RecordingError(f"{rec.source}: positions have {rec.pos.shape[1]} coordinates but {len(rec.columns)} "
+                             f"column names were given ({', '.join(rec.columns)})")
+    if rec.t.shape[0] < 2:
+        raise RecordingError(f"{rec.source}: {rec.t.shape[0]} sample(s); a demonstration needs at least two")
+    for name, values in (("t", rec.t[:, None]), *((c, rec.pos[:, [k]]) for k, c in enumerate(rec.columns))):
+        bad = np.flatnonzero(~np.isfinite(values[:, 0]))
+        if bad.size:
+            raise RecordingError(f"{where(rec.source, rec.row(int(bad[0])), name)}: {float(values[bad[0], 0])} is not a finite "
+                                 f"number ({bad.size} such value(s) in this column); fill or drop those samples")
+    for label, arr in (("velocity", rec.vel), ("acceleration", rec.acc)):
+        if arr is not None and (arr.shape != rec.pos.shape or not np.isfinite(arr).all()):
+            raise RecordingError(f"{rec.source}: the {label} columns must be finite and shaped like the positions "
+                                 f"{rec.pos.shape}; given {arr.shape}")
+    step = np.diff(rec.t)
+    bad = np.flatnonzero(step <= 0)
+    if bad.size:
+        i = int(bad[0]) + 1
+        raise RecordingError(f"{where(rec.source, rec.row(i), 't')}: time {float(rec.t[i])!r} does not increase (the sample "
+                             f"before is at {float(rec.t[i - 1])!r}); timestamps must be strictly increasing: sort the samples "
+                             "or drop the duplicate")
