@@ -176,6 +176,12 @@ MAP_EXAMPLES: dict[str, list[Example]] = {
     "velocity_scaled_joints": [Example(PANDA, 7, state=panda_states),
                                Example({"urdf": IIWA, "velocity_limit": [1.0, 2.0, 1.5, 1.0, 3.0, 2.0, 2.5]},
                                        7, state=iiwa_states)],
+    "diffeomorphism": [Example({}, 2, scale=2.0),
+                       Example({"layers": 3, "hidden": [8], "activation": "softplus", "init_std": 0.5, "origin": "c"}, 2,
+                               scale=2.0),
+                       Example({"layers": 2, "hidden": [6, 6], "activation": "silu", "init_std": 0.4,
+                                "origin": [0.1, 0.2, 0.3]}, 3, scale=2.0)],
+    "normalize": [Example({"shift": [0.1, -0.2], "scale": [0.05, 2.0]}, 2), Example({"scale": 40.0}, 3)],
     "moving_offset": [Example({"origin": "c", "velocity": "goal_velocity"}, 2, scale=3.0),
                       Example({"origin": [0.5, -1.0, 0.2], "velocity": [0.1, 0.0, -0.3]}, 3, scale=3.0)],
 }

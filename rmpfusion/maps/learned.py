@@ -1,0 +1,184 @@
+"""Task maps learned from demonstrations, and the fixed normalisation in front of them.
+
+``diffeomorphism``: y = ψ(x) a composition of affine coupling layers (Dinh et al., "Density estimation using
+Real NVP"): each layer keeps one part x_a of the coordinates and maps the other part as
+x_b ↦ x_b ⊙ exp(s(x_a)) + t(x_a), with s, t small networks of smooth activations. Each layer is a bijection of
+ℝⁿ onto ℝⁿ for any parameters (for fixed x_a it is an affine bijection of x_b, and exp(s) > 0), smooth, with a
+smooth inverse, so ψ is a diffeomorphism onto ℝⁿ by construction: an attractor at ψ(goal) in y has ψ⁻¹ of its
+single equilibrium as the only equilibrium in x (docs/math.md, "Learned task maps"). ``s`` is bounded by
+``scale_bound``·tanh so no layer stretches a direction by more than exp(scale_bound). y, J and J̇ẋ come out of
+one pass of a second-order jet (``core/jet.py``); the tests hold them to the autodiff of ``TaskMap``.
+
+``normalize``: y = (x − shift) / scale with constants: the leaves' gains are tuned for coordinates of order one,
+so demonstrations in other scales (a handwriting tablet's centimetres, a tabletop's decimetres) are brought to
+that scale before any leaf or learned map sees them.
+"""
+from __future__ import annotations
+
+from typing import Literal, Mapping
+
+import torch
+from pydantic import Field, field_validator
+from torch import Tensor, nn
+
+from ..core.auxstate import CONSTANT_DTYPE, AuxOrValue, AuxParam, constant
+from ..core.jet import SMOOTH, Jet, exp3, tanh3
+from ..core.taskmap import TaskMap
+from ..registry import TASK_MAPS, Params
+
+def coupling_masks(dim: int, layers: int) -> list[Tensor]:
+    """Which coordinates each layer keeps (True) and transforms (False): the first ⌊n/2⌋ and then the rest,
+    alternating, so that after two layers every coordinate has been transformed."""
+    first = torch.arange(dim) < dim // 2
+    return [first if k % 2 == 0 else ~first for k in range(layers)]
+
+
+class Coupling(nn.Module):
+    """x_b ↦ x_b ⊙ exp(s(x_a)) + t(x_a) on the coordinates ``~keep``, x_a = x[keep] unchanged; evaluated on a
+    ``Jet`` (``core/jet.py``), so y, J and J̇ẋ come out of one pass."""
+
+    def __init__(self, keep: Tensor, hidden: tuple[int, ...], activation: str, scale_bound: float):
+        super().__init__()
+        self.register_buffer("kept", keep.nonzero().flatten(), persistent=False)
+        self.register_buffer("moved", (~keep).nonzero().flatten(), persistent=False)
+        self.register_buffer("order", torch.cat([self.kept, self.moved]).argsort(), persistent=False)
+        widths = (len(self.kept), *hidden)
+        self.hidden = nn.ModuleList(nn.Linear(a, b, dtype=CONSTANT_DTYPE) for a, b in zip(widths[:-1], widths[1:]))
+        self.head = nn.Linear(widths[-1], 2 * len(self.moved), dtype=CONSTANT_DTYPE)
+        self.activation = SMOOTH[activation]
+        self.scale_bound = scale_bound
+
+    def _bounded(self, z: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        """β·tanh(z/β) and its two derivatives: the log-scale, |s| < β."""
+        t, d, dd = tanh3(z / self.scale_bound)
+        return self.scale_bound * t, d, dd / self.scale_bound
+
+    def scale_shift(self, a: Jet) -> tuple[Jet, Jet]:
+        """(s, t) of the kept coordinates: the log-scale and the shift of the moved ones."""
+        h = a
+        for layer in self.hidden:
+            h = h.affine(layer.weight, layer.bias).pointwise(self.activation)
+        out = h.affine(self.head.weight, self.head.bias)
+        n = len(self.moved)
+        s = out.take(torch.arange(n, device=out.value.device)).pointwise(self._bounded)
+        return s, out.take(torch.arange(n, 2 * n, device=out.value.device))
+
+    def forward(self, x: Jet) -> Jet:
+        a = x.take(self.kept)
+        s, t = self.scale_shift(a)
+        b = x.take(self.moved) * s.pointwise(exp3) + t
+        return Jet.cat([a, b], self.order)
+
+    def inverse(self, y: Tensor) -> Tensor:
+        a = y[..., self.kept]
+        zero = torch.zeros(*a.shape, 1, dtype=a.dtype, device=a.device)
+        s, t = self.scale_shift(Jet(a, zero, torch.zeros_like(a), torch.zeros_like(a)))
+        b = (y[..., self.moved] - t.value) * torch.exp(-s.value)
+        return torch.cat([a, b], -1)[..., self.order]
+
+
+@TASK_MAPS.register("diffeomorphism")
+class Diffeomorphism(TaskMap):
+    """y = ψ(x) − ψ(origin): a learnable diffeomorphism of ℝⁿ onto ℝⁿ (coupling layers), shifted so that
+    ``origin`` (a goal: constant or aux) maps to 0, where an attractor leaf puts its equilibrium; ``inverse``
+    gives x back from y."""
+
+    class Params(Params):
+        layers: int = Field(4, ge=1, description="coupling layers (alternating halves: ≥ 2 moves every coordinate)")
+        hidden: tuple[int, ...] = Field((32, 32), description="hidden widths of each layer's scale/shift network")
+        activation: Literal["tanh", "softplus", "silu"] = Field(
+            "tanh", description="smooth activations only: J̇ẋ needs the networks' second derivatives")
+        scale_bound: float = Field(2.0, gt=0, description="|log-scale| of a layer stays below this (stretch ≤ e^bound)")
+        origin: AuxOrValue | None = Field(None, description="the point mapped to 0 (a goal); null: ψ itself")
+        init_std: float = Field(0.1, ge=0, description="std of the output layers' initial weights (0: the identity "
+                                                       "map at initialisation; learner-0 is this random map)")
+
+        @field_validator("hidden")
+        @classmethod
+        def _positive(cls, v: tuple[int, ...]):
+            if not v or any(h < 1 for h in v):
+                raise ValueError(f"hidden must list at least one width, each ≥ 1; given {list(v)}")
+            return v
+
+    def __init__(self, params: Params, in_dim: int, aux_dims: Mapping[str, int] | None = None):
+        super().__init__(in_dim, aux_dims)
+        if in_dim < 2:
+            raise ValueError(f"diffeomorphism needs a parent space of dimension ≥ 2 (a coupling layer keeps some "
+                             f"coordinates to transform the others); the parent has {in_dim}")
+        self.out_dim = in_dim
+        self.layers = nn.ModuleList(Coupling(keep, tuple(params.hidden), params.activation, params.scale_bound)
+                                    for keep in coupling_masks(in_dim, params.layers))
+        self.origin = AuxParam(params.origin, self.aux_dims, "diffeomorphism.origin") \
+            if params.origin is not None else None
+        if self.origin is not None and self.origin.dim != in_dim:
+            raise ValueError(f"diffeomorphism.origin has dimension {self.origin.dim} but the parent space has {in_dim}")
+        with torch.no_grad():
+            for layer in self.layers:
+                nn.init.normal_(layer.head.weight, std=params.init_std)
+                nn.init.normal_(layer.head.bias, std=params.init_std)
+
+    def flow(self, x: Jet) -> Jet:
+        """ψ on a jet: the coupling layers in order."""
+        for layer in self.layers:
+            x = layer(x)
+        return x
+
+    def _origin_image(self, x: Tensor, aux) -> Tensor:
+        origin = self.origin(aux).to(x).expand_as(x)
+        return self.flow(Jet.seed(origin, torch.zeros_like(origin))).value
+
+    def forward(self, x: Tensor, xd: Tensor, aux=None):
+        out = self.flow(Jet.seed(x, xd))
+        y = out.value if self.origin is None else out.value - self._origin_image(x, aux)
+        return y, out.vel, out.jac, out.curv
+
+    def psi(self, x: Tensor, aux) -> Tensor:
+        return self.forward(x, torch.zeros_like(x), aux)[0]
+
+    def jacobian(self, x: Tensor, aux) -> Tensor:
+        return self.forward(x, torch.zeros_like(x), aux)[2]
+
+    def curvature(self, x: Tensor, xd: Tensor, aux, J: Tensor) -> Tensor:
+        return self.forward(x, xd, aux)[3]
+
+    def inverse(self, y: Tensor, aux=None) -> Tensor:
+        """x with psi(x, aux) = y."""
+        if self.origin is not None:
+            y = y + self._origin_image(y, aux)
+        for layer in reversed(self.layers):
+            y = layer.inverse(y)
+        return y
+
+
+@TASK_MAPS.register("normalize")
+class Normalize(TaskMap):
+    """y = (x − shift) / scale: constants (a number for every coordinate, or one per coordinate)."""
+
+    class Params(Params):
+        shift: float | tuple[float, ...] = Field(0.0, description="subtracted first (e.g. the demonstrations' goal)")
+        scale: float | tuple[float, ...] = Field(1.0, description="then divided by (e.g. the demonstrations' extent)")
+
+        @field_validator("scale")
+        @classmethod
+        def _positive(cls, v):
+            if any(s <= 0 for s in ((v,) if isinstance(v, (int, float)) else v)):
+                raise ValueError(f"scale must be > 0 in every coordinate (the map divides by it); given {v!r}")
+            return v
+
+    def __init__(self, params: Params, in_dim: int, aux_dims: Mapping[str, int] | None = None):
+        super().__init__(in_dim, aux_dims)
+        self.out_dim = in_dim
+        for name in ("shift", "scale"):
+            v = getattr(params, name)
+            v = (float(v),) * in_dim if isinstance(v, (int, float)) else tuple(v)
+            if len(v) != in_dim:
+                raise ValueError(f"normalize.{name} has {len(v)} entries but the parent space has {in_dim}")
+            self.register_buffer(name, constant(v))
+
+    def psi(self, x: Tensor, aux) -> Tensor:
+        return (x - self.shift.to(x)) / self.scale.to(x)
+
+    def forward(self, x: Tensor, xd: Tensor, aux=None):
+        inv = 1.0 / self.scale.to(x)
+        J = torch.diag_embed(inv.expand_as(x))
+        return self.psi(x, aux), xd * inv, J, torch.zeros_like(x)
