@@ -170,3 +170,36 @@ def test_holdout_and_leave_one_out_split_whole_demonstrations():
     assert all(set(f.train).isdisjoint(f.val + f.test) and len(f.train) == 5 for f in folds)
     with pytest.raises(RecordingError, match="cannot split 3 demonstration"):
         holdout(3, val=1, test=2)
+
+
+# ------------------------------------------------------------------------------------------------ joint space
+def panda():
+    import yaml
+    from pathlib import Path
+    from rmpfusion.robots import RobotDescription
+    path = Path(__file__).resolve().parents[1] / "conf" / "robot" / "panda.yaml"
+    return RobotDescription.model_validate(yaml.safe_load(path.read_text()))
+
+
+def joint_csv(tmp_path, header, rows):
+    text = ",".join(header) + "\n" + "\n".join(",".join(str(v) for v in r) for r in rows) + "\n"
+    return read_csv(write(tmp_path / "arm.csv", text), columns=header[1:])
+
+
+def test_joint_recordings_are_checked_against_the_robot_file(tmp_path):
+    from rmpfusion.recordings import check_joint_recordings
+    robot = panda()
+    joints = list(robot.joints)
+    home = list(robot.home)
+    good = joint_csv(tmp_path, ["t", *joints], [[0.0, *home], [0.1, *home]])
+    check_joint_recordings(good, robot)
+    with pytest.raises(RecordingError, match=r"6 coordinates per sample, but the robot 'panda' has 7"):
+        check_joint_recordings(joint_csv(tmp_path, ["t", *joints[:6]], [[0.0, *home[:6]], [0.1, *home[:6]]]), robot)
+    swapped = [joints[1], joints[0], *joints[2:]]
+    with pytest.raises(RecordingError, match="not the robot's joints \\(in another order\\)"):
+        check_joint_recordings(joint_csv(tmp_path, ["t", *swapped], [[0.0, *home], [0.1, *home]]), robot)
+    past = home.copy()
+    past[3] = 0.5  # panda_joint4 spans [-3.07, -0.07]
+    with pytest.raises(RecordingError, match=r"arm\.csv, row 3, column 'panda_joint4': 0\.5 lies outside "
+                                             r"panda_joint4's limits"):
+        check_joint_recordings(joint_csv(tmp_path, ["t", *joints], [[0.0, *home], [0.1, *past]]), robot)

@@ -6,8 +6,9 @@ from .readers import UNITS, read_csv, read_hdf5, read_npz
 from .recording import Recording, RecordingError
 from .signals import States, moving_span, resample, savgol_derivatives, to_states
 from .dataset import recorded_dataset
+from .joints import check_joint_recordings
 from .splits import Split, holdout, leave_one_out
 
 __all__ = ["Recording", "RecordingError", "read_csv", "read_npz", "read_hdf5", "read_lasa", "lasa_file", "SHAPES",
            "SINGLE_PATTERN_SHAPES", "UNITS", "States", "resample", "savgol_derivatives", "moving_span", "to_states",
-           "Split", "holdout", "leave_one_out", "recorded_dataset"]
+           "Split", "holdout", "leave_one_out", "recorded_dataset", "check_joint_recordings"]
