@@ -4,16 +4,19 @@ One registry per kind (leaf RMP, task map, weight, env, ...). Built-ins and plug
 same decorator: a built-in when its package is imported (``import rmpfusion`` imports them all), a plugin
 declared under the ``rmpfusion.plugins`` entry-point group on the first lookup, never at ``import
 rmpfusion``. Every entry carries a pydantic model of its parameters, so YAML is validated by the entry that
-will consume it (and the run config's schema is generated from the registries, ``build.spec``).
+will consume it (and the run config's schema is generated from the registries, ``assembly.spec``), and the
+examples it is checked on against finite differences (``examples.Example``).
 """
 from __future__ import annotations
 
 import difflib
 from dataclasses import dataclass
 from importlib.metadata import entry_points
-from typing import Any, Callable, Generic, TypeVar
+from typing import Any, Callable, Generic, Iterable, TypeVar
 
 from pydantic import BaseModel, ConfigDict
+
+from .examples import Example
 
 T = TypeVar("T")
 
@@ -41,6 +44,7 @@ class Entry(Generic[T]):
     obj: T
     params: type[Params]
     owner: str  # module that registered it, named in clash errors
+    examples: tuple[Example, ...] = ()  # what its derivatives are checked on (tests/test_registry_derivatives.py)
 
     def validate(self, params: dict[str, Any]) -> Params:
         return self.params.model_validate(params)
@@ -65,13 +69,22 @@ class Registry(Generic[T]):
         self.version = 0
         self._entries: dict[str, Entry[T]] = {}
 
-    def register(self, name: str, params: type[Params] | None = None) -> Callable[[T], T]:
-        """Decorator: register ``obj`` under ``name``; its parameter model is ``params`` or ``obj.Params``."""
+    def register(self, name: str, params: type[Params] | None = None,
+                 examples: Iterable[Example] = ()) -> Callable[[T], T]:
+        """Decorator: register ``obj`` under ``name``; its parameter model is ``params`` or ``obj.Params``.
+
+        ``examples``: the configurations a task map, leaf RMP or weight function is checked on against finite
+        differences (``rmpfusion.examples.Example``), declared here so that a plugin ships its own."""
+        examples = tuple(examples)
 
         def deco(obj: T) -> T:
             model = params if params is not None else getattr(obj, "Params", None)
             if model is None or not (isinstance(model, type) and issubclass(model, BaseModel)):
                 raise TypeError(f"{self.kind} '{name}' ({_owner_of(obj)}) needs a pydantic Params model")
+            wrong = [type(e).__name__ for e in examples if not isinstance(e, Example)]
+            if wrong:
+                raise TypeError(f"{self.kind} '{name}' ({_owner_of(obj)}): examples must be "
+                                f"rmpfusion.examples.Example, got {', '.join(wrong)}")
             if name in self._entries:
                 other = self._entries[name]
                 if other.obj is obj:
@@ -80,7 +93,7 @@ class Registry(Generic[T]):
                     f"{self.kind} name '{name}' is registered twice: by {other.owner} and by {_owner_of(obj)}; "
                     f"rename one of them"
                 )
-            self._entries[name] = Entry(name, obj, model, _owner_of(obj))
+            self._entries[name] = Entry(name, obj, model, _owner_of(obj), examples)
             self.version += 1
             return obj
 

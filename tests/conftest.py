@@ -1,8 +1,14 @@
-"""Shared test helpers: float64 everywhere, finite differences, wandb never online."""
+"""Shared test helpers: float64 everywhere, finite differences, wandb never online, composed configs and the
+example plugin installed."""
 import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
 
 import pytest
 import torch
+from hydra import compose, initialize_config_dir
 
 os.environ.setdefault("WANDB_MODE", "disabled")
 os.environ.setdefault("MPLBACKEND", "Agg")
@@ -10,6 +16,33 @@ os.environ.setdefault("MPLBACKEND", "Agg")
 torch.set_default_dtype(torch.float64)
 # small batched linear algebra is dominated by thread hand-off on a 2-core machine
 torch.set_num_threads(1)
+
+
+ROOT = Path(__file__).resolve().parents[1]
+CONF = ROOT / "conf"
+PLUGIN_EXAMPLE = ROOT / "tests" / "plugin_example"
+#: the smallest run: tiny data and training, a fast evaluation, no wandb
+TINY = ["data=tiny", "train=tiny", "eval=fast", "logger=disabled"]
+
+
+def compose_cfg(overrides=(), hydra_cfg: bool = False):
+    """conf/config.yaml composed with ``overrides`` as the entry points compose it (neither resolved nor validated);
+    ``hydra_cfg`` includes the ``hydra`` node."""
+    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
+        return compose("config", overrides=list(overrides), return_hydra_config=hydra_cfg)
+
+
+@pytest.fixture(scope="session")
+def plugin_site(tmp_path_factory) -> Path:
+    """``pip install tests/plugin_example`` into a private target (a copy of the source, so the repo and the shared
+    virtualenv stay as they are); the commands that use the plugin get this directory on PYTHONPATH."""
+    root = tmp_path_factory.mktemp("plugin")
+    shutil.copytree(PLUGIN_EXAMPLE, root / "src")
+    site = root / "site"
+    subprocess.run([sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--no-build-isolation",
+                    "--target", str(site), str(root / "src")], check=True, capture_output=True, timeout=300)
+    assert (site / "hydra_plugins" / "rmpfusion_spring" / "searchpath.py").is_file()
+    return site
 
 
 def fd_jacobian(fn, x: torch.Tensor, eps: float = 1e-6) -> torch.Tensor:

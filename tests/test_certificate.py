@@ -3,7 +3,7 @@ import torch
 
 import rmpfusion
 from rmpfusion.evaluate import certify
-from test_stability import random_tree_spec, randomise_weights, setup
+from trees import setup
 
 
 def test_certificate_passes_on_random_trees_with_neural_weights():

@@ -4,25 +4,17 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
-from pathlib import Path
 
 import pytest
-from hydra import compose, initialize_config_dir
 
 from rmpfusion.assembly.errors import ConfigError
 from rmpfusion.pipeline.construct import build_all
 from rmpfusion.pipeline.validate import resolve_and_validate
 from rmpfusion.registry import LEAF_RMPS
 
-CONF = Path(__file__).resolve().parents[1] / "conf"
+from conftest import CONF, TINY, compose_cfg
+
 EXPERIMENTS = sorted(p.stem for p in (CONF / "experiment").glob("*.yaml"))
-TINY = ["data=tiny", "train=tiny", "eval=fast", "logger=disabled"]
-
-
-def compose_cfg(overrides=(), hydra_cfg=False):
-    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        return compose("config", overrides=list(overrides), return_hydra_config=hydra_cfg)
-
 
 #: The map a leaf that reads a particular map's output (LeafRMP.coordinates) is tried under, on the 2-D root.
 MAP_FOR_COORDINATES = {"moving_offset": "{type: moving_offset, origin: goal, velocity: [0.1, -0.2]}"}

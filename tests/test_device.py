@@ -7,11 +7,9 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
-from pathlib import Path
 
 import pytest
 import torch
-from hydra import compose, initialize_config_dir
 from pydantic import ValidationError
 
 import rmpfusion
@@ -21,17 +19,11 @@ from rmpfusion.envs.common import OnDevice, on_device
 from rmpfusion.envs.protocol import ComputesOn
 from rmpfusion.pipeline.config import RunConfig
 from rmpfusion.pipeline.validate import resolve_and_validate
-from test_grouped_evaluation import grouping_tree_spec
-from test_tree import TWO_LEVEL, two_level_inputs
+from conftest import compose_cfg
+from trees import TWO_LEVEL, grouping_tree_spec, two_level_inputs
 
-CONF = Path(__file__).resolve().parents[1] / "conf"
 cuda = pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device on this machine")
 no_cuda = pytest.mark.skipif(torch.cuda.is_available(), reason="this machine has a CUDA device")
-
-
-def compose_cfg(overrides=()):
-    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        return compose("config", overrides=list(overrides))
 
 
 def test_device_cpu_is_accepted():

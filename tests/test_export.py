@@ -11,7 +11,8 @@ import torch
 import rmpfusion
 from rmpfusion.core.export import export_tree
 from rmpfusion.learn.export import METADATA
-from test_tree import TWO_LEVEL, two_level_inputs
+from conftest import compose_cfg
+from trees import TWO_LEVEL, two_level_inputs
 
 #: Load an exported file in a fresh interpreter where rmpfusion cannot be imported, run it, print its outputs.
 RUN_WITHOUT_RMPFUSION = """
@@ -116,15 +117,11 @@ def test_the_aoti_package_equals_the_tree(tiny_run, tmp_path):
 
 def test_a_learner_without_a_tree_exports_its_policy(tmp_path):
     """learner-un is no tree: its forward is exported (q̈ only), and asking for M and f says why not."""
-    from hydra import compose, initialize_config_dir
-
-    from rmpfusion.cli import CONF_DIR
     from rmpfusion.learn.export import export_learner
     from rmpfusion.pipeline.construct import build_learners, make_env
     from rmpfusion.pipeline.validate import resolve_and_validate
 
-    with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
-        cfg = resolve_and_validate(compose("config", overrides=["experiment=2d2level_unstructured", "logger=disabled"]))
+    cfg = resolve_and_validate(compose_cfg(["experiment=2d2level_unstructured", "logger=disabled"]))
     env = make_env(cfg)
     learner = build_learners(cfg, env.aux_dims())["un"].double()
     q, qd, aux = env.sample(n_envs=1, n_per_env=3, seed=0)

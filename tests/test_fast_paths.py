@@ -9,7 +9,7 @@ import pytest
 import torch
 
 import rmpfusion
-from test_tree import TWO_LEVEL, two_level_inputs
+from trees import TWO_LEVEL, two_level_inputs
 
 FIELDS = ("qdd", "f", "M", "G", "B", "Phi", "V", "L")
 

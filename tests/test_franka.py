@@ -16,6 +16,7 @@ from rmpfusion.envs import Rollout  # noqa: E402
 from rmpfusion.envs.manipulator_tree import copy_weights, with_weights  # noqa: E402
 from rmpfusion.envs.manipulator import Manipulator  # noqa: E402
 from rmpfusion.envs.manipulator_tree import manipulator_tree_spec  # noqa: E402
+from conftest import compose_cfg  # noqa: E402
 from manipulators import cylinders, franka_env, franka_tree_spec, make_aux, robot  # noqa: E402
 from rmpfusion.evaluate import lyapunov_monotone, max_relative_increase  # noqa: E402
 from rmpfusion.registry import ENVS  # noqa: E402
@@ -339,8 +340,6 @@ def test_tiny_franka_experiment_end_to_end(tmp_path, rate):
     see conf/env/franka.yaml), so there only the expert is held to Theorem 2."""
     import json
 
-    from hydra import compose, initialize_config_dir
-
     from rmpfusion.pipeline.validate import resolve_and_validate
     from rmpfusion.pipeline.run import run_experiment
 
@@ -348,9 +347,7 @@ def test_tiny_franka_experiment_end_to_end(tmp_path, rate):
                  "data.test_trajectories=2", "data.points=6", "env.demo_min_duration=0.2",
                  "train.iterations=3", "train.batch_size=8", "train.snapshots=[0,3]", "train.checkpoint_every=3",
                  "train.log_every=1", "eval.horizon=0.5", "eval.compile=false", "env.render_times=[0.0,0.5]", "env.render_size=[64,48]"]
-    with initialize_config_dir(config_dir=os.path.join(ROOT, "conf"), version_base="1.3"):
-        cfg = compose("config", overrides=overrides)
-    run = resolve_and_validate(cfg)
+    run = resolve_and_validate(compose_cfg(overrides))
     run_experiment(run, tmp_path, progress=False)
     m = json.loads((tmp_path / "metrics.json").read_text())
     keys = {"time", "cspace_length", "ee_length", "timeout_goal_distance", "min_goal_distance"}

@@ -1,8 +1,6 @@
 """Level-batched evaluation (docs/math.md §9) against an independent node-by-node computation of eq. 6
 (tests/reference_tree.py), in float64 to 1e-12: random trees whose siblings group with a number per member, the
 Franka tree, and plugins' leaves (one that declares how it stacks, with a learned number, and one that does not)."""
-import random
-
 import pytest
 import torch
 from pydantic import Field
@@ -11,6 +9,7 @@ import rmpfusion
 from reference_tree import FIELDS, node_by_node
 from rmpfusion.core.gds import GDS
 from rmpfusion.registry import LEAF_RMPS, Params
+from trees import grouping_tree_spec
 
 TOL = 1e-12
 
@@ -20,54 +19,6 @@ def _assert_equal(out, ref, tol=TOL):
         a, b = getattr(out, k), ref[k]
         scale = 1.0 + b.abs().max()
         assert (a - b).abs().max() <= tol * scale, f"{k}: {(a - b).abs().max():.3e} (scale {scale:.3g})"
-
-
-def grouping_tree_spec(seed: int, dim: int = 3) -> dict:
-    """A tree whose nodes group: several attractors, barriers, joint limits, dampers and distances of each kind,
-    every member with its own numbers, aux entries or constants; shared and unshared neural weights, designed
-    weights and unweighted edges; three levels."""
-    rng = random.Random(seed)
-    u = rng.uniform
-    vec = lambda: [u(-1.5, 1.5) for _ in range(dim)]  # noqa: E731
-    mlp = lambda aux: {"type": "mlp", "hidden": [6, 6], "activation": rng.choice(["tanh", "silu"]), "aux": aux}  # noqa: E731
-    barrier = lambda: {"type": "collision_avoidance", "r_w": u(1.5, 3.0), "sigma": u(0.3, 1.0), "epsilon": u(0.05, 0.5),  # noqa: E731
-                       "alpha": u(0.0, 0.5), "eta": u(0.0, 1.0), "min_distance": u(1e-3, 0.1)}
-    attractor = lambda: {"type": "goal_attractor", "w_u": u(1, 8), "w_l": u(0.5, 2), "sigma": u(0.5, 2),  # noqa: E731
-                         "gain": u(0.5, 3), "alpha": u(0.5, 3), "eta": u(0.5, 3)}
-    nodes = {
-        "regulariser": {"parent": "q", "map": {"type": "identity"}, "rmp": {"type": "identity_metric", "scale": u(0.01, 0.1)}},
-        "damper": {"parent": "q", "map": {"type": "identity"}, "rmp": {"type": "damper", "w": u(0.1, 1), "eta": u(0.5, 2)}},
-        "obstacles": {"parent": "q", "map": {"type": "linear", "matrix": [[u(-1, 1) + (1.5 if i == j else 0) for j in range(dim)]
-                                                                          for i in range(dim)]},
-                      "weight": mlp(["c1"])},
-        "inner": {"parent": "q", "map": {"type": "identity"}, "weight": mlp([])},
-    }
-    for k in range(3):  # attractors: aux or constant goals, shared and own weights
-        nodes[f"goal{k}"] = {"parent": "q", "map": {"type": "offset", "origin": "goal" if k < 2 else vec()},
-                             "weight": {"shared": "goal_weight"} if k < 2 else mlp(["goal"]), "rmp": attractor()}
-    for k in range(2):  # attractors without weights
-        nodes[f"plain{k}"] = {"parent": "q", "map": {"type": "offset", "origin": vec()}, "rmp": attractor()}
-    for j in range(dim):  # joint limits: one per side and joint, each its own limit
-        for side in ("upper", "lower"):
-            nodes[f"jl{j}_{side}"] = {"parent": "q", "rmp": {"type": "joint_limit", "r_w": u(0.2, 0.6)},
-                                      "map": {"type": "joint_limit", "side": side, "limit": u(2, 3) * (1 if side == "upper" else -1),
-                                              "joints": j}}
-    for k, c in enumerate(("c1", "c2", "c3")):  # distances to aux or constant centres, under a linear map
-        nodes[f"o{k}"] = {"parent": "obstacles", "rmp": barrier(),
-                          "map": {"type": "sphere_distance", "center": c if k < 2 else vec(), "radius": u(0.2, 0.6)},
-                          "weight": {"shared": "near", "bind": {"c": c}}}
-        nodes[f"cyl{k}"] = {"parent": "obstacles", "rmp": barrier(),
-                            "map": {"type": "cylinder_distance", "center": c, "radius": u(0.2, 0.6), "axis": vec()},
-                            "weight": {"type": "logistic", "low": u(0.3, 1), "high": u(2, 4), "center": c, "steepness": -2.0,
-                                       "switch_distance": u(0.2, 0.8)}}
-        nodes[f"box{k}"] = {"parent": "inner", "rmp": barrier(),
-                            "map": {"type": "box_distance", "center": c, "half_extents": [u(0.1, 0.4) for _ in range(dim)]}}
-        nodes[f"deep{k}"] = {"parent": "inner", "map": {"type": "compose", "maps": [
-            {"type": "sphere_distance", "center": c, "radius": u(0.1, 0.3)}, {"type": "offset", "origin": [u(0, 0.1)]}]},
-            "weight": {"type": "rbf", "low": u(0.3, 1), "high": u(2, 4), "center": c, "sigma": u(0.5, 1.5)},
-            "rmp": barrier()}
-    return {"root": {"name": "q", "dim": dim}, "aux": {"goal": dim, "c": dim, "c1": dim, "c2": dim, "c3": dim},
-            "shared_weights": {"goal_weight": mlp(["goal"]), "near": mlp(["c"])}, "nodes": nodes}
 
 
 def _inputs(seed: int, dim: int, B: int):

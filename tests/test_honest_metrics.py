@@ -3,18 +3,17 @@ collision time, the weights a learner learned beside the expert's, and the valid
 from __future__ import annotations
 
 import json
-import os
 
 import pytest
 import torch
 
 import rmpfusion
+from conftest import compose_cfg
 from rmpfusion.envs import Particle2D
 from rmpfusion.evaluate.metrics import online_loss
 from rmpfusion.evaluate.weights import edge_weights, learned_edges, summarize_weights
 
 F64 = torch.float64
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
 def _scene(B: int = 2):
@@ -80,14 +79,10 @@ def test_edge_weights_are_the_weight_functions_at_the_parent_states():
 
 
 def test_tiny_run_reports_validation_loss_weights_and_online_loss_variants(tmp_path):
-    from hydra import compose, initialize_config_dir
-
     from rmpfusion.pipeline.validate import resolve_and_validate
     from rmpfusion.pipeline.run import run_experiment
 
-    with initialize_config_dir(config_dir=os.path.join(ROOT, "conf"), version_base="1.3"):
-        cfg = compose("config", overrides=["experiment=2d2level", "data=tiny", "train=tiny", "logger=disabled",
-                                           "eval.compile=false"])
+    cfg = compose_cfg(["experiment=2d2level", "data=tiny", "train=tiny", "logger=disabled", "eval.compile=false"])
     run_experiment(resolve_and_validate(cfg), tmp_path, progress=False)
     m = json.loads((tmp_path / "metrics.json").read_text())
     assert m["data"]["val"]["points"] == 1 * 2 * 3  # data=tiny: 1 validation environment x 2 trajectories x 3 points

@@ -5,18 +5,11 @@ import torch
 
 import rmpfusion.maps.kinematics  # noqa: F401  (registers forward_kinematics)
 from rmpfusion.maps.kinematics import Chain, ForwardKinematics, rpy_matrix
-from rmpfusion.maps.urdf import parse_urdf, parse_urdf_string, resolve_urdf_path
+from rmpfusion.maps.urdf import parse_urdf, parse_urdf_string
 from rmpfusion.registry import TASK_MAPS
 
 from conftest import fd_directional, fd_jacobian
-
-PANDA_URDF = "pkg://pybullet_data/franka_panda/panda.urdf"
-PANDA_ARM_JOINTS = tuple(f"panda_joint{i}" for i in range(1, 8))
-
-
-def load_panda_urdf_path() -> str:
-    return resolve_urdf_path(PANDA_URDF)
-
+from manipulators import PANDA_ARM_JOINTS, PANDA_URDF, load_panda_urdf_path, pybullet_robot
 
 pybullet = pytest.importorskip("pybullet")
 
@@ -37,14 +30,8 @@ def chain(model):
 @pytest.fixture(scope="module")
 def bullet():
     """(client, body id, {link name: pybullet link index}); a fixed base at the origin like our root frame."""
-    cid = pybullet.connect(pybullet.DIRECT)
-    try:
-        body = pybullet.loadURDF(load_panda_urdf_path(), useFixedBase=True, physicsClientId=cid)
-        n = pybullet.getNumJoints(body, physicsClientId=cid)
-        index = {pybullet.getJointInfo(body, i, physicsClientId=cid)[12].decode(): i for i in range(n)}
-        yield cid, body, index
-    finally:
-        pybullet.disconnect(cid)
+    with pybullet_robot(load_panda_urdf_path()) as (cid, body, links, _):
+        yield cid, body, links
 
 
 def random_q(chain, n, seed=0):

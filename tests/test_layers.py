@@ -11,7 +11,7 @@ PACKAGE = pathlib.Path(__file__).resolve().parents[1] / "rmpfusion"
 
 #: Bottom to top. Folders of one rank that must not import each other are listed in SIDE_BY_SIDE.
 RANK = {"core": 0, "files": 0,
-        "registry": 1, "maps": 1, "rmps": 1, "weights": 1,
+        "registry": 1, "examples": 1, "maps": 1, "rmps": 1, "weights": 1,
         "assembly": 2, "robots": 2, "scenes": 2, "recordings": 3, "envs": 3, "learn": 4, "evaluate": 4, "plots": 5, "pipeline": 6, "cli": 7}
 SIDE_BY_SIDE = {frozenset({"learn", "evaluate"})}
 #: what core/ may import besides itself: the math needs torch and the standard library only

@@ -11,12 +11,10 @@ import math
 import torch
 
 import rmpfusion
-
-PANDA_ROBOT = {"urdf": "pkg://pybullet_data/franka_panda/panda.urdf", "joints": [f"panda_joint{i}" for i in range(1, 8)]}
 from conftest import assert_energy_identity, assert_lyapunov_non_increasing, rk4_rollout
+from manipulators import PANDA_ARM as PANDA_ROBOT, PANDA_HOME as HOME
 
 GAIN, ALPHA, ETA, W = 2.0, 3.0, 2.0, 1.0
-HOME = torch.tensor([0.0, -0.3, 0.0, -2.2, 0.0, 2.0, 0.8])
 AUX_DIMS = {"goal": 3, "goal_velocity": 3}
 
 

@@ -1,10 +1,7 @@
 """The orientation maps and the orientation attractor: link axes against pybullet, the potential against the
 rotation angle, Theorem 2 on rollouts (Panda tool axis, KUKA iiwa full orientation), and that they align.
 (J and J̇ẋ against finite differences: tests/test_registry_derivatives.py.)"""
-from pathlib import Path
-
 import pybullet
-import pybullet_data
 import pytest
 import torch
 
@@ -13,12 +10,10 @@ from conftest import assert_energy_identity, assert_lyapunov_non_increasing, rk4
 from rmpfusion.maps.kinematics import Chain
 from rmpfusion.maps.orientation import quaternion_matrix
 from rmpfusion.maps.urdf import parse_urdf
-from test_kinematics import PANDA_ARM_JOINTS, load_panda_urdf_path
+from manipulators import IIWA_URDF as IIWA, PANDA_ARM_JOINTS, PANDA_HOME as HOME, load_panda_urdf_path, pybullet_robot
 from rmpfusion.registry import TASK_MAPS
 
-IIWA = str(Path(pybullet_data.getDataPath()) / "kuka_iiwa" / "model.urdf")
 PANDA = load_panda_urdf_path()
-HOME = torch.tensor([0.0, -0.3, 0.0, -2.2, 0.0, 2.0, 0.8])
 
 
 def build_map(params: dict, aux_dims=None):
@@ -51,20 +46,14 @@ def test_link_axes_are_the_columns_of_pybullets_link_orientation(urdf, joints, l
     lo, hi = m.chain.joint_limits()
     q = lo + (hi - lo) * torch.rand(4, 7, generator=gen)
     axes = m.psi(q, None).reshape(4, 3, 3)  # row k: the link's axis k in the world
-    cid = pybullet.connect(pybullet.DIRECT)
-    try:
-        body = pybullet.loadURDF(urdf, useFixedBase=True, physicsClientId=cid)
-        info = [pybullet.getJointInfo(body, i, physicsClientId=cid) for i in range(pybullet.getNumJoints(body, physicsClientId=cid))]
-        index = {j[12].decode(): j[0] for j in info}
-        joint_index = [j[0] for j in info if j[1].decode() in m.chain.actuated]
+    with pybullet_robot(urdf) as (cid, body, index, joint_of):
+        joint_index = [i for name, i in joint_of.items() if name in m.chain.actuated]
         for b in range(4):
             for i, v in zip(joint_index, q[b].tolist()):
                 pybullet.resetJointState(body, i, v, physicsClientId=cid)
             orn = pybullet.getLinkState(body, index[link], computeForwardKinematics=True, physicsClientId=cid)[5]
             R = torch.tensor(pybullet.getMatrixFromQuaternion(orn)).reshape(3, 3)
             torch.testing.assert_close(axes[b], R.T, rtol=0, atol=1e-6)
-    finally:
-        pybullet.disconnect(cid)
 
 
 def test_the_potential_measures_the_angle_to_the_target(gen):

@@ -3,27 +3,22 @@ metrics of one ``run_experiment``, and an evaluation before training is refused 
 from __future__ import annotations
 
 import json
-import pathlib
 import sys
 
 import pytest
-from hydra import compose, initialize_config_dir
 
+from conftest import ROOT, TINY, compose_cfg
 from rmpfusion.pipeline.collect import collect
 from rmpfusion.pipeline.fit import NotTrainedError, fit
 from rmpfusion.pipeline.run import evaluate_and_report, run_experiment, start
 from rmpfusion.pipeline.validate import resolve_and_validate
 
-ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tools"))
 from compare_metrics import compare  # noqa: E402
 
-TINY = ["experiment=2d2level_unstructured", "data=tiny", "train=tiny", "eval=fast", "logger=disabled"]
-
 
 def _run_config(overrides=()):
-    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
-        return resolve_and_validate(compose("config", overrides=[*TINY, *overrides]))
+    return resolve_and_validate(compose_cfg(["experiment=2d2level_unstructured", *TINY, *overrides]))
 
 
 def test_stages_one_at_a_time_give_the_metrics_of_one_run(tmp_path):

@@ -3,28 +3,13 @@ from outside: its RMP is found through the entry point, its YAML presets through
 from __future__ import annotations
 
 import os
-import shutil
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 
-PLUGIN_SRC = Path(__file__).resolve().parent / "plugin_example"
-TINY = ["data=tiny", "train=tiny", "eval=fast", "logger=disabled"]
-
-
-@pytest.fixture(scope="session")
-def plugin_site(tmp_path_factory) -> Path:
-    """pip-installs the plugin into a private target (a copy of the source, so the repo stays clean)."""
-    root = tmp_path_factory.mktemp("plugin")
-    src = root / "src"
-    shutil.copytree(PLUGIN_SRC, src)
-    site = root / "site"
-    subprocess.run([sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--no-build-isolation",
-                    "--target", str(site), str(src)], check=True, capture_output=True, timeout=300)
-    assert (site / "hydra_plugins" / "rmpfusion_spring" / "searchpath.py").is_file()
-    return site
+from conftest import TINY  # and the plugin_site fixture: the example plugin pip-installed
 
 
 def _cli(site: Path, *args, timeout=300):

@@ -6,7 +6,7 @@ from hypothesis import strategies as st
 
 import rmpflow_reference as ref
 import rmpfusion
-from test_stability import random_tree_spec, randomise_weights
+from trees import random_tree_spec, randomise_weights
 
 SETTINGS = settings(max_examples=12, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.too_slow])
 

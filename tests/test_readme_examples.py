@@ -22,7 +22,6 @@ from __future__ import annotations
 import os
 import re
 import shlex
-import shutil
 import subprocess
 import sys
 from dataclasses import dataclass
@@ -30,14 +29,15 @@ from pathlib import Path
 
 import pytest
 
+from conftest import PLUGIN_EXAMPLE, ROOT, compose_cfg
+from conftest import TINY as TINY_RUN  # and the plugin_site fixture: ``pip install tests/plugin_example``
+
 try:
     import tomllib
 except ModuleNotFoundError:  # Python 3.10
     tomllib = pytest.importorskip("tomli")
 
-ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
-PLUGIN = ROOT / "tests" / "plugin_example"
 
 
 @dataclass(frozen=True)
@@ -101,7 +101,7 @@ FAILS = {"rmpfusion-validate expert.goal.type=rfb +tree.nodes.goal.rmp.gian=2 tr
 
 #: Appended to every command that runs the pipeline (rmpfusion-run, tools/reproduce_2d.py): tiny data, 3 training
 #: steps, evaluation without figures or torch.compile, no wandb. The README's commands stay as written before them.
-TINY = ["data=tiny", "train=tiny", "eval=fast", "logger=disabled", "eval.compile=false"]
+TINY = [*TINY_RUN, "eval.compile=false"]
 #: The tools that compare training methods choose the method themselves: tiny splits and evaluation only.
 TINY_EVAL = ["data.test_envs=1", "data.test_trajectories=2", "data.val_envs=1", "data.val_trajectories=2",
              "data.points=3", "data.interval=0.1", "eval=fast", "eval.compile=false"]
@@ -232,17 +232,6 @@ def test_python_block_runs_in_a_fresh_process(block):
 
 
 # --------------------------------------------------------------------------------------------------- bash blocks
-@pytest.fixture(scope="module")
-def plugin_site(tmp_path_factory) -> Path:
-    """``pip install tests/plugin_example``, into a private target (a copy of the source, so the repo and the
-    shared virtualenv stay as they are); its directory goes on PYTHONPATH for the plugin's commands."""
-    root = tmp_path_factory.mktemp("plugin")
-    shutil.copytree(PLUGIN, root / "src")
-    subprocess.run([sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--no-build-isolation",
-                    "--target", str(root / "site"), str(root / "src")], check=True, capture_output=True, timeout=300)
-    return root / "site"
-
-
 def _run_unit(unit: Unit, tmp_path: Path, request) -> None:
     env = _env()
     if unit.needs_plugin:
@@ -278,8 +267,6 @@ def test_bash_command_runs_tiny(unit, tmp_path, request):
 def test_every_run_command_composes():
     """The fast suite's check of the slow commands: each rmpfusion-run line (a sweep at its first point) composes
     with Hydra; the plugin's need the plugin, 'glob(*)' is expanded by the sweeper (both run in the slow tests)."""
-    from hydra import compose, initialize_config_dir
-
     runs = [shlex.split(c)[1:] for u in UNITS for c in u.cmds if c.startswith("rmpfusion-run")]
     assert len(runs) >= 10
     for u in UNITS:  # a folder given by --config-dir is made by the README's own command before it (the robot fit)
@@ -300,8 +287,7 @@ def test_every_run_command_composes():
             args = [*args[:k], *args[k + 2:], f"hydra.searchpath=[file://{ROOT / args[k + 1]}]"]
         over = [one_point(a) if multirun else a for a in args
                 if a != "-m" and "spring" not in a and "glob(" not in a]
-        with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
-            compose("config", overrides=over, return_hydra_config=True)
+        compose_cfg(over, hydra_cfg=True)
 
 
 # ------------------------------------------------------------------------------------------ blocks that are data
@@ -309,7 +295,7 @@ def _subset(part, whole, where: str) -> None:
     if isinstance(part, dict):
         assert isinstance(whole, dict), where
         for k, v in part.items():
-            assert k in whole, f"{where}.{k} is not in {PLUGIN / 'pyproject.toml'}"
+            assert k in whole, f"{where}.{k} is not in {PLUGIN_EXAMPLE / 'pyproject.toml'}"
             _subset(v, whole[k], f"{where}.{k}")
     else:
         assert part == whole, f"{where}: README {part!r} vs plugin {whole!r}"
@@ -317,7 +303,7 @@ def _subset(part, whole, where: str) -> None:
 
 def test_toml_blocks_are_the_example_plugins_settings():
     """The pyproject settings the README shows are those of the plugin that tests/test_plugins.py installs."""
-    plugin = tomllib.loads((PLUGIN / "pyproject.toml").read_text())
+    plugin = tomllib.loads((PLUGIN_EXAMPLE / "pyproject.toml").read_text())
     tomls = [b for b in BLOCKS if b.lang == "toml"]
     assert len(tomls) >= 2
     for b in tomls:
@@ -334,9 +320,9 @@ def test_yaml_blocks_are_conf_files_or_used_by_a_python_block():
 
 
 def test_the_search_path_plugin_shown_is_the_example_plugins_file():
-    path = PLUGIN / "hydra_plugins" / "rmpfusion_spring" / "searchpath.py"
+    path = PLUGIN_EXAMPLE / "hydra_plugins" / "rmpfusion_spring" / "searchpath.py"
     assert any(b.text == path.read_text() for b in PYTHON), f"README shows a different {path.name}"
-    assert not (PLUGIN / "hydra_plugins" / "__init__.py").exists()  # the namespace package the README describes
+    assert not (PLUGIN_EXAMPLE / "hydra_plugins" / "__init__.py").exists()  # the namespace package the README describes
 
 
 def test_every_block_is_accounted_for():

@@ -8,10 +8,8 @@ import torch
 
 import rmpfusion
 from conftest import assert_energy_identity
+from manipulators import PANDA_ARM as PANDA, PANDA_HOME as HOME
 from reference_tree import FIELDS, node_by_node
-
-HOME = torch.tensor([0.0, -0.3, 0.0, -2.2, 0.0, 2.0, 0.8])
-PANDA = {"urdf": "pkg://pybullet_data/franka_panda/panda.urdf", "joints": [f"panda_joint{i}" for i in range(1, 8)]}
 
 
 def mlp(*aux):

@@ -4,7 +4,6 @@ rollout, with Theorem 2. (J and J̇ẋ against finite differences: tests/test_re
 from pathlib import Path
 
 import pybullet
-import pybullet_data
 import pytest
 import torch
 import yaml
@@ -12,17 +11,16 @@ import yaml
 import rmpfusion
 from conftest import assert_energy_identity, assert_lyapunov_non_increasing, rk4_rollout
 from reference_tree import node_by_node
+from manipulators import IIWA_URDF as IIWA, PANDA_ARM_JOINTS, PANDA_HOME, load_panda_urdf_path, pybullet_robot
 from manipulators import robot as robot_description
 from rmpfusion.maps import build_map
 from rmpfusion.maps.kinematics import Chain
 from rmpfusion.maps.self_collision import non_adjacent_link_pairs
 from rmpfusion.maps.urdf import parse_urdf
-from test_kinematics import PANDA_ARM_JOINTS, load_panda_urdf_path
 
 ROOT = Path(__file__).resolve().parents[1]
-IIWA = str(Path(pybullet_data.getDataPath()) / "kuka_iiwa" / "model.urdf")
 PANDA = load_panda_urdf_path()
-HOME = torch.tensor([[0.0, -0.3, 0.0, -2.2, 0.0, 2.0, 0.8]])
+HOME = PANDA_HOME[None]
 
 
 def sphere(k: int) -> dict:
@@ -76,12 +74,8 @@ def test_the_gap_is_the_distance_of_sphere_centres_placed_by_pybullet(urdf, join
     lo, hi = m.chain.joint_limits()
     q = lo + (hi - lo) * torch.rand(5, 7, generator=gen)
     gap = m.psi(q, None)[:, 0]
-    cid = pybullet.connect(pybullet.DIRECT)
-    try:
-        body = pybullet.loadURDF(urdf, useFixedBase=True, physicsClientId=cid)
-        info = [pybullet.getJointInfo(body, i, physicsClientId=cid) for i in range(pybullet.getNumJoints(body, physicsClientId=cid))]
-        index = {j[12].decode(): j[0] for j in info}
-        moving = [j[0] for j in info if j[1].decode() in m.chain.actuated]
+    with pybullet_robot(urdf) as (cid, body, index, joint_of):
+        moving = [i for name, i in joint_of.items() if name in m.chain.actuated]
 
         def centre(s):
             pos, orn = pybullet.getLinkState(body, index[s["link"]], computeForwardKinematics=True, physicsClientId=cid)[4:6]
@@ -93,8 +87,6 @@ def test_the_gap_is_the_distance_of_sphere_centres_placed_by_pybullet(urdf, join
                 pybullet.resetJointState(body, i, v, physicsClientId=cid)
             expect = (centre(a) - centre(b)).norm() - a["radius"] - b["radius"]
             torch.testing.assert_close(gap[k], expect, rtol=0, atol=1e-6)
-    finally:
-        pybullet.disconnect(cid)
 
 
 def test_sibling_gaps_evaluate_as_one_group_equal_to_each_gap_alone(gen):

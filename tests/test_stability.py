@@ -1,64 +1,10 @@
 """Theorem 2 on real rollouts: random trees of depth ≥ 2 with random positive neural weights and
 velocity-dependent collision metrics; V_r never increases and dV_r/dt = −q̇ᵀB_r q̇."""
-import random
-
 import pytest
 import torch
 
 import rmpfusion
-
-
-def random_tree_spec(seed: int, dim: int) -> dict:
-    rng = random.Random(seed)
-    act = lambda: rng.choice(["tanh", "softplus", "elu", "silu"])  # noqa: E731
-    mlp = lambda aux: {"type": "mlp", "hidden": [rng.choice([4, 8, 16])] * rng.choice([1, 2]),  # noqa: E731
-                       "activation": act(), "positivity": rng.choice(["softplus", "exp"]), "aux": aux}
-    barrier = lambda: {"type": "collision_avoidance", "r_w": rng.uniform(1.0, 3.0), "sigma": rng.uniform(0.3, 1.0),  # noqa: E731
-                       "epsilon": rng.uniform(0.05, 0.5), "alpha": rng.uniform(0.0, 0.5), "eta": rng.uniform(0.0, 1.0)}
-    A = [[rng.uniform(-1, 1) + (1.5 if i == j else 0.0) for j in range(dim)] for i in range(dim)]
-    return {
-        "root": {"name": "q", "dim": dim},
-        "aux": {"goal": dim, "c1": dim, "c2": dim, "c3": dim},
-        "nodes": {
-            "regulariser": {"parent": "q", "map": {"type": "identity"}, "rmp": {"type": "identity_metric", "scale": 0.05}},
-            "goal": {"parent": "q", "map": {"type": "offset", "origin": "goal"}, "weight": mlp(["goal"]),
-                     "rmp": {"type": "goal_attractor", "w_u": rng.uniform(1, 8), "w_l": rng.uniform(0.5, 2), "sigma": rng.uniform(0.5, 2),
-                             "gain": rng.uniform(0.5, 3), "alpha": rng.uniform(0.5, 3), "eta": rng.uniform(0.5, 3)}},
-            "obstacles": {"parent": "q", "map": {"type": "linear", "matrix": A}, "weight": mlp(["c1", "c2"])},
-            "o1": {"parent": "obstacles", "map": {"type": "sphere_distance", "center": "c1", "radius": 0.5},
-                   "weight": mlp(["c1"]), "rmp": barrier()},
-            "o2": {"parent": "obstacles", "map": {"type": "sphere_distance", "center": "c2", "radius": 0.4},
-                   "weight": {"type": "logistic", "low": 0.3, "high": 3.0, "center": "c2", "steepness": -2.0, "switch_distance": 0.5},
-                   "rmp": barrier()},
-            "deeper": {"parent": "obstacles", "map": {"type": "identity"}, "weight": mlp(["c3"])},
-            "o3": {"parent": "deeper", "map": {"type": "sphere_distance", "center": "c3", "radius": 0.3}, "weight": mlp([]), "rmp": barrier()},
-            "damp": {"parent": "deeper", "map": {"type": "identity"}, "weight": mlp([]), "rmp": {"type": "damper", "w": 0.2, "eta": rng.uniform(0.5, 2)}},
-        },
-    }
-
-
-def randomise_weights(tree, seed):
-    g = torch.Generator().manual_seed(seed)
-    for p in tree.parameters():
-        with torch.no_grad():
-            p.copy_(torch.randn(p.shape, generator=g) * 0.3)
-
-
-def setup(seed, dim, B):
-    tree = rmpfusion.build_tree(random_tree_spec(seed, dim))
-    randomise_weights(tree, seed)
-    g = torch.Generator().manual_seed(seed + 1)
-    q = torch.zeros(B, dim)
-    q[:, 0] = -3.0
-    q = q + 0.3 * torch.randn(B, dim, generator=g)
-    aux = {"goal": torch.zeros(B, dim), "c1": torch.zeros(B, dim), "c2": torch.zeros(B, dim), "c3": torch.zeros(B, dim)}
-    aux["goal"][:, 0] = 3.0
-    aux["c1"][:, 1] = 0.6
-    aux["c2"][:, 0], aux["c2"][:, 1] = 1.2, -0.7
-    aux["c3"][:, 0] = -1.5
-    aux = {k: v + 0.2 * torch.randn(B, dim, generator=g) for k, v in aux.items()}
-    qd = 0.5 * torch.randn(B, dim, generator=g)
-    return tree, q, qd, aux
+from trees import setup
 
 
 def rk4_rollout(tree, q, qd, aux, dt, steps):

@@ -6,6 +6,7 @@ import torch
 
 import rmpflow_reference as ref
 import rmpfusion
+from trees import TWO_LEVEL, two_level_inputs
 from rmpfusion.assembly import ConfigError
 from rmpfusion.core.algebra import Edge, NodeRMP, pullback_star, resolve
 
@@ -88,38 +89,6 @@ def test_resolve_solve_equals_pinv_and_handles_singular(gen):
     M[0] = torch.tensor([[1.0, 0, 0], [0, 0, 0], [0, 0, 0]])  # singular: falls back to the pseudo-inverse
     f = torch.randn(6, 3, generator=gen)
     torch.testing.assert_close(resolve(f, M, "solve"), resolve(f, M, "pinv"), rtol=1e-9, atol=1e-10)
-
-
-TWO_LEVEL = {
-    "root": {"name": "q", "dim": 2},
-    "aux": {"goal": 2, "obstacle1_center": 2, "obstacle1_radius": 1, "obstacle2_center": 2, "obstacle2_radius": 1},
-    "nodes": {
-        "goal": {"parent": "q", "map": {"type": "offset", "origin": "goal"},
-                 "weight": {"type": "mlp", "hidden": [16, 16], "aux": ["goal", "obstacle1_center", "obstacle2_center"]},
-                 "rmp": {"type": "goal_attractor", "w_u": 4.0, "w_l": 1.0}},
-        "obstacles": {"parent": "q", "map": {"type": "identity"},
-                      "weight": {"type": "mlp", "hidden": [16], "aux": ["obstacle1_center", "obstacle1_radius"]}},
-        "o1": {"parent": "obstacles", "map": {"type": "sphere_distance", "center": "obstacle1_center", "radius": "obstacle1_radius"},
-               "weight": {"type": "mlp", "hidden": [8], "aux": ["obstacle1_center"]}, "rmp": {"type": "collision_avoidance", "r_w": 1.5}},
-        "o2": {"parent": "obstacles", "map": {"type": "sphere_distance", "center": "obstacle2_center", "radius": "obstacle2_radius"},
-               "weight": {"type": "rbf", "low": 0.5, "high": 2.0, "center": "obstacle2_center", "radius": "obstacle2_radius"},
-               "rmp": {"type": "collision_avoidance", "r_w": 1.5}},
-        "damp": {"parent": "q", "map": {"type": "identity"}, "rmp": {"type": "damper", "w": 0.1, "eta": 1.0}},
-    },
-}
-
-
-def two_level_inputs(B, gen):
-    q = 3 * torch.randn(B, 2, generator=gen)
-    aux = {"goal": torch.randn(B, 2, generator=gen) * 2, "obstacle1_center": torch.randn(B, 2, generator=gen),
-           "obstacle1_radius": 0.3 + 0.3 * torch.rand(B, 1, generator=gen),
-           "obstacle2_center": torch.randn(B, 2, generator=gen) + 2, "obstacle2_radius": 0.3 + 0.3 * torch.rand(B, 1, generator=gen)}
-    # keep the particle outside both obstacles
-    for k in (1, 2):
-        d = q - aux[f"obstacle{k}_center"]
-        r = d.norm(dim=-1, keepdim=True)
-        q = torch.where(r < aux[f"obstacle{k}_radius"] + 0.1, aux[f"obstacle{k}_center"] + d / r * (aux[f"obstacle{k}_radius"] + 0.3), q)
-    return q, torch.randn(B, 2, generator=gen), aux
 
 
 def test_batch_equals_single_calls(gen):

@@ -12,6 +12,7 @@ from ..core.algebra import matvec
 from ..core.auxstate import CONSTANT_DTYPE, AuxOrValue, AuxParam, constant
 from ..core.stacking import shallow_clone
 from ..core.taskmap import TaskMap
+from ..examples import AuxInput, Example
 from ..registry import TASK_MAPS, Params
 
 
@@ -29,7 +30,7 @@ def _coordinates(v: int | list[int], key: str) -> int | list[int]:
     return v
 
 
-@TASK_MAPS.register("identity")
+@TASK_MAPS.register("identity", examples=[Example({}, 2, scale=3.0)])
 class Identity(TaskMap):
     """y = x: attach several RMPs to the same space, or weight a whole subtree."""
 
@@ -50,7 +51,9 @@ class Identity(TaskMap):
         return x
 
 
-@TASK_MAPS.register("offset")
+@TASK_MAPS.register("offset", examples=[
+    Example({"origin": [-3.0, 3.0]}, 2, scale=3.0),
+    Example({"origin": "c"}, 2, scale=3.0, aux={"c": AuxInput.normal(2)})])
 class Offset(TaskMap):
     """y = x − origin: an attractor space with the goal at 0 (origin may be aux state)."""
 
@@ -93,7 +96,8 @@ class _Affine(TaskMap):
         return y, matvec(self.A, xd), J, torch.zeros_like(y)
 
 
-@TASK_MAPS.register("linear")
+@TASK_MAPS.register("linear", examples=[
+    Example({"matrix": [[1.0, 2.0], [0.5, -1.0], [3.0, 0.0]], "bias": [1.0, 0.0, -1.0]}, 2, scale=3.0)])
 class Linear(_Affine):
     """y = A x + b."""
 
@@ -112,7 +116,7 @@ class Linear(_Affine):
         self._set(A, b)
 
 
-@TASK_MAPS.register("select")
+@TASK_MAPS.register("select", examples=[Example({"indices": [2, 0]}, 3, scale=3.0)])
 class Select(Linear):
     """y = x[indices]: a joint, or a sub-vector of the configuration."""
 
@@ -133,7 +137,9 @@ class Select(Linear):
         super().__init__(Linear.Params(matrix=A.tolist()), in_dim, aux_dims)
 
 
-@TASK_MAPS.register("joint_limit")
+@TASK_MAPS.register("joint_limit", examples=[
+    Example({"side": "upper", "limit": [2.0, 1.0, 0.5]}, 3, scale=3.0),
+    Example({"side": "lower", "limit": -1.0, "joints": [1]}, 3, scale=3.0)])
 class JointLimit(_Affine):
     """Distance to a joint limit: ``upper − q`` (side=upper) or ``q − lower`` (side=lower), per joint.
 
@@ -179,7 +185,11 @@ class MapSpec(Params):
     type: str
 
 
-@TASK_MAPS.register("compose")
+@TASK_MAPS.register("compose", examples=[
+    Example({"maps": [{"type": "linear", "matrix": [[1.0, 1.0], [0.0, 2.0], [1.0, -1.0]]},
+                      {"type": "sphere_distance", "center": [1.0, 0.0, 0.5], "radius": 0.2}]}, 2, scale=3.0),
+    Example({"maps": [{"type": "offset", "origin": "c"}, {"type": "sphere_distance", "center": [0.0, 0.0]}]},
+            2, scale=3.0, aux={"c": AuxInput.normal(2)})])
 class Compose(TaskMap):
     """ψ = ψ_k ∘ … ∘ ψ_1 with J = J_k⋯J_1 and J̇ẋ accumulated by the chain rule."""
 

@@ -11,6 +11,7 @@ from torch import Tensor
 from ..core.algebra import matvec
 from ..core.auxstate import CONSTANT_DTYPE, AuxOrValue, AuxParam, constant
 from ..core.taskmap import TaskMap
+from ..examples import AuxInput, Example
 from ..registry import TASK_MAPS, Params
 
 
@@ -38,7 +39,10 @@ def _positive_radius(v: AuxOrValue, shape: str) -> AuxOrValue:
     return v
 
 
-@TASK_MAPS.register("sphere_distance")
+@TASK_MAPS.register("sphere_distance", examples=[
+    Example({"center": [0.3, -0.2], "radius": 1.5}, 2, scale=3.0),
+    Example({"center": "c", "radius": "r", "normalized": True}, 2, scale=3.0,
+            aux={"c": AuxInput.normal(2), "r": AuxInput.radius()})])
 class SphereDistance(TaskMap):
     """Distance to a sphere (circle in 2D): ``|y−c| − R``, or ``|y−c|/R − 1`` when ``normalized``."""
 
@@ -81,7 +85,8 @@ class SphereDistance(TaskMap):
         return y, (j * xd).sum(-1, keepdim=True), j.unsqueeze(-2), c
 
 
-@TASK_MAPS.register("cylinder_distance")
+@TASK_MAPS.register("cylinder_distance", examples=[
+    Example({"center": [0.1, 0.2, 0.0], "radius": 0.3, "axis": [0.0, 0.3, 1.0]}, 3, scale=3.0)])
 class CylinderDistance(TaskMap):
     """Distance to an infinite cylinder with a given axis through ``center``: ``|P(y−c)| − R``."""
 
@@ -128,7 +133,8 @@ class CylinderDistance(TaskMap):
         return r - self.radius(aux), (j * xd).sum(-1, keepdim=True), j.unsqueeze(-2), c
 
 
-@TASK_MAPS.register("box_distance")
+@TASK_MAPS.register("box_distance", examples=[
+    Example({"center": [0.0, 0.0, 0.0], "half_extents": [0.5, 1.0, 0.25]}, 3, scale=3.0)])
 class BoxDistance(TaskMap):
     """Signed distance to an axis-aligned box (``center``, ``half_extents``); derivatives by autodiff."""
 

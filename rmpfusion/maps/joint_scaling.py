@@ -13,13 +13,16 @@ import torch
 from pydantic import Field
 
 from ..core.auxstate import CONSTANT_DTYPE
+from ..examples import Example
 from ..registry import TASK_MAPS
 from .basic import Linear
-from .kinematics import robot_chain
+from .kinematics import KUKA_IIWA, PANDA_ARM, joint_limit_states, robot_chain
 from .robot import RobotParams
 
 
-@TASK_MAPS.register("velocity_scaled_joints")
+@TASK_MAPS.register("velocity_scaled_joints", examples=[
+    Example(PANDA_ARM, 7, joint_limit_states(PANDA_ARM)),
+    Example({**KUKA_IIWA, "velocity_limit": [1.0, 2.0, 1.5, 1.0, 3.0, 2.0, 2.5]}, 7, joint_limit_states(KUKA_IIWA))])
 class VelocityScaledJoints(Linear):
     """y = q ⊘ v̄: each actuated joint divided by its velocity limit (the URDF's, unless ``velocity_limit`` is given)."""
 

@@ -16,6 +16,7 @@ from torch import Tensor, nn
 
 from ..core.algebra import matmul_small, matvec
 from ..core.taskmap import TaskMap
+from ..examples import Example, StateSampler
 from ..registry import TASK_MAPS, Params
 from .robot import RobotParams
 from .urdf import URDFModel, parse_urdf, resolve_urdf_path
@@ -223,7 +224,24 @@ def robot_chain(p: RobotParams, in_dim: int, what: str) -> Chain:
     return chain
 
 
-@TASK_MAPS.register("forward_kinematics")
+#: The robots the examples of the maps on a joint space are checked on (``rmpfusion.examples``): pybullet_data's
+#: Panda arm (its fingers frozen) and KUKA iiwa, as a map's ``urdf`` and ``joints``.
+PANDA_ARM = {"urdf": "pkg://pybullet_data/franka_panda/panda.urdf", "joints": [f"panda_joint{i}" for i in range(1, 8)]}
+KUKA_IIWA = {"urdf": "pkg://pybullet_data/kuka_iiwa/model.urdf"}
+
+
+def joint_limit_states(robot: Mapping[str, object]) -> StateSampler:
+    """Examples' states of a robot (``{"urdf": ..., "joints": ...}``): q uniform inside its joint limits, q̇ ~ N(0, I).
+    The URDF is read when states are drawn, never when the example is declared (at import)."""
+    def states(gen: torch.Generator, n: int, dim: int) -> tuple[Tensor, Tensor]:
+        lo, hi = Chain(parse_urdf(str(robot["urdf"])), robot.get("joints")).joint_limits()
+        return lo + torch.rand(n, dim, generator=gen) * (hi - lo), torch.randn(n, dim, generator=gen)
+    return states
+
+
+@TASK_MAPS.register("forward_kinematics", examples=[
+    Example({**PANDA_ARM, "link": "panda_hand", "offset": [0.05, -0.01, 0.02]}, 7, joint_limit_states(PANDA_ARM)),
+    Example({**PANDA_ARM, "link": "panda_link4"}, 7, joint_limit_states(PANDA_ARM))])
 class ForwardKinematics(TaskMap):
     """y = world position of a point fixed in a robot link; x = the actuated joint angles.
 

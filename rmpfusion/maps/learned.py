@@ -24,6 +24,7 @@ from torch import Tensor, nn
 from ..core.auxstate import CONSTANT_DTYPE, AuxOrValue, AuxParam, constant
 from ..core.jet import SMOOTH, Jet, exp3, tanh3
 from ..core.taskmap import TaskMap
+from ..examples import AuxInput, Example
 from ..registry import TASK_MAPS, Params
 
 def coupling_masks(dim: int, layers: int) -> list[Tensor]:
@@ -77,7 +78,12 @@ class Coupling(nn.Module):
         return torch.cat([a, b], -1)[..., self.order]
 
 
-@TASK_MAPS.register("diffeomorphism")
+@TASK_MAPS.register("diffeomorphism", examples=[
+    Example({}, 2, scale=2.0),
+    Example({"layers": 3, "hidden": [8], "activation": "softplus", "init_std": 0.5, "origin": "c"}, 2, scale=2.0,
+            aux={"c": AuxInput.normal(2)}),
+    Example({"layers": 2, "hidden": [6, 6], "activation": "silu", "init_std": 0.4, "origin": [0.1, 0.2, 0.3]}, 3,
+            scale=2.0)])
 class Diffeomorphism(TaskMap):
     """y = ψ(x) − ψ(origin): a learnable diffeomorphism of ℝⁿ onto ℝⁿ (coupling layers), shifted so that
     ``origin`` (a goal: constant or aux) maps to 0, where an attractor leaf puts its equilibrium; ``inverse``
@@ -150,7 +156,8 @@ class Diffeomorphism(TaskMap):
         return y
 
 
-@TASK_MAPS.register("normalize")
+@TASK_MAPS.register("normalize", examples=[
+    Example({"shift": [0.1, -0.2], "scale": [0.05, 2.0]}, 2), Example({"scale": 40.0}, 3)])
 class Normalize(TaskMap):
     """y = (x − shift) / scale: constants (a number for every coordinate, or one per coordinate)."""
 

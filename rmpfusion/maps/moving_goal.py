@@ -13,10 +13,14 @@ import torch
 
 from ..core.auxstate import AuxOrValue, AuxParam
 from ..core.taskmap import TaskMap
+from ..examples import AuxInput, Example
 from ..registry import TASK_MAPS, Params
 
 
-@TASK_MAPS.register("moving_offset")
+@TASK_MAPS.register("moving_offset", examples=[
+    Example({"origin": "c", "velocity": "goal_velocity"}, 2, scale=3.0,
+            aux={"c": AuxInput.normal(2), "goal_velocity": AuxInput.normal(2)}),
+    Example({"origin": [0.5, -1.0, 0.2], "velocity": [0.1, 0.0, -0.3]}, 3, scale=3.0)])
 class MovingOffset(TaskMap):
     """y = (x − origin, velocity): an attractor space with the goal at 0, and the goal's velocity alongside."""
 

@@ -25,8 +25,9 @@ from torch import Tensor
 
 from ..core.auxstate import AuxOrValue, AuxParam, constant
 from ..core.taskmap import TaskMap
+from ..examples import AuxInput, Example
 from ..registry import TASK_MAPS
-from .kinematics import robot_chain
+from .kinematics import KUKA_IIWA, PANDA_ARM, joint_limit_states, robot_chain
 from .robot import RobotParams, Vector3, path_joints
 
 TargetFormat = Literal["quaternion_xyzw", "quaternion_wxyz", "matrix", "axes"]
@@ -71,7 +72,16 @@ class _Orientation(RobotParams):
                                                         "aux name or constant; none: the map gives the axes themselves")
 
 
-@TASK_MAPS.register("link_orientation")
+@TASK_MAPS.register("link_orientation", examples=[
+    Example({**PANDA_ARM, "link": "panda_hand", "target": [0.0, 1.0, 0.0, 0.0]}, 7, joint_limit_states(PANDA_ARM)),
+    Example({**PANDA_ARM, "link": "panda_hand", "target": "quaternion", "target_format": "quaternion_wxyz",
+             "axes": [[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]}, 7, joint_limit_states(PANDA_ARM),
+            aux={"quaternion": AuxInput.normal(4)}),
+    Example({**KUKA_IIWA, "link": "lbr_iiwa_link_6", "target": "directions", "target_format": "axes",
+             "axes": [[0.0, 1.0, 0.0], [1.0, 1.0, 0.0]]}, 7, joint_limit_states(KUKA_IIWA),
+            aux={"directions": AuxInput.normal(6)}),
+    Example({**KUKA_IIWA, "link": "lbr_iiwa_link_7", "target": [0.0, -1.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0],
+             "target_format": "matrix"}, 7, joint_limit_states(KUKA_IIWA))])
 class LinkOrientation(TaskMap):
     """y = (R(q) a_k − R* a_k)_k for the link axes ``axes`` (default x, y, z: dimension 9) and a target rotation R*.
 
@@ -183,7 +193,12 @@ def _check_constant_target(t: Tensor, fmt: str, k: int, what: str) -> None:
                              f"+1; |R Rᵀ − I| = {err:.2g}); give the 9 entries of a rotation, row by row")
 
 
-@TASK_MAPS.register("link_axis")
+@TASK_MAPS.register("link_axis", examples=[
+    Example({**PANDA_ARM, "link": "panda_hand", "axis": [0.0, 0.0, 1.0]}, 7, joint_limit_states(PANDA_ARM)),
+    Example({**PANDA_ARM, "link": "panda_link5", "axis": [1.0, -2.0, 0.5], "target": [0.0, 0.0, -1.0]}, 7,
+            joint_limit_states(PANDA_ARM)),
+    Example({**KUKA_IIWA, "link": "lbr_iiwa_link_7", "target": "c3"}, 7, joint_limit_states(KUKA_IIWA),
+            aux={"c3": AuxInput.normal(3)})])
 class LinkAxis(LinkOrientation):
     """y = R(q) a − d: a direction ``axis`` fixed in ``link`` (e.g. a tool axis), minus its target direction ``target``
     (3 numbers or an aux name, normalised here; none: y = R a). ``link_orientation`` with one axis."""

@@ -22,9 +22,10 @@ from torch import Tensor
 from ..core.auxstate import CONSTANT_DTYPE
 from ..core.stacking import shallow_clone, spread, stack_values
 from ..core.taskmap import TaskMap
+from ..examples import Example
 from ..registry import TASK_MAPS, Params
 from .distances import _radial
-from .kinematics import Chain, ForwardKinematics, robot_chain
+from .kinematics import KUKA_IIWA, PANDA_ARM, Chain, ForwardKinematics, joint_limit_states, robot_chain
 from .robot import RobotParams, Vector3, rigid_body_of
 
 
@@ -78,7 +79,13 @@ def _ancestors(n: int, parent: Mapping[int, int]) -> list[int]:
     return out
 
 
-@TASK_MAPS.register("link_sphere_distance")
+@TASK_MAPS.register("link_sphere_distance", examples=[
+    Example({**PANDA_ARM, "a": {"link": "panda_link3", "offset": [0.1, 0.07, 0.0], "radius": 0.1},
+             "b": {"link": "panda_hand", "offset": [0.0, 0.0, 0.09], "radius": 0.09}}, 7,
+            joint_limit_states(PANDA_ARM)),
+    Example({**KUKA_IIWA, "a": {"link": "lbr_iiwa_link_2"},
+             "b": {"link": "lbr_iiwa_link_6", "offset": [0.0, 0.05, 0.0], "radius": 0.08}}, 7,
+            joint_limit_states(KUKA_IIWA))])
 class LinkSphereDistance(TaskMap):
     """y = |p_a(q) − p_b(q)| − r_a − r_b: the gap between control spheres ``a`` and ``b`` on two links of the robot.
 

@@ -18,6 +18,7 @@ from torch import Tensor
 
 from ..core.auxstate import AuxOrValue, AuxParam, constant
 from ..core.taskmap import TaskMap
+from ..examples import AuxInput, Example
 from ..registry import TASK_MAPS, Params
 from .distances import _positive_radius, _radial, _values
 
@@ -99,7 +100,10 @@ class ObstacleDistance(TaskMap):
         return d, _dot(g, rel), g.unsqueeze(-2), c
 
 
-@TASK_MAPS.register("sphere_obstacle")
+# The examples are static obstacles (no velocity: ẏ = Jẋ); tests/test_scenes.py checks moving ones in time.
+@TASK_MAPS.register("sphere_obstacle", examples=[
+    Example({"center": [0.3, -0.2, 0.1], "radius": 0.5}, 3, scale=2.0),
+    Example({"center": "c3", "radius": "r"}, 3, scale=2.0, aux={"c3": AuxInput.normal(3), "r": AuxInput.radius()})])
 class SphereObstacle(ObstacleDistance):
     """|x − c| − R."""
 
@@ -119,7 +123,8 @@ class SphereObstacle(ObstacleDistance):
         return r - self.radius(aux), g, c
 
 
-@TASK_MAPS.register("capsule_obstacle")
+@TASK_MAPS.register("capsule_obstacle", examples=[
+    Example({"center": [0.1, 0.0, 0.2], "radius": 0.2, "half_length": 0.6, "axis": [0.6, 0.0, 0.8]}, 3, scale=1.5)])
 class CapsuleObstacle(ObstacleDistance):
     """Distance to the segment c ± h·a, minus R: a cylinder of radius R with hemispherical caps."""
 
@@ -150,7 +155,8 @@ class CapsuleObstacle(ObstacleDistance):
         return r - self.radius(aux), g, c
 
 
-@TASK_MAPS.register("cylinder_obstacle")
+@TASK_MAPS.register("cylinder_obstacle", examples=[
+    Example({"center": [0.0, 0.1, 0.0], "radius": 0.4, "half_height": 0.5, "axis": [0.0, 0.6, 0.8]}, 3, scale=1.5)])
 class CylinderObstacle(ObstacleDistance):
     """Signed distance to a finite cylinder: radius R around the axis a through c, |z| ≤ h along it."""
 
@@ -189,7 +195,10 @@ class CylinderObstacle(ObstacleDistance):
         return d, g, c
 
 
-@TASK_MAPS.register("box_obstacle")
+@TASK_MAPS.register("box_obstacle", examples=[
+    # rotated about (1, 2, 2)/3 by 0.7 rad, the box's axes in the world row by row
+    Example({"center": [0.1, 0.0, -0.1], "half_extents": [0.3, 0.5, 0.2],
+             "rotation": [0.791, -0.3772, 0.4817, 0.4817, 0.8694, -0.1102, -0.3772, 0.3193, 0.8694]}, 3, scale=1.5)])
 class BoxObstacle(ObstacleDistance):
     """Signed distance to a box with half extents e, rotated by R (world = R · box frame), around c."""
 
@@ -236,7 +245,8 @@ class BoxObstacle(ObstacleDistance):
         return torch.where(outside, d_out, d_in), g, torch.where(outside, c_out, torch.zeros_like(c_out))
 
 
-@TASK_MAPS.register("plane_distance")
+@TASK_MAPS.register("plane_distance", examples=[
+    Example({"normal": [0.0, 0.3, 1.0], "height": 0.2}, 3, scale=2.0)])
 class PlaneDistance(TaskMap):
     """nᵀx − h: the height of the point above a plane with unit normal n (a table top, the floor)."""
 

@@ -14,6 +14,7 @@ from torch import Tensor
 
 from ..core.gds import GDS
 from ..core.stacking import spread
+from ..examples import Example
 from ..registry import LEAF_RMPS
 from .learnable import LeafParams
 from .potentials import soft_norm, soft_norm_grad
@@ -63,7 +64,11 @@ class RadialMetricAttractor(GDS):
             self.potential_grad(y), Xi, xi
 
 
-@LEAF_RMPS.register("goal_attractor")
+@LEAF_RMPS.register("goal_attractor", examples=[
+    Example({}, 2),
+    Example({"w_u": 10.0, "w_l": 1.0, "sigma": 0.7, "gain": 2.0, "alpha": 3.0, "eta": 1.0}, 3),
+    Example({"w_u": {"learn": True, "init": 10.0}, "sigma": {"learn": True, "init": 0.7},  # learned
+             "gain": {"learn": True, "init": 2.0, "max": 5.0}}, 3)])
 class GoalAttractor(RadialMetricAttractor):
     """Soft-normalised attractor to the origin of its space (use an ``offset`` map to place the goal).
 
@@ -180,12 +185,23 @@ class Barrier1D(GDS):
                 (self.alpha * w * gw)[..., None], Xi[..., None, None], xi[..., None])
 
 
-@LEAF_RMPS.register("collision_avoidance")
+def barrier_states(gen: torch.Generator, n: int, dim: int) -> tuple[Tensor, Tensor]:
+    """Examples' states of a barrier: distances inside its support (and inside the obstacle), approaching and
+    receding."""
+    y = -0.3 + 0.6 * torch.rand(n, dim, generator=gen)
+    y[0, 0] = 0.25
+    return y, torch.randn(n, dim, generator=gen)
+
+
+@LEAF_RMPS.register("collision_avoidance", examples=[
+    Example({"r_w": 2.0, "eta": 0.5, "alpha": 0.1}, 1, barrier_states),
+    Example({"r_w": {"learn": True, "init": 2.0}, "eta": {"learn": True, "init": 0.5},
+             "sigma": {"learn": True, "init": 0.5}}, 1, barrier_states)])
 class CollisionAvoidance(Barrier1D):
     """Obstacle barrier on a distance space (velocity-gated, as in RMPflow)."""
 
 
-@LEAF_RMPS.register("joint_limit")
+@LEAF_RMPS.register("joint_limit", examples=[Example({}, 1, barrier_states)])
 class JointLimitBarrier(Barrier1D):
     """Barrier on a 1-D joint-limit space (``upper − q`` or ``q − lower``), with joint-scale defaults."""
 
@@ -196,7 +212,7 @@ class JointLimitBarrier(Barrier1D):
         alpha: float = Field(1e-3, ge=0)
 
 
-@LEAF_RMPS.register("damper")
+@LEAF_RMPS.register("damper", examples=[Example({"w": 2.0, "eta": 3.0}, 2)])
 class Damper(GDS):
     """G = w·I, B = η·w·I, Φ = 0: damps motion in its space."""
 
@@ -234,7 +250,7 @@ class Damper(GDS):
         return (Damper, self.stack_settings(), self.learned_signature())  # identity metric: a damper, undamped
 
 
-@LEAF_RMPS.register("identity_metric")
+@LEAF_RMPS.register("identity_metric", examples=[Example({}, 3)])
 class IdentityMetric(Damper):
     """G = scale·I, no force: keeps the root inertia well conditioned so resolve is numerically stable."""
 

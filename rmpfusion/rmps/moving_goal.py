@@ -16,11 +16,13 @@ import torch
 from pydantic import Field
 
 from ..core.gds import GDS
+from ..examples import Example
 from ..registry import LEAF_RMPS, Params
 from .potentials import soft_norm, soft_norm_grad
 
 
-@LEAF_RMPS.register("moving_goal_attractor")
+@LEAF_RMPS.register("moving_goal_attractor", examples=[
+    Example({}, 4), Example({"gain": 2.0, "alpha": 4.0, "eta": 3.0, "w": 0.5}, 6)])
 class MovingGoalAttractor(GDS):
     """Tracks a moving goal: on y = (e, ġ) (``moving_offset``), G = diag(w·I, 0), B = η·G,
     Φ = gain·log cosh(α|e|)/α − η·w·ġᵀe (module docstring)."""

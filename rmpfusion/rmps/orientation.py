@@ -4,12 +4,14 @@ from __future__ import annotations
 from pydantic import Field
 
 from ..core.stacking import spread
+from ..examples import Example
 from ..registry import LEAF_RMPS
 from .gds_leaves import RadialMetricAttractor
 from .learnable import LeafParams
 
 
-@LEAF_RMPS.register("orientation_attractor")
+@LEAF_RMPS.register("orientation_attractor", examples=[
+    Example({}, 3), Example({"gain": 3.0, "eta": 1.5, "w_u": 5.0, "w_l": 1.0, "sigma": 0.4}, 9)])
 class OrientationAttractor(RadialMetricAttractor):
     """Pulls link axes onto their target directions: Φ = gain·½|e|², G = w(|e|)·I, B = η·G.
 

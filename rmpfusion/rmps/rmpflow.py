@@ -15,12 +15,19 @@ from torch import Tensor
 from ..core.algebra import NodeRMP
 from ..core.gds import LeafRMP
 from ..core.stacking import spread
+from ..examples import Example
 from ..registry import LEAF_RMPS
 from .learnable import LeafParams
 from .potentials import logcosh, radial_integral
 
 
-@LEAF_RMPS.register("rmpflow_collision_avoidance")
+def positive_distance_states(gen: torch.Generator, n: int, dim: int) -> tuple[Tensor, Tensor]:
+    """Examples' states of RMPflow's 1/x⁴ barrier: distances in [0.3, 2], away from its clipping and from x = 0."""
+    return 0.3 + 1.7 * torch.rand(n, dim, generator=gen), torch.randn(n, dim, generator=gen)
+
+
+@LEAF_RMPS.register("rmpflow_collision_avoidance", examples=[
+    Example({"alpha": 1e-3, "eta": 0.5}, 1, positive_distance_states)])
 class RMPflowCollisionAvoidance(LeafRMP):
     """RMPflow's CollisionAvoidance on a distance coordinate x.
 
@@ -62,7 +69,8 @@ class RMPflowCollisionAvoidance(LeafRMP):
         return NodeRMP(f=f[..., None], M=as_mat(M), G=as_mat(g), B=as_mat(self.eta * g), Phi=Phi, L=K - Phi, V=K + Phi)
 
 
-@LEAF_RMPS.register("rmpflow_goal_attractor")
+@LEAF_RMPS.register("rmpflow_goal_attractor", examples=[
+    Example({}, 2, scale=2.0), Example({"gain": 1.5, "sigma": 0.8, "eta": 1.0}, 3, scale=2.0)])
 class RMPflowGoalAttractor(LeafRMP):
     """RMPflow's GoalAttractorUni on x = y − goal.
 
@@ -126,7 +134,7 @@ class RMPflowGoalAttractor(LeafRMP):
         return NodeRMP.lean(f, G)  # no quadrature: Φ is only for L and V
 
 
-@LEAF_RMPS.register("rmpflow_damper")
+@LEAF_RMPS.register("rmpflow_damper", examples=[Example({"w": 2.0, "eta": 0.5}, 3)])
 class RMPflowDamper(LeafRMP):
     """RMPflow's Damper: G = M = wI, f = −η·w·ẋ, in any dimension."""
 

@@ -21,6 +21,7 @@ from torch import Tensor
 
 from ..core.auxstate import constant
 from ..core.gds import GDS
+from ..examples import Example, StateSampler
 from ..registry import LEAF_RMPS, Params
 
 
@@ -32,7 +33,30 @@ def band_metric(r: Tensor, r_linear: float) -> tuple[Tensor, Tensor]:
     return phi + dphi * (r - rc), dphi
 
 
-@LEAF_RMPS.register("velocity_limit")
+def band_states(limit: tuple[float, ...] = (1.0,), onset: float = 0.8, linear_from: float = 0.99) -> StateSampler:
+    """Examples' states of a velocity_limit leaf: each velocity below its onset, inside its band or beyond its
+    limit, never within 0.05 band widths of the onset, of the start of the linear continuation or of the limit
+    (where its metric is only C¹, or changes fast); positions do not matter. One sample has every coordinate
+    inside the band."""
+    def states(gen: torch.Generator, n: int, dim: int) -> tuple[Tensor, Tensor]:
+        L = torch.tensor(limit).expand(dim)
+        on, band = onset * L, (1 - onset) * L
+        r_lin = on + linear_from * band
+        pick = torch.randint(0, 3, (n, dim), generator=gen)
+        lo = torch.stack([torch.zeros_like(on), on + 0.05 * band, L + 0.05 * band])
+        hi = torch.stack([on - 0.05 * band, r_lin - 0.05 * band * linear_from, L + 2 * band])
+        lo, hi = lo.gather(0, pick), hi.gather(0, pick)
+        sign = torch.where(torch.rand(n, dim, generator=gen) < 0.5, -1.0, 1.0)
+        yd = sign * (lo + (hi - lo) * torch.rand(n, dim, generator=gen))
+        yd[0] = on + band * 0.5
+        return torch.randn(n, dim, generator=gen), yd
+    return states
+
+
+@LEAF_RMPS.register("velocity_limit", examples=[
+    Example({}, 3, band_states()),
+    Example({"limit": [2.0, 0.5], "onset": 0.6, "w": 3.0, "eta": 0.5, "linear_from": 0.9}, 2,
+            band_states((2.0, 0.5), 0.6, 0.9))])
 class VelocityLimit(GDS):
     """Keeps |ẏ_i| below ``limit`` (per coordinate, or one for all): G = diag(w·φ(r_i)), B = η·G, Φ = 0 (module
     docstring); on ``velocity_scaled_joints`` with limit 1 it caps every joint at its URDF velocity limit."""

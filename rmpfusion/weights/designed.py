@@ -10,10 +10,11 @@ from torch import Tensor
 
 from ..core.auxstate import AuxOrValue, AuxParam
 from ..core.weight import WeightFunction
+from ..examples import AuxInput, Example
 from ..registry import WEIGHTS, Params
 
 
-@WEIGHTS.register("constant")
+@WEIGHTS.register("constant", examples=[Example({"value": 2.5}, 2)])
 class Constant(WeightFunction):
     """w = value > 0 everywhere; ∇w = 0, so pullback* skips h_i."""
 
@@ -88,7 +89,10 @@ class _DistanceWeight(WeightFunction):
         return w, ((self.high - self.low) * ds)[..., None] * dd_dx
 
 
-@WEIGHTS.register("rbf")
+@WEIGHTS.register("rbf", examples=[
+    Example({"low": 0.5, "high": 4.0, "center": "obstacle_center", "radius": "obstacle_radius", "sigma": 0.7}, 2,
+            scale=2.0, aux={"obstacle_center": AuxInput.normal(2), "obstacle_radius": AuxInput.radius()}),
+    Example({"low": 2.0, "high": 0.1, "center": [1.0, -1.0]}, 2, scale=2.0)])
 class RBF(_DistanceWeight):
     """w = low + (high − low)·exp(−d²/2σ²), d = |x − center| − radius: high near a point or surface."""
 
@@ -113,7 +117,10 @@ class RBF(_DistanceWeight):
         return e, -d / self.sigma**2 * e
 
 
-@WEIGHTS.register("logistic")
+@WEIGHTS.register("logistic", examples=[
+    Example({"low": 0.2, "high": 3.0, "center": "obstacle_center", "radius": "obstacle_radius", "steepness": -3.0,
+             "switch_distance": 0.5}, 2, scale=2.0,
+            aux={"obstacle_center": AuxInput.normal(2), "obstacle_radius": AuxInput.radius()})])
 class Logistic(_DistanceWeight):
     """w = low + (high − low)·σ(k·(d − d0)), d = |x − center| − radius: a smooth switch at distance d0.
 

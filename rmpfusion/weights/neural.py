@@ -21,6 +21,7 @@ from torch import Tensor, nn
 from ..core.auxstate import CONSTANT_DTYPE, AuxDict, AuxParam, StackedAux
 from ..core.stacking import shallow_clone
 from ..core.weight import WeightFunction, aux_features
+from ..examples import AuxInput, Example
 from ..registry import WEIGHTS, Params
 
 
@@ -77,7 +78,14 @@ def hidden_widths(v: list[int]) -> list[int]:
     return v
 
 
-@WEIGHTS.register("mlp")
+@WEIGHTS.register("mlp", examples=[
+    Example({"hidden": [16, 16], "aux": ["goal", "obstacle_center", "obstacle_radius"]}, 2, scale=2.0,
+            aux={"goal": AuxInput.normal(2), "obstacle_center": AuxInput.normal(2),
+                 "obstacle_radius": AuxInput.radius()}),
+    Example({"hidden": [8], "activation": "softplus", "positivity": "exp"}, 2, scale=2.0),
+    Example({"hidden": [8, 8, 8], "activation": "elu"}, 2, scale=2.0),
+    Example({"hidden": [8], "activation": "silu", "aux": ["goal"]}, 2, scale=2.0, aux={"goal": AuxInput.normal(2)}),
+    Example({"hidden": [8], "activation": "sigmoid"}, 2, scale=2.0)])
 class MLPWeight(WeightFunction):
     """w = floor + pos(MLP([x, aux features])) with pos = softplus or exp.
 

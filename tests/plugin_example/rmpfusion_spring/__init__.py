@@ -2,6 +2,11 @@
 
 rmpfusion imports it on the first registry lookup because pyproject.toml names it under the
 ``rmpfusion.plugins`` entry-point group; the decorator is the one rmpfusion's built-ins use.
+
+The plugin ships its own derivative checks: the ``examples`` of its register call are the configurations
+rmpfusion's finite-difference tests (tests/test_registry_derivatives.py) build it with, as they do every built-in
+(its M and f against the GDS definitions, its analytic curvature against autodiff). A plugin entry without
+examples fails those tests, naming itself.
 """
 from __future__ import annotations
 
@@ -9,10 +14,11 @@ import torch
 from pydantic import Field
 
 from rmpfusion.core.gds import GDS
+from rmpfusion.examples import Example
 from rmpfusion.registry import LEAF_RMPS, Params
 
 
-@LEAF_RMPS.register("spring")
+@LEAF_RMPS.register("spring", examples=[Example({"gain": 3.0, "eta": 0.5, "w": 2.0}, dim=2)])
 class Spring(GDS):
     """Φ = ½·gain·|y|², G = w·I, B = eta·w·I: a GDS with a constant metric, so its curvature terms vanish."""
 
