@@ -84,7 +84,7 @@ def test_descriptions_are_checked_against_the_urdf():
     with pytest.raises(ValueError, match=r"joints\[6\] = 'panda_joint_7' is not a movable joint of "
                                          r"pkg://pybullet_data/franka_panda/panda.urdf; did you mean 'panda_joint7'"):
         RobotDescription.model_validate({**panda, "joints": panda["joints"][:6] + ["panda_joint_7"]})
-    with pytest.raises(ValueError, match=r"home value 1.0 of panda_joint4 lies outside its limits \[-3.1416, 0.0\]"):
+    with pytest.raises(ValueError, match=r"home: panda_joint4 = 1.0 lies outside its limits \[-3.1416, 0.0\]"):
         RobotDescription.model_validate({**panda, "home": [1.0] * 7})
     with pytest.raises(ValueError, match=r"limits.panda_joint9: not an actuated joint"):
         RobotDescription.model_validate({**panda, "limits": {"panda_joint9": {"upper": 1.0}}})

@@ -179,9 +179,7 @@ def _entry(p: ManipulatorTreeParams, field: str) -> dict[str, Any]:
 
 def _point(p: ManipulatorTreeParams, link: str, offset) -> dict[str, Any]:
     """The forward-kinematics map to a point fixed in one of the robot's links."""
-    r = p.robot
-    return {"type": "forward_kinematics", "urdf": r.urdf, "joints": list(r.joints), "link": link,
-            "offset": [float(v) for v in offset]}
+    return _robot_map(p, "forward_kinematics", link=link, offset=[float(v) for v in offset])
 
 
 def _surface(dist: dict[str, Any], radius: float) -> dict[str, Any]:
@@ -254,8 +252,10 @@ def fig1b(p: ManipulatorTreeParams) -> dict[str, Any]:
 
 
 def _robot_map(p: ManipulatorTreeParams, kind: str, **keys: Any) -> dict[str, Any]:
-    """A joint-space map of ``kind`` on the robot (its urdf and joints written in)."""
-    return {"type": kind, "urdf": p.robot.urdf, "joints": list(p.robot.joints), **keys}
+    """A joint-space map of ``kind`` on the robot (its urdf, joints and mount written in)."""
+    r = p.robot
+    mount = {} if r.mount is None or r.mount.is_identity() else {"mount": r.mount.model_dump(mode="json")}
+    return {"type": kind, "urdf": r.urdf, "joints": list(r.joints), **mount, **keys}
 
 
 def _optional_leaves(p: ManipulatorTreeParams, nodes: dict[str, Any], aux: dict[str, int]) -> str:

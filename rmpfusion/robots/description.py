@@ -15,6 +15,7 @@ from typing import Literal, Sequence
 
 from pydantic import Field, field_validator, model_validator
 
+from ..maps.robot import Mount
 from ..maps.urdf import URDFModel, parse_urdf
 from ..registry import Params
 
@@ -68,10 +69,16 @@ class RobotDescription(Params):
     type: Literal["urdf"] = "urdf"
     name: str = Field(description="how figures and messages name the robot")
     urdf: str = Field(description="a file path, or pkg://<package>/<path> inside an installed Python package")
+    packages: dict[str, str] = Field(default_factory=dict, description="ROS package name -> its folder (a path or "
+                                     "pkg://<python package>/<folder>), for the URDF's package:// meshes; searched "
+                                     "first (robots/packages.py)")
+    mount: Mount | None = Field(None, description="where the base sits in the world (xyz m, rpy rad); default the "
+                                                   "origin")
     joints: list[str] = Field(min_length=1, description="the actuated joints, in configuration order; other movable "
                                                         "joints are held at 0")
     end_effector: EndEffector
-    home: list[float] = Field(description="a configuration inside the limits (rad), one value per actuated joint")
+    home: list[float] = Field(description="a configuration inside the limits (rad), one value per actuated joint: "
+                                          "the centre of the starts unless the experiment says otherwise")
     limits: dict[str, JointLimits] = Field(default_factory=dict, description="per-joint overrides of the URDF limits")
     control_points: list[ControlPoint] = Field(default_factory=list, description="spheres approximating the arm")
     held_joint_gains: HeldJointGains = HeldJointGains()
@@ -90,6 +97,10 @@ class RobotDescription(Params):
             if j not in movable:
                 raise ValueError(f"joints[{i}] = {j!r} is not a movable joint of {self.urdf}; {_close(j, movable)}"
                                  f"movable joints: {', '.join(movable)}")
+            mimic = model.joint(j).mimic
+            if mimic is not None:
+                raise ValueError(f"joints[{i}] = {j!r} follows {mimic.leader!r} (URDF <mimic>), so it cannot be "
+                                 f"actuated on its own; list {mimic.leader!r} instead (its followers move with it)")
         if len(set(self.joints)) != len(self.joints):
             raise ValueError(f"joints lists a joint twice: {self.joints}")
         for where, link in [("end_effector.link", self.end_effector.link),
@@ -109,7 +120,7 @@ class RobotDescription(Params):
             raise ValueError(f"home has {len(self.home)} values for {len(self.joints)} actuated joints {self.joints}")
         for j, q, (lo, hi, _) in zip(self.joints, self.home, self.joint_limits()):
             if not lo <= q <= hi:
-                raise ValueError(f"home value {q} of {j} lies outside its limits [{lo}, {hi}]; move it inside")
+                raise ValueError(f"home: {j} = {q} lies outside its limits [{lo}, {hi}]; move it inside")
 
     def joint_limits(self) -> list[tuple[float, float, float]]:
         """(lower, upper, velocity) of every actuated joint: the URDF's, with ``limits`` overriding key by key

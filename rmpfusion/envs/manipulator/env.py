@@ -190,8 +190,10 @@ class Manipulator(ComputesOnDevice, SeededSampling):
 
         q0, qd0 = redraw_until_ok(
             draw, ok, aux, p.max_tries,
-            lambda left: f"manipulator: could not place {left} start configurations clear of the obstacles and "
-                         f"min_start_goal_distance from the goal; move nominal_q or change start_spread")
+            lambda left: f"manipulator: could not place {left} start configurations clear of the obstacles and the "
+                         f"ground by env.start_clearance ({p.start_clearance} m) and env.min_start_goal_distance "
+                         f"({p.min_start_goal_distance} m) from the goal in {p.max_tries} rounds; move the starts' "
+                         f"centre ({_centre_key(p)}), or change env.start_spread or env.start_clearance")
         return q0, qd0, aux
 
     # ------------------------------------------------------------------ rollouts
@@ -258,6 +260,11 @@ class Manipulator(ComputesOnDevice, SeededSampling):
     def project(self, points, width: int = 320, height: int = 240) -> np.ndarray:
         """(N, 2) pixel coordinates (column, row) of world points (N, 3) in ``render``'s image, to draw paths on it."""
         return rendering.project(self.params.camera, points, width, height)
+
+
+def _centre_key(p: ManipulatorParams) -> str:
+    """How the user sets the starts' centre: the robot file's ``home`` unless ``env.nominal_q`` overrides it."""
+    return "env.nominal_q" if p.nominal_q is not None else f"home in the robot file of {p.robot.name}, env.robot.home"
 
 
 def _reporting(monitor: Callable[..., Any] | None, progress: Callable[[int, int], Any],
