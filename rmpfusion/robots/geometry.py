@@ -8,7 +8,6 @@ collision geometry is covered by its visual geometry, and the caller is told whi
 """
 from __future__ import annotations
 
-import os
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from typing import Mapping, Sequence

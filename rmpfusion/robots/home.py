@@ -3,7 +3,8 @@ configuration to it whose control spheres clear the ground.
 
 Only spheres whose height changes over the joints' range are judged (sampled, not assumed): a sphere on a link no
 joint can raise or lower, such as a shoulder that only spins about the vertical, sits where it sits whatever the
-configuration.
+configuration; and a sphere that can never rise ``clearance`` above the ground is asked only for the height it can
+reach.
 """
 from __future__ import annotations
 
@@ -24,7 +25,7 @@ def mid_range(robot: RobotDescription) -> list[float]:
     """The middle of every joint's range; 0 for a joint with no finite limits (continuous)."""
     out = []
     for lo, hi, _ in robot.joint_limits():
-        out.append((lo + hi) / 2 if math.isfinite(lo) and math.isfinite(hi) else 0.0)
+        out.append(round((lo + hi) / 2, 4) if math.isfinite(lo) and math.isfinite(hi) else 0.0)
     return out
 
 
@@ -54,7 +55,10 @@ def propose_home(robot: RobotDescription, ground: float = 0.0, clearance: float 
     samples = lo + (hi - lo) * torch.rand(SAMPLES, len(lo), generator=g, dtype=torch.float64)
     heights = sphere_heights(robot, samples)
     moves = (heights.max(0).values - heights.min(0).values) > STILL
-    clear = lambda h: (h[:, moves] >= ground + clearance).all(-1) if bool(moves.any()) else torch.ones(len(h), dtype=torch.bool)  # noqa: E731
+    # a sphere is asked for ``clearance`` or, if it can never rise that far (beside a shoulder axis), for the height
+    # it can reach, less 2 mm: the rule the environment's start check applies to links
+    need = torch.minimum(torch.full_like(heights[0], ground + clearance), heights.max(0).values - 0.002)
+    clear = lambda h: (h[:, moves] >= need[moves]).all(-1)  # noqa: E731
     if bool(clear(sphere_heights(robot, mid))[0]):
         return mid[0].tolist(), "the middle of every joint's range (clear of the ground)"
     ok = clear(heights)

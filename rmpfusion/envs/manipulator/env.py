@@ -107,6 +107,18 @@ class Manipulator(ComputesOnDevice, SeededSampling):
             out.append(sc.clearance(self.params.clearance_query))
         return torch.tensor(out, dtype=self.dtype)
 
+    def start_margin(self, q: Tensor, aux: Mapping[str, Tensor]) -> Tensor:
+        """(B,) how far each configuration is from a fit start (≥ 0: it is one): ``start_clearance`` from every
+        obstacle and from the ground, counting only links some joint can raise or lower, each asked for no more
+        height than it can reach (``_Scene.start_margin``)."""
+        sc, p = self.checker(), self.params
+        out = []
+        for b in range(q.shape[0]):
+            sc.set_env(self.scene, sample_aux(aux, b))
+            sc.reset(q[b].detach().cpu().numpy())
+            out.append(sc.start_margin(p.start_clearance, p.clearance_query))
+        return torch.tensor(out, dtype=self.dtype)
+
     def in_collision(self, q: Tensor, aux: Mapping[str, Tensor]) -> Tensor:
         """(B,) bool: some link within zero distance of an obstacle."""
         return self.clearance(q, aux) <= 0.0
@@ -185,7 +197,7 @@ class Manipulator(ComputesOnDevice, SeededSampling):
             good = far.clone()
             if bool(far.any()):  # pybullet only for the candidates that pass the cheap test
                 idx = far.nonzero().flatten()
-                good[idx] = self.clearance(v[0][idx], {k: x[idx] for k, x in a.items()}) >= p.start_clearance
+                good[idx] = self.start_margin(v[0][idx], {k: x[idx] for k, x in a.items()}) >= 0.0
             return good
 
         q0, qd0 = redraw_until_ok(

@@ -61,7 +61,8 @@ class _Scene:
             raise RuntimeError("pybullet: could not connect (a GUI may already be open)")
         self.robot, self.arm, self.held = robot.load_into(p, self.cid)
         self.held_drive = robot.held_targets()
-        self.moving_links = self._links_that_can_touch_the_ground(robot)
+        self.ground_reach = self._links_that_can_touch_the_ground(robot)
+        self.moving_links = list(self.ground_reach)
         for j in range(-1, p.getNumJoints(self.robot, physicsClientId=self.cid)):
             # pybullet's default link damping is not in its inverse dynamics; remove it so the
             # computed-torque loop realises the commanded acceleration exactly
@@ -75,9 +76,9 @@ class _Scene:
         self.ground: int | None = None
         self.goal_marker: int | None = None
 
-    def _links_that_can_touch_the_ground(self, robot: URDFRobot) -> list[int]:
-        """pybullet indices of the links whose lowest point changes height over the joints' range: the ones the
-        ground check counts (found once per robot, ``ground_links``)."""
+    def _links_that_can_touch_the_ground(self, robot: URDFRobot) -> dict[int, float]:
+        """pybullet index -> highest lowest point (m) of the links whose lowest point changes height over the joints'
+        range: the ones the ground check counts (found once per robot, ``ground_links``)."""
         key = (robot.urdf_path, tuple(robot.params.joints), repr(robot.params.mount))
         if key not in _GROUND_LINKS:
             _GROUND_LINKS[key] = ground_links(self, robot)
@@ -167,6 +168,23 @@ class _Scene:
                     best = min(best, pt[8])
         return best
 
+    def start_margin(self, required: float, query: float) -> float:
+        """How far the robot is from being a fit start (≥ 0: it is): its distance to every obstacle minus
+        ``required``, and each ground-checked link's distance to the ground minus ``required`` or, for a link whose
+        lowest point can never rise that far above the ground (a UR5's upper arm beside its shoulder axis), minus
+        the height it can reach, less 2 mm."""
+        p, cid, worst = self.p, self.cid, query - required
+        for ob in self.obstacles:
+            for pt in p.getClosestPoints(self.robot, ob, query, physicsClientId=cid):
+                worst = min(worst, pt[8] - required)
+        if self.ground is not None:
+            height = p.getBasePositionAndOrientation(self.ground, physicsClientId=cid)[0][2]
+            for link, reach in self.ground_reach.items():
+                need = min(required, max(0.0, reach - height - 0.002))
+                for pt in p.getClosestPoints(self.robot, self.ground, query, linkIndexA=link, physicsClientId=cid):
+                    worst = min(worst, pt[8] - need)
+        return worst
+
     def close(self) -> None:
         try:
             self.p.disconnect(physicsClientId=self.cid)
@@ -174,17 +192,19 @@ class _Scene:
             pass
 
 
-#: pybullet link indices the ground check counts, per (URDF, actuated joints, mount): found once per process
-_GROUND_LINKS: dict[tuple, list[int]] = {}
+#: pybullet link index -> highest lowest point, of the links the ground check counts, per (URDF, actuated joints,
+#: mount): found once per process
+_GROUND_LINKS: dict[tuple, dict[int, float]] = {}
 #: configurations sampled to see which links' lowest points change height, and the change that counts (m)
 GROUND_SAMPLES, GROUND_TOLERANCE = 64, 1e-5
 
 
-def ground_links(world: _Scene, robot: URDFRobot, samples: int = GROUND_SAMPLES, seed: int = 0) -> list[int]:
-    """pybullet indices of the links whose lowest point (of their collision shapes' bounding boxes) changes height by
-    more than GROUND_TOLERANCE over ``samples`` configurations drawn uniformly within the joints' limits (a
-    continuous joint over one turn). A link no joint can raise or lower (a shoulder that only spins about the
-    vertical) always sits where it sits, however near the ground: checking it would refuse every start."""
+def ground_links(world: _Scene, robot: URDFRobot, samples: int = GROUND_SAMPLES, seed: int = 0) -> dict[int, float]:
+    """pybullet index -> the highest its lowest point gets (m, world), of the links whose lowest point (of their
+    collision shapes' bounding boxes) changes height by more than GROUND_TOLERANCE over ``samples`` configurations
+    drawn uniformly within the joints' limits (a continuous joint over one turn). A link no joint can raise or lower
+    (a shoulder that only spins about the vertical) always sits where it sits, however near the ground: checking it
+    would refuse every start."""
     p, cid = world.p, world.cid
     lo = np.maximum(robot.lower.numpy(), -np.pi)
     hi = np.minimum(robot.upper.numpy(), np.pi)
@@ -198,9 +218,9 @@ def ground_links(world: _Scene, robot: URDFRobot, samples: int = GROUND_SAMPLES,
         for c, i in enumerate(links):
             lowest[s, c] = p.getAABB(world.robot, i, physicsClientId=cid)[0][2]
     if not links:
-        return []
+        return {}
     varies = lowest.max(0) - lowest.min(0) > GROUND_TOLERANCE
-    return [i for i, v in zip(links, varies) if v]
+    return {i: float(top) for i, v, top in zip(links, varies, lowest.max(0)) if v}
 
 
 class HelperWorlds:
