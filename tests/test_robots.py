@@ -142,3 +142,33 @@ def test_fit_spheres_measures_coverage_on_fresh_samples():
     c = kmeans(pts, 4, seed=0)
     assert c.shape == (4, 3)
     assert covered_by(pts, c, np.full(4, 10.0)).all() and not covered_by(pts, c, np.full(4, 0.01)).any()
+
+
+PUBLISHED = ["ur5", "kinova", "xarm7", "so101"]  # URDFs and meshes as example-robot-data ships them
+
+
+def test_published_arms_differ_in_joints_and_mesh_formats():
+    import xml.etree.ElementTree as ET
+
+    descriptions = {name: RobotDescription.model_validate(robot(name)) for name in PUBLISHED}
+    assert len({len(d.joints) for d in descriptions.values()}) >= 3  # 5, 6 and 7 joints
+    formats = set()
+    for d in descriptions.values():
+        root = ET.parse(resolve_urdf_path(d.urdf)).getroot()
+        formats |= {Path(m.get("filename")).suffix.lower() for m in root.iter("mesh")}
+        assert all(m.get("filename").startswith("package://") for m in root.iter("mesh"))  # as published
+    assert {".stl", ".dae"} <= formats
+
+
+@pytest.mark.parametrize("name", PUBLISHED)
+def test_published_arms_find_starts_above_a_table(name):
+    """Starts around the robot file's home, clear of a table at z = 0 by the default start_clearance (0.05 m): the
+    UR5's shoulder, 2.3 cm above the table whatever its angle, used to refuse every one."""
+    env = Manipulator(robot=robot(name), scene={"ground": {"height": 0.0}}, start_spread=0.2)
+    try:
+        g = torch.Generator().manual_seed(0)
+        q0, _, aux = env.sample_initial_states(env.sample_envs(2, g), 3, g)
+        assert q0.shape == (6, env.dim) and bool((env.start_margin(q0, aux) >= 0).all())
+        assert bool((env.clearance(q0, aux) > 0).all())
+    finally:
+        env.close()

@@ -1,7 +1,8 @@
 """The manipulator RMP-tree* of the paper (Fig. 1b, App. D.2) for any robot and scene, as a generated spec.
 
 The tree's shape depends on the robot's control points and on the scene's obstacles: every obstacle adds one
-distance node under every control point (and a ground plane one more). Generating the spec keeps those nodes
+distance node under every control point (and a ground plane one more, for every control point some joint can
+raise or lower: a sphere at a fixed height, on a shoulder that only spins, gets none). Generating the spec keeps those nodes
 consistent, and lets a tree trained in one scene be rebuilt for another: the obstacle weight on a control point is
 one entry of ``shared_weights`` used by all of that point's obstacle edges, each edge binding the generic aux names
 ``obstacle_center``/``obstacle_radius`` to its own obstacle. The generator is registered as ``fig1b``, so
@@ -27,6 +28,7 @@ from ..rmps.gds_leaves import CollisionAvoidance, Damper, GoalAttractor, Identit
 from ..rmps.orientation import OrientationAttractor
 from ..rmps.velocity_limit import VelocityLimit
 from ..robots import RobotField
+from ..robots.home import spheres_at_fixed_height
 from ..scenes import Scene, obstacle_map, scene_aux_dims
 from ..weights.neural import MLPWeight
 
@@ -187,8 +189,9 @@ def _surface(dist: dict[str, Any], radius: float) -> dict[str, Any]:
     return {"type": "compose", "maps": [dist, {"type": "offset", "origin": [float(radius)]}]}
 
 
-def _control_point_nodes(p: ManipulatorTreeParams, i: int, cp) -> tuple[dict[str, Any], dict[str, Any]]:
-    """Control point ``i``'s node, its obstacle (and ground) edges, and its shared obstacle weight."""
+def _control_point_nodes(p: ManipulatorTreeParams, i: int, cp, ground: bool) -> tuple[dict[str, Any], dict[str, Any]]:
+    """Control point ``i``'s node, its obstacle (and, with ``ground``, ground) edges, and its shared obstacle
+    weight."""
     name, scene = f"cp{i}", p.scene
     nodes: dict[str, Any] = {name: {"parent": "q", "map": _point(p, cp.link, cp.offset)}}
     shared = {f"{name}_obstacle": _entry(p, "obstacle_weight")} if scene.obstacles else {}
@@ -200,7 +203,7 @@ def _control_point_nodes(p: ManipulatorTreeParams, i: int, cp) -> tuple[dict[str
                        "bind": {"obstacle_center": f"obstacle{k}_center", "obstacle_radius": f"obstacle{k}_radius"}},
             "rmp": _entry(p, "obstacle_rmp"),
         }
-    if scene.ground is not None:
+    if scene.ground is not None and ground:
         plane = {"type": "plane_distance", "normal": [0.0, 0.0, 1.0], "height": float(scene.ground.height)}
         nodes[f"{name}_ground"] = {"parent": name, "map": _surface(plane, cp.radius), "weight": {"shared": "ground"},
                                    "rmp": _entry(p, "obstacle_rmp")}
@@ -231,8 +234,9 @@ def fig1b(p: ManipulatorTreeParams) -> dict[str, Any]:
         nodes[f"jl{j + 1}_{side}"] = {"parent": "q", "map": {"type": "joint_limit", "side": side, "limit": float(lim),
                                                              "joints": j}, "rmp": _entry(p, "joint_limit_rmp")}
     shared: dict[str, Any] = {"ground": _entry(p, "ground_weight")} if p.scene.ground is not None else {}
+    still = set(spheres_at_fixed_height(r)) if p.scene.ground is not None else set()  # no joint lowers them
     for i, cp in enumerate(r.control_points, start=1):
-        more, weights = _control_point_nodes(p, i, cp)
+        more, weights = _control_point_nodes(p, i, cp, ground=i - 1 not in still)
         nodes.update(more)
         shared.update(weights)
     nodes["damper"] = {"parent": "q", "map": {"type": "identity"}, "rmp": _entry(p, "damper_rmp")}

@@ -1,4 +1,4 @@
-"""A home configuration proposed for a robot that has none: the middle of every joint's range, or the nearest
+"""Which control spheres can move up or down, and a home configuration proposed for a robot that has none: the middle of every joint's range, or the nearest
 configuration to it whose control spheres clear the ground.
 
 Only spheres whose height changes over the joints' range are judged (sampled, not assumed): a sphere on a link no
@@ -42,6 +42,24 @@ def sphere_heights(robot: RobotDescription, q: torch.Tensor) -> torch.Tensor:
     return torch.stack(out, -1)
 
 
+def sampled_configurations(robot: RobotDescription, n: int = SAMPLES, seed: int = 0) -> torch.Tensor:
+    """(n, dof) configurations uniform within the limits (a continuous joint over one turn each way)."""
+    lo = torch.tensor([max(lim[0], -math.pi) for lim in robot.joint_limits()], dtype=torch.float64)
+    hi = torch.tensor([min(lim[1], math.pi) for lim in robot.joint_limits()], dtype=torch.float64)
+    g = torch.Generator().manual_seed(seed)
+    return lo + (hi - lo) * torch.rand(n, len(lo), generator=g, dtype=torch.float64)
+
+
+def spheres_at_fixed_height(robot: RobotDescription) -> list[int]:
+    """Indices (from 0) of the control spheres whose height no joint changes (sampled): a ground barrier on one of
+    them could never act, and one that starts below the ground would stay there."""
+    if not robot.control_points:
+        return []
+    heights = sphere_heights(robot, sampled_configurations(robot))
+    still = (heights.max(0).values - heights.min(0).values) <= STILL
+    return [i for i, s in enumerate(still.tolist()) if s]
+
+
 def propose_home(robot: RobotDescription, ground: float = 0.0, clearance: float = 0.05,
                  seed: int = 0) -> tuple[list[float], str]:
     """(home, how it was chosen): mid-range when every sphere that can move up or down is ``clearance`` above the
@@ -51,8 +69,7 @@ def propose_home(robot: RobotDescription, ground: float = 0.0, clearance: float 
         return mid[0].tolist(), "the middle of every joint's range (no control spheres to check against the ground)"
     lo = torch.tensor([max(lim[0], -math.pi) for lim in robot.joint_limits()], dtype=torch.float64)
     hi = torch.tensor([min(lim[1], math.pi) for lim in robot.joint_limits()], dtype=torch.float64)
-    g = torch.Generator().manual_seed(seed)
-    samples = lo + (hi - lo) * torch.rand(SAMPLES, len(lo), generator=g, dtype=torch.float64)
+    samples = sampled_configurations(robot, SAMPLES, seed)
     heights = sphere_heights(robot, samples)
     moves = (heights.max(0).values - heights.min(0).values) > STILL
     # a sphere is asked for ``clearance`` or, if it can never rise that far (beside a shoulder axis), for the height
