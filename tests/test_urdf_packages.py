@@ -64,7 +64,7 @@ def test_fit_reads_every_mesh_format_and_says_which_links_it_covered_by_their_vi
     assert "home [" in printed  # proposed, none was given
     link3 = [cp for cp in data["control_points"] if cp["link"] == "link3"]
     assert all(cp["radius"] < 0.15 for cp in link3)  # metres: the millimetre mesh was scaled (else ~75 m spheres)
-    assert "packages" not in data  # found above the URDF, nothing to write
+    assert data["packages"] == {PACKAGE: None}  # found above the URDF: listed, to be set on a command line
 
 
 def test_package_search_order_and_resolved_copy(package, tmp_path, monkeypatch):

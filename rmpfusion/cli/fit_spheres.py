@@ -31,6 +31,7 @@ from ..plots.spheres import plot_coverage
 from ..robots import RobotDescription, build_robot
 from ..robots.geometry import collision_meshes, link_geometry, links_with_geometry
 from ..robots.home import mid_range, propose_home
+from ..robots.packages import package_names
 from ..robots.spheres import LinkFit, fit_link, measure, summary
 
 TARGET = 0.99
@@ -93,8 +94,12 @@ def _fit(args) -> tuple[dict, list[LinkFit], list[str]]:
         home, how = propose_home(fitted)
         fitted = RobotDescription.model_validate({**fitted.model_dump(), "home": home})
         notes.append(f"home {home}: {how}")
-    exclude = {"control_points"} | ({"packages"} if not packages else set()) | ({"mount"} if fitted.mount is None else set())
-    return {**fitted.model_dump(mode="json", exclude=exclude), "control_points": spheres}, fits, notes
+    exclude = {"control_points", "packages"} | ({"mount"} if fitted.mount is None else set())
+    # every package the URDF's meshes name, null where it is searched for: the key is there to be set
+    # (env.robot.packages.NAME=PATH) on any machine
+    named = {name: packages.get(name) for name in [*package_names(args.urdf), *packages]}
+    out = fitted.model_dump(mode="json", exclude=exclude)
+    return {**out, **({"packages": named} if named else {}), "control_points": spheres}, fits, notes
 
 
 def _draft_home(args, packages: dict[str, str]) -> list[float]:

@@ -69,9 +69,9 @@ class RobotDescription(Params):
     type: Literal["urdf"] = "urdf"
     name: str = Field(description="how figures and messages name the robot")
     urdf: str = Field(description="a file path, or pkg://<package>/<path> inside an installed Python package")
-    packages: dict[str, str] = Field(default_factory=dict, description="ROS package name -> its folder (a path or "
-                                     "pkg://<python package>/<folder>), for the URDF's package:// meshes; searched "
-                                     "first (robots/packages.py)")
+    packages: dict[str, str | None] = Field(default_factory=dict, description="ROS package name -> its folder (a "
+                                            "path or pkg://<python package>/<folder>; null: searched for), for the "
+                                            "URDF's package:// meshes (robots/packages.py)")
     mount: Mount | None = Field(None, description="where the base sits in the world (xyz m, rpy rad); default the "
                                                    "origin")
     joints: list[str] = Field(min_length=1, description="the actuated joints, in configuration order; other movable "

@@ -4,7 +4,9 @@ to the URDF, and the resolved copy of a URDF (every mesh an absolute path) that 
 ``package://NAME/rest`` is looked for in this order, the first place that knows NAME answering:
 
 1. ``packages: {NAME: PATH}`` of the robot file (``env.robot.packages.NAME=PATH`` on the command line,
-   ``--package-dir NAME=PATH`` for ``rmpfusion-fit-spheres``); PATH may be ``pkg://<python package>/<folder>``;
+   ``--package-dir NAME=PATH`` for ``rmpfusion-fit-spheres``); PATH may be ``pkg://<python package>/<folder>``,
+   and ``null`` (what ``rmpfusion-fit-spheres`` writes for every package the URDF names, so the key exists to be
+   set on a command line) means the steps below;
 2. ``ROS_PACKAGE_PATH``: a folder named NAME, or holding a ``package.xml`` that names NAME, in or under each entry;
 3. ``AMENT_PREFIX_PATH``: ``<prefix>/share/NAME`` of each prefix;
 4. the folders above the URDF: one named NAME, or holding a ``package.xml`` that names NAME;
@@ -79,23 +81,23 @@ def _explicit(name: str, given: str) -> list[str]:
     return [path]
 
 
-def _steps(name: str, urdf_path: str, packages: Mapping[str, str]) -> list[tuple[str, list[str], list[str]]]:
+def _steps(name: str, urdf_path: str, packages: Mapping[str, str | None]) -> list[tuple[str, list[str], list[str]]]:
     """(what the step is, the folders it looked at, the folders it found) for each step of the search, in order."""
     env = os.environ
     ros = [e for e in env.get("ROS_PACKAGE_PATH", "").split(os.pathsep) if e]
     ament = [os.path.join(e, "share", name) for e in env.get("AMENT_PREFIX_PATH", "").split(os.pathsep) if e]
     above = [str(p) for p in Path(urdf_path).resolve().parent.parents] + [str(Path(urdf_path).resolve().parent)]
     above = sorted(set(above), key=len, reverse=True)  # nearest first
+    given = packages.get(name)  # None: listed without a folder, to be searched for (and set on a command line)
     return [
-        ("packages", [packages[name]] if name in packages else [],
-         _explicit(name, packages[name]) if name in packages else []),
+        ("packages", [given] if given else [], _explicit(name, given) if given else []),
         ("ROS_PACKAGE_PATH", ros, [f for e in ros if os.path.isdir(e) for f in _under(e, name)]),
         ("AMENT_PREFIX_PATH", ament, [a for a in ament if os.path.isdir(a)]),
         ("above the URDF", above, [a for a in above if _is_package(a, name)][:1]),
     ]
 
 
-def package_dir(name: str, urdf_path: str, packages: Mapping[str, str] | None = None) -> tuple[str | None, list[str]]:
+def package_dir(name: str, urdf_path: str, packages: Mapping[str, str | None] | None = None) -> tuple[str | None, list[str]]:
     """(the folder of ROS package ``name`` or None, every place looked in), searched in the module's order."""
     looked: list[str] = []
     for step, places, found in _steps(name, urdf_path, packages or {}):
@@ -110,7 +112,7 @@ def package_dir(name: str, urdf_path: str, packages: Mapping[str, str] | None = 
     return None, looked
 
 
-def mesh_path(uri: str, link: str, urdf_path: str, packages: Mapping[str, str] | None = None) -> str:
+def mesh_path(uri: str, link: str, urdf_path: str, packages: Mapping[str, str | None] | None = None) -> str:
     """The file a mesh URI of ``link`` names: ``package://``, ``file://``, absolute, or relative to the URDF."""
     urdf_dir = os.path.dirname(os.path.abspath(urdf_path))
     if uri.startswith(PACKAGE_URI):
@@ -133,6 +135,18 @@ def mesh_path(uri: str, link: str, urdf_path: str, packages: Mapping[str, str] |
                        f"ROS_PACKAGE_PATH")
 
 
+def package_names(urdf: str) -> list[str]:
+    """The ROS packages a URDF's ``package://`` mesh URIs name, in order of first use."""
+    names: list[str] = []
+    for _, mesh in link_meshes(ET.parse(resolve_urdf_path(urdf)).getroot()):
+        uri = mesh.get("filename") or ""
+        if uri.startswith(PACKAGE_URI):
+            name = uri[len(PACKAGE_URI):].partition("/")[0]
+            if name not in names:
+                names.append(name)
+    return names
+
+
 def link_meshes(root: ET.Element) -> list[tuple[str, ET.Element]]:
     """(link name, <mesh> element) of every mesh of every link, visuals and collisions."""
     return [(link.get("name"), mesh) for link in root.findall("link") for mesh in link.iter("mesh")]
@@ -145,7 +159,7 @@ def cache_dir() -> Path:
     return Path(base) / "urdf"
 
 
-def resolved_urdf(urdf: str, packages: Mapping[str, str] | None = None) -> str:
+def resolved_urdf(urdf: str, packages: Mapping[str, str | None] | None = None) -> str:
     """A copy of the URDF with every mesh an absolute path (cached by the URDF's text and where its meshes are;
     written atomically), or the URDF itself when it names no mesh that needs resolving."""
     path = resolve_urdf_path(urdf)
