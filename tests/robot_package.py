@@ -33,7 +33,7 @@ URDF = """<?xml version="1.0"?>
   <link name="link2">{inertia}
     <collision><geometry><mesh filename="package://testarm_description/meshes/link2.dae"/></geometry></collision></link>
   <joint name="slide" type="prismatic"><parent link="link2"/><child link="link3"/>
-    <origin xyz="0 0 0.3"/><axis xyz="0 0 1"/><limit lower="0" upper="0.1" effort="50" velocity="0.5"/></joint>
+    <origin xyz="0 0 0.3"/><axis xyz="0 0 1"/><limit lower="0" upper="0.2" effort="50" velocity="0.5"/></joint>
   <link name="link3">{inertia}
     <collision><geometry><mesh filename="package://testarm_description/meshes/link3_mm.stl" scale="0.001 0.001 0.001"/>
     </geometry></collision></link>
@@ -91,5 +91,5 @@ def write_package(root: Path) -> Path:
 def random_q(n: int, seed: int = 0) -> np.ndarray:
     """(n, 5) configurations inside the joints' limits (spin over one turn each way)."""
     lo = np.array([-3.0, -1.2, 0.0, -2.0, -1.0])
-    hi = np.array([3.0, 1.2, 0.1, 2.0, 1.0])
+    hi = np.array([3.0, 1.2, 0.2, 2.0, 1.0])
     return lo + (hi - lo) * np.random.default_rng(seed).random((n, 5))

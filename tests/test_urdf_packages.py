@@ -206,3 +206,43 @@ def test_every_published_failure_is_one_line(package, tmp_path, capsys, monkeypa
     bad_dir = str(tmp_path / "nowhere")
     assert f"packages.testarm_description = '{bad_dir}': no folder" in _fit_error(
         [str(package), *base, "--package-dir", f"{PACKAGE}={bad_dir}", "--force"], capsys)
+
+
+def _rmpfusion(module: str, conf: Path, *overrides: str, timeout: int = 600):
+    import subprocess
+    import sys
+
+    root = Path(__file__).resolve().parents[1]
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(root), os.environ.get("PYTHONPATH", "")]),
+           "WANDB_MODE": "disabled", "MPLBACKEND": "Agg"}
+    return subprocess.run([sys.executable, "-m", f"rmpfusion.cli.{module}", "--config-dir", str(conf), *overrides],
+                          cwd=root, env=env, capture_output=True, text=True, timeout=timeout)
+
+
+@pytest.fixture(scope="module")
+def config_dir(fitted, tmp_path_factory) -> Path:
+    """The user's folder of configs: the fitted robot file (with its mount) as robot/testarm.yaml."""
+    conf = tmp_path_factory.mktemp("user_conf")
+    (conf / "robot").mkdir()
+    (conf / "robot" / "testarm.yaml").write_text("# @package env.robot\n" + yaml.safe_dump(fitted[0], sort_keys=False))
+    return conf
+
+
+def test_the_fitted_robot_validates_with_a_shipped_experiment(config_dir, tmp_path):
+    done = _rmpfusion("validate", config_dir, "experiment=xarm6_reach", "robot=testarm",
+                      f"env.robot.packages.{PACKAGE}={config_dir / 'nowhere'}", f"hydra.run.dir={tmp_path}")
+    assert done.returncode != 0 and f"packages.{PACKAGE} = '{config_dir / 'nowhere'}': no folder" in done.stderr \
+        and "Traceback" not in done.stderr, done.stderr
+    package_root = Path(yaml.safe_load((config_dir / "robot" / "testarm.yaml").read_text())["urdf"]).parents[1]
+    done = _rmpfusion("validate", config_dir, "experiment=xarm6_reach", "robot=testarm", "env.start_clearance=0.04",
+                      f"env.robot.packages.{PACKAGE}={package_root}", f"hydra.run.dir={tmp_path}")
+    assert done.returncode == 0, done.stderr
+    assert "OK: the configuration is valid and builds" in done.stdout
+
+
+@pytest.mark.slow
+def test_the_fitted_robot_runs_a_tiny_experiment(config_dir, tmp_path):
+    done = _rmpfusion("run", config_dir, "experiment=xarm6_reach", "robot=testarm", "data=tiny", "train=tiny",
+                      "eval=fast", "logger=disabled", "eval.compile=false", f"hydra.run.dir={tmp_path}")
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert (tmp_path / "metrics.json").is_file()

@@ -18,6 +18,7 @@ from pydantic import Field, field_validator, model_validator
 from ..maps.robot import Mount
 from ..maps.urdf import URDFModel, parse_urdf
 from ..registry import Params
+from .packages import package_folder
 
 Vec3 = tuple[float, float, float]
 
@@ -87,6 +88,17 @@ class RobotDescription(Params):
     @classmethod
     def _readable(cls, v: str) -> str:
         _model(v)  # a missing or malformed file is said here, with its path
+        return v
+
+    @field_validator("packages")
+    @classmethod
+    def _folders(cls, v: dict[str, str | None]) -> dict[str, str | None]:
+        for name, folder in v.items():
+            if folder:  # a folder that is not there is said here, not when a mesh is read
+                try:
+                    package_folder(name, folder)
+                except FileNotFoundError as e:
+                    raise ValueError(str(e)) from None
         return v
 
     @model_validator(mode="after")

@@ -73,12 +73,20 @@ def _under(entry: str, name: str) -> list[str]:
     return found
 
 
-def _explicit(name: str, given: str) -> list[str]:
-    path = resolve_urdf_path(given)  # a path, file:// or pkg://
+def package_folder(name: str, given: str) -> str:
+    """The folder ``packages: {name: given}`` names (a path, ``file://`` or ``pkg://``), which must exist."""
+    try:
+        path = resolve_urdf_path(given)
+    except FileNotFoundError as e:
+        raise FileNotFoundError(f"packages.{name} = {given!r}: {e}") from None
     if not os.path.isdir(path):
         raise FileNotFoundError(f"packages.{name} = {given!r}: no folder {path}; give the folder that holds the "
                                 f"package's files (the one with its package.xml)")
-    return [path]
+    return path
+
+
+def _explicit(name: str, given: str) -> list[str]:
+    return [package_folder(name, given)]
 
 
 def _steps(name: str, urdf_path: str, packages: Mapping[str, str | None]) -> list[tuple[str, list[str], list[str]]]:
