@@ -172,3 +172,15 @@ def test_published_arms_find_starts_above_a_table(name):
         assert bool((env.clearance(q0, aux) > 0).all())
     finally:
         env.close()
+
+
+def test_every_environment_setting_is_listed_in_conf_env_manipulator():
+    """So each is set as env.<key>=<value>, never +env.<key>; robot and scene come from their groups."""
+    from rmpfusion.envs.manipulator import ManipulatorParams
+
+    listed = set(yaml.safe_load((CONF / "env" / "manipulator.yaml").read_text()))
+    assert set(ManipulatorParams.model_fields) - {"robot", "scene"} <= listed - {"type"}
+    from rmpfusion.cli.preflight import check_command_line
+
+    check_command_line(str(CONF), ["experiment=xarm6_reach", "env.start_clearance=0.03", "env.max_tries=50",
+                                   "env.robot.home=[0.8,0.3,-1.2,0.0,0.9,0.0]"])
