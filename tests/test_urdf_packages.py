@@ -274,3 +274,20 @@ def test_a_mimic_joint_follows_its_leader_under_computed_torque(fitted):
     finally:
         worlds.close()
         env.close()
+
+
+def test_an_srdf_exempts_link_pairs_from_self_collision(fitted, tmp_path):
+    from rmpfusion.envs.manipulator_tree import self_collision_pairs
+
+    srdf = tmp_path / "testarm.srdf"
+    srdf.write_text('<robot name="testarm"><disable_collisions link1="link2" link2="link5" reason="Never"/>'
+                    '</robot>')
+    plain = RobotDescription.model_validate(fitted[0])
+    exempt = RobotDescription.model_validate({**fitted[0], "srdf": str(srdf)})
+    links = lambda pairs, d: {frozenset((d.control_points[i - 1].link, d.control_points[j - 1].link))  # noqa: E731
+                              for i, j in pairs}
+    before, after = links(self_collision_pairs(plain, 2)[0], plain), links(self_collision_pairs(exempt, 2)[0], exempt)
+    assert frozenset(("link2", "link5")) in before and before - after == {frozenset(("link2", "link5"))}
+    srdf.write_text('<robot name="testarm"><disable_collisions link1="link2" link2="lnk5" reason="Never"/></robot>')
+    with pytest.raises(ValueError, match="names 'lnk5', not a link of .*did you mean 'link5'"):
+        RobotDescription.model_validate({**fitted[0], "srdf": str(srdf)})

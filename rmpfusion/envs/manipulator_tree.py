@@ -296,9 +296,10 @@ def _optional_leaves(p: ManipulatorTreeParams, nodes: dict[str, Any], aux: dict[
 def self_collision_pairs(robot, min_separation: int) -> tuple[list[tuple[int, int]], int]:
     """Pairs (i, j) of control points (numbered from 1) on links ``min_separation`` or more actuated joints apart,
     and how many such pairs were left out because their spheres already overlap at the robot's home configuration
-    (conservative spheres on links two joints apart can: a barrier there would push the arm from its own home)."""
+    (conservative spheres on links two joints apart can: a barrier there would push the arm from its own home).
+    Link pairs the robot's SRDF exempts (``<disable_collisions>``) are never paired."""
     chain = Chain(robot.model(), list(robot.joints))
-    far = set(non_adjacent_link_pairs(chain, min_separation=min_separation))
+    far = set(non_adjacent_link_pairs(chain, min_separation=min_separation)) - robot.disabled_collisions()
     cps = robot.control_points
     home = torch.tensor([list(robot.home)], dtype=torch.float64)
     poses = chain.forward_kinematics(home, sorted({cp.link for cp in cps}))

@@ -11,12 +11,13 @@ from __future__ import annotations
 import difflib
 import functools
 import math
+import xml.etree.ElementTree as ET
 from typing import Literal, Sequence
 
 from pydantic import Field, field_validator, model_validator
 
 from ..maps.robot import Mount
-from ..maps.urdf import URDFModel, parse_urdf
+from ..maps.urdf import URDFModel, parse_urdf, resolve_urdf_path
 from ..registry import Params
 from .packages import package_folder
 
@@ -75,6 +76,8 @@ class RobotDescription(Params):
                                             "URDF's package:// meshes (robots/packages.py)")
     mount: Mount | None = Field(None, description="where the base sits in the world (xyz m, rpy rad); default the "
                                                    "origin")
+    srdf: str | None = Field(None, description="an SRDF (path or pkg://) whose <disable_collisions> link pairs get no "
+                                               "self-collision barrier")
     joints: list[str] = Field(min_length=1, description="the actuated joints, in configuration order; other movable "
                                                         "joints are held at 0")
     end_effector: EndEffector
@@ -124,8 +127,25 @@ class RobotDescription(Params):
             if j not in self.joints:
                 raise ValueError(f"limits.{j}: not an actuated joint; {_close(j, self.joints)}"
                                  f"actuated: {', '.join(self.joints)}")
+        for a, b in self.disabled_collisions():
+            for link in (a, b):
+                if link not in links:
+                    raise ValueError(f"srdf {self.srdf}: <disable_collisions> names {link!r}, not a link of "
+                                     f"{self.urdf}; {_close(link, links)}links: {', '.join(links)}")
         self._check_home()
         return self
+
+    def disabled_collisions(self) -> set[tuple[str, str]]:
+        """The link pairs (both orders) the SRDF's ``<disable_collisions>`` exempts from self-collision checks."""
+        if self.srdf is None:
+            return set()
+        path = resolve_urdf_path(self.srdf)
+        try:
+            root = ET.parse(path).getroot()
+        except (OSError, ET.ParseError) as e:
+            raise ValueError(f"srdf {self.srdf}: cannot be read ({' '.join(str(e).split())})") from None
+        pairs = {(d.get("link1"), d.get("link2")) for d in root.iter("disable_collisions")}
+        return pairs | {(b, a) for a, b in pairs}
 
     def _check_home(self) -> None:
         if len(self.home) != len(self.joints):
