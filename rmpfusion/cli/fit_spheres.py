@@ -94,12 +94,16 @@ def _fit(args) -> tuple[dict, list[LinkFit], list[str]]:
         home, how = propose_home(fitted)
         fitted = RobotDescription.model_validate({**fitted.model_dump(), "home": home})
         notes.append(f"home {home}: {how}")
-    exclude = {"control_points", "packages"} | ({"mount"} if fitted.mount is None else set())
-    # every package the URDF's meshes name, null where it is searched for: the key is there to be set
-    # (env.robot.packages.NAME=PATH) on any machine
-    named = {name: packages.get(name) for name in [*package_names(args.urdf), *packages]}
+    return _written(fitted, packages, spheres), fits, notes
+
+
+def _written(fitted: RobotDescription, packages: dict[str, str], spheres: list[dict]) -> dict:
+    """The robot file's content: unset optional keys left out, and every ROS package the URDF's meshes name listed
+    (null where it is searched for), so ``env.robot.packages.NAME=PATH`` can set one on any machine."""
+    exclude = {"control_points", "packages"} | {k for k in ("mount", "srdf") if getattr(fitted, k) is None}
+    named = {name: packages.get(name) for name in [*package_names(fitted.urdf), *packages]}
     out = fitted.model_dump(mode="json", exclude=exclude)
-    return {**out, **({"packages": named} if named else {}), "control_points": spheres}, fits, notes
+    return {**out, **({"packages": named} if named else {}), "control_points": spheres}
 
 
 def _draft_home(args, packages: dict[str, str]) -> list[float]:

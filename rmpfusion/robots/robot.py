@@ -8,6 +8,7 @@ a simulator (``envs/manipulator/scene.py`` calls ``load_into``).
 """
 from __future__ import annotations
 
+import functools
 import math
 from typing import Annotated, Any, Mapping
 
@@ -44,9 +45,10 @@ class URDFRobot:
     def dof(self) -> int:
         return len(self.params.joints)
 
-    @property
+    @functools.cached_property
     def urdf_path(self) -> str:
-        """The URDF simulators load: a copy with every mesh an absolute path (``robots/packages.py``)."""
+        """The URDF simulators load: a copy with every mesh an absolute path (``robots/packages.py``), found once
+        per robot (a torque-mode rollout opens a world per sample)."""
         return resolved_urdf(self.params.urdf, self.params.packages)
 
     def ee_position(self, q: Tensor) -> Tensor:
