@@ -291,3 +291,17 @@ def test_an_srdf_exempts_link_pairs_from_self_collision(fitted, tmp_path):
     srdf.write_text('<robot name="testarm"><disable_collisions link1="link2" link2="lnk5" reason="Never"/></robot>')
     with pytest.raises(ValueError, match="names 'lnk5', not a link of .*did you mean 'link5'"):
         RobotDescription.model_validate({**fitted[0], "srdf": str(srdf)})
+
+
+def test_the_generated_tree_carries_the_mount_and_no_ground_edge_for_spheres_no_joint_lowers(fitted):
+    from rmpfusion.envs.manipulator_tree import manipulator_tree_spec
+    from rmpfusion.robots.home import spheres_at_fixed_height
+
+    spec = manipulator_tree_spec(fitted[0], {"ground": {"height": 0.0}})
+    maps = [n["map"] for n in spec["nodes"].values() if n.get("map", {}).get("type") == "forward_kinematics"]
+    assert maps and all(m["mount"] == MOUNT for m in maps)
+    still = spheres_at_fixed_height(RobotDescription.model_validate(fitted[0]))
+    cps = fitted[0]["control_points"]
+    assert [cps[i]["link"] for i in still] == ["link1", "link1"]  # the spinning link's two spheres
+    grounded = {name.split("_")[0] for name in spec["nodes"] if name.endswith("_ground")}
+    assert grounded == {f"cp{i + 1}" for i in range(len(cps)) if i not in still}
