@@ -41,9 +41,10 @@ def _overrides_for(group: str, option: str) -> list[str]:
         text = (CONF / "experiment" / f"{exp}.yaml").read_text()
         if f"override /{group}: {option}\n" in text or f"/{group}@env.test_scene: {option}\n" in text:
             return [f"experiment={exp}"]
-    if group in ("robot", "scene"):  # any robot in any scene: the Panda experiment's goals with it
-        return ["experiment=franka", f"{group}={option}", "scene@env.test_scene=" + (option if group == "scene"
-                                                                                     else "franka_cylinder_test")]
+    if group == "robot":  # any robot: an experiment whose starts are drawn around the robot's own home
+        return ["experiment=xarm6_reach", f"robot={option}"]
+    if group == "scene":  # any scene: the Panda experiment's goals with it
+        return ["experiment=franka", f"scene={option}", f"scene@env.test_scene={option}"]
     return [f"{group}={option}"]
 
 

@@ -255,5 +255,5 @@ def test_map_spec_and_errors():
         make_map("panda_hand", robot="panda")
     with pytest.raises(ValueError, match="is fixed"):
         make_map("panda_hand", joints=["panda_joint8"], in_dim=1)
-    # a URDF with all movable joints actuated: arm + two fingers
-    assert make_map("panda_hand", in_dim=9).chain.dof == 9
+    # by default every movable joint is actuated but the second finger, which follows the first (URDF <mimic>)
+    assert make_map("panda_hand", in_dim=8).chain.dof == 8

@@ -84,7 +84,7 @@ def test_descriptions_are_checked_against_the_urdf():
     with pytest.raises(ValueError, match=r"joints\[6\] = 'panda_joint_7' is not a movable joint of "
                                          r"pkg://pybullet_data/franka_panda/panda.urdf; did you mean 'panda_joint7'"):
         RobotDescription.model_validate({**panda, "joints": panda["joints"][:6] + ["panda_joint_7"]})
-    with pytest.raises(ValueError, match=r"home value 1.0 of panda_joint4 lies outside its limits \[-3.1416, 0.0\]"):
+    with pytest.raises(ValueError, match=r"home: panda_joint4 = 1.0 lies outside its limits \[-3.1416, 0.0\]"):
         RobotDescription.model_validate({**panda, "home": [1.0] * 7})
     with pytest.raises(ValueError, match=r"limits.panda_joint9: not an actuated joint"):
         RobotDescription.model_validate({**panda, "limits": {"panda_joint9": {"upper": 1.0}}})
@@ -142,3 +142,45 @@ def test_fit_spheres_measures_coverage_on_fresh_samples():
     c = kmeans(pts, 4, seed=0)
     assert c.shape == (4, 3)
     assert covered_by(pts, c, np.full(4, 10.0)).all() and not covered_by(pts, c, np.full(4, 0.01)).any()
+
+
+PUBLISHED = ["ur5", "kinova", "xarm7", "so101"]  # URDFs and meshes as example-robot-data ships them
+
+
+def test_published_arms_differ_in_joints_and_mesh_formats():
+    import xml.etree.ElementTree as ET
+
+    descriptions = {name: RobotDescription.model_validate(robot(name)) for name in PUBLISHED}
+    assert len({len(d.joints) for d in descriptions.values()}) >= 3  # 5, 6 and 7 joints
+    formats = set()
+    for d in descriptions.values():
+        root = ET.parse(resolve_urdf_path(d.urdf)).getroot()
+        formats |= {Path(m.get("filename")).suffix.lower() for m in root.iter("mesh")}
+        assert all(m.get("filename").startswith("package://") for m in root.iter("mesh"))  # as published
+    assert {".stl", ".dae"} <= formats
+
+
+@pytest.mark.parametrize("name", PUBLISHED)
+def test_published_arms_find_starts_above_a_table(name):
+    """Starts around the robot file's home, clear of a table at z = 0 by the default start_clearance (0.05 m): the
+    UR5's shoulder, 2.3 cm above the table whatever its angle, used to refuse every one."""
+    env = Manipulator(robot=robot(name), scene={"ground": {"height": 0.0}}, start_spread=0.2)
+    try:
+        g = torch.Generator().manual_seed(0)
+        q0, _, aux = env.sample_initial_states(env.sample_envs(2, g), 3, g)
+        assert q0.shape == (6, env.dim) and bool((env.start_margin(q0, aux) >= 0).all())
+        assert bool((env.clearance(q0, aux) > 0).all())
+    finally:
+        env.close()
+
+
+def test_every_environment_setting_is_listed_in_conf_env_manipulator():
+    """So each is set as env.<key>=<value>, never +env.<key>; robot and scene come from their groups."""
+    from rmpfusion.envs.manipulator import ManipulatorParams
+
+    listed = set(yaml.safe_load((CONF / "env" / "manipulator.yaml").read_text()))
+    assert set(ManipulatorParams.model_fields) - {"robot", "scene"} <= listed - {"type"}
+    from rmpfusion.cli.preflight import check_command_line
+
+    check_command_line(str(CONF), ["experiment=xarm6_reach", "env.start_clearance=0.03", "env.max_tries=50",
+                                   "env.robot.home=[0.8,0.3,-1.2,0.0,0.9,0.0]"])

@@ -879,7 +879,7 @@ for _id, _fault, _overrides, _shows, _needs in [
          "simulated in torch with a differentiable goal distance and clearance); use method pg, or an environment "
          "such as particle2d", ("pybullet",)),
         ("joint-margin-no-room", "a joint margin that leaves lower ≥ upper for the starts",
-         ["experiment=franka", "+env.joint_margin=2.0"],
+         ["experiment=franka", "env.joint_margin=2.0"],
          "env.joint_margin: joint_margin must be < half of every joint's range (starts are drawn in [lower + margin, "
          "upper − margin]); panda_joint2 spans [-1.8326, 1.8326], half of it is 1.833; given 2.0", ("pybullet",)),
         ("render-trajectory-missing", "a rendered test trajectory that is not collected",

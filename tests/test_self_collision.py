@@ -46,8 +46,9 @@ def test_panda_pairs_skip_neighbours_and_links_that_move_together():
 
 
 def test_a_branching_chain_counts_joints_through_the_common_link():
-    """With the fingers actuated, the two fingers are two joints apart (through the hand), each one from the hand."""
-    chain = Chain(parse_urdf(PANDA), [*PANDA_ARM_JOINTS, "panda_finger_joint1", "panda_finger_joint2"])
+    """With the fingers actuated (the second follows the first, URDF <mimic>), the two fingers are two joints apart
+    (through the hand), each one from the hand."""
+    chain = Chain(parse_urdf(PANDA), [*PANDA_ARM_JOINTS, "panda_finger_joint1"])
     pairs = non_adjacent_link_pairs(chain, ["panda_link6", "panda_hand", "panda_leftfinger", "panda_rightfinger"])
     assert pairs == [("panda_link6", "panda_leftfinger"), ("panda_link6", "panda_rightfinger"),
                      ("panda_leftfinger", "panda_rightfinger")]

@@ -61,6 +61,19 @@ def fail(message: str, code: int = CONFIG_ERROR_EXIT) -> None:
     sys.exit(code)
 
 
+def one_line(e: BaseException) -> str:
+    """An error as one line: a pydantic validation error's entries joined (``field: message``), any other error's
+    text with its line breaks folded."""
+    from pydantic import ValidationError
+
+    if isinstance(e, ValidationError):
+        return "; ".join((f"{'.'.join(map(str, err['loc']))}: " if err["loc"] else "")
+                         + err["msg"].removeprefix("Value error, ") for err in e.errors())
+    if isinstance(e, KeyError) and e.args:
+        return " ".join(str(e.args[0]).split())
+    return " ".join(str(e).split())
+
+
 def hydra_app(task: Callable[[Any], Any]) -> Callable[[], Any]:
     """A console script running ``task(cfg)`` as a Hydra app over conf/. The directory is looked up when the
     command runs, never on import; the command line is composed once first (``preflight``) so a misspelt group,

@@ -1,29 +1,37 @@
 """``rmpfusion-fit-spheres``: control spheres fitted to a URDF's collision geometry, written as a robot description.
 
     rmpfusion-fit-spheres URDF --joints J1 J2 ... --ee-link LINK [--ee-offset X Y Z] [--spheres K] [--links L ...]
-                          --name NAME --out conf/robot/NAME.yaml [--figure coverage.png]
+                          [--package-dir NAME=PATH ...] [--home Q1 Q2 ...] --name NAME --out conf/robot/NAME.yaml
+                          [--figure coverage.png]
     rmpfusion-fit-spheres --check conf/robot/NAME.yaml [--figure coverage.png]
 
-The first form fits K spheres per link (every link an actuated joint moves that has collision geometry, or
-``--links``), prints per link and in all the coverage (the fraction of an independent sample of surface points
-inside some sphere of their link; the target is ≥ 99 %) and the overshoot (how far a sphere's surface reaches from
-the link's surface), writes the robot YAML (never over an existing file unless ``--force``) and the coverage
-figure. The second measures the spheres an existing robot YAML already has.
+The first form fits K spheres per link (every link an actuated joint moves that has collision geometry, or visual
+geometry when it has no collision geometry, or ``--links``), prints per link and in all the coverage (the fraction
+of an independent sample of surface points inside some sphere of their link; the target is ≥ 99 %) and the
+overshoot (how far a sphere's surface reaches from the link's surface), writes the robot YAML (never over an
+existing file unless ``--force``) and the coverage figure. Only the meshes of the fitted links are read;
+``package://`` meshes are found as ``rmpfusion/robots/packages.py`` says (``--package-dir`` first). Without
+``--home`` a home is proposed: the middle of every joint's range, or the configuration nearest to it whose spheres
+clear the ground. The second form measures the spheres an existing robot YAML already has.
 """
 from __future__ import annotations
 
 import argparse
-import math
+import os
 import sys
+import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import yaml
 
 from ..files import atomic_write_bytes
+from ._common import one_line
 from ..maps.urdf import parse_urdf
 from ..plots.spheres import plot_coverage
 from ..robots import RobotDescription, build_robot
-from ..robots.geometry import collision_meshes
+from ..robots.geometry import collision_meshes, link_geometry, links_with_geometry
+from ..robots.home import mid_range, propose_home
+from ..robots.packages import package_names
 from ..robots.spheres import LinkFit, fit_link, measure, summary
 
 TARGET = 0.99
@@ -41,8 +49,10 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--spheres", type=int, default=2, help="spheres per link (default 2)")
     ap.add_argument("--links", nargs="+", help="links to cover (default: every moved link with collision geometry)")
     ap.add_argument("--margin", type=float, default=0.002, help="added to every radius (m, default 0.002)")
-    ap.add_argument("--home", nargs="+", type=float, help="home configuration (default: 0, or the middle of a "
-                                                          "joint's range when 0 is outside it)")
+    ap.add_argument("--home", nargs="+", type=float, help="home configuration (default: proposed, the middle of "
+                                                          "every joint's range clear of the ground)")
+    ap.add_argument("--package-dir", action="append", default=[], metavar="NAME=PATH",
+                    help="the folder of ROS package NAME, for package://NAME/ meshes (repeatable; searched first)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", help="the robot YAML to write")
     ap.add_argument("--force", action="store_true", help="replace --out if it exists")
@@ -50,38 +60,65 @@ def _parser() -> argparse.ArgumentParser:
     return ap
 
 
-def _home(urdf: str, joints: list[str], given: list[float] | None) -> list[float]:
-    if given is not None:
-        return given
-    model = parse_urdf(urdf)
-    out = []
-    for j in joints:
-        lo, hi = model.joint(j).lower, model.joint(j).upper
-        out.append(0.0 if lo <= 0.0 <= hi else (lo + hi) / 2 if math.isfinite(lo + hi) else 0.0)
+def _packages(given: list[str]) -> dict[str, str]:
+    out = {}
+    for item in given:
+        name, sep, path = item.partition("=")
+        if not sep or not name or not path:
+            raise ValueError(f"--package-dir {item!r}: write NAME=PATH (the ROS package's name and its folder)")
+        out[name] = os.path.abspath(path) if "://" not in path else path
     return out
 
 
-def _fit(args) -> tuple[dict, list[LinkFit]]:
-    meshes = collision_meshes(args.urdf)
+def _fit(args) -> tuple[dict, list[LinkFit], list[str]]:
+    packages = _packages(args.package_dir)
     # a first description without spheres: checks the joints and links against the URDF, says which links move
-    base = RobotDescription(name=args.name, urdf=args.urdf, joints=args.joints,
+    base = RobotDescription(name=args.name, urdf=args.urdf, packages=packages, joints=args.joints,
                             end_effector={"link": args.ee_link, "offset": args.ee_offset},
-                            home=_home(args.urdf, args.joints, args.home))
+                            home=args.home if args.home is not None else _draft_home(args, packages))
     robot = build_robot(base)
-    links = args.links or [link for link in parse_urdf(args.urdf).link_names() if link in meshes and robot.moves(link)]
-    missing = [link for link in links if link not in meshes]
+    available = links_with_geometry(args.urdf)
+    links = args.links or [link for link in parse_urdf(args.urdf).link_names() if link in available and robot.moves(link)]
+    missing = [link for link in links if link not in available]
     if missing:
-        raise ValueError(f"--links {missing} have no collision geometry; links with some: {', '.join(meshes)}")
-    fits = [fit_link(link, meshes[link], args.spheres, args.margin, seed=args.seed) for link in links]
+        raise ValueError(f"--links {missing} have no collision or visual geometry; links with some: "
+                         f"{', '.join(available)}")
+    geometry = link_geometry(args.urdf, links, packages)
+    fits = [fit_link(link, geometry.meshes[link], args.spheres, args.margin, seed=args.seed) for link in links]
     spheres = [{"link": f.link, "offset": [round(float(v), 4) for v in c], "radius": round(float(r) + 5e-5, 4)}
                for f in fits for c, r in zip(f.centers, f.radii)]
-    return {**base.model_dump(mode="json", exclude={"control_points"}), "control_points": spheres}, fits
+    fitted = RobotDescription.model_validate({**base.model_dump(), "control_points": spheres})
+    notes = [f"links covered by their visual geometry (they have no collision geometry): {', '.join(geometry.from_visual)}"
+             ] if geometry.from_visual else []
+    if args.home is None:
+        home, how = propose_home(fitted)
+        fitted = RobotDescription.model_validate({**fitted.model_dump(), "home": home})
+        notes.append(f"home {home}: {how}")
+    return _written(fitted, packages, spheres), fits, notes
+
+
+def _written(fitted: RobotDescription, packages: dict[str, str], spheres: list[dict]) -> dict:
+    """The robot file's content: unset optional keys left out, and every ROS package the URDF's meshes name listed
+    (null where it is searched for), so ``env.robot.packages.NAME=PATH`` can set one on any machine."""
+    exclude = {"control_points", "packages"} | {k for k in ("mount", "srdf") if getattr(fitted, k) is None}
+    named = {name: packages.get(name) for name in [*package_names(fitted.urdf), *packages]}
+    out = fitted.model_dump(mode="json", exclude=exclude)
+    return {**out, **({"packages": named} if named else {}), "control_points": spheres}
+
+
+def _draft_home(args, packages: dict[str, str]) -> list[float]:
+    """Mid-range, to validate the description before the spheres exist (a joint the URDF lacks gets 0 here, and
+    the description's own check names it with the joints it has)."""
+    try:
+        return mid_range(RobotDescription.model_construct(urdf=args.urdf, joints=args.joints, limits={}))
+    except (KeyError, ValueError):
+        return [0.0] * len(args.joints)
 
 
 def _check(path: str) -> tuple[dict, list[LinkFit]]:
     data = yaml.safe_load(Path(path).read_text())
     desc = RobotDescription.model_validate(data)
-    meshes = collision_meshes(desc.urdf)
+    meshes = collision_meshes(desc.urdf, sorted({cp.link for cp in desc.control_points}), desc.packages)
     by_link: dict[str, list] = {}
     for cp in desc.control_points:
         by_link.setdefault(cp.link, []).append(cp)
@@ -111,14 +148,16 @@ def main(argv: list[str] | None = None) -> int:
                 _parser().error("fitting needs URDF, --joints, --ee-link, --name and --out (or --check ROBOT_YAML)")
             if Path(args.out).exists() and not args.force:
                 raise FileExistsError(f"{args.out} exists; choose another --out or add --force to replace it")
-            description, fits = _fit(args)
+            description, fits, notes = _fit(args)
             header = (f"# @package env.robot\n# {args.name}: written by rmpfusion-fit-spheres ({args.spheres} spheres "
                       f"per link, margin {args.margin} m); edit home, limits and the spheres as needed.\n")
             atomic_write_bytes(args.out, (header + yaml.safe_dump(description, sort_keys=False)).encode())
-    except (ValueError, FileNotFoundError, FileExistsError, KeyError) as e:
-        print(f"error: {e}", file=sys.stderr)
+    except (ValueError, OSError, KeyError, ET.ParseError) as e:
+        print(f"error: {one_line(e)}", file=sys.stderr)
         return 2
     print(_report(fits))
+    for note in [] if args.check else notes:
+        print(note)
     if args.figure:
         print(f"figure: {plot_coverage(args.figure, fits)}")
     if not args.check:

@@ -1,7 +1,8 @@
 """The manipulator RMP-tree* of the paper (Fig. 1b, App. D.2) for any robot and scene, as a generated spec.
 
 The tree's shape depends on the robot's control points and on the scene's obstacles: every obstacle adds one
-distance node under every control point (and a ground plane one more). Generating the spec keeps those nodes
+distance node under every control point (and a ground plane one more, for every control point some joint can
+raise or lower: a sphere at a fixed height, on a shoulder that only spins, gets none). Generating the spec keeps those nodes
 consistent, and lets a tree trained in one scene be rebuilt for another: the obstacle weight on a control point is
 one entry of ``shared_weights`` used by all of that point's obstacle edges, each edge binding the generic aux names
 ``obstacle_center``/``obstacle_radius`` to its own obstacle. The generator is registered as ``fig1b``, so
@@ -27,6 +28,7 @@ from ..rmps.gds_leaves import CollisionAvoidance, Damper, GoalAttractor, Identit
 from ..rmps.orientation import OrientationAttractor
 from ..rmps.velocity_limit import VelocityLimit
 from ..robots import RobotField
+from ..robots.home import spheres_at_fixed_height
 from ..scenes import Scene, obstacle_map, scene_aux_dims
 from ..weights.neural import MLPWeight
 
@@ -179,9 +181,7 @@ def _entry(p: ManipulatorTreeParams, field: str) -> dict[str, Any]:
 
 def _point(p: ManipulatorTreeParams, link: str, offset) -> dict[str, Any]:
     """The forward-kinematics map to a point fixed in one of the robot's links."""
-    r = p.robot
-    return {"type": "forward_kinematics", "urdf": r.urdf, "joints": list(r.joints), "link": link,
-            "offset": [float(v) for v in offset]}
+    return _robot_map(p, "forward_kinematics", link=link, offset=[float(v) for v in offset])
 
 
 def _surface(dist: dict[str, Any], radius: float) -> dict[str, Any]:
@@ -189,8 +189,9 @@ def _surface(dist: dict[str, Any], radius: float) -> dict[str, Any]:
     return {"type": "compose", "maps": [dist, {"type": "offset", "origin": [float(radius)]}]}
 
 
-def _control_point_nodes(p: ManipulatorTreeParams, i: int, cp) -> tuple[dict[str, Any], dict[str, Any]]:
-    """Control point ``i``'s node, its obstacle (and ground) edges, and its shared obstacle weight."""
+def _control_point_nodes(p: ManipulatorTreeParams, i: int, cp, ground: bool) -> tuple[dict[str, Any], dict[str, Any]]:
+    """Control point ``i``'s node, its obstacle (and, with ``ground``, ground) edges, and its shared obstacle
+    weight."""
     name, scene = f"cp{i}", p.scene
     nodes: dict[str, Any] = {name: {"parent": "q", "map": _point(p, cp.link, cp.offset)}}
     shared = {f"{name}_obstacle": _entry(p, "obstacle_weight")} if scene.obstacles else {}
@@ -202,7 +203,7 @@ def _control_point_nodes(p: ManipulatorTreeParams, i: int, cp) -> tuple[dict[str
                        "bind": {"obstacle_center": f"obstacle{k}_center", "obstacle_radius": f"obstacle{k}_radius"}},
             "rmp": _entry(p, "obstacle_rmp"),
         }
-    if scene.ground is not None:
+    if scene.ground is not None and ground:
         plane = {"type": "plane_distance", "normal": [0.0, 0.0, 1.0], "height": float(scene.ground.height)}
         nodes[f"{name}_ground"] = {"parent": name, "map": _surface(plane, cp.radius), "weight": {"shared": "ground"},
                                    "rmp": _entry(p, "obstacle_rmp")}
@@ -233,8 +234,9 @@ def fig1b(p: ManipulatorTreeParams) -> dict[str, Any]:
         nodes[f"jl{j + 1}_{side}"] = {"parent": "q", "map": {"type": "joint_limit", "side": side, "limit": float(lim),
                                                              "joints": j}, "rmp": _entry(p, "joint_limit_rmp")}
     shared: dict[str, Any] = {"ground": _entry(p, "ground_weight")} if p.scene.ground is not None else {}
+    still = set(spheres_at_fixed_height(r)) if p.scene.ground is not None else set()  # no joint lowers them
     for i, cp in enumerate(r.control_points, start=1):
-        more, weights = _control_point_nodes(p, i, cp)
+        more, weights = _control_point_nodes(p, i, cp, ground=i - 1 not in still)
         nodes.update(more)
         shared.update(weights)
     nodes["damper"] = {"parent": "q", "map": {"type": "identity"}, "rmp": _entry(p, "damper_rmp")}
@@ -254,8 +256,10 @@ def fig1b(p: ManipulatorTreeParams) -> dict[str, Any]:
 
 
 def _robot_map(p: ManipulatorTreeParams, kind: str, **keys: Any) -> dict[str, Any]:
-    """A joint-space map of ``kind`` on the robot (its urdf and joints written in)."""
-    return {"type": kind, "urdf": p.robot.urdf, "joints": list(p.robot.joints), **keys}
+    """A joint-space map of ``kind`` on the robot (its urdf, joints and mount written in)."""
+    r = p.robot
+    mount = {} if r.mount is None or r.mount.is_identity() else {"mount": r.mount.model_dump(mode="json")}
+    return {"type": kind, "urdf": r.urdf, "joints": list(r.joints), **mount, **keys}
 
 
 def _optional_leaves(p: ManipulatorTreeParams, nodes: dict[str, Any], aux: dict[str, int]) -> str:
@@ -292,9 +296,10 @@ def _optional_leaves(p: ManipulatorTreeParams, nodes: dict[str, Any], aux: dict[
 def self_collision_pairs(robot, min_separation: int) -> tuple[list[tuple[int, int]], int]:
     """Pairs (i, j) of control points (numbered from 1) on links ``min_separation`` or more actuated joints apart,
     and how many such pairs were left out because their spheres already overlap at the robot's home configuration
-    (conservative spheres on links two joints apart can: a barrier there would push the arm from its own home)."""
+    (conservative spheres on links two joints apart can: a barrier there would push the arm from its own home).
+    Link pairs the robot's SRDF exempts (``<disable_collisions>``) are never paired."""
     chain = Chain(robot.model(), list(robot.joints))
-    far = set(non_adjacent_link_pairs(chain, min_separation=min_separation))
+    far = set(non_adjacent_link_pairs(chain, min_separation=min_separation)) - robot.disabled_collisions()
     cps = robot.control_points
     home = torch.tensor([list(robot.home)], dtype=torch.float64)
     poses = chain.forward_kinematics(home, sorted({cp.link for cp in cps}))

@@ -52,8 +52,10 @@ def _suggest(name: str, options: Sequence[str]) -> str:
 class Chain(nn.Module):
     """Forward kinematics of a URDF tree for a chosen set of actuated joints.
 
-    Movable joints that are not actuated (e.g. the Panda fingers for the 7-DOF arm) are frozen at 0. The
-    root link frame is the world frame. Constants are float64 buffers cast to the input's dtype on use, so
+    A joint that mimics another (URDF ``<mimic>``) follows its leader, q = multiplier · q_leader + offset, so every
+    Jacobian column of an actuated joint sums the columns of the joints it drives. Other movable joints that are not
+    actuated (e.g. the Panda fingers for the 7-DOF arm) are frozen at 0. The root link sits at ``mount`` (a 4×4
+    pose; default the world origin). Constants are float64 buffers cast to the input's dtype on use, so
     float64 inputs get full precision whatever the default dtype was at construction.
 
     One pass (``frames``) computes every link's pose as a homogeneous transform, every joint's world origin and
@@ -61,11 +63,13 @@ class Chain(nn.Module):
     then one product per joint down the tree. Every kinematic point of a robot reads that one pass.
     """
 
-    def __init__(self, model: URDFModel, actuated: Sequence[str] | None = None):
+    def __init__(self, model: URDFModel, actuated: Sequence[str] | None = None, mount: Tensor | None = None):
         super().__init__()
         self.model = model
         movable = model.movable_joint_names()
-        actuated = list(movable if actuated is None else actuated)
+        if actuated is None:  # every joint that moves of its own accord: mimic joints follow their leaders
+            actuated = [j.name for j in model.joints if j.movable and j.mimic is None]
+        actuated = list(actuated)
         for name in actuated:
             if name not in movable:
                 what = "is fixed" if name in [j.name for j in model.joints] else "does not exist"
@@ -73,17 +77,27 @@ class Chain(nn.Module):
                                  f"{_suggest(name, movable)}movable joints: {', '.join(movable)}")
         if len(set(actuated)) != len(actuated):
             raise ValueError(f"actuated joints contain duplicates: {actuated}")
+        for name in actuated:
+            leader = model.joint(name).mimic
+            if leader is not None:
+                raise ValueError(f"joint '{name}' of URDF '{model.name}' mimics '{leader.leader}' (it follows that "
+                                 f"joint): list '{leader.leader}' among the actuated joints instead of '{name}'")
         self.actuated: tuple[str, ...] = tuple(actuated)
         self.dof = len(actuated)
         self._links: tuple[str, ...] = tuple(model.link_names())  # root, then joint k's child at k + 1
         self._link_index = {n: i for i, n in enumerate(self._links)}
         self._parent = [self._link_index[j.parent] for j in model.joints]
-        self._qidx, self._kind = [], []
+        self._qidx, self._kind, self._gain, self._bias = [], [], [], []
         for j in model.joints:
-            act = j.name in actuated
-            self._qidx.append(actuated.index(j.name) if act else -1)
-            kind = FIXED if not act else (PRISMATIC if j.type == "prismatic" else REVOLUTE)
+            leader, gain, bias = _driver(model, j, actuated)
+            self._qidx.append(actuated.index(leader) if leader is not None else -1)
+            kind = FIXED if leader is None else (PRISMATIC if j.type == "prismatic" else REVOLUTE)
             self._kind.append(kind)
+            self._gain.append(gain if leader is not None else 0.0)
+            self._bias.append(bias)  # a frozen joint's constant value (a mimic's offset), folded into its origin
+        #: movable joints that follow an actuated joint (URDF <mimic>): q_j = gain · q_leader + bias
+        self.followers: tuple[str, ...] = tuple(j.name for j, k in zip(model.joints, self._kind)
+                                                if k != FIXED and j.name not in actuated)
         K = len(model.joints)
         R0 = torch.stack([rpy_matrix(j.rpy) for j in model.joints]) if K else torch.zeros(0, 3, 3, dtype=torch.float64)
         p0 = torch.tensor([j.xyz for j in model.joints], dtype=torch.float64).reshape(K, 3)
@@ -100,6 +114,30 @@ class Chain(nn.Module):
         self.register_buffer("upper", torch.tensor([j.upper for j in joints], dtype=torch.float64))
         self.register_buffer("velocity_limit", torch.tensor([j.velocity for j in joints], dtype=torch.float64))
         self._frame_constants(axis)
+        self._fold_constant_values()
+        M = torch.eye(4, dtype=torch.float64) if mount is None else torch.as_tensor(mount, dtype=torch.float64)
+        if tuple(M.shape) != (4, 4):
+            raise ValueError(f"mount must be a 4×4 homogeneous transform, got shape {tuple(M.shape)}")
+        self.register_buffer("mount", M, persistent=False)  # the root link's pose in the world
+
+    def _fold_constant_values(self) -> None:
+        """Frozen joints whose value is not 0 (a mimic offset of a frozen leader) turned into their origins, and the
+        gains and biases of the driven joints, read only when some joint follows another."""
+        for k, (kind, c) in enumerate(zip(self._kind, self._bias)):
+            if kind == FIXED and c != 0.0:
+                if self.model.joints[k].type == "prismatic":
+                    self.T0[k, :3, 3] += c * self.origin_axis[k]
+                else:
+                    self.T0[k] += math.sin(c) * self.T_sin[k] + (1 - math.cos(c)) * self.T_cos[k]
+        self.has_mimic = bool(self.followers)
+        self.register_buffer("gain", torch.tensor(self._gain, dtype=torch.float64), persistent=False)
+        self.register_buffer("bias", torch.tensor([b if k != FIXED else 0.0 for k, b in zip(self._kind, self._bias)],
+                                                  dtype=torch.float64), persistent=False)
+        act = self.actuated_joints.tolist()
+        mix = torch.zeros(len(act), self.dof, dtype=torch.float64)  # moving joint (URDF order) <- configuration
+        for a, k in enumerate(act):
+            mix[a, self._qidx[k]] = self._gain[k]
+        self.register_buffer("mix", mix if self.has_mimic else None, persistent=False)
 
     def _frame_constants(self, axis: Tensor) -> None:
         """What ``frames`` reads besides the origins: each joint's axis in its own frame, which configuration
@@ -174,6 +212,8 @@ class Chain(nn.Module):
         """Every joint's transform from its parent link at ``q``: (..., K, 4, 4), and each joint's slide (..., K)."""
         c = self._constants(q)
         qj = q.index_select(-1, self.q_of_joint) if len(self._kind) else q[..., :0]
+        if self.has_mimic:
+            qj = qj * _as(self.gain, q) + _as(self.bias, q)
         turn, slide = qj * c["turns"], qj * c["slides"]  # 0 for fixed and frozen joints: their origins exactly
         sin, cos = torch.sin(turn)[..., None, None], (1 - torch.cos(turn))[..., None, None]
         T = c["T0"] + sin * c["T_sin"] + cos * c["T_cos"]
@@ -186,8 +226,7 @@ class Chain(nn.Module):
         world origin O and axis Z (..., K, 3) (O: where the joint sits before its own motion)."""
         self._check_q(q)
         local, slide = self._local(q)
-        eye = torch.eye(4, dtype=q.dtype, device=q.device).expand(*q.shape[:-1], 4, 4)
-        world = [eye]
+        world = [_as(self.mount, q).expand(*q.shape[:-1], 4, 4)]
         for parent, joint in zip(self._parent, local.unbind(-3)):
             world.append(world[parent] @ joint)
         T = torch.stack(world, -3)
@@ -215,9 +254,28 @@ class Chain(nn.Module):
         return self.forward_kinematics(q)
 
 
+def _driver(model: URDFModel, joint, actuated: Sequence[str]) -> tuple[str | None, float, float]:
+    """(the actuated joint that moves ``joint`` or None, gain, bias): ``joint``'s value is gain · q_leader + bias,
+    following mimic links to the joint at their head; a joint no actuated joint drives is frozen at ``bias`` (0 but
+    for a mimic's offset)."""
+    gain, bias, j = 1.0, 0.0, joint
+    while j.movable and j.name not in actuated and j.mimic is not None:
+        bias, gain = bias + gain * j.mimic.offset, gain * j.mimic.multiplier
+        j = model.joint(j.mimic.leader)
+    return (j.name if j.movable and j.name in actuated else None), gain, bias
+
+
+def mount_matrix(xyz: Sequence[float], rpy: Sequence[float]) -> Tensor:
+    """The 4×4 pose of a robot's base in the world from a URDF-style origin (xyz, fixed-axis roll-pitch-yaw)."""
+    M = torch.eye(4, dtype=torch.float64)
+    M[:3, :3], M[:3, 3] = rpy_matrix(rpy), torch.tensor([float(v) for v in xyz], dtype=torch.float64)
+    return M
+
+
 def robot_chain(p: RobotParams, in_dim: int, what: str) -> Chain:
     """The kinematic chain ``p`` names, checked to be the parent space (one coordinate per actuated joint)."""
-    chain = Chain(parse_urdf(resolve_urdf_path(p.urdf)), p.joints)
+    mount = None if p.mount is None else mount_matrix(p.mount.xyz, p.mount.rpy)
+    chain = Chain(parse_urdf(resolve_urdf_path(p.urdf)), p.joints, mount)
     if in_dim != chain.dof:
         raise ValueError(f"{what}: the parent space has dimension {in_dim} but {p.source()} has {chain.dof} actuated "
                          f"joints ({', '.join(chain.actuated)}); the parent must be the joint space")
@@ -246,7 +304,8 @@ class ForwardKinematics(TaskMap):
     """y = world position of a point fixed in a robot link; x = the actuated joint angles.
 
     ``urdf`` is the robot's URDF (a path, or ``pkg://<package>/<path>`` inside an installed package), ``joints``
-    the actuated joints in configuration order (default: every movable joint; the others are frozen at 0). A
+    the actuated joints in configuration order (default: every movable joint that mimics none; mimic joints follow their leaders, the others are frozen
+    at 0). A
     robot description (conf/robot/) names both, and the manipulator tree writes them into every such map. J is the
     geometric Jacobian and J̇ẋ is analytic (no J̇ is formed).
 
@@ -278,7 +337,8 @@ class ForwardKinematics(TaskMap):
         one_hot[self.chain.check_link(self.link)] = 1.0
         self.register_buffer("link_mask", one_hot, persistent=False)  # picks the link's pose out of every link's
         self.register_buffer("moved_by", self.chain.moves(self.link), persistent=False)
-        self.source = (resolve_urdf_path(params.urdf), tuple(self.chain.actuated))
+        mount = None if params.mount is None else (tuple(params.mount.xyz), tuple(params.mount.rpy))
+        self.source = (resolve_urdf_path(params.urdf), tuple(self.chain.actuated), mount)
         self.out_dim = 3
 
     def stack_settings(self) -> tuple:
@@ -312,7 +372,10 @@ class ForwardKinematics(TaskMap):
         cols = moved * (torch.where(chain.actuated_turns[:, None], turning, Z) if chain.has_slides else turning)
         J = cols.transpose(-1, -2)
         qd = xd
-        if chain.columns is not None:  # actuated joints listed in another order than the URDF's
+        if chain.mix is not None:  # joints that follow others (mimic): each configuration column sums its joints'
+            mix = _as(chain.mix, x)
+            J, qd = J @ mix, matvec(mix, xd)  # qd: every moving joint's rate, in URDF order
+        elif chain.columns is not None:  # actuated joints listed in another order than the URDF's
             J = J.index_select(-1, chain.columns)
             qd = xd.index_select(-1, chain.actuated_q)  # (..., A) in URDF order
         yd = matvec(J, xd)

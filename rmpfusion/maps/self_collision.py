@@ -59,7 +59,8 @@ def non_adjacent_link_pairs(chain: Chain, links: Sequence[str] | None = None,
 
 def _body_parents(chain: Chain, body: Mapping[str, int]) -> dict[int, int]:
     """Rigid body -> the body its actuated joint hangs from (the root's body has none)."""
-    return {body[j.child]: body[j.parent] for j in chain.model.joints if j.name in chain.actuated}
+    return {body[j.child]: body[j.parent] for j in chain.model.joints
+            if j.name in chain.actuated or j.name in chain.followers}
 
 
 def _joints_between(a: int, b: int, parent: Mapping[int, int]) -> int:
@@ -110,7 +111,7 @@ class LinkSphereDistance(TaskMap):
             raise ValueError(f"link_sphere_distance: links '{params.a.link}' and '{params.b.link}' move as one rigid "
                              f"body (no actuated joint between them), so the distance of their spheres never changes; "
                              f"pick spheres on links that move relative to each other (non_adjacent_link_pairs)")
-        robot = params.model_dump(include={"robot", "urdf", "joints"}, exclude_unset=True)
+        robot = params.model_dump(include={"robot", "urdf", "joints", "mount"}, exclude_unset=True)
         self.point_a = self._point(params.a, robot, in_dim)
         self.point_b = self._point(params.b, robot, in_dim)
         self.radii = params.a.radius + params.b.radius

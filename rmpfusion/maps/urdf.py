@@ -6,9 +6,9 @@ because simulators such as pybullet report some quantities relative to it.
 from __future__ import annotations
 
 import functools
-import importlib.util
 import math
 import os
+import sys
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 
@@ -17,6 +17,16 @@ Vec3 = tuple[float, float, float]
 JOINT_TYPES = ("revolute", "continuous", "prismatic", "fixed")
 #: A URDF inside an installed Python package: ``pkg://<package>/<path inside it>`` (Hydra's spelling of the same idea).
 PACKAGE_SCHEME = "pkg://"
+XACRO_NAMESPACE = "{http://www.ros.org/wiki/xacro}"
+
+
+@dataclass(frozen=True)
+class Mimic:
+    """A URDF ``<mimic joint= multiplier= offset=>``: the joint's value is ``multiplier · q_leader + offset``."""
+
+    leader: str
+    multiplier: float = 1.0
+    offset: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -32,6 +42,7 @@ class Joint:
     upper: float = math.inf
     velocity: float = math.inf
     effort: float = math.inf
+    mimic: Mimic | None = None  # this joint follows another: q = multiplier · q_leader + offset
 
     @property
     def movable(self) -> bool:
@@ -131,12 +142,25 @@ def _parse_joint(el: ET.Element) -> Joint:
     return Joint(
         name=name, type=jtype, parent=parent.get("link"), child=child.get("link"), xyz=xyz, rpy=rpy, axis=axis,
         lower=lower, upper=upper, velocity=get("velocity", math.inf), effort=get("effort", math.inf),
+        mimic=_mimic(el, name, jtype),
     )
+
+
+def _mimic(el: ET.Element, name: str, jtype: str) -> Mimic | None:
+    m = el.find("mimic")
+    if m is None or jtype == "fixed":
+        return None
+    if not m.get("joint"):
+        raise ValueError(f"URDF joint '{name}': <mimic> needs joint=\"<the joint it follows>\"")
+    return Mimic(m.get("joint"), float(m.get("multiplier", 1.0)), float(m.get("offset", 0.0)))
 
 
 def parse_urdf_string(text: str) -> URDFModel:
     """Parse URDF XML text into a kinematic tree (checked: one root, every link with at most one parent)."""
     root_el = ET.fromstring(text)
+    if any(el.tag.startswith(XACRO_NAMESPACE) for el in root_el.iter()):
+        raise ValueError("this is a xacro file (it holds xacro: elements), not a URDF: run xacro first "
+                         "(`xacro robot.urdf.xacro > robot.urdf`, with the xacro package) and give the URDF it writes")
     if root_el.tag != "robot":
         raise ValueError(f"URDF root element must be <robot>, got <{root_el.tag}>")
     links = {}
@@ -168,12 +192,29 @@ def parse_urdf_string(text: str) -> URDFModel:
         frontier = nxt
     if len(ordered_links) != len(links):
         raise ValueError("URDF link graph is not a tree (unreachable links or a cycle)")
+    _check_mimics(joints)
     return URDFModel(
         name=root_el.get("name", "robot"),
         links=tuple(links[l] for l in ordered_links),
         joints=tuple(ordered_joints),
         root=roots[0],
     )
+
+
+def _check_mimics(joints: list[Joint]) -> None:
+    """Every mimic follows a movable joint, and following leads to a joint that follows none (no cycle)."""
+    by_name = {j.name: j for j in joints}
+    for j in joints:
+        seen, k = [j.name], j
+        while k.mimic is not None:
+            leader = by_name.get(k.mimic.leader)
+            if leader is None or not leader.movable:
+                raise ValueError(f"URDF joint '{k.name}': <mimic joint='{k.mimic.leader}'> names no movable joint")
+            if leader.name in seen:
+                raise ValueError(f"URDF joints {' -> '.join(seen + [leader.name])}: mimic joints follow each other "
+                                 f"in a cycle")
+            seen.append(leader.name)
+            k = leader
 
 
 @functools.lru_cache(maxsize=16)
@@ -192,6 +233,10 @@ def parse_urdf(path: str | os.PathLike) -> URDFModel:
     path = resolve_urdf_path(path)
     if not os.path.isfile(path):
         raise FileNotFoundError(f"URDF file not found: {path}")
+    if path.endswith(".xacro"):
+        raise ValueError(f"{path} is a xacro file, not a URDF: run xacro first (`xacro {os.path.basename(path)} > "
+                         f"{os.path.basename(path)[:-len('.xacro')] or 'robot'}.urdf`, with the xacro package) and "
+                         f"give the URDF it writes")
     return _parse_cached(path, os.path.getmtime(path))
 
 
@@ -200,12 +245,27 @@ def resolve_urdf_path(location: str | os.PathLike) -> str:
     a file inside an installed Python package (``pkg://pybullet_data/kuka_iiwa/model.urdf``), so a config names
     the URDF it means on every machine without an absolute path."""
     text = os.fspath(location)
+    if text.startswith("file://"):
+        return os.path.abspath(text[len("file://"):])
     if not text.startswith(PACKAGE_SCHEME):
         return os.path.abspath(text)
     package, _, inside = text[len(PACKAGE_SCHEME):].partition("/")
-    spec = importlib.util.find_spec(package) if package else None
-    roots = list(spec.submodule_search_locations or []) if spec is not None else []
-    if not roots or not inside:
+    root = package_data_dir(package) if package else None
+    if root is None or not inside:
         raise FileNotFoundError(f"URDF {text!r}: no installed Python package {package!r} to look in; write "
                                 f"pkg://<package>/<path inside it> for a package that is installed, or a file path")
-    return os.path.join(roots[0], inside)
+    return os.path.join(root, inside)
+
+
+def package_data_dir(package: str) -> str | None:
+    """The folder of an installed package (or of any data folder installed beside packages, such as a wheel's
+    ``cmeel.prefix``): the first ``sys.path`` entry holding it. Found by looking, never by importing: importing a
+    package to find its files runs its code (and its parents'), which a path lookup must not."""
+    parts = [package] if "." not in package else [package, *([package.replace(".", os.sep)])]
+    for entry in sys.path:
+        base = entry or os.getcwd()
+        for part in parts:
+            candidate = os.path.join(base, part)
+            if os.path.isdir(candidate):
+                return candidate
+    return None

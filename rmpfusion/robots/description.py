@@ -11,12 +11,15 @@ from __future__ import annotations
 import difflib
 import functools
 import math
+import xml.etree.ElementTree as ET
 from typing import Literal, Sequence
 
 from pydantic import Field, field_validator, model_validator
 
-from ..maps.urdf import URDFModel, parse_urdf
+from ..maps.robot import Mount
+from ..maps.urdf import URDFModel, parse_urdf, resolve_urdf_path
 from ..registry import Params
+from .packages import package_folder
 
 Vec3 = tuple[float, float, float]
 
@@ -68,10 +71,18 @@ class RobotDescription(Params):
     type: Literal["urdf"] = "urdf"
     name: str = Field(description="how figures and messages name the robot")
     urdf: str = Field(description="a file path, or pkg://<package>/<path> inside an installed Python package")
+    packages: dict[str, str | None] = Field(default_factory=dict, description="ROS package name -> its folder (a "
+                                            "path or pkg://<python package>/<folder>; null: searched for), for the "
+                                            "URDF's package:// meshes (robots/packages.py)")
+    mount: Mount | None = Field(None, description="where the base sits in the world (xyz m, rpy rad); default the "
+                                                   "origin")
+    srdf: str | None = Field(None, description="an SRDF (path or pkg://) whose <disable_collisions> link pairs get no "
+                                               "self-collision barrier")
     joints: list[str] = Field(min_length=1, description="the actuated joints, in configuration order; other movable "
                                                         "joints are held at 0")
     end_effector: EndEffector
-    home: list[float] = Field(description="a configuration inside the limits (rad), one value per actuated joint")
+    home: list[float] = Field(description="a configuration inside the limits (rad), one value per actuated joint: "
+                                          "the centre of the starts unless the experiment says otherwise")
     limits: dict[str, JointLimits] = Field(default_factory=dict, description="per-joint overrides of the URDF limits")
     control_points: list[ControlPoint] = Field(default_factory=list, description="spheres approximating the arm")
     held_joint_gains: HeldJointGains = HeldJointGains()
@@ -82,6 +93,17 @@ class RobotDescription(Params):
         _model(v)  # a missing or malformed file is said here, with its path
         return v
 
+    @field_validator("packages")
+    @classmethod
+    def _folders(cls, v: dict[str, str | None]) -> dict[str, str | None]:
+        for name, folder in v.items():
+            if folder:  # a folder that is not there is said here, not when a mesh is read
+                try:
+                    package_folder(name, folder)
+                except FileNotFoundError as e:
+                    raise ValueError(str(e)) from None
+        return v
+
     @model_validator(mode="after")
     def _names_in_the_urdf(self):
         model = _model(self.urdf)
@@ -90,6 +112,10 @@ class RobotDescription(Params):
             if j not in movable:
                 raise ValueError(f"joints[{i}] = {j!r} is not a movable joint of {self.urdf}; {_close(j, movable)}"
                                  f"movable joints: {', '.join(movable)}")
+            mimic = model.joint(j).mimic
+            if mimic is not None:
+                raise ValueError(f"joints[{i}] = {j!r} follows {mimic.leader!r} (URDF <mimic>), so it cannot be "
+                                 f"actuated on its own; list {mimic.leader!r} instead (its followers move with it)")
         if len(set(self.joints)) != len(self.joints):
             raise ValueError(f"joints lists a joint twice: {self.joints}")
         for where, link in [("end_effector.link", self.end_effector.link),
@@ -101,15 +127,32 @@ class RobotDescription(Params):
             if j not in self.joints:
                 raise ValueError(f"limits.{j}: not an actuated joint; {_close(j, self.joints)}"
                                  f"actuated: {', '.join(self.joints)}")
+        for a, b in self.disabled_collisions():
+            for link in (a, b):
+                if link not in links:
+                    raise ValueError(f"srdf {self.srdf}: <disable_collisions> names {link!r}, not a link of "
+                                     f"{self.urdf}; {_close(link, links)}links: {', '.join(links)}")
         self._check_home()
         return self
+
+    def disabled_collisions(self) -> set[tuple[str, str]]:
+        """The link pairs (both orders) the SRDF's ``<disable_collisions>`` exempts from self-collision checks."""
+        if self.srdf is None:
+            return set()
+        path = resolve_urdf_path(self.srdf)
+        try:
+            root = ET.parse(path).getroot()
+        except (OSError, ET.ParseError) as e:
+            raise ValueError(f"srdf {self.srdf}: cannot be read ({' '.join(str(e).split())})") from None
+        pairs = {(d.get("link1"), d.get("link2")) for d in root.iter("disable_collisions")}
+        return pairs | {(b, a) for a, b in pairs}
 
     def _check_home(self) -> None:
         if len(self.home) != len(self.joints):
             raise ValueError(f"home has {len(self.home)} values for {len(self.joints)} actuated joints {self.joints}")
         for j, q, (lo, hi, _) in zip(self.joints, self.home, self.joint_limits()):
             if not lo <= q <= hi:
-                raise ValueError(f"home value {q} of {j} lies outside its limits [{lo}, {hi}]; move it inside")
+                raise ValueError(f"home: {j} = {q} lies outside its limits [{lo}, {hi}]; move it inside")
 
     def joint_limits(self) -> list[tuple[float, float, float]]:
         """(lower, upper, velocity) of every actuated joint: the URDF's, with ``limits`` overriding key by key

@@ -1,38 +1,54 @@
 """A URDF's collision geometry as surface samples in each link's frame: what control spheres must cover.
 
-Meshes are read with trimesh (STL, OBJ and the other formats it reads without extras); boxes, cylinders and
-spheres are built by trimesh as well, so every element is sampled the same way. Mesh file names are resolved as
-simulators do: ``package://<pkg>/<path>`` and relative paths against the URDF's folder.
+Meshes are read with trimesh, in every format it reads (STL, OBJ, PLY, GLB, and COLLADA ``.dae`` through pycollada),
+scaled by the URDF's ``scale`` (meshes drawn in millimetres carry ``scale="0.001 0.001 0.001"``); boxes, cylinders
+and spheres are built by trimesh as well, so every element is sampled the same way. Mesh files are found as
+``robots/packages.py`` says, and only those of the links asked for are read. A link with visual geometry but no
+collision geometry is covered by its visual geometry, and the caller is told which links those are.
 """
 from __future__ import annotations
 
-import os
 import xml.etree.ElementTree as ET
+from dataclasses import dataclass, field
+from typing import Mapping, Sequence
 
 import numpy as np
 
 from ..maps.kinematics import rpy_matrix
 from ..maps.urdf import resolve_urdf_path
+from .packages import mesh_path
+
+
+class MeshUnreadable(ValueError):
+    """A mesh file trimesh cannot read (a format it lacks a reader for, or a damaged file)."""
 
 
 def _floats(text: str | None, default: list[float]) -> list[float]:
     return default if text is None else [float(v) for v in text.split()]
 
 
-def _mesh_file(name: str, urdf_dir: str) -> str:
-    rel = name[len("package://"):] if name.startswith("package://") else name
-    for candidate in (os.path.join(urdf_dir, rel), os.path.join(urdf_dir, rel.partition("/")[2])):
-        if os.path.isfile(candidate):
-            return candidate
-    raise FileNotFoundError(f"collision mesh {name!r} not found next to the URDF ({urdf_dir})")
+def _read_mesh(path: str, link: str):
+    import trimesh
+
+    try:
+        m = trimesh.load(path, force="mesh")
+    except BaseException as e:  # noqa: BLE001 - trimesh raises anything, even for a missing reader's dependency
+        if isinstance(e, (KeyboardInterrupt, SystemExit)):
+            raise
+        cause = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+        raise MeshUnreadable(f"link {link!r}: mesh {path} could not be read ({cause}); convert it to STL or OBJ, "
+                             f"or install the reader trimesh asks for") from None
+    if not hasattr(m, "faces") or len(m.faces) == 0:
+        raise MeshUnreadable(f"link {link!r}: mesh {path} holds no triangles")
+    return m
 
 
-def _element_mesh(geometry: ET.Element, urdf_dir: str):
+def _element_mesh(geometry: ET.Element, link: str, urdf_path: str, packages: Mapping[str, str] | None):
     import trimesh
 
     mesh, box, cyl, sph = (geometry.find(t) for t in ("mesh", "box", "cylinder", "sphere"))
     if mesh is not None:
-        m = trimesh.load(_mesh_file(mesh.get("filename"), urdf_dir), force="mesh")
+        m = _read_mesh(mesh_path(mesh.get("filename") or "", link, urdf_path, packages), link)
         m.apply_scale(_floats(mesh.get("scale"), [1.0, 1.0, 1.0]))
         return m
     if box is not None:
@@ -44,27 +60,68 @@ def _element_mesh(geometry: ET.Element, urdf_dir: str):
     return None
 
 
-def collision_meshes(urdf: str) -> dict[str, object]:
-    """Link name -> its collision geometry as one trimesh mesh in the link's frame (links without any left out)."""
+def _link_mesh(link: ET.Element, kind: str, urdf_path: str, packages: Mapping[str, str] | None):
+    """One link's ``kind`` (collision or visual) geometry as one mesh in its frame, or None without any."""
     import trimesh
 
+    parts = []
+    for element in link.findall(kind):
+        geometry = element.find("geometry")
+        m = None if geometry is None else _element_mesh(geometry, link.get("name"), urdf_path, packages)
+        if m is None:
+            continue
+        o = element.find("origin")
+        T = np.eye(4)
+        T[:3, :3] = rpy_matrix(_floats(None if o is None else o.get("rpy"), [0.0, 0.0, 0.0])).numpy()
+        T[:3, 3] = _floats(None if o is None else o.get("xyz"), [0.0, 0.0, 0.0])
+        parts.append(m.apply_transform(T))
+    return trimesh.util.concatenate(parts) if parts else None
+
+
+@dataclass
+class LinkGeometry:
+    """Links' geometry as meshes in their frames, and which of them had only visual geometry to give."""
+
+    meshes: dict[str, object] = field(default_factory=dict)
+    from_visual: list[str] = field(default_factory=list)
+
+
+def link_geometry(urdf: str, links: Sequence[str] | None = None, packages: Mapping[str, str] | None = None,
+                  use_visual: bool = True) -> LinkGeometry:
+    """The collision geometry of ``links`` (default: every link), read from their meshes only; a link with none
+    takes its visual geometry when ``use_visual``. Links with neither are left out."""
     path = resolve_urdf_path(urdf)
-    root, urdf_dir, out = ET.parse(path).getroot(), os.path.dirname(path), {}
-    for link in root.findall("link"):
-        parts = []
-        for col in link.findall("collision"):
-            geometry = col.find("geometry")
-            m = None if geometry is None else _element_mesh(geometry, urdf_dir)
-            if m is None:
-                continue
-            o = col.find("origin")
-            T = np.eye(4)
-            T[:3, :3] = rpy_matrix(_floats(None if o is None else o.get("rpy"), [0.0, 0.0, 0.0])).numpy()
-            T[:3, 3] = _floats(None if o is None else o.get("xyz"), [0.0, 0.0, 0.0])
-            parts.append(m.apply_transform(T))
-        if parts:
-            out[link.get("name")] = trimesh.util.concatenate(parts)
+    out = LinkGeometry()
+    for link in ET.parse(path).getroot().findall("link"):
+        name = link.get("name")
+        if links is not None and name not in links:
+            continue
+        m = _link_mesh(link, "collision", path, packages)
+        if m is None and use_visual:
+            m = _link_mesh(link, "visual", path, packages)
+            if m is not None:
+                out.from_visual.append(name)
+        if m is not None:
+            out.meshes[name] = m
     return out
+
+
+def links_with_geometry(urdf: str) -> dict[str, str]:
+    """Link -> ``collision`` or ``visual``: which geometry each link that has some would be covered with, read
+    from the URDF alone (no mesh file opened)."""
+    out = {}
+    for link in ET.parse(resolve_urdf_path(urdf)).getroot().findall("link"):
+        for kind in ("collision", "visual"):
+            if any(e.find("geometry") is not None and len(e.find("geometry")) for e in link.findall(kind)):
+                out[link.get("name")] = kind
+                break
+    return out
+
+
+def collision_meshes(urdf: str, links: Sequence[str] | None = None,
+                     packages: Mapping[str, str] | None = None) -> dict[str, object]:
+    """Link name -> its collision geometry (else its visual geometry) as one trimesh mesh in the link's frame."""
+    return link_geometry(urdf, links, packages).meshes
 
 
 def surface_samples(mesh, n: int, seed: int) -> np.ndarray:

@@ -8,17 +8,20 @@ a simulator (``envs/manipulator/scene.py`` calls ``load_into``).
 """
 from __future__ import annotations
 
+import functools
+import math
 from typing import Annotated, Any, Mapping
 
+import numpy as np
 import torch
 from pydantic import BeforeValidator, SerializeAsAny, ValidationError
 from pydantic_core import PydanticCustomError
 from torch import Tensor
 
-from ..maps.kinematics import Chain
-from ..maps.urdf import resolve_urdf_path
+from ..maps.kinematics import Chain, mount_matrix
 from ..registry import ROBOTS, RegistryError
 from .description import RobotDescription
+from .packages import resolved_urdf
 
 
 @ROBOTS.register("urdf")
@@ -30,7 +33,8 @@ class URDFRobot:
     def __init__(self, params: RobotDescription):
         self.params = params
         self.name = params.name
-        self.chain = Chain(params.model(), params.joints)
+        mount = None if params.mount is None else mount_matrix(params.mount.xyz, params.mount.rpy)
+        self.chain = Chain(params.model(), params.joints, mount)
         limits = params.joint_limits()
         self.lower = torch.tensor([lim[0] for lim in limits], dtype=torch.float64)
         self.upper = torch.tensor([lim[1] for lim in limits], dtype=torch.float64)
@@ -41,9 +45,11 @@ class URDFRobot:
     def dof(self) -> int:
         return len(self.params.joints)
 
-    @property
+    @functools.cached_property
     def urdf_path(self) -> str:
-        return resolve_urdf_path(self.params.urdf)
+        """The URDF simulators load: a copy with every mesh an absolute path (``robots/packages.py``), found once
+        per robot (a torque-mode rollout opens a world per sample)."""
+        return resolved_urdf(self.params.urdf, self.params.packages)
 
     def ee_position(self, q: Tensor) -> Tensor:
         """(B, 3) world position of the end-effector point."""
@@ -53,16 +59,44 @@ class URDFRobot:
 
     def moves(self, link: str) -> bool:
         """Whether some actuated joint moves ``link`` (links fixed to the base cannot reach an obstacle's side)."""
-        return any(j.name in self.params.joints for j in self.params.model().path_to(link))
+        return any(j.name in self.params.joints or j.name in self.chain.followers
+                   for j in self.params.model().path_to(link))
 
     def held_joints(self) -> list[str]:
-        """Movable joints that are not actuated (fingers): simulators hold them at 0, as the kinematics does."""
+        """Movable joints that are not actuated: those that follow an actuated joint (URDF <mimic>), and the others
+        (fingers), which simulators hold at 0 (or at their mimic offset), as the kinematics does."""
         return [j for j in self.params.model().movable_joint_names() if j not in self.params.joints]
 
+    def held_targets(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Where simulators hold the held joints, as (configuration index (0 when none), gain, bias) arrays: joint
+        h's target is gain_h · q[index_h] + bias_h (gain 0 for a joint no actuated joint drives), so a mimic joint
+        follows its leader and the others stay where the kinematics freezes them."""
+        index, gain, bias = [], [], []
+        chain = self.chain
+        for name in self.held_joints():
+            k = [j.name for j in chain.model.joints].index(name)
+            index.append(max(chain._qidx[k], 0))
+            gain.append(chain._gain[k])
+            bias.append(chain._bias[k])
+        return np.array(index, dtype=int), np.array(gain), np.array(bias)
+
+    def base_pose(self) -> tuple[list[float], list[float]]:
+        """(position, pybullet quaternion x y z w) of the base in the world: the ``mount``."""
+        if self.params.mount is None:
+            return [0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]
+        r, p_, y = self.params.mount.rpy
+        cr, sr, cp, sp, cy, sy = (math.cos(r / 2), math.sin(r / 2), math.cos(p_ / 2), math.sin(p_ / 2),
+                                  math.cos(y / 2), math.sin(y / 2))
+        quaternion = [sr * cp * cy - cr * sp * sy, cr * sp * cy + sr * cp * sy, cr * cp * sy - sr * sp * cy,
+                      cr * cp * cy + sr * sp * sy]
+        return list(self.params.mount.xyz), quaternion
+
     def load_into(self, p: Any, cid: int) -> tuple[int, list[int], list[int]]:
-        """Load the robot into pybullet world ``cid`` on a fixed base at the origin: (body, pybullet indices of the
+        """Load the robot into pybullet world ``cid`` on a fixed base at its mount: (body, pybullet indices of the
         actuated joints in configuration order, indices of the held joints)."""
-        body = p.loadURDF(self.urdf_path, useFixedBase=True, flags=p.URDF_USE_INERTIA_FROM_FILE, physicsClientId=cid)
+        position, orientation = self.base_pose()
+        body = p.loadURDF(self.urdf_path, position, orientation, useFixedBase=True,
+                          flags=p.URDF_USE_INERTIA_FROM_FILE, physicsClientId=cid)
         index = {p.getJointInfo(body, i, physicsClientId=cid)[1].decode(): i
                  for i in range(p.getNumJoints(body, physicsClientId=cid))}
         return body, [index[j] for j in self.params.joints], [index[j] for j in self.held_joints()]

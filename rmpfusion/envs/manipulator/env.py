@@ -107,6 +107,18 @@ class Manipulator(ComputesOnDevice, SeededSampling):
             out.append(sc.clearance(self.params.clearance_query))
         return torch.tensor(out, dtype=self.dtype)
 
+    def start_margin(self, q: Tensor, aux: Mapping[str, Tensor]) -> Tensor:
+        """(B,) how far each configuration is from a fit start (≥ 0: it is one): ``start_clearance`` from every
+        obstacle and from the ground, counting only links some joint can raise or lower, each asked for no more
+        height than it can reach (``_Scene.start_margin``)."""
+        sc, p = self.checker(), self.params
+        out = []
+        for b in range(q.shape[0]):
+            sc.set_env(self.scene, sample_aux(aux, b))
+            sc.reset(q[b].detach().cpu().numpy())
+            out.append(sc.start_margin(p.start_clearance, p.clearance_query))
+        return torch.tensor(out, dtype=self.dtype)
+
     def in_collision(self, q: Tensor, aux: Mapping[str, Tensor]) -> Tensor:
         """(B,) bool: some link within zero distance of an obstacle."""
         return self.clearance(q, aux) <= 0.0
@@ -185,13 +197,15 @@ class Manipulator(ComputesOnDevice, SeededSampling):
             good = far.clone()
             if bool(far.any()):  # pybullet only for the candidates that pass the cheap test
                 idx = far.nonzero().flatten()
-                good[idx] = self.clearance(v[0][idx], {k: x[idx] for k, x in a.items()}) >= p.start_clearance
+                good[idx] = self.start_margin(v[0][idx], {k: x[idx] for k, x in a.items()}) >= 0.0
             return good
 
         q0, qd0 = redraw_until_ok(
             draw, ok, aux, p.max_tries,
-            lambda left: f"manipulator: could not place {left} start configurations clear of the obstacles and "
-                         f"min_start_goal_distance from the goal; move nominal_q or change start_spread")
+            lambda left: f"manipulator: could not place {left} start configurations clear of the obstacles and the "
+                         f"ground by env.start_clearance ({p.start_clearance} m) and env.min_start_goal_distance "
+                         f"({p.min_start_goal_distance} m) from the goal in {p.max_tries} rounds; move the starts' "
+                         f"centre ({_centre_key(p)}), or change env.start_spread or env.start_clearance")
         return q0, qd0, aux
 
     # ------------------------------------------------------------------ rollouts
@@ -258,6 +272,11 @@ class Manipulator(ComputesOnDevice, SeededSampling):
     def project(self, points, width: int = 320, height: int = 240) -> np.ndarray:
         """(N, 2) pixel coordinates (column, row) of world points (N, 3) in ``render``'s image, to draw paths on it."""
         return rendering.project(self.params.camera, points, width, height)
+
+
+def _centre_key(p: ManipulatorParams) -> str:
+    """How the user sets the starts' centre: the robot file's ``home`` unless ``env.nominal_q`` overrides it."""
+    return "env.nominal_q" if p.nominal_q is not None else f"home in the robot file of {p.robot.name}, env.robot.home"
 
 
 def _reporting(monitor: Callable[..., Any] | None, progress: Callable[[int, int], Any],

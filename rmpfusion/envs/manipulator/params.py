@@ -131,7 +131,8 @@ class ManipulatorParams(Params):
             if not lo + v <= nominal[k] <= hi - v:
                 raise ValueError(f"joint_margin puts the start centre {name} = {nominal[k]} outside its start range "
                                  f"[{lo:.5g} + margin, {hi:.5g} − margin] (every start would be clamped to its edge); "
-                                 f"move nominal_q inward or lower joint_margin; given {v}")
+                                 f"move {'nominal_q' if info.data.get('nominal_q') else 'home (the robot file)'} "
+                                 f"inward or lower joint_margin; given {v}")
         return v
 
     def start_centre(self) -> tuple[float, ...]:

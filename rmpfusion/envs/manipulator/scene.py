@@ -60,7 +60,9 @@ class _Scene:
         if self.cid < 0:
             raise RuntimeError("pybullet: could not connect (a GUI may already be open)")
         self.robot, self.arm, self.held = robot.load_into(p, self.cid)
-        self.moving_links = self._moving_links(robot)
+        self.held_drive = robot.held_targets()
+        self.ground_reach = self._links_that_can_touch_the_ground(robot)
+        self.moving_links = list(self.ground_reach)
         for j in range(-1, p.getNumJoints(self.robot, physicsClientId=self.cid)):
             # pybullet's default link damping is not in its inverse dynamics; remove it so the
             # computed-torque loop realises the commanded acceleration exactly
@@ -74,14 +76,13 @@ class _Scene:
         self.ground: int | None = None
         self.goal_marker: int | None = None
 
-    def _moving_links(self, robot: URDFRobot) -> list[int]:
-        """pybullet indices of the links some actuated joint moves: the ones that can touch the ground."""
-        p, out = self.p, []
-        for i in range(p.getNumJoints(self.robot, physicsClientId=self.cid)):
-            link = p.getJointInfo(self.robot, i, physicsClientId=self.cid)[12].decode()
-            if robot.moves(link):
-                out.append(i)
-        return out
+    def _links_that_can_touch_the_ground(self, robot: URDFRobot) -> dict[int, float]:
+        """pybullet index -> highest lowest point (m) of the links whose lowest point changes height over the joints'
+        range: the ones the ground check counts (found once per robot, ``ground_links``)."""
+        key = (robot.urdf_path, tuple(robot.params.joints), repr(robot.params.mount))
+        if key not in _GROUND_LINKS:
+            _GROUND_LINKS[key] = ground_links(self, robot)
+        return _GROUND_LINKS[key]
 
     def _shape(self, kind: str, a: Mapping[str, np.ndarray], k: int, visual: bool) -> tuple[int, int, list[float]]:
         p, cid, pre = self.p, self.cid, f"obstacle{k}_"
@@ -138,11 +139,16 @@ class _Scene:
         self.p.loadURDF(os.path.join(pybullet_data.getDataPath(), "plane.urdf"), physicsClientId=self.cid)
 
     def reset(self, q: np.ndarray, qd: np.ndarray | None = None) -> None:
+        """The actuated joints at (q, q̇); the held ones where they follow (mimic joints) or stay (``held_targets``)."""
         qd = np.zeros(len(self.arm)) if qd is None else qd
         for i, j in enumerate(self.arm):
             self.p.resetJointState(self.robot, j, float(q[i]), float(qd[i]), physicsClientId=self.cid)
-        for j in self.held:
-            self.p.resetJointState(self.robot, j, 0.0, 0.0, physicsClientId=self.cid)
+        index, gain, bias = self.held_drive
+        q, qd = np.asarray(q, dtype=float), np.asarray(qd, dtype=float)
+        for h, j in enumerate(self.held):
+            value = gain[h] * q[index[h]] + bias[h] if len(q) else bias[h]
+            rate = gain[h] * qd[index[h]] if len(qd) else 0.0
+            self.p.resetJointState(self.robot, j, float(value), float(rate), physicsClientId=self.cid)
 
     def state(self) -> tuple[np.ndarray, np.ndarray]:
         """(q, q̇) of every simulated joint: the actuated ones, then the held ones."""
@@ -162,11 +168,59 @@ class _Scene:
                     best = min(best, pt[8])
         return best
 
+    def start_margin(self, required: float, query: float) -> float:
+        """How far the robot is from being a fit start (≥ 0: it is): its distance to every obstacle minus
+        ``required``, and each ground-checked link's distance to the ground minus ``required`` or, for a link whose
+        lowest point can never rise that far above the ground (a UR5's upper arm beside its shoulder axis), minus
+        the height it can reach, less 2 mm."""
+        p, cid, worst = self.p, self.cid, query - required
+        for ob in self.obstacles:
+            for pt in p.getClosestPoints(self.robot, ob, query, physicsClientId=cid):
+                worst = min(worst, pt[8] - required)
+        if self.ground is not None:
+            height = p.getBasePositionAndOrientation(self.ground, physicsClientId=cid)[0][2]
+            for link, reach in self.ground_reach.items():
+                need = min(required, max(0.0, reach - height - 0.002))
+                for pt in p.getClosestPoints(self.robot, self.ground, query, linkIndexA=link, physicsClientId=cid):
+                    worst = min(worst, pt[8] - need)
+        return worst
+
     def close(self) -> None:
         try:
             self.p.disconnect(physicsClientId=self.cid)
         except Exception:  # noqa: BLE001 - already gone
             pass
+
+
+#: pybullet link index -> highest lowest point, of the links the ground check counts, per (URDF, actuated joints,
+#: mount): found once per process
+_GROUND_LINKS: dict[tuple, dict[int, float]] = {}
+#: configurations sampled to see which links' lowest points change height, and the change that counts (m)
+GROUND_SAMPLES, GROUND_TOLERANCE = 64, 1e-5
+
+
+def ground_links(world: _Scene, robot: URDFRobot, samples: int = GROUND_SAMPLES, seed: int = 0) -> dict[int, float]:
+    """pybullet index -> the highest its lowest point gets (m, world), of the links whose lowest point (of their
+    collision shapes' bounding boxes) changes height by more than GROUND_TOLERANCE over ``samples`` configurations
+    drawn uniformly within the joints' limits (a continuous joint over one turn). A link no joint can raise or lower
+    (a shoulder that only spins about the vertical) always sits where it sits, however near the ground: checking it
+    would refuse every start."""
+    p, cid = world.p, world.cid
+    lo = np.maximum(robot.lower.numpy(), -np.pi)
+    hi = np.minimum(robot.upper.numpy(), np.pi)
+    rng = np.random.default_rng(seed)
+    qs = lo + (hi - lo) * rng.random((samples, robot.dof))
+    links = [i for i in range(p.getNumJoints(world.robot, physicsClientId=cid))
+             if robot.moves(p.getJointInfo(world.robot, i, physicsClientId=cid)[12].decode())]
+    lowest = np.empty((samples, len(links)))
+    for s, q in enumerate(qs):
+        world.reset(q)
+        for c, i in enumerate(links):
+            lowest[s, c] = p.getAABB(world.robot, i, physicsClientId=cid)[0][2]
+    if not links:
+        return {}
+    varies = lowest.max(0) - lowest.min(0) > GROUND_TOLERANCE
+    return {i: float(top) for i, v, top in zip(links, varies, lowest.max(0)) if v}
 
 
 class HelperWorlds:

@@ -125,7 +125,10 @@ class _Worlds:
     def _step_one(self, b: int, sc: _Scene, a: np.ndarray, k: int) -> None:
         p, dt = _pb(), self.env.dt
         gains = self.env.robot.params.held_joint_gains
-        acc_f = -gains.kp * self.fingers[b] - gains.kd * self.finger_v[b]
+        index, gain, bias = sc.held_drive  # mimic joints follow their leaders; the others are held where they are
+        q, qd = self.q[b].cpu().numpy(), self.qd[b].cpu().numpy()
+        target, target_v = gain * q[index] + bias, gain * qd[index]
+        acc_f = (gain * a[index] - gains.kp * (self.fingers[b] - target) - gains.kd * (self.finger_v[b] - target_v))
         qs = self.q[b].tolist() + self.fingers[b].tolist()
         vs = self.qd[b].tolist() + self.finger_v[b].tolist()
         tau = p.calculateInverseDynamics(sc.robot, qs, vs, a.tolist() + acc_f.tolist(), physicsClientId=sc.cid)
