@@ -3,27 +3,63 @@ never half of one), and reading a torch payload of ours so that every way it can
 tampered, foreign) is one error naming the file and the fix, whatever kind of file (dataset, checkpoint) it is."""
 from __future__ import annotations
 
+import errno
 import io
 import json
 import os
 import re
+import shutil
 import warnings
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Iterator
 
 
+class DiskFullError(OSError):
+    """A write failed for want of space (or quota); the message names the file, the space left and what to do."""
+
+
+def _size(n: float) -> str:
+    for unit in ("B", "KiB", "MiB", "GiB"):
+        if n < 1024 or unit == "GiB":
+            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
+        n /= 1024
+    return f"{n:.1f} GiB"
+
+
+def disk_full(path: Path, e: OSError) -> DiskFullError:
+    """The error of a write to ``path`` that found no space: which file, how much is left where, and that nothing
+    written before is lost (every file is replaced atomically), so a rerun after freeing space resumes."""
+    try:
+        usage = shutil.disk_usage(path.parent)
+        space = f"{_size(usage.free)} free of {_size(usage.total)} on the file system of {path.parent}"
+    except OSError:
+        space = f"the file system of {path.parent} is full"
+    return DiskFullError(e.errno, f"no space left to write {path} ({space}); the files written before it are intact: "
+                                  "free some space (or point the run elsewhere) and run the same command again: it "
+                                  "resumes from what was written")
+
+
+def no_space(e: BaseException) -> bool:
+    return isinstance(e, OSError) and e.errno in (errno.ENOSPC, errno.EDQUOT)
+
+
 @contextmanager
 def atomic_path(path: str | os.PathLike, suffix: str = "") -> Iterator[Path]:
-    """Yield a temporary sibling of ``path`` to write; it replaces ``path`` only if the block succeeds."""
+    """Yield a temporary sibling of ``path`` to write; it replaces ``path`` only if the block succeeds. A full disk
+    is a ``DiskFullError`` naming ``path`` (the temporary is removed, the old file kept)."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.tmp{os.getpid()}{suffix}")
     try:
+        path.parent.mkdir(parents=True, exist_ok=True)
         yield tmp
         with open(tmp, "rb") as fh:  # the data is on disk before the rename makes it visible
             os.fsync(fh.fileno())
         os.replace(tmp, path)
+    except OSError as e:
+        if no_space(e) and not isinstance(e, DiskFullError):
+            raise disk_full(path, e) from e
+        raise
     finally:
         if tmp.exists():
             tmp.unlink()

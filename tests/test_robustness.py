@@ -1191,14 +1191,14 @@ def _plugin_import_error(tmp_path, monkeypatch):
     from importlib.metadata import EntryPoint
 
     import rmpfusion.registry as registry
-    from rmpfusion.cli._common import config_errors_exit
+    from rmpfusion.cli._common import user_errors_exit
 
     (tmp_path / "broken_plugin.py").write_text('"""A plugin with a bug."""\nratio = 1 / 0\n')
     monkeypatch.syspath_prepend(str(tmp_path))
     monkeypatch.setattr(registry, "entry_points", lambda group: [EntryPoint("broken", "broken_plugin", group)])
     loader = registry.PluginLoader()  # an isolated loader: the default registries keep theirs
     err = io.StringIO()
-    with contextlib.redirect_stderr(err), pytest.raises(SystemExit) as info, config_errors_exit():
+    with contextlib.redirect_stderr(err), pytest.raises(SystemExit) as info, user_errors_exit():
         loader.load()
     assert info.value.code == 2
     return err.getvalue().strip()

@@ -9,7 +9,7 @@ from omegaconf import DictConfig
 
 from ..assembly.spec import weight_label
 from ..evaluate.weights import learned_edges
-from ._common import config_errors_exit, hydra_app
+from ._common import user_errors_exit, hydra_app
 from ..pipeline.construct import build_all
 from ..pipeline.validate import resolve_and_validate
 
@@ -40,7 +40,7 @@ def summary(run, env, expert, learners) -> str:
 
 @hydra_app
 def main(cfg: DictConfig) -> None:
-    with config_errors_exit():
+    with user_errors_exit():
         run = resolve_and_validate(cfg)
         env, expert, learners = build_all(run)
     print(summary(run, env, expert, learners))

@@ -6,9 +6,9 @@ because simulators such as pybullet report some quantities relative to it.
 from __future__ import annotations
 
 import functools
-import importlib.util
 import math
 import os
+import sys
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 
@@ -203,9 +203,22 @@ def resolve_urdf_path(location: str | os.PathLike) -> str:
     if not text.startswith(PACKAGE_SCHEME):
         return os.path.abspath(text)
     package, _, inside = text[len(PACKAGE_SCHEME):].partition("/")
-    spec = importlib.util.find_spec(package) if package else None
-    roots = list(spec.submodule_search_locations or []) if spec is not None else []
-    if not roots or not inside:
+    root = package_data_dir(package) if package else None
+    if root is None or not inside:
         raise FileNotFoundError(f"URDF {text!r}: no installed Python package {package!r} to look in; write "
                                 f"pkg://<package>/<path inside it> for a package that is installed, or a file path")
-    return os.path.join(roots[0], inside)
+    return os.path.join(root, inside)
+
+
+def package_data_dir(package: str) -> str | None:
+    """The folder of an installed package (or of any data folder installed beside packages, such as a wheel's
+    ``cmeel.prefix``): the first ``sys.path`` entry holding it. Found by looking, never by importing: importing a
+    package to find its files runs its code (and its parents'), which a path lookup must not."""
+    parts = [package] if "." not in package else [package, *([package.replace(".", os.sep)])]
+    for entry in sys.path:
+        base = entry or os.getcwd()
+        for part in parts:
+            candidate = os.path.join(base, part)
+            if os.path.isdir(candidate):
+                return candidate
+    return None
