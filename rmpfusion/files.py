@@ -163,5 +163,18 @@ def read_torch_file(path: Path, what: str, fix: str, error: type[Exception], fmt
         if not isinstance(payload, dict) or (fmt is not None and payload.get("format") != fmt):
             raise ValueError(f"not a {fmt or 'rmpfusion'} file")
     except Exception as e:  # noqa: BLE001 - any unreadable file gets the same advice
+        if (name := unsupported_global(e)) is not None:
+            raise error(f"{what} file {path} is damaged or was not written by rmpfusion: it asks for the Python object "
+                        f"{name}, which no file of rmpfusion holds (nothing in it was loaded or run); {fix}") from e
         raise error(f"{what} file {path} is unreadable or truncated ({load_error_cause(e)}); {fix}") from e
     return payload
+
+
+_GLOBAL = re.compile(r"(?:unsupported GLOBAL|Unsupported global: GLOBAL)\s+([\w.]+)")
+
+
+def unsupported_global(e: BaseException) -> str | None:
+    """The Python object a pickle asked torch's weights-only loader for and was refused (a hostile file's
+    ``os.system``, or a damaged byte in a tensor's name), or None for other failures."""
+    m = _GLOBAL.search(str(e))
+    return m.group(1) if m else None

@@ -347,13 +347,14 @@ def _certificate_singular(tmp_path, monkeypatch):
     return next(ln.strip() for ln in cert.summary().splitlines() if "positive definite" in ln)
 
 
-@row("inertia-indefinite", "indefinite root inertia M_r", "a custom leaf with M = diag(1, −2) on the root",
+@row("inertia-indefinite", "indefinite root inertia M_r",
+     "a custom leaf with M = diag(1, −2) on the root, built with check_leaves=False (the build refuses it otherwise)",
      "resolve stays defined; certify reports M_r not positive definite (min eig < 0)",
      shows="[FAIL] M_r positive definite    (min eig = -2.000e+00)")
 def _indefinite(tmp_path, monkeypatch):
     spec = {"root": {"name": "q", "dim": 2}, "nodes": {
         "bad": {"parent": "q", "map": {"type": "identity"}, "rmp": {"type": "test_indefinite"}}}}
-    tree = rmpfusion.build_tree(spec)
+    tree = rmpfusion.build_tree(spec, check_leaves=False)
     q, qd = SINGULAR_STATES
     out = tree(q, qd)
     assert out.qdd.isfinite().all()
@@ -484,7 +485,8 @@ def _dataset_row(case: str):
             pat = r"dataset file .* fails its checksum .* it was modified or damaged; delete .* to have it collected again"
         elif case == "flipped-header":
             flip_byte_in(p, b"_rebuild_tensor_v2")  # one bit of the pickled structure
-            pat = r"dataset file .* is unreadable or truncated \(UnpicklingError: Unsupported global: .*\); delete"
+            pat = (r"dataset file .* is damaged or was not written by rmpfusion: it asks for the Python object \S+, which "
+                   r"no file of rmpfusion holds \(nothing in it was loaded or run\); delete")
         else:  # foreign
             meta = {**META, "config_hash": "99999999"}
             pat = r"dataset file .* was made with a different configuration \(config_hash: file '0123abcd' vs expected '99999999'\)"
@@ -504,7 +506,8 @@ for _case, _fault, _trigger, _shows in [
         ("flipped", "dataset tampered (one bit of the data)", "one bit flipped inside the stored labels",
          f"{_DS} fails its checksum (stored <hex>…, content <hex>…): it was modified or damaged; {_AGAIN}"),
         ("flipped-header", "dataset damaged (one bit of the structure)", "one bit flipped in the pickled header",
-         f"{_DS} is unreadable or truncated (UnpicklingError: Unsupported global: <text>); {_AGAIN}"),
+         f"{_DS} is damaged or was not written by rmpfusion: it asks for the Python object <text>, which no file of "
+         f"rmpfusion holds (nothing in it was loaded or run); {_AGAIN}"),
         ("foreign", "dataset made with a different config", "a file whose stored config hash differs from the run's",
          f"{_DS} was made with a different configuration (config_hash: file '0123abcd' vs expected '99999999'); {_AGAIN}")]:
     row(f"dataset-{_case}", _fault, _trigger, "DatasetError naming the file and what to do",

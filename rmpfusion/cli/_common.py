@@ -157,8 +157,9 @@ def user_errors_exit() -> Iterator[None]:
 
 def discard_unclaimed(run_dir: Path) -> None:
     """Remove what Hydra made for a job that stopped before it owned ``run_dir`` (an invalid config, a busy or
-    foreign directory): its ``.hydra/`` copies and log, and the directory if that leaves it empty. Only those
-    files are touched, so a directory holding anything else (a run's, a user's) is kept as it was."""
+    foreign directory): its ``.hydra/`` copies and log, and the directory (and its parent, ``outputs/<name>``) if
+    that leaves it empty. Only those files are touched, so a directory holding anything else (a run's, a user's)
+    is kept as it was."""
     if (run_dir / RESOLVED).exists() or (run_dir / ".hydra" / "accepted").exists():
         return
     for name in ("config.yaml", "hydra.yaml", "overrides.yaml"):
@@ -166,9 +167,9 @@ def discard_unclaimed(run_dir: Path) -> None:
     for log in run_dir.glob("*.log"):
         if log.name != "console.log":
             log.unlink(missing_ok=True)
-    for d in (run_dir / ".hydra", run_dir):
+    for d in (run_dir / ".hydra", run_dir, *([run_dir.parent] if run_dir.parent.name != "outputs" else [])):
         with contextlib.suppress(OSError):
-            d.rmdir()
+            d.rmdir()  # only ever an empty directory
 
 
 def hydra_run_dir() -> Path:

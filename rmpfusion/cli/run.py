@@ -34,7 +34,7 @@ def _objective(result) -> float | None:
     return None
 
 
-def _experiment(j: Job, require_trained: bool = False) -> float | None:
+def _experiment(j: Job, require_trained: bool = False) -> dict:
     with user_errors_exit():
         result = run_experiment(j.run, j.dir, progress=True, log=j.logger.log, threads=THREADS,
                                 require_trained=require_trained)
@@ -42,6 +42,22 @@ def _experiment(j: Job, require_trained: bool = False) -> float | None:
         if res.get("resumed_from") is not None:
             print(f"learner {name}: resumed from the checkpoint at iteration {res['resumed_from']}")
     j.logger.finish(result)
+    return result
+
+
+def result_line(run_dir, result: dict) -> str:
+    """The run's outcome in one line, printed after everything else (the logger's summary included)."""
+    parts = []
+    for name, res in (result.get("learners") or {}).items():
+        shown = ", ".join(f"{k}={res[k]:.4g}" for k in ("online_loss", "batch_loss", "success", "collision")
+                          if isinstance(res.get(k), (int, float)))
+        flag = " DIVERGED" if res.get("diverged") else ""
+        parts.append(f"learner {name}{flag}: {shown or 'no metrics'}")
+    return f"result: {'; '.join(parts) or 'no learners'} ({run_dir / 'metrics.json'})"
+
+
+def _finished(j_dir, result: dict) -> float | None:
+    print(result_line(j_dir, result))
     return _objective(result)
 
 
@@ -52,7 +68,8 @@ def main(cfg: DictConfig) -> float | None:
     Rerun with the same overrides and ``hydra.run.dir`` to resume a killed run: data is reused and training
     continues from the last checkpoint."""
     with job(cfg, THREADS) as j:
-        return _experiment(j)
+        result = _experiment(j)
+    return _finished(j.dir, result)
 
 
 @hydra_app
@@ -91,7 +108,8 @@ def evaluate(cfg: DictConfig) -> float | None:
     Needs the checkpoints rmpfusion-train left in the same run directory; nothing is retrained.
     """
     with job(cfg, THREADS) as j:
-        return _experiment(j, require_trained=True)
+        result = _experiment(j, require_trained=True)
+    return _finished(j.dir, result)
 
 
 if __name__ == "__main__":

@@ -23,7 +23,7 @@ from ..learn.learner import Learner
 from ..learn.objectives import dataset_loss
 from ..learn.loop import load_snapshot
 from .collect import Splits, expert_diverged
-from .experiment import Experiment, clean
+from .experiment import COMPILING, Experiment, clean
 from .fit import Fitted
 
 
@@ -166,6 +166,7 @@ def evaluate_fitted(exp: Experiment, name: str, fitted: Fitted, splits: Splits, 
     model.to(torch.float64)
     if exp.run.eval.compile:
         model.compile()
+        exp.say.say(COMPILING.format(what=f"learner {name} for evaluation"))
     ev = _SnapshotEvaluator(exp, name, splits, expert)
     out = LearnerEval(final={}, final_rollout=None)
     if model.tree is not None:
