@@ -18,6 +18,9 @@ from typing import Any, Iterator
 class DiskFullError(OSError):
     """A write failed for want of space (or quota); the message names the file, the space left and what to do."""
 
+    def __str__(self) -> str:
+        return str(self.strerror)  # the message alone, without OSError's "[Errno 28]"
+
 
 def _size(n: float) -> str:
     for unit in ("B", "KiB", "MiB", "GiB"):
