@@ -94,10 +94,10 @@ def hydra_app(task: Callable[[Any], Any]) -> Callable[[], Any]:
             if e.code in (None, 0):
                 raise
             discard_unclaimed(hydra_run_dir())
-            if not sweeps.in_sweep():
+            if not sweeps.in_sweep() or e.code == INTERRUPTED_EXIT:  # Ctrl-C stops the whole sweep
                 raise
             sweeps.record_failure(e.code)
-            return None
+            return float("nan")  # a sweeper that minimises (Optuna) records the trial as failed and goes on
 
     @functools.wraps(task)
     def entry() -> Any:
