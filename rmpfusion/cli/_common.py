@@ -162,11 +162,12 @@ def discard_unclaimed(run_dir: Path) -> None:
     is kept as it was."""
     if (run_dir / RESOLVED).exists() or (run_dir / ".hydra" / "accepted").exists():
         return
+    from hydra.core.hydra_config import HydraConfig
+
     for name in ("config.yaml", "hydra.yaml", "overrides.yaml"):
         (run_dir / ".hydra" / name).unlink(missing_ok=True)
-    for log in run_dir.glob("*.log"):
-        if log.name != "console.log":
-            log.unlink(missing_ok=True)
+    if HydraConfig.initialized():  # Hydra's job log, <job name>.log
+        (run_dir / f"{HydraConfig.get().job.name}.log").unlink(missing_ok=True)
     for d in (run_dir / ".hydra", run_dir, *([run_dir.parent] if run_dir.parent.name != "outputs" else [])):
         with contextlib.suppress(OSError):
             d.rmdir()  # only ever an empty directory

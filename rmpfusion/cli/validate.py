@@ -46,6 +46,8 @@ def main(cfg: DictConfig) -> None:
             run = resolve_and_validate(cfg)
             env, expert, learners = build_all(run)
         print(summary(run, env, expert, learners))
+        print(f"run directory: {hydra_run_dir()} (where rmpfusion-run with these overrides writes; nothing is kept "
+              "by rmpfusion-validate)")
     finally:
         discard_unclaimed(hydra_run_dir())
 
