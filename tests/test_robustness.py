@@ -902,7 +902,8 @@ for _id, _fault, _overrides, _shows, _needs in [
         ("dagger-too-few-demonstrations", "DAgger asked for more demonstrations than the training split holds",
          ["train=dagger", "data=tiny"],
          "train.initial_trajectories: round 0 would draw 500 demonstrations but the training split has 4 "
-         "(data.train_envs × data.train_trajectories); lower it or collect more", ()),
+         "(data.train_envs × data.train_trajectories); lower it or collect more (a smoke run on data=tiny: "
+         "train=dagger_smoke)", ()),
         ("dagger-beta-unused", "a β that the DAgger schedule would ignore", ["train=dagger", "+train.beta=0.3"],
          "train: beta is not used by beta_schedule=indicator (β = 0 after round 0); use beta_schedule=exponential or "
          "constant, or leave beta out; given beta=0.3", ()),

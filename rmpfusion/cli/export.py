@@ -114,6 +114,8 @@ def main(argv=None) -> int:
     except (ExportError, ValueError) as e:  # what this command refuses to write (a learner it cannot export)
         print(f"error: {e}", file=sys.stderr)
         return 2
+    except SystemExit as e:  # a user error, printed; the status is returned (the console script exits with it)
+        return e.code
     for p in written:
         print(f"wrote {p}")
     return 0

@@ -145,8 +145,11 @@ def main(argv=None) -> int:
     ap.add_argument("--out", type=Path, default=None, help="where metrics.json and figures go")
     ap.add_argument("--no-figures", action="store_true")
     a = ap.parse_args(argv)
-    with user_errors_exit():
-        evaluate_checkpoint(a.checkpoint, a.out, figures=not a.no_figures)
+    try:
+        with user_errors_exit():
+            evaluate_checkpoint(a.checkpoint, a.out, figures=not a.no_figures)
+    except SystemExit as e:  # the message is printed; the status is returned (the console script exits with it)
+        return e.code
     return 0
 
 
