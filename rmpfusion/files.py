@@ -3,27 +3,66 @@ never half of one), and reading a torch payload of ours so that every way it can
 tampered, foreign) is one error naming the file and the fix, whatever kind of file (dataset, checkpoint) it is."""
 from __future__ import annotations
 
+import errno
 import io
 import json
 import os
 import re
+import shutil
 import warnings
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Iterator
 
 
+class DiskFullError(OSError):
+    """A write failed for want of space (or quota); the message names the file, the space left and what to do."""
+
+    def __str__(self) -> str:
+        return str(self.strerror)  # the message alone, without OSError's "[Errno 28]"
+
+
+def _size(n: float) -> str:
+    for unit in ("B", "KiB", "MiB", "GiB"):
+        if n < 1024 or unit == "GiB":
+            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
+        n /= 1024
+    return f"{n:.1f} GiB"
+
+
+def disk_full(path: Path, e: OSError) -> DiskFullError:
+    """The error of a write to ``path`` that found no space: which file, how much is left where, and that nothing
+    written before is lost (every file is replaced atomically), so a rerun after freeing space resumes."""
+    try:
+        usage = shutil.disk_usage(path.parent)
+        space = f"{_size(usage.free)} free of {_size(usage.total)} on the file system of {path.parent}"
+    except OSError:
+        space = f"the file system of {path.parent} is full"
+    return DiskFullError(e.errno, f"no space left to write {path} ({space}); the files written before it are intact: "
+                                  "free some space (or point the run elsewhere) and run the same command again: it "
+                                  "resumes from what was written")
+
+
+def no_space(e: BaseException) -> bool:
+    return isinstance(e, OSError) and e.errno in (errno.ENOSPC, errno.EDQUOT)
+
+
 @contextmanager
 def atomic_path(path: str | os.PathLike, suffix: str = "") -> Iterator[Path]:
-    """Yield a temporary sibling of ``path`` to write; it replaces ``path`` only if the block succeeds."""
+    """Yield a temporary sibling of ``path`` to write; it replaces ``path`` only if the block succeeds. A full disk
+    is a ``DiskFullError`` naming ``path`` (the temporary is removed, the old file kept)."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.tmp{os.getpid()}{suffix}")
     try:
+        path.parent.mkdir(parents=True, exist_ok=True)
         yield tmp
         with open(tmp, "rb") as fh:  # the data is on disk before the rename makes it visible
             os.fsync(fh.fileno())
         os.replace(tmp, path)
+    except OSError as e:
+        if no_space(e) and not isinstance(e, DiskFullError):
+            raise disk_full(path, e) from e
+        raise
     finally:
         if tmp.exists():
             tmp.unlink()
@@ -127,5 +166,18 @@ def read_torch_file(path: Path, what: str, fix: str, error: type[Exception], fmt
         if not isinstance(payload, dict) or (fmt is not None and payload.get("format") != fmt):
             raise ValueError(f"not a {fmt or 'rmpfusion'} file")
     except Exception as e:  # noqa: BLE001 - any unreadable file gets the same advice
+        if (name := unsupported_global(e)) is not None:
+            raise error(f"{what} file {path} is damaged or was not written by rmpfusion: it asks for the Python object "
+                        f"{name}, which no file of rmpfusion holds (nothing in it was loaded or run); {fix}") from e
         raise error(f"{what} file {path} is unreadable or truncated ({load_error_cause(e)}); {fix}") from e
     return payload
+
+
+_GLOBAL = re.compile(r"(?:unsupported GLOBAL|Unsupported global: GLOBAL)\s+([\w.]+)")
+
+
+def unsupported_global(e: BaseException) -> str | None:
+    """The Python object a pickle asked torch's weights-only loader for and was refused (a hostile file's
+    ``os.system``, or a damaged byte in a tensor's name), or None for other failures."""
+    m = _GLOBAL.search(str(e))
+    return m.group(1) if m else None

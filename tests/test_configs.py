@@ -92,8 +92,11 @@ def test_sweep_job_directories_carry_the_jobs_overrides(tmp_path):
     r = _cli("rmpfusion.cli.validate", "-m", "experiment=2d2level", "seed=0,1", "train.lr=3e-3", "logger=disabled",
              f"data.cache_dir={tmp_path / 'cache'}", f"hydra.sweep.dir={tmp_path / 'sweep'}")
     assert r.returncode == 0, r.stderr[-3000:]
-    jobs = sorted(p.name for p in (tmp_path / "sweep").iterdir() if p.is_dir())
+    said = [ln.split("run directory: ", 1)[1].split(" (", 1)[0] for ln in r.stdout.splitlines()
+            if ln.startswith("run directory: ")]
+    jobs = sorted(Path(d).name for d in said)
     assert jobs == ["0_2d2level_seed=0,train.lr=0.003", "1_2d2level_seed=1,train.lr=0.003"]  # as the sweeper writes it
+    assert not [p for p in (tmp_path / "sweep").iterdir() if p.is_dir()]  # validating left no job directory
     cfg = compose_cfg(["experiment=2d1level", "seed=2", "name=mine", "logger.mode=online", "launcher=joblib",
                        "sweep=seeds", "+data.cache_dir=/shared/cache", "train=tiny"], hydra_cfg=True)
     assert cfg.hydra.job.override_dirname == "seed=2,train=tiny"

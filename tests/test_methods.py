@@ -450,3 +450,40 @@ def test_a_sweep_over_a_method_s_setting_runs_every_job_with_that_method(tmp_pat
         assert json.loads((job / "config.json").read_text())["train"]["lr"] == lr
         assert (job / "checkpoints" / "rmp" / "final.pt").is_file()
         assert metrics["learners"]["rmp"]["certificate"]["ok"], metrics["learners"]["rmp"]["certificate"]
+
+
+# ------------------------------------------------------------------------------------------------ smoke presets
+SMOKE = {"bc": "tiny", "dagger": "dagger_smoke", "apg": "apg_smoke", "pg": "pg_smoke"}
+
+
+def test_every_registered_method_has_a_smoke_preset_that_validates_with_tiny_data():
+    """The README's smoke run works for every method: ``train=<preset> data=tiny`` is a valid run of that method."""
+    from pathlib import Path
+
+    from hydra import compose, initialize_config_dir
+
+    from rmpfusion.pipeline.validate import resolve_and_validate
+    from rmpfusion.registry import TRAIN_METHODS
+
+    assert set(SMOKE) == set(TRAIN_METHODS.names())
+    conf = Path(__file__).resolve().parents[1] / "conf"
+    for method, preset in SMOKE.items():
+        with initialize_config_dir(config_dir=str(conf), version_base="1.3"):
+            cfg = compose("config", overrides=["experiment=2d1level", "data=tiny", f"train={preset}", "eval=fast"])
+        assert resolve_and_validate(cfg).train.method == method
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("method", sorted(SMOKE))
+def test_every_smoke_preset_runs_on_tiny_data(method, tmp_path):
+    import json
+    import os
+    import subprocess
+    import sys
+
+    cmd = [sys.executable, "-m", "rmpfusion.cli.run", "experiment=2d1level", "data=tiny", f"train={SMOKE[method]}",
+           "eval=fast", "logger=disabled", f"hydra.run.dir={tmp_path}"]
+    r = subprocess.run(cmd, capture_output=True, text=True, timeout=900, env={**os.environ, "WANDB_MODE": "disabled"})
+    assert r.returncode == 0, r.stderr[-3000:]
+    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    assert metrics["learners"]["rmp"]["online_loss"] is not None

@@ -78,6 +78,20 @@ def compare(a: dict, b: dict, rtol: float, residual_atol: float = 1e-7) -> tuple
     return len(shared), worst, differ, one_sided
 
 
+def read_metrics(path: Path) -> dict:
+    """A run's metrics.json, or a ValueError naming the file and what is wrong with it (missing, cut short)."""
+    try:
+        data = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise ValueError(f"{path} does not exist; give the metrics.json of a finished run") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise ValueError(f"{path} is not readable JSON ({e}): a run killed while writing it, or a damaged copy; "
+                         "rerun that run (it resumes and writes metrics.json again)") from None
+    if not isinstance(data, dict):
+        raise ValueError(f"{path} holds {type(data).__name__}, not the mapping a metrics.json holds")
+    return data
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("first", type=Path)
@@ -86,7 +100,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--residual-atol", type=float, default=1e-7,
                     help="largest absolute difference of two residuals counted as equal")
     args = ap.parse_args(argv)
-    a, b = (json.loads(p.read_text()) for p in (args.first, args.second))
+    try:
+        a, b = (read_metrics(p) for p in (args.first, args.second))
+    except ValueError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
     n, worst, differ, one_sided = compare(a, b, args.rtol, args.residual_atol)
     print(f"{n} values compared, largest relative difference {worst:.3g}; {len(differ)} differ beyond "
           f"rtol={args.rtol:g}; {len(one_sided)} keys on one side only")

@@ -38,7 +38,11 @@ class SweepError(RuntimeError):
 def _overrides(path: Path) -> list[str]:
     import yaml
 
-    data = yaml.safe_load(path.read_text()) or []
+    try:
+        data = yaml.safe_load(path.read_text()) or []
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as e:
+        first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+        raise SweepError(f"{path} is damaged ({type(e).__name__}: {first}); the job's overrides are unknown") from None
     if not isinstance(data, list):
         raise SweepError(f"{path} is not a Hydra overrides list")
     return [str(o) for o in data]
@@ -60,7 +64,11 @@ def find_jobs(sweep_dir: Path) -> tuple[list[dict], list[dict]]:
                          "(outputs/multirun/<time>)?")
     done, pending = [], []
     for d in dirs:
-        job = {"dir": d, "overrides": _overrides(d / ".hydra" / "overrides.yaml")}
+        try:
+            job = {"dir": d, "overrides": _overrides(d / ".hydra" / "overrides.yaml")}
+        except SweepError as e:  # one damaged job is left out, named; the rest are summarised
+            pending.append({"dir": d, "overrides": [], "reason": f"{e}; left out of the summary"})
+            continue
         m = d / "metrics.json"
         if not m.is_file():
             job["reason"] = "no metrics.json (still running, killed or failed: see its console.log)"

@@ -95,6 +95,21 @@ def _is_tag(key: str, field: Any) -> bool:
     return bool(extra.get("registry_tag")) and get_origin(field.annotation) is Literal
 
 
+#: What users write for a key or value out of habit (other libraries' names), and what rmpfusion calls it: offered
+#: before the names that are merely spelt alike.
+HABITS = {"learning_rate": "lr", "learningrate": "lr", "step_size": "lr", "epochs": "iterations",
+          "steps": "iterations", "num_iterations": "iterations", "n_iterations": "iterations", "batch": "batch_size",
+          "batchsize": "batch_size", "gpu": "cuda", "optim": "optimizer"}
+
+
+def closest(name: str, options: Sequence[str], n: int = 3) -> list[str]:
+    """The options a misspelt or habitual ``name`` most likely meant: its usual rmpfusion name first (``HABITS``),
+    then those spelt alike."""
+    usual = HABITS.get(name.lower())
+    alike = difflib.get_close_matches(name, list(dict.fromkeys(options)), n=n, cutoff=0.5)
+    return ([usual] if usual in options else []) + [o for o in alike if o != usual][:n - (usual in options)]
+
+
 def _unknown_key(e: Mapping[str, Any], model: type | None) -> str:
     """'unknown key', with the allowed keys of the model that refused it and the closest of them."""
     owner = model_at(model, e["loc"][:-1]) if model is not None else None
@@ -103,7 +118,7 @@ def _unknown_key(e: Mapping[str, Any], model: type | None) -> str:
         return msg
     allowed = [k for k, f in owner.model_fields.items() if not _is_tag(k, f)]
     msg += f" (allowed: {', '.join(allowed) or 'none'})"
-    close = difflib.get_close_matches(str(e["loc"][-1]), allowed, n=3, cutoff=0.5)
+    close = closest(str(e["loc"][-1]), allowed)
     return msg + (f"; did you mean {', '.join(map(repr, close))}?" if close else "")
 
 

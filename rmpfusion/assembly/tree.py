@@ -9,6 +9,7 @@ from torch import nn
 from ..core.tree import BoundWeight, NodeLabel, RMPTree, TreeLayout, breadth_first
 from ..registry import LEAF_RMPS, TASK_MAPS, WEIGHTS
 from .errors import ConfigError, Issue
+from .leaf_check import leaf_contract_message, leaf_problem
 from .spec import TreeSpec, shared_ref, validate_tree_spec, weight_label
 
 
@@ -29,8 +30,10 @@ def _coordinates_mismatch(leaf: str, reads: str | None, given: str | None) -> st
 class _Builder:
     """Builds one tree's modules in pushforward order, collecting every problem with its YAML path."""
 
-    def __init__(self, ts: TreeSpec, where: str, weight_paths: Mapping[str, str]):
+    def __init__(self, ts: TreeSpec, where: str, weight_paths: Mapping[str, str], check_leaves: bool = True):
         self.ts, self.where, self.weight_paths = ts, where, dict(weight_paths)
+        self.check_leaves = check_leaves
+        self.leaves_checked: dict[tuple[str, int], str | None] = {}  # (leaf spec, dim) -> its problem, once each
         self.aux = dict(ts.aux)
         self.dims = {ts.root.name: ts.root.dim}
         self.maps: dict[str, nn.Module] = {}
@@ -97,6 +100,19 @@ class _Builder:
             self.rmps[n] = _build(LEAF_RMPS, spec, self.dims[n])
         except Exception as e:  # noqa: BLE001
             self.issues.append(Issue(f"{p}.rmp", str(e)))
+            return
+        if self.check_leaves and (why := self.contract(spec, self.rmps[n], self.dims[n])) is not None:
+            self.issues.append(Issue(f"{p}.rmp", leaf_contract_message(spec.type, why)))
+
+    def contract(self, spec, leaf: nn.Module, dim: int) -> str | None:
+        """The leaf's breach of the leaf contract (``leaf_check.py``), checked once per distinct leaf."""
+        key = (spec.model_dump_json(), dim)
+        if key not in self.leaves_checked:
+            try:
+                self.leaves_checked[key] = leaf_problem(leaf, dim)
+            except Exception as e:  # noqa: BLE001 - reported with the leaf's path
+                self.leaves_checked[key] = f"it raised {type(e).__name__}: {e}"
+        return self.leaves_checked[key]
 
     def layout(self) -> TreeLayout:
         ts = self.ts
@@ -113,6 +129,7 @@ def build_tree(
     resolve_method: str = "solve",
     check_finite: bool = True,
     weight_paths: Mapping[str, str] | None = None,
+    check_leaves: bool = True,
 ) -> RMPTree:
     """Validate a tree spec (docs/architecture.md §2) and assemble its modules through the registries.
 
@@ -126,11 +143,14 @@ def build_tree(
 
     ``weight_paths`` names where the weight of a node was written when that is not the tree's own node (the
     expert's ``expert.<node>``, a learner's ``learners.<name>.weights``), so its problems are reported there.
+
+    ``check_leaves`` tries every leaf on sample states (``leaf_check.py``) and refuses one that breaks the leaf
+    contract; only a test of what a tree does with a broken leaf turns it off.
     """
     ts = validate_tree_spec(spec, where)
     if aux_dims:
         ts = ts.model_copy(update={"aux": {**ts.aux, **dict(aux_dims)}})
-    b = _Builder(ts, where, weight_paths or {})
+    b = _Builder(ts, where, weight_paths or {}, check_leaves)
     b.unused_shared()
     children: dict[str, list[str]] = {}
     for n, nd in ts.nodes.items():

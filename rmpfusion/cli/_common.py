@@ -17,12 +17,18 @@ from typing import Any, Callable, Iterator
 
 import hydra
 from ..assembly.errors import ConfigError
+from ..core.diagnosis import NumericalError
+from ..envs.demonstrations import DatasetError
+from ..files import DiskFullError, atomic_write_bytes, remove_stale_temporaries
+from ..learn.checkpoints import CheckpointError
+from ..learn.loop import TrainingDivergedError
+from ..pipeline.collect import ExpertDivergedError
+from ..pipeline.fit import NotTrainedError
 from ..registry import PluginError, RegistryError
-from ..files import atomic_write_bytes
 from .rundir import RESOLVED
 from ..pipeline.validate import resolve_and_validate
 from . import logger as wandb_logger
-from ..files import remove_stale_temporaries
+from . import sweeps
 from .preflight import CommandLineError, check_command_line, check_output_dir
 from .rundir import HydraFiles, RunDirError, check_same_config, console_log, exclusive, record_environment
 
@@ -31,8 +37,16 @@ CONFIG_ERROR_EXIT = 2
 
 
 def conf_dir() -> str:
+    """conf/ of the checkout (or ``RMPFUSION_CONF``). A ``RMPFUSION_CONF`` that holds no config.yaml is an error,
+    never passed over for the checkout's: the user meant that directory."""
     env = os.environ.get("RMPFUSION_CONF")
-    candidates = [Path(env)] if env else []
+    if env:
+        if (Path(env) / "config.yaml").is_file():
+            return env
+        what = "does not exist" if not Path(env).exists() else "holds no config.yaml"
+        raise FileNotFoundError(f"RMPFUSION_CONF={env} {what}; point it at a conf/ directory (one with config.yaml, "
+                                "like the checkout's conf/) or unset it to use the checkout's")
+    candidates = []
     here = Path(__file__).resolve()
     candidates += [here.parents[2] / "conf", here.parents[1] / "conf"]
     for c in candidates:
@@ -77,7 +91,26 @@ def one_line(e: BaseException) -> str:
 def hydra_app(task: Callable[[Any], Any]) -> Callable[[], Any]:
     """A console script running ``task(cfg)`` as a Hydra app over conf/. The directory is looked up when the
     command runs, never on import; the command line is composed once first (``preflight``) so a misspelt group,
-    a missing file, a YAML error or an unwritable output directory is said in a line or two (exit 2)."""
+    a missing file, a YAML error or an unwritable output directory is said in a line or two (exit 2).
+
+    Inside the job every error of ``USER_ERRORS`` is one line (``user_errors_exit``), never Hydra's "Error executing
+    job" and its traceback. A job that stops before it owns its directory leaves none behind (``discard_unclaimed``).
+    In a sweep (``-m``) a failing job fails alone: it says its number and overrides, the other jobs run, and the
+    sweep ends by listing the failed jobs with a non-zero exit status (``sweeps.py``)."""
+
+    @functools.wraps(task)
+    def job_task(cfg: Any) -> Any:
+        try:
+            with user_errors_exit():
+                return task(cfg)
+        except SystemExit as e:
+            if e.code in (None, 0):
+                raise
+            discard_unclaimed(hydra_run_dir())
+            if not sweeps.in_sweep() or e.code == INTERRUPTED_EXIT:  # Ctrl-C stops the whole sweep
+                raise
+            sweeps.record_failure(e.code)
+            return float("nan")  # a sweeper that minimises (Optuna) records the trial as failed and goes on
 
     @functools.wraps(task)
     def entry() -> Any:
@@ -89,7 +122,8 @@ def hydra_app(task: Callable[[Any], Any]) -> Callable[[], Any]:
             fail(str(e))
         if debug_enabled():
             os.environ["HYDRA_FULL_ERROR"] = "1"
-        return hydra.main(version_base="1.3", config_path=path, config_name="config")(task)()
+        with sweeps.failures_reported():
+            return hydra.main(version_base="1.3", config_path=path, config_name="config")(job_task)()
 
     return entry
 
@@ -104,16 +138,52 @@ def plugin_report(e: "PluginError") -> str:
     return f"{e}" + (f"\n{shown}" if shown else "") + "\n(RMPFUSION_DEBUG=1 shows the whole traceback)"
 
 
+#: Errors whose message is already complete (what failed, the file, key or node, and what to do), with the exit
+#: status each ends a command with: 2 when nothing ran (a config, a file given on the command line), 1 when a run
+#: stopped. Anything else is a bug in rmpfusion or a plugin and keeps its traceback.
+USER_ERRORS: tuple[tuple[type[BaseException], int], ...] = (
+    (ConfigError, CONFIG_ERROR_EXIT), (RegistryError, CONFIG_ERROR_EXIT), (RunDirError, CONFIG_ERROR_EXIT),
+    (CheckpointError, CONFIG_ERROR_EXIT), (DatasetError, CONFIG_ERROR_EXIT), (ExpertDivergedError, 1),
+    (NotTrainedError, 1), (DiskFullError, 1), (TrainingDivergedError, 1), (NumericalError, 1))
+
+
+def user_error_code(e: BaseException) -> int | None:
+    """The exit status of a user error (see ``USER_ERRORS``); None for anything else."""
+    return next((code for kind, code in USER_ERRORS if isinstance(e, kind)), None)
+
+
 @contextlib.contextmanager
-def config_errors_exit() -> Iterator[None]:
-    """Print configuration problems as the user should read them (paths and fixes), no traceback."""
+def user_errors_exit() -> Iterator[None]:
+    """Print the problems a user can fix as they should read them (paths and fixes), no traceback: the one place
+    every command turns an error into its message and exit status (``RMPFUSION_DEBUG=1`` re-raises)."""
 
     try:
         yield
-    except (ConfigError, RegistryError) as e:
-        fail(str(e))
     except PluginError as e:
         fail(plugin_report(e))
+    except Exception as e:  # noqa: BLE001 - only USER_ERRORS are answered here; the rest propagate
+        code = user_error_code(e)
+        if code is None:
+            raise
+        fail(str(e), code)
+
+
+def discard_unclaimed(run_dir: Path) -> None:
+    """Remove what Hydra made for a job that stopped before it owned ``run_dir`` (an invalid config, a busy or
+    foreign directory): its ``.hydra/`` copies and log, and the directory (and its parent, ``outputs/<name>``) if
+    that leaves it empty. Only those files are touched, so a directory holding anything else (a run's, a user's)
+    is kept as it was."""
+    if (run_dir / RESOLVED).exists() or (run_dir / ".hydra" / "accepted").exists():
+        return
+    from hydra.core.hydra_config import HydraConfig
+
+    for name in ("config.yaml", "hydra.yaml", "overrides.yaml"):
+        (run_dir / ".hydra" / name).unlink(missing_ok=True)
+    if HydraConfig.initialized():  # Hydra's job log, <job name>.log
+        (run_dir / f"{HydraConfig.get().job.name}.log").unlink(missing_ok=True)
+    for d in (run_dir / ".hydra", run_dir, *([run_dir.parent] if run_dir.parent.name != "outputs" else [])):
+        with contextlib.suppress(OSError):
+            d.rmdir()  # only ever an empty directory
 
 
 def hydra_run_dir() -> Path:
@@ -160,7 +230,7 @@ def job(cfg, threads: int = 1, log: bool = True) -> Iterator[Job]:
     hydra_files = HydraFiles(run_dir)
     with contextlib.ExitStack() as stack:
         try:
-            with config_errors_exit():
+            with user_errors_exit():
                 run = resolve_and_validate(cfg)
             stack.enter_context(exclusive(run_dir))
             check_same_config(run.model_dump(mode="json"), run_dir)

@@ -18,13 +18,13 @@ from pathlib import Path
 
 import torch
 
-from ..envs.demonstrations import DatasetError
 from ..files import atomic_path
 from ..learn.export import METADATA, export_learner, metadata, metadata_text
 from ..learn.train import CheckpointError, load_checkpoint
 from ..pipeline.experiment import prepare
 from ..pipeline.fit import learners
 from ..pipeline.progress import Progress
+from ._common import user_errors_exit
 from .from_checkpoint import _load, _not_a_checkpoint
 
 #: How closely the exported file must reproduce the learner (float64), checked before the command ends.
@@ -78,7 +78,7 @@ def export_checkpoint(path: Path, out: Path | None = None, with_rmp: bool = Fals
     meta = metadata(exp.env.aux_dims(), names, exp.env.dim, torch.float64, with_rmp, learner=name,
                     iteration=int(state.get("iteration", -1)), checkpoint=str(path), experiment=run.name)
     program = export_learner(learner, q, qd, aux, names, with_rmp=with_rmp)
-    with atomic_path(out) as tmp:
+    with atomic_path(out, suffix=".pt2") as tmp:  # torch.export wants its files to end in .pt2
         torch.export.save(program, tmp, extra_files={METADATA: metadata_text(meta)})
         _verify("exported program", torch.export.load(tmp).module(), learner, q, qd, aux, names, with_rmp)
     if aoti:
@@ -109,10 +109,13 @@ def main(argv=None) -> int:
     ap.add_argument("--force", action="store_true", help="replace files that exist")
     a = ap.parse_args(argv)
     try:
-        written = export_checkpoint(a.checkpoint, a.out, with_rmp=a.with_rmp, aoti=a.aoti, force=a.force)
-    except (CheckpointError, DatasetError, ExportError, ValueError) as e:
+        with user_errors_exit():
+            written = export_checkpoint(a.checkpoint, a.out, with_rmp=a.with_rmp, aoti=a.aoti, force=a.force)
+    except (ExportError, ValueError) as e:  # what this command refuses to write (a learner it cannot export)
         print(f"error: {e}", file=sys.stderr)
         return 2
+    except SystemExit as e:  # a user error, printed; the status is returned (the console script exits with it)
+        return e.code
     for p in written:
         print(f"wrote {p}")
     return 0

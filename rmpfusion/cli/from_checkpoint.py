@@ -18,7 +18,6 @@ import numpy as np
 import torch
 
 from ..envs.demonstrations import FORMAT as DATASET_FORMAT
-from ..envs.demonstrations import DatasetError
 from ..envs.protocol import PlanarWorkspace, Renders
 from ..files import atomic_write_json, torch_file_format
 from ..learn.checkpoints import CHECKPOINT_FORMAT, CHECKPOINT_NAME, CheckpointError, latest_checkpoint, load_checkpoint
@@ -31,6 +30,7 @@ from ..pipeline.progress import Progress
 from ..pipeline.validate import device_problem, parse_run_config
 from ..plots import plot_lyapunov, plot_trajectories
 from ..plots.figures import save_figure, subplots
+from ._common import user_errors_exit
 
 
 _KINDS = {".json": "a JSON file", ".yaml": "a YAML file", ".yml": "a YAML file", ".png": "an image",
@@ -146,10 +146,10 @@ def main(argv=None) -> int:
     ap.add_argument("--no-figures", action="store_true")
     a = ap.parse_args(argv)
     try:
-        evaluate_checkpoint(a.checkpoint, a.out, figures=not a.no_figures)
-    except (CheckpointError, DatasetError) as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
+        with user_errors_exit():
+            evaluate_checkpoint(a.checkpoint, a.out, figures=not a.no_figures)
+    except SystemExit as e:  # the message is printed; the status is returned (the console script exits with it)
+        return e.code
     return 0
 
 

@@ -11,15 +11,17 @@ from __future__ import annotations
 import difflib
 import functools
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable
 
 import yaml
 from hydra import compose, initialize_config_dir
 from hydra.core.override_parser.overrides_parser import OverridesParser
 from hydra.core.override_parser.types import Glob
 from hydra.errors import ConfigCompositionException, HydraException, MissingConfigException, OverrideParseException
+
+from ..assembly.errors import closest
 
 #: Hydra's flags that take a value, and those that ask Hydra for something else than a run (help, the config).
 _VALUED_FLAGS = {"--config-dir", "-cd", "--config-path", "-cp", "--config-name", "-cn", "--experimental-rerun"}
@@ -30,11 +32,15 @@ class CommandLineError(ValueError):
     """The command line cannot compose into a config; the message says where and what to write instead."""
 
 
+_PLAIN_FLAGS = {"-m", "--multirun", "--resolve", "-p", "--package"}
+
+
 @dataclass
 class CommandLine:
     overrides: list[str]
     config_dir: str | None = None
     informational: bool = False
+    unknown_flags: list[str] = field(default_factory=list)  # "--experiment 2d1level": an argparse habit
 
 
 def split_argv(argv: list[str]) -> CommandLine:
@@ -50,10 +56,22 @@ def split_argv(argv: list[str]) -> CommandLine:
             i += 0 if "=" in arg else 1
             if name in ("--config-dir", "-cd"):
                 out.config_dir = value
+        elif arg.startswith("-") and name not in _PLAIN_FLAGS and not re.fullmatch(r"-\d.*", arg):
+            taken = "=" not in arg and i + 1 < len(argv) and not argv[i + 1].startswith("-") and "=" not in argv[i + 1]
+            out.unknown_flags.append(f"{arg} {argv[i + 1]}" if taken else arg)
+            i += 1 if taken else 0
         elif not arg.startswith("-"):
             out.overrides.append(arg)
         i += 1
     return out
+
+
+def _flag_message(flag: str) -> str:
+    """``--experiment 2d1level`` -> write ``experiment=2d1level``: settings are overrides, not options."""
+    name, _, value = flag.lstrip("-").replace("=", " ", 1).partition(" ")
+    key = name.replace("-", "_")
+    return (f"'{flag}' is not an option of rmpfusion's commands: settings are written key=value (Hydra's overrides); "
+            f"write {key}={value or '...'}")
 
 
 def _first_job(overrides: list[str], dirs: list[Path]) -> list[str]:
@@ -80,7 +98,8 @@ def _first_job(overrides: list[str], dirs: list[Path]) -> list[str]:
         if o.is_sweep_override():
             values = list(o.sweep_string_iterator())
             if not values:
-                continue
+                raise CommandLineError(f"'{o.input_line}' sweeps over no value, so the sweep would launch no job; give "
+                                       "it at least one (range(0,3) is 0, 1, 2: the end is left out)")
             out.append(f"{o.get_key_element()}={values[0]}")
         else:
             out.append(o.input_line)
@@ -92,7 +111,7 @@ def _groups(dirs: list[Path]) -> list[str]:
 
 
 def _close(name: str, options: list[str]) -> str:
-    close = difflib.get_close_matches(name, list(dict.fromkeys(options)), n=3, cutoff=0.5)
+    close = closest(name, options)
     return f"did you mean {', '.join(repr(c) for c in close)}? " if close else ""
 
 
@@ -111,15 +130,33 @@ def _yaml_message(e: yaml.MarkedYAMLError) -> str:
     return f"YAML syntax error in {where}: {', '.join(parts)}; fix the file (every config file must be valid YAML)"
 
 
-def _override_message(e: ConfigCompositionException, groups: list[str], keys: Callable[[], list[str]]) -> str | None:
+def _override_message(e: ConfigCompositionException, groups: list[str], keys: Callable[[], list[str]],
+                      base: Callable[[], Any]) -> str | None:
     m = re.search(r"Could not override '([^']+)'", str(e))
     if not m:
         return None
     key = m.group(1)
     head = key.split(".")[0].split("/")[0]
+    if head in keys() and "." in key:
+        return _inner_key_message(key, base())
     hint = _close(head, groups + keys())
     return (f"'{key}' is neither a config group nor a key of the config; {hint}config groups: {', '.join(groups)}; "
             f"top-level keys: {', '.join(keys())} (to add a new key on purpose write +{key}=...)")
+
+
+def _inner_key_message(key: str, config: Any) -> str:
+    """``train.learning_rate=...``: the block exists, the key in it does not; name the keys it has."""
+    parts, node, where = key.split("."), config, []
+    for part in parts[:-1]:
+        if not hasattr(node, "keys") or part not in node:
+            break
+        node, where = node[part], where + [part]
+    block, missing = ".".join(where), parts[len(where)]
+    options = [str(k) for k in node.keys()] if hasattr(node, "keys") else []
+    close = closest(missing, options)
+    hint = f"did you mean {', '.join(repr(f'{block}.{c}') for c in close)}? " if close else ""
+    return (f"'{key}': {block} has no key '{missing}'; {hint}keys of {block}: {', '.join(options) or 'none'} (to add "
+            f"a new key on purpose write +{key}=...)")
 
 
 def _missing_message(e: MissingConfigException, dirs: list[Path]) -> str:
@@ -153,17 +190,20 @@ def check_command_line(conf_dir: str, argv: list[str]) -> None:
     cmd = split_argv(argv)
     if cmd.informational:
         return
+    if cmd.unknown_flags:
+        raise CommandLineError(_flag_message(cmd.unknown_flags[0]))
     dirs = [Path(conf_dir)] + ([Path(cmd.config_dir)] if cmd.config_dir else [])
     groups = _groups(dirs)
     overrides = _first_job(cmd.overrides, dirs)
     if cmd.config_dir:
         overrides.append(f"hydra.searchpath=[file://{Path(cmd.config_dir).resolve()}]")
     with initialize_config_dir(config_dir=conf_dir, version_base="1.3"):
-        keys = functools.cache(lambda: list(compose("config").keys()))  # the base config: only for messages
-        _compose(overrides, groups, dirs, keys)
+        base = functools.cache(lambda: compose("config"))  # the base config: only for messages
+        _compose(overrides, groups, dirs, lambda: list(base().keys()), base)
 
 
-def _compose(overrides: list[str], groups: list[str], dirs: list[Path], keys: Callable[[], list[str]]) -> None:
+def _compose(overrides: list[str], groups: list[str], dirs: list[Path], keys: Callable[[], list[str]],
+             base: Callable[[], Any]) -> None:
     """Compose as the app will, inside an initialised Hydra; every failure as a CommandLineError."""
     try:
         if (msg := _added_group(overrides, groups, keys)) is not None:
@@ -176,7 +216,7 @@ def _compose(overrides: list[str], groups: list[str], dirs: list[Path], keys: Ca
     except ConfigCompositionException as e:
         if isinstance(e.__cause__, yaml.MarkedYAMLError):
             raise CommandLineError(_yaml_message(e.__cause__)) from None
-        msg = _override_message(e, groups, keys)
+        msg = _override_message(e, groups, keys, base)
         raise CommandLineError(msg or _first_lines(e)) from None
     except HydraException as e:
         raise CommandLineError(_first_lines(e)) from None

@@ -9,15 +9,12 @@ checkpoints; point a later stage at an earlier run with ``hydra.run.dir=outputs/
 """
 from __future__ import annotations
 
-import contextlib
-import sys
-
 from omegaconf import DictConfig
 
 from ..pipeline.collect import collect as collect_stage
-from ..pipeline.fit import NotTrainedError, fit
+from ..pipeline.fit import fit
 from ..pipeline.run import run_experiment, start
-from ._common import Job, config_errors_exit, hydra_app, job
+from ._common import Job, hydra_app, job, user_errors_exit
 
 #: torch intra-op threads per job: the batches are small, extra threads only contend (see pipeline/run.py)
 THREADS = 1
@@ -37,25 +34,31 @@ def _objective(result) -> float | None:
     return None
 
 
-def _experiment(j: Job, require_trained: bool = False) -> float | None:
-    with config_errors_exit(), not_trained_exit():
+def _experiment(j: Job, require_trained: bool = False) -> dict:
+    with user_errors_exit():
         result = run_experiment(j.run, j.dir, progress=True, log=j.logger.log, threads=THREADS,
                                 require_trained=require_trained)
     for name, res in (result.get("learners") or {}).items():
         if res.get("resumed_from") is not None:
             print(f"learner {name}: resumed from the checkpoint at iteration {res['resumed_from']}")
     j.logger.finish(result)
+    return result
+
+
+def result_line(run_dir, result: dict) -> str:
+    """The run's outcome in one line, printed after everything else (the logger's summary included)."""
+    parts = []
+    for name, res in (result.get("learners") or {}).items():
+        shown = ", ".join(f"{k}={res[k]:.4g}" for k in ("online_loss", "batch_loss", "success", "collision")
+                          if isinstance(res.get(k), (int, float)))
+        flag = " DIVERGED" if res.get("diverged") else ""
+        parts.append(f"learner {name}{flag}: {shown or 'no metrics'}")
+    return f"result: {'; '.join(parts) or 'no learners'} ({run_dir / 'metrics.json'})"
+
+
+def _finished(j_dir, result: dict) -> float | None:
+    print(result_line(j_dir, result))
     return _objective(result)
-
-
-@contextlib.contextmanager
-def not_trained_exit():
-    """``rmpfusion-evaluate`` before ``rmpfusion-train`` finished: say what to run, exit 1."""
-    try:
-        yield
-    except NotTrainedError as e:
-        print(f"error: {e}", file=sys.stderr)
-        sys.exit(1)
 
 
 @hydra_app
@@ -65,13 +68,14 @@ def main(cfg: DictConfig) -> float | None:
     Rerun with the same overrides and ``hydra.run.dir`` to resume a killed run: data is reused and training
     continues from the last checkpoint."""
     with job(cfg, THREADS) as j:
-        return _experiment(j)
+        result = _experiment(j)
+    return _finished(j.dir, result)
 
 
 @hydra_app
 def collect(cfg: DictConfig) -> None:
     """Stage 1: the expert's demonstrations, written (checksummed) into the run directory."""
-    with job(cfg, THREADS, log=False) as j, config_errors_exit():
+    with job(cfg, THREADS, log=False) as j, user_errors_exit():
         splits = collect_stage(start(j.run, j.dir))
         for split, i in splits.info.items():
             print(f"{split}: {i['points']} points in {i['path']}{' (reused)' if i.get('reused') else ''} "
@@ -83,7 +87,7 @@ def train(cfg: DictConfig) -> None:
     """Stage 2: train every learner on the run directory's demonstrations (collected first if absent);
     checkpoints go to checkpoints/<learner>/, and a rerun resumes from them (also after SIGKILL; SIGTERM and
     Ctrl-C write a checkpoint before stopping)."""
-    with job(cfg, THREADS) as j, config_errors_exit():
+    with job(cfg, THREADS) as j, user_errors_exit():
         exp = start(j.run, j.dir, log=j.logger.log)
         fitted = fit(exp, collect_stage(exp))
         summary: dict = {}
@@ -104,7 +108,8 @@ def evaluate(cfg: DictConfig) -> float | None:
     Needs the checkpoints rmpfusion-train left in the same run directory; nothing is retrained.
     """
     with job(cfg, THREADS) as j:
-        return _experiment(j, require_trained=True)
+        result = _experiment(j, require_trained=True)
+    return _finished(j.dir, result)
 
 
 if __name__ == "__main__":

@@ -261,6 +261,7 @@ class JobLog:
         if self._busy or not self.handlers:
             return
         self._busy = True  # a handler that fails reports on stderr, which comes back here: not again
+        raising, logging.raiseExceptions = logging.raiseExceptions, False  # a full disk: the copy stops, no block
         try:
             rec = logging.LogRecord(self.NAME, level, __file__, 0, msg, None, exc_info)
             for h in self.handlers:
@@ -268,6 +269,7 @@ class JobLog:
                     h.handle(rec)
         finally:
             self._busy = False
+            logging.raiseExceptions = raising
 
     def sink(self, level: int):
         return lambda line: self.record(level, line) if line.strip() else None
@@ -326,13 +328,32 @@ class _Tee:
         return getattr(self._stream, name)
 
 
+class _Quiet:
+    """A file whose writes and close never raise for a full disk (the console copy is a copy: the job goes on)."""
+
+    def __init__(self, fh):
+        self._fh = fh
+
+    def write(self, s: str) -> None:
+        with contextlib.suppress(OSError):
+            self._fh.write(s)
+
+    def flush(self) -> None:
+        with contextlib.suppress(OSError):
+            self._fh.flush()
+
+    def close(self) -> None:
+        with contextlib.suppress(OSError):
+            self._fh.close()
+
+
 @contextlib.contextmanager
 def console_log(run_dir: Path) -> Iterator[None]:
     """Copy everything the job prints (stdout and stderr, progress included) into ``run_dir/console.log``, and
     the same lines, time-stamped, into Hydra's log file there (``JobLog``), which also says how the job ended."""
     run_dir.mkdir(parents=True, exist_ok=True)
     log = JobLog(run_dir)
-    with open(run_dir / CONSOLE, "a", encoding="utf-8", errors="replace") as fh:
+    with contextlib.closing(_Quiet(open(run_dir / CONSOLE, "a", encoding="utf-8", errors="replace"))) as fh:
         fh.write(f"==== {_dt.datetime.now().astimezone().isoformat(timespec='seconds')} pid {os.getpid()}: "
                  f"{' '.join(sys.argv)}\n")
         log.record(logging.INFO, f"job started in {run_dir} (pid {os.getpid()}): {' '.join(sys.argv)}")

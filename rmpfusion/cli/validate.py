@@ -9,7 +9,7 @@ from omegaconf import DictConfig
 
 from ..assembly.spec import weight_label
 from ..evaluate.weights import learned_edges
-from ._common import config_errors_exit, hydra_app
+from ._common import discard_unclaimed, hydra_app, hydra_run_dir, user_errors_exit
 from ..pipeline.construct import build_all
 from ..pipeline.validate import resolve_and_validate
 
@@ -40,10 +40,16 @@ def summary(run, env, expert, learners) -> str:
 
 @hydra_app
 def main(cfg: DictConfig) -> None:
-    with config_errors_exit():
-        run = resolve_and_validate(cfg)
-        env, expert, learners = build_all(run)
-    print(summary(run, env, expert, learners))
+    """Nothing runs, so nothing stays: the directory Hydra made for the job is removed (``discard_unclaimed``)."""
+    try:
+        with user_errors_exit():
+            run = resolve_and_validate(cfg)
+            env, expert, learners = build_all(run)
+        print(summary(run, env, expert, learners))
+        print(f"run directory: {hydra_run_dir()} (where rmpfusion-run with these overrides writes; nothing is kept "
+              "by rmpfusion-validate)")
+    finally:
+        discard_unclaimed(hydra_run_dir())
 
 
 if __name__ == "__main__":

@@ -113,6 +113,9 @@ class RMPTree(nn.Module):
                 t = t.unsqueeze(0)
             if t.shape[-1] != d:
                 raise ValueError(f"aux '{name}' has trailing dimension {t.shape[-1]}, the tree declares {d}")
+            if t.dim() != 2 or t.shape[0] not in (1, batch):
+                raise ValueError(f"aux '{name}' has shape {tuple(t.shape)} but q holds {batch} states; give it one row "
+                                 f"per state, ({batch}, {d}), or one row for them all, (1, {d})")
             out[name] = t.expand(batch, d) if t.shape[0] == 1 else t
         return out
 

@@ -85,6 +85,18 @@ def load_checkpoint(path: str | os.PathLike, model: nn.Module | None = None) -> 
     if stored != actual:
         raise CheckpointError(f"checkpoint file {path} fails its checksum (stored {str(stored)[:12]}…, content "
                               f"{actual[:12]}…): it was modified or damaged; {fix}")
+    _non_finite_weights(path, state)
     if model is not None:
         _model_mismatch(path, model, state, fix)
     return state
+
+
+def _non_finite_weights(path: Path, state: Mapping[str, Any]) -> None:
+    """Refuse weights with NaN or inf: whatever is built from them (a rollout, an export) only computes noise."""
+    bad = [(k, int((~v.isfinite()).sum()), v.numel()) for k, v in (state.get("model") or {}).items()
+           if isinstance(v, torch.Tensor) and v.is_floating_point() and not bool(v.isfinite().all())]
+    if bad:
+        shown = ", ".join(f"{k}: {n} of {total} entries" for k, n, total in bad[:3])
+        raise CheckpointError(f"checkpoint file {path} holds non-finite weights ({shown}{', …' if len(bad) > 3 else ''}): "
+                              f"the training that wrote it diverged; use an earlier checkpoint in {path.parent}, or "
+                              "train again with a lower train.lr")

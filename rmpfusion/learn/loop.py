@@ -21,9 +21,18 @@ import torch
 from torch import nn
 
 from ..files import remove_stale_temporaries
-from .checkpoints import CHECKPOINT_NAME, latest_checkpoint, load_checkpoint, save_checkpoint
+from .checkpoints import CHECKPOINT_NAME, CheckpointError, latest_checkpoint, load_checkpoint, save_checkpoint
 from .config import TrainParams, upgrade_train_config
 from .signals import StopOnSignal
+
+#: The largest magnitude a trained parameter may reach. No weight network or leaf number of a working tree comes
+#: near it (float32 itself overflows at 3.4e38); a parameter beyond it, or a non-finite one, means the optimiser
+#: diverged, and every number computed from it afterwards would be noise.
+PARAMETER_LIMIT = 1e15
+
+
+class TrainingDivergedError(FloatingPointError):
+    """Training stopped because a parameter became non-finite or passed ``PARAMETER_LIMIT``."""
 
 
 @dataclass
@@ -77,6 +86,25 @@ def optimizer_step(model: nn.Module, opt: torch.optim.Optimizer, cfg: TrainParam
     if cfg.grad_clip is not None:
         nn.utils.clip_grad_norm_(model.parameters(), cfg.grad_clip)
     opt.step()
+
+
+def check_parameters(model: nn.Module, done: int, cfg: TrainParams) -> None:
+    """Refuse to go on once a parameter is non-finite or beyond ``PARAMETER_LIMIT`` after ``done`` steps, naming
+    the step and the parameter (one synchronisation per step: the names are only looked up on failure)."""
+    params = [p for p in model.parameters() if p.numel()]
+    if not params:
+        return
+    largest = torch.stack([p.detach().abs().amax() for p in params]).amax()
+    if bool(largest <= PARAMETER_LIMIT):
+        return
+    name, p = next((n, p) for n, p in model.named_parameters()
+                   if p.numel() and not bool(p.detach().abs().amax() <= PARAMETER_LIMIT))
+    bad = p.detach()[~(p.detach().abs() <= PARAMETER_LIMIT)]
+    value = float(bad.flatten()[0])
+    raise TrainingDivergedError(
+        f"training diverged at iteration {done}: parameter {name} holds {value:.3g} ({bad.numel()} of its {p.numel()} "
+        f"entries are non-finite or beyond {PARAMETER_LIMIT:.0e}), so nothing it computes means anything; lower "
+        f"train.lr (now {cfg.lr:g}) or set train.grad_clip, and run again in a new run directory")
 
 
 def state_copy(model: nn.Module) -> dict[str, torch.Tensor]:
@@ -141,7 +169,7 @@ def _check_same_path(ck: Path, old: Mapping[str, Any], cfg: TrainParams) -> None
     fields = type(cfg).model_fields
     bad = [k for k in cfg.path_keys() if _plain(old.get(k, fields[k].default)) != _plain(getattr(cfg, k))]
     if bad:
-        raise RuntimeError(f"checkpoint {ck} was made with different training settings "
+        raise CheckpointError(f"checkpoint {ck} was made with different training settings "
                            f"({', '.join(f'{k}: {old.get(k)!r} vs {_plain(getattr(cfg, k))!r}' for k in bad)}); "
                            f"delete {ck.parent} to start over")
 
@@ -226,6 +254,7 @@ def run(s: Loop) -> TrainResult:
                 for group in s.opt.param_groups:
                     group["lr"] = learning_rate(s.cfg, it)
             value = s.steps.step(it)
+            check_parameters(s.model, it + 1, s.cfg)
             _after_step(s, it + 1, value, stop)
     s.model.eval()
     s.res.info = s.steps.info()

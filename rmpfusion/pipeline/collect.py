@@ -11,11 +11,24 @@ import torch
 
 from ..assembly.weighting import plain_data
 from ..envs.demonstrations import Dataset, load_dataset, save_dataset
+from ..evaluate.divergence import Divergence, divergence_of_records
 from .config import RunConfig
 from .experiment import Experiment
 
 #: Each split's generator seed is the run's seed plus its offset: three disjoint draws of environments and starts.
 SPLIT_SEED_OFFSET = {"train": 0, "test": 1_000_003, "val": 2_000_003}
+
+
+class ExpertDivergedError(FloatingPointError):
+    """The expert's own rollouts diverged: demonstrations of it would teach nothing, so the run stops."""
+
+
+def expert_diverged(what: str, found: Divergence) -> ExpertDivergedError:
+    return ExpertDivergedError(
+        f"the expert diverged on {len(found.samples)} of {found.total} {what} (trajectories {found.samples[:8]}"
+        f"{' …' if len(found.samples) > 8 else ''}): {found.reason}; nothing it demonstrates could be learned, so "
+        "the run stops. Lower the tree's gains (tree.nodes.<leaf>.rmp.gain) or the step (env.dt, or a higher "
+        "env.control_rate), and check the expert alone with a short run (data=tiny train=tiny eval=fast)")
 
 
 @dataclass
@@ -80,6 +93,8 @@ def load_or_collect(exp: Experiment, split: str) -> tuple[Dataset, dict]:
     t0 = time.time()
     ds = exp.env.demonstrations(exp.expert, n_envs, n_traj, d.points, d.interval, gen, split=split,
                                 progress=exp.say.bar(f"collect {split}"))
+    if (found := divergence_of_records(ds.q, ds.qd, ds.traj_id, ds.t)) is not None:
+        raise expert_diverged(f"{split} demonstrations", found)
     sha = save_dataset(path, ds, meta)
     return ds, {"path": str(path), "sha256": sha, "points": len(ds), "reused": False, "seconds": time.time() - t0,
                 **_describe(ds)}

@@ -6,10 +6,12 @@ entry's own model in ``validate_run_config``, so errors name paths like ``learne
 """
 from __future__ import annotations
 
+import re
+from pathlib import Path
 from typing import Annotated, Any, Literal, Mapping
 
 from pydantic import (BaseModel, BeforeValidator, ConfigDict, Field, ValidationError, create_model,
-                      model_validator)
+                      field_validator, model_validator)
 from pydantic_core import InitErrorDetails, PydanticCustomError
 
 from ..assembly.spec import TreeSpec, TypedBlock, tree_spec_model, typed_union, weight_field
@@ -36,6 +38,19 @@ class DataConfig(_Frozen):
     points: int = Field(60, gt=1, description="recorded points per trajectory")
     interval: float = Field(1.0, gt=0, description="seconds between recorded points")
     cache_dir: str | None = Field(None, description="shared, checksummed dataset cache; default: the run directory")
+
+    @field_validator("cache_dir")
+    @classmethod
+    def _a_directory(cls, v: str | None) -> str | None:
+        """A cache that exists as something else than a directory could never hold a dataset: said now, not when
+        the first dataset is written."""
+        if v is not None:
+            blocking = next((p for p in (Path(v), *Path(v).parents) if p.exists()), None)
+            if blocking is not None and not blocking.is_dir():
+                raise ValueError(f"{blocking} is a file, not a directory, so no dataset can be cached "
+                                 f"{'in' if blocking == Path(v) else 'below'} it; point data.cache_dir at a directory "
+                                 "(it is created if missing), or leave it out to keep data in the run directory")
+        return v
 
 
 def upgrade_run_config(run: Mapping[str, Any]) -> dict[str, Any]:
@@ -92,9 +107,9 @@ class RunConfig(_Frozen):
 
     name: str = "experiment"
     seed: int = 0
-    device: str = Field("cpu", pattern=r"^(cpu|cuda(:\d+)?)$",
-                        description="where trees, learners, training and the 2D environment compute: cpu, cuda or "
-                                    "cuda:<index> (pybullet stays on the CPU; a policy's tensors cross once a step)")
+    device: str = Field("cpu", description="where trees, learners, training and the 2D environment compute: cpu, "
+                                           "cuda or cuda:<index> (pybullet stays on the CPU; a policy's tensors cross "
+                                           "once a step)")
     env: TypedBlock
     tree: TreeSpec = Field(description="the tree spec (docs/architecture.md §2) without learned weights")
     expert: dict[str, Any] = Field(default_factory=dict, description="node or shared-weight name -> weight spec")
@@ -105,6 +120,16 @@ class RunConfig(_Frozen):
         description="the training method (method: bc | dagger | apg | pg | a plugin's) and its settings")
     eval: EvalConfig = EvalConfig()
     logger: LoggerConfig = LoggerConfig()
+
+    @field_validator("device")
+    @classmethod
+    def _device_form(cls, v: str) -> str:
+        """cpu, cuda or cuda:<index>; torch's other names for a GPU are answered with torch's (gpu -> cuda)."""
+        if re.fullmatch(r"cpu|cuda(:\d+)?", v):
+            return v
+        guess = re.sub(r"^(gpu|nvidia|cuda)\s*:?\s*(\d*)$", lambda m: "cuda" + (f":{m[2]}" if m[2] else ""), v.lower())
+        hint = f"; did you mean {guess!r}?" if re.fullmatch(r"cpu|cuda(:\d+)?", guess) else ""
+        raise ValueError(f"{v!r} is not a device torch knows{hint} (devices: cpu, cuda, cuda:<index>)")
 
     @model_validator(mode="after")
     def _across_blocks(self):
@@ -124,6 +149,8 @@ class RunConfig(_Frozen):
         step = getattr(self.env, "integration_step", None) if not isinstance(self.env, TypedBlock) else None
         if callable(step):  # environments that name their fixed step; others are checked when they roll out
             dt, key = step()
+            if (too_many := self._too_many_steps(dt, key)) is not None:
+                refuse(("env", key.split("env.", 1)[1]), dt, too_many)
             for loc, t, what in ((("data", "interval"), self.data.interval, "a positive multiple"),
                                  (("eval", "horizon"), self.eval.horizon, "a multiple")):
                 if t is not None and not _on_grid(t, dt):
@@ -138,6 +165,26 @@ class RunConfig(_Frozen):
         if found:
             raise ValidationError.from_exception_data(type(self).__name__, found)
         return self
+
+
+    def _too_many_steps(self, dt: float, key: str) -> str | None:
+        """Why a rollout on the step ``dt`` (set by ``key``) would never end, or None: its longest rollout (the
+        demonstrations', the evaluation's, a training method's) must take at most ``MAX_ROLLOUT_STEPS`` steps."""
+        horizons = [(self.data.points * self.data.interval, "data.points × data.interval"),
+                    (self.eval.horizon, "eval.horizon"), (getattr(self.train, "horizon", None), "train.horizon")]
+        horizon, what = max(((h, w) for h, w in horizons if h is not None), key=lambda hw: hw[0])
+        steps = horizon / dt
+        if steps <= MAX_ROLLOUT_STEPS:
+            return None
+        rate = f"{1 / dt:.3g} Hz" if 1 / dt < float("inf") else "an infinite rate"
+        return (f"a step of {dt:.3g} s ({key}, a control rate of {rate}) makes a rollout of {horizon:g} s ({what}) "
+                f"take {steps:.3g} integration steps, more than the {MAX_ROLLOUT_STEPS:.0e} a run allows (it would "
+                f"never finish); use a step of at least {horizon / MAX_ROLLOUT_STEPS:.3g} s")
+
+
+#: The most integration steps one rollout may take: a million steps of a 2-D particle take minutes, of an arm in
+#: pybullet an hour; beyond it a step is a typo (``env.dt=1e-300``), not a setting.
+MAX_ROLLOUT_STEPS = 1_000_000
 
 
 def _on_grid(t: float, dt: float) -> bool:

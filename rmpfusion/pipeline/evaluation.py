@@ -16,13 +16,14 @@ from torch import Tensor
 from ..envs.demonstrations import Dataset
 from ..envs.protocol import HasTaskMetrics
 from ..evaluate.certificate import certify_rollout
+from ..evaluate.divergence import divergence
 from ..evaluate.metrics import StageResult, evaluate_learner, online_loss, rollout_rates, task_stage
 from ..evaluate.weights import edge_weights, learned_edges, summarize_weights
 from ..learn.learner import Learner
 from ..learn.objectives import dataset_loss
 from ..learn.loop import load_snapshot
-from .collect import Splits
-from .experiment import Experiment, clean
+from .collect import Splits, expert_diverged
+from .experiment import COMPILING, Experiment, clean
 from .fit import Fitted
 
 
@@ -49,6 +50,8 @@ def evaluate_expert(exp: Experiment, test: Dataset) -> ExpertEval:
     ev, d = exp.run.eval, exp.run.data
     ro = online_loss(exp.expert, exp.expert_at(), exp.env, q0, qd0, aux0, exp.horizon, d.interval, exp.fine_interval,
                      exp.say.bar("rollout expert")).rollout
+    if (found := divergence(ro.q, ro.qd, ro.V, theorem2_applies=not ro.moving)) is not None:
+        raise expert_diverged("test rollouts", found)
     metrics = rollout_rates(ro, ev.lyapunov_rtol, ev.lyapunov_atol)
     stage = None
     if isinstance(exp.env, HasTaskMetrics):
@@ -163,6 +166,7 @@ def evaluate_fitted(exp: Experiment, name: str, fitted: Fitted, splits: Splits, 
     model.to(torch.float64)
     if exp.run.eval.compile:
         model.compile()
+        exp.say.say(COMPILING.format(what=f"learner {name} for evaluation"))
     ev = _SnapshotEvaluator(exp, name, splits, expert)
     out = LearnerEval(final={}, final_rollout=None)
     if model.tree is not None:
@@ -181,12 +185,27 @@ def evaluate_fitted(exp: Experiment, name: str, fitted: Fitted, splits: Splits, 
     out.final, out.final_rollout = final[0], final[1].rollout
     if model.tree is not None:
         out.final["certificate"] = certificate(model, out.final_rollout, splits.test.initial_states()[2])
+    flag_divergence(exp, name, out)
     model.to(dtype)
     out.seconds = time.time() - t0
     return out
 
 
-def evaluate(exp: Experiment, splits: Splits, fitted: dict[str, Fitted]) -> tuple[ExpertEval, dict[str, LearnerEval]]:
-    """The expert, then every learner in config order."""
-    expert = evaluate_expert(exp, splits.test)
+def flag_divergence(exp: Experiment, name: str, out: LearnerEval) -> None:
+    """A trained learner whose test rollouts diverge is kept and evaluated (it is a result), but said loudly: in
+    the console and as ``diverged`` in its metrics (absent for a learner that did not)."""
+    ro = out.final_rollout
+    found = divergence(ro.q, ro.qd, ro.V, theorem2_applies=not ro.moving)
+    if found is None:
+        return
+    out.final["diverged"] = found.as_dict()
+    exp.say.say(f"WARNING: learner {name} DIVERGED on {len(found.samples)} of {found.total} test rollouts: "
+                f"{found.reason}; its metrics describe a policy that does not work (metrics.json: "
+                f"learners.{name}.diverged)")
+
+
+def evaluate(exp: Experiment, splits: Splits, fitted: dict[str, Fitted],
+             expert: ExpertEval | None = None) -> tuple[ExpertEval, dict[str, LearnerEval]]:
+    """The expert (unless its evaluation is given), then every learner in config order."""
+    expert = expert if expert is not None else evaluate_expert(exp, splits.test)
     return expert, {name: evaluate_fitted(exp, name, f, splits, expert) for name, f in fitted.items()}

@@ -99,7 +99,13 @@ def prepare(run: RunConfig, run_dir: Path, say: Progress, log: Log | None = None
     expert = build_expert(run, env.aux_dims()).to(device)
     if run.eval.compile:
         expert.compile()
+        say.say(COMPILING.format(what="the expert's tree"))
     return Experiment(run=run, dir=run_dir, env=env, expert=expert, say=say, log=log)
+
+
+#: Said before the first call of a compiled policy, which compiles it (minutes, in silence otherwise).
+COMPILING = ("compiling {what} with torch.compile (first call, cached afterwards: it can take minutes; eval.compile="
+             "false or train.compile=false skip it)")
 
 
 def clean(m: Any) -> Any:

@@ -19,7 +19,7 @@ from ..learn.loop import TrainResult
 from ..learn.method import MethodContext, TrainingMethod
 from ..registry import TRAIN_METHODS
 from .collect import Splits
-from .experiment import Experiment
+from .experiment import COMPILING, Experiment
 from .construct import build_learners
 
 
@@ -83,6 +83,7 @@ def fit_one(exp: Experiment, name: str, model: Learner, splits: Splits) -> Fitte
     t0 = time.time()
     if exp.run.train.compile:
         model.compile()
+        exp.say.say(COMPILING.format(what=f"learner {name} for training"))
     ckdir = exp.dir / "checkpoints" / name
     if (ck := latest_checkpoint(ckdir)) is not None:
         exp.say.say(f"learner {name}: resuming from {ck}")

@@ -125,14 +125,16 @@ def report(exp: Experiment, splits: Splits, fitted: dict[str, Fitted], expert: E
     for name, res in results.items():
         exp.say.say(f"learner {name}: " + ", ".join(f"{k}={v:.4g}" for k, v in res.items()
                                                     if isinstance(v, float) and k not in ("train_seconds", "eval_seconds")))
-    figs = figures(exp, splits, fitted, expert, evals) if exp.run.eval.figures else []
-    exp.timing["total_s"] = time.time() - started
     metrics = {"name": exp.run.name, "seed": exp.run.seed, "config_hash": data_hash(exp.run), "data": splits.info,
-               "expert": clean(expert_metrics), "learners": results, "figures": figs, "timing": exp.timing}
+               "expert": clean(expert_metrics), "learners": results, "figures": [], "timing": exp.timing}
     if expert.stage is not None:
         keys = exp.env.ratio_metrics if isinstance(exp.env, HasRatioMetrics) else ()
         stages = [st for ev in evals.values() for st in ev.task_stages]
         metrics["task_table"] = clean(task_table(expert.stage, stages, keys))
+    if exp.run.eval.figures:  # the numbers first: a figure that cannot be written (a full disk) loses no result
+        atomic_write_json(exp.dir / "metrics.json", metrics)
+        metrics["figures"] = figures(exp, splits, fitted, expert, evals)
+    exp.timing["total_s"] = time.time() - started
     atomic_write_json(exp.dir / "metrics.json", metrics)
     exp.say.say(f"done in {exp.timing['total_s']:.1f}s: {exp.dir / 'metrics.json'}")
     return metrics

@@ -19,7 +19,7 @@ import torch
 from ..files import atomic_write_json
 from .collect import Splits, collect
 from .config import RunConfig
-from .evaluation import evaluate
+from .evaluation import ExpertEval, evaluate, evaluate_expert
 from .experiment import Experiment, Log, prepare
 from .fit import Fitted, fit
 from .progress import Progress
@@ -44,9 +44,11 @@ def start(run: RunConfig, run_dir: str | os.PathLike, progress: bool = True, log
     return prepare(run, run_dir, Progress(progress), log)
 
 
-def evaluate_and_report(exp: Experiment, splits: Splits, fitted: dict[str, Fitted], started: float) -> dict:
-    """Stages 3 and 4 over trained learners: what ``rmpfusion-run`` and ``rmpfusion-evaluate`` end with."""
-    expert, evals = evaluate(exp, splits, fitted)
+def evaluate_and_report(exp: Experiment, splits: Splits, fitted: dict[str, Fitted], started: float,
+                        expert: ExpertEval | None = None) -> dict:
+    """Stages 3 and 4 over trained learners: what ``rmpfusion-run`` and ``rmpfusion-evaluate`` end with
+    (``expert``: its evaluation when it was done already)."""
+    expert, evals = evaluate(exp, splits, fitted, expert)
     return report(exp, splits, fitted, expert, evals, started)
 
 
@@ -58,5 +60,6 @@ def run_experiment(run: RunConfig, run_dir: str | os.PathLike, progress: bool = 
     with _threads(threads):
         exp = start(run, run_dir, progress, log)
         splits = collect(exp)
+        expert = evaluate_expert(exp, splits.test)  # before training: an expert that diverges stops the run here
         fitted = fit(exp, splits, require_trained=require_trained)
-        return evaluate_and_report(exp, splits, fitted, started)
+        return evaluate_and_report(exp, splits, fitted, started, expert)

@@ -90,7 +90,12 @@ class RobotDescription(Params):
     @field_validator("urdf")
     @classmethod
     def _readable(cls, v: str) -> str:
-        _model(v)  # a missing or malformed file is said here, with its path
+        try:
+            _model(v)  # a missing or malformed file is said here, with its path
+        except FileNotFoundError as e:
+            raise ValueError(f"{e}; fix urdf: in the robot's file (conf/robot/<name>.yaml or env.robot.urdf=...) to "
+                             "name a URDF that exists (a path from the working directory, or pkg://<package>/<path>)") \
+                from None
         return v
 
     @field_validator("packages")

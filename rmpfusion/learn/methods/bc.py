@@ -25,6 +25,9 @@ class MinibatchSteps(Steps):
         self.model, self.params, self.ctx, self.opt, self.gen = model, params, ctx, opt, gen
         self.objective = make_objective(params.objective)
         self.data: Dataset = ctx.train
+        if params.batch_size > len(self.data):
+            ctx.tell(f"train.batch_size={params.batch_size} is more than the {len(self.data)} training points: every "
+                     f"step draws {len(self.data)} (capped at the dataset's size)")
 
     def step(self, it: int) -> float:
         N = len(self.data)

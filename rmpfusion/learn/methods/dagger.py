@@ -195,7 +195,8 @@ class DAgger(TrainingMethod):
         if params.initial_trajectories is not None and params.initial_trajectories > train_trajectories:
             return [("train.initial_trajectories",
                      f"round 0 would draw {params.initial_trajectories} demonstrations but the training split has "
-                     f"{train_trajectories} (data.train_envs × data.train_trajectories); lower it or collect more")]
+                     f"{train_trajectories} (data.train_envs × data.train_trajectories); lower it or collect more "
+                     "(a smoke run on data=tiny: train=dagger_smoke)")]
         return []
 
     def steps(self, model, ctx, opt, gen) -> Steps:
