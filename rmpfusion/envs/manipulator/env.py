@@ -20,6 +20,7 @@ from . import demonstrations as demos
 from . import render as rendering
 from .kinematic import rollout_kinematic
 from .metrics import RATIO_METRICS, task_metrics
+from .paths import end_effector_radius, path_clearance
 from .params import ManipulatorParams
 from .scene import HelperWorlds, _Scene, sample_aux
 from .torque import rollout_torque
@@ -106,6 +107,16 @@ class Manipulator(ComputesOnDevice, SeededSampling):
             sc.reset(q[b].detach().cpu().numpy())
             out.append(sc.clearance(self.params.clearance_query))
         return torch.tensor(out, dtype=self.dtype)
+
+    @property
+    def ee_radius(self) -> float:
+        """The end effector's control-sphere radius (m), what a straight reach must clear the obstacles by."""
+        return end_effector_radius(self.robot)
+
+    def path_clearance(self, q0: Tensor, aux: Mapping[str, Tensor]) -> Tensor:
+        """(B, K) clearance of the straight end-effector reach from each start ``q0`` to its goal from each obstacle's
+        surface (m); the reach crosses obstacle k when it is below ``ee_radius`` (``scenes/crossing.py``)."""
+        return path_clearance(self.scene, self.ee_position(q0.to(self.dtype)), aux)
 
     def in_collision(self, q: Tensor, aux: Mapping[str, Tensor]) -> Tensor:
         """(B,) bool: some link within zero distance of an obstacle."""
