@@ -80,7 +80,9 @@ def test_every_config_file_composes_validates_builds(group, option):
 @pytest.mark.parametrize("experiment", EXPERIMENTS)
 def test_every_experiment_validates_and_builds(experiment):
     run = resolve_and_validate(compose_cfg([f"experiment={experiment}"]))
-    assert run.name == experiment
+    # named for the experiment; experiment=reach and its smoke preset add the robot (reach_panda), whatever it is
+    robot = run.env.robot.name if experiment.startswith("reach") else None
+    assert run.name == (experiment if robot is None else f"{experiment}_{robot}")
     env, expert, learners = build_all(run)
     assert set(learners) == set(run.learners)
     assert expert.describe().startswith(run.tree.root.name)
