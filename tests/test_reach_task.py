@@ -63,8 +63,13 @@ def test_the_layout_puts_the_obstacle_in_the_way_of_most_reaches_on_every_robot(
         d = env.layout
         assert 0.3 < d.reach < 2.0
         post = env.scene.obstacles[0]
-        mid = (torch.tensor(d.start_point) + torch.tensor(d.goal_point)) / 2
-        assert torch.allclose(torch.tensor(post.center[:2]), mid[:2], atol=1e-9)  # the midpoint, outward 0
+        mid = (torch.tensor(d.start_point) + torch.tensor(d.goal_point))[:2] / 2
+        out = mid / mid.norm()
+        # the midpoint of the start and goal points, moved 0.05 of the reach away from the base
+        assert torch.allclose(torch.tensor(post.center[:2]), mid + 0.05 * d.reach * out, atol=1e-9)
+        test_post = env.params.test_scene.obstacles[0]
+        moved = torch.tensor(test_post.center[:2]) - torch.tensor(post.center[:2])
+        assert float(moved.norm()) == pytest.approx(0.04 * d.reach) and abs(float(moved @ out)) < 0.5 * float(moved.norm())
         assert post.radius == pytest.approx(0.06 * d.reach)  # sizes scale with the reach
         assert env.params.test_scene.obstacles[0].radius == pytest.approx(1.2 * post.radius)
         assert "reach layout" in env.describe_task()

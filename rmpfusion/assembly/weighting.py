@@ -22,9 +22,11 @@ def tree_with_weights(tree_spec: Mapping[str, Any], weights: Mapping[str, Any], 
 
     A name is a node (its incoming edge gets that weight spec; ``None`` removes the weight) or an entry of
     ``shared_weights`` (the shared function is replaced, so one entry covers every edge that uses it, e.g.
-    all obstacles on a Franka control point). All unknown names are reported together.
+    all obstacles on a Franka control point), or one of the tree's ``roles`` (every member gets it, unless named on
+    its own: ``weights_by_name``). All unknown names are reported together.
     """
     spec = plain_data(tree_spec)
+    weights = weights_by_name(spec, weights)
     nodes = spec.get("nodes") or {}
     shared = dict(spec.get("shared_weights") or {})
     unknown = [n for n in weights if n not in nodes and n not in shared]

@@ -7,7 +7,9 @@ is S turned about the base's vertical axis by ``turn`` (away from the side S lie
 arm reaches when its first joint turns, whatever its structure, and checked against the sampled workspace. The
 obstacle is a standing cylinder on the ground (z = 0) at the midpoint of S and G (moved ``outward`` from the base),
 taller than both, so the straight reach from S to G passes through it (``scenes/crossing.py``); every environment moves it by ``jitter``, and the test
-split's placement is moved outward by ``test_shift`` and made ``test_widen`` times wider (the paper's Franka test set
+split's placement is moved along the reach by ``test_shift`` (moving it outward would take it off the reaches' line:
+on the training split, 0.08 of the reach outward left 68 % of the xArm6's reaches crossing) and made ``test_widen``
+times wider (the paper's Franka test set
 moves and resizes its obstacle). Goals are drawn in a box around G (``goal_half_width``).
 
 The layout is derived from a fixed seed, so validation and the run derive the same numbers, and ``describe`` says
@@ -35,12 +37,13 @@ class ReachLayout(Params):
                                                           "the base's vertical axis")
     goal_half_width: float = Field(0.08, ge=0, le=0.5, description="goals ~ uniform in G ± this fraction of the reach")
     obstacle_radius: float = Field(0.06, gt=0, le=0.5, description="the standing cylinder's radius, fraction of reach")
-    outward: float = Field(0.0, ge=0, le=0.5, description="the cylinder moved outward (away from the base) from the "
+    outward: float = Field(0.05, ge=0, le=0.5, description="the cylinder moved outward (away from the base) from the "
                                                          "midpoint by this fraction: the straight reach grazes its "
                                                          "inner side instead of meeting it head on")
     obstacle_top: float = Field(0.15, ge=0, description="the cylinder's top above the higher of S and G, fraction")
     jitter: float = Field(0.02, ge=0, le=0.5, description="± uniform horizontal move of the cylinder per environment")
-    test_shift: float = Field(0.04, ge=0, le=0.5, description="the test cylinder moved outward by this fraction")
+    test_shift: float = Field(0.04, ge=0, le=0.5, description="the test cylinder moved along the reach (towards the "
+                                                              "goals) by this fraction")
     test_widen: float = Field(1.2, gt=0, description="the test cylinder's radius, times the training one's")
 
 
@@ -87,8 +90,9 @@ def derive(robot, centre: tuple[float, ...], spread: tuple[float, ...], layout: 
     top = max(float(S[2]), float(G[2])) + layout.obstacle_top * reach
     radius = layout.obstacle_radius * reach
     outward = mid[:2] / mid[:2].norm().clamp_min(1e-9)
+    along = (G - S)[:2] / (G - S)[:2].norm().clamp_min(1e-9)
     train_xy = mid[:2] + layout.outward * reach * outward
-    test_xy = train_xy + layout.test_shift * reach * outward
+    test_xy = train_xy + layout.test_shift * reach * along  # along the reach: as far from its line as in training
 
     def post(xy, r) -> Scene:
         return Scene(obstacles=[{"type": "cylinder", "center": [float(xy[0]), float(xy[1]), top / 2], "radius": r,
