@@ -58,7 +58,7 @@ def rows(metrics: dict, with_expert: bool) -> list[str]:
             *("1" if expert else _pm(ratio.get(k)) for k in RATIOS),
             _pm(r.get("timeout_goal_distance"), 1000.0, 1),
             "1" if expert else _pm(ratio.get("timeout_goal_distance"), digits=2),
-            f"{r['collisions']} / {n}", _count(r.get("close_passes"), n), _clearance(r.get("min_clearance")),
+            f"{r['collisions']} / {n}", _count(r.get("close_passes"), n), _clearance(r.get("clearance")),
             count]) + " |")
     return out
 

@@ -109,7 +109,8 @@ def task_table(expert: StageResult, stages: list[StageResult], ratio_keys) -> li
         if close is not None:
             row["close_passes"] = int(round(float(close.sum())))
         if clearance is not None and clearance.numel():
-            row["min_clearance"] = {"least": float(clearance.min()), "median": float(clearance.median())}
+            # beside min_clearance's mean ± std: the closest any rollout came, and the (lower) median rollout's
+            row["clearance"] = {"least": float(clearance.min()), "median": float(clearance.median())}
         row["trajectories"] = int(st.rollout.q.shape[1])
         if st.ratios:
             row["ratio"] = {k: {"mean": v["mean"], "std": v["std"]} for k, v in st.ratios.items() if k in ratio_keys}
