@@ -43,7 +43,7 @@ def _overrides_for(group: str, option: str) -> list[str]:
         if f"override /{group}: {option}\n" in text or f"/{group}@env.test_scene: {option}\n" in text:
             return [f"experiment={exp}"]
     if group == "robot":  # any robot: an experiment whose starts are drawn around the robot's own home
-        return ["experiment=xarm6_reach", f"robot={option}"]
+        return ["experiment=reach", f"robot={option}"]
     if group == "scene":  # any scene: the Panda experiment's goals with it
         return ["experiment=franka", f"scene={option}", f"scene@env.test_scene={option}"]
     return [f"{group}={option}"]
@@ -74,7 +74,9 @@ def test_every_config_file_composes_validates_builds(group, option):
 @pytest.mark.parametrize("experiment", EXPERIMENTS)
 def test_every_experiment_validates_and_builds(experiment):
     run = resolve_and_validate(compose_cfg([f"experiment={experiment}"]))
-    assert run.name == experiment
+    # named for the experiment; experiment=reach and its smoke preset add the robot (reach_panda), whatever it is
+    robot = run.env.robot.name if experiment.startswith("reach") else None
+    assert run.name == (experiment if robot is None else f"{experiment}_{robot}")
     env, expert, learners = build_all(run)
     assert set(learners) == set(run.learners)
     assert expert.describe().startswith(run.tree.root.name)

@@ -373,7 +373,14 @@ def test_tiny_franka_experiment_end_to_end(tmp_path, rate):
     assert rows["expert"]["lyapunov"]["monotone_fraction"] == 1.0  # Theorem 2 for the expert tree
     for r in rows.values():
         assert r["trajectories"] == 2 and r["collisions"] == round(2 * r["collided"]["mean"])
+        assert r["close_passes"] == round(2 * r["close_pass"]["mean"])
+        c = r["clearance"]  # the least and the (lower) median of the two rollouts' closest approaches: the smaller
+        mean, std = r["min_clearance"]["mean"], r["min_clearance"]["std"]
+        assert c["least"] == c["median"] == pytest.approx(mean - std / 2**0.5)  # sample std of two values
     assert rows["expert"]["collisions"] == 0
+    # the task's data splits say how many straight reaches cross the cylinder (scenes/crossing.py)
+    assert 0.0 <= m["data"]["train"]["crossing"]["crossing_fraction"] <= 1.0
+    assert m["data"]["train"]["crossing"]["paths"] == 3 and m["data"]["train"]["crossing"]["radius"] == pytest.approx(0.095)
     assert rows["learner-3"]["ratio"]["time"]["mean"] == pytest.approx(snaps["3"]["ratio_to_expert"]["time"]["mean"])
     figs = {os.path.basename(f) for f in m["figures"]}
     assert {"task_ratios.png", "task_lyapunov.png", "task_execution.png", "task_execution.gif",

@@ -4,10 +4,13 @@
 in their training placement): designing the expert never looks at the test set.
 
     python tools/expert_design.py                              # experiment=franka, kinematic rollouts at 250 Hz
-    python tools/expert_design.py --experiment iiwa_reach --rate 1000 --mode torque
+    python tools/expert_design.py --experiment reach robot=iiwa --rate 1000 --mode torque
+    python tools/expert_design.py --experiment reach robot=iiwa --only expert env.reach_layout.turn=1.0
 
-Prints, per policy: time to 0.05 m, fraction reached, path lengths, goal distance at the 10 s time-out,
-collisions and the closest approach of any link to an obstacle. An expert whose weights are what make it
+Prints, per policy (and learner-0, learner-rmp with the initial weights a run with this seed draws): time to 0.05 m,
+fraction reached, path lengths, goal distance at the 10 s time-out, collisions, close passes (no collision but within
+CLOSE_PASS = 10 mm of an obstacle) and the closest approach of any link to an obstacle (least and median over starts).
+An expert whose weights are what make it
 succeed reaches the goal where the unit-weight tree does not; obstacle weights that matter keep the arm
 further from the obstacles than unit ones do.
 """
@@ -21,7 +24,8 @@ import torch
 from hydra import compose, initialize_config_dir
 
 from rmpfusion.cli import CONF_DIR
-from rmpfusion.pipeline.construct import build_all, expert_spec
+from rmpfusion.pipeline.construct import build_all, build_learners, expert_spec
+from rmpfusion.pipeline.experiment import learner_seed
 from rmpfusion.pipeline.validate import resolve_and_validate
 from rmpfusion.assembly.tree import build_tree
 from rmpfusion.pipeline.collect import SPLIT_SEED_OFFSET
@@ -35,12 +39,28 @@ def variants(expert: dict) -> dict[str, dict]:
             "unit obstacle weights": {k: (v if k == "attractor" else unit) for k, v in expert.items()}}
 
 
+def policies(run, env, keep: set[str]):
+    """(label, policy) of each policy asked for: the weight variants as trees, and learner-rmp as the run would draw
+    it before training (its seed's initial weights)."""
+    for label, weights in variants(dict(run.expert)).items():
+        if label in keep:
+            yield label, build_tree(expert_spec(run.model_copy(update={"expert": weights})), aux_dims=env.aux_dims())
+    if "learner-0" in keep and "rmp" in run.learners:
+        with torch.random.fork_rng():
+            torch.manual_seed(learner_seed(run.seed, "rmp"))
+            learner = build_learners(run.model_copy(update={"learners": {"rmp": run.learners["rmp"]}}),
+                                     env.aux_dims())["rmp"]
+        yield "learner-0", learner.policy
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--experiment", default="franka", help="the experiment (conf/experiment/) whose expert to run")
     ap.add_argument("--rate", type=float, default=250.0, help="control rate (Hz); the experiment evaluates at 1000")
     ap.add_argument("--mode", choices=["kinematic", "torque"], default="kinematic")
     ap.add_argument("--trajectories", type=int, default=20)
+    ap.add_argument("--only", nargs="+", choices=["expert", "unit", "unit-obstacle", "learner-0"], default=None,
+                    help="run only these policies (default: all four)")
     ap.add_argument("overrides", nargs="*", help="further Hydra overrides, e.g. expert.attractor.low=20")
     a = ap.parse_args(argv)
     torch.set_num_threads(1)
@@ -51,16 +71,19 @@ def main(argv=None) -> int:
     gen = torch.Generator().manual_seed(run.seed + SPLIT_SEED_OFFSET["val"])
     q0, qd0, aux = env.sample_initial_states(env.sample_envs(1, gen, split="val"), a.trajectories, gen)
     print(f"{'policy':24s} {'time (s)':>11s} {'reached':>8s} {'c-space':>8s} {'e-e (m)':>8s} "
-          f"{'dist@10s':>9s} {'collisions':>10s} {'clearance':>10s}")
-    for label, weights in variants(dict(run.expert)).items():
+          f"{'dist@10s':>9s} {'collisions':>10s} {'close':>6s} {'clearance least/median':>23s}")
+    chosen = {"expert": "expert", "unit": "unit weights (RMPflow)", "unit-obstacle": "unit obstacle weights",
+              "learner-0": "learner-0"}
+    keep = set(chosen.values()) if a.only is None else {chosen[k] for k in a.only}
+    for label, policy in policies(run, env, keep):
         t0 = time.time()
-        tree = build_tree(expert_spec(run.model_copy(update={"expert": weights})), aux_dims=env.aux_dims())
-        ro = env.rollout(tree, q0, qd0, aux, horizon=10.0, record_every=0.1)
+        ro = env.rollout(policy, q0, qd0, aux, horizon=10.0, record_every=0.1)
         m = env.task_metrics(ro)
         print(f"{label:24s} {m['time'].mean():5.2f}±{m['time'].std():4.2f} {m['reached'].mean():8.2f} "
               f"{m['cspace_length'].mean():8.2f} {m['ee_length'].mean():8.2f} {m['timeout_goal_distance'].mean():9.3f} "
-              f"{int(m['collided'].sum()):10d} {float(m['min_clearance'].min()):10.4f}   ({time.time() - t0:.0f} s)",
-              flush=True)
+              f"{int(m['collided'].sum()):10d} {int(m['close_pass'].sum()):6d} "
+              f"{float(m['min_clearance'].min()):11.4f}/{float(m['min_clearance'].median()):.4f}   "
+              f"({time.time() - t0:.0f} s)", flush=True)
     env.close()
     return 0
 

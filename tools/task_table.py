@@ -5,7 +5,8 @@
 
 One row per policy (the expert, then every learner snapshot): time to 0.05 m, fraction reached, the ratios
 learner / expert per test trajectory (mean ± std), the goal distance at the 10 s time-out, collisions and the
-Lyapunov monitor. Rows of a second run are labelled with its name (e.g. the unit-start ablation); its expert row is
+Lyapunov monitor, with the close passes (no collision, but closer than 10 mm to an obstacle) and the least and median
+of each rollout's minimum clearance. Rows of a second run are labelled with its name (e.g. the unit-start ablation); its expert row is
 left out when it is the first run's. In a scene with a moving obstacle Theorem 2 does not apply: the V_r column says
 so and gives what was observed in brackets.
 """
@@ -18,7 +19,8 @@ from pathlib import Path
 
 RATIOS = ("time", "cspace_length", "ee_length")
 HEADER = ("| run | policy | time to 0.05 m (s) | reached | ratio time | ratio c-space length | ratio e-e length "
-          "| goal distance at time-out (mm) | ratio goal distance at time-out | collisions | V_r monotone |")
+          "| goal distance at time-out (mm) | ratio goal distance at time-out | collisions | close passes (< 10 mm) "
+          "| min clearance (mm), least / median | V_r monotone |")
 
 
 def _pm(d: dict | None, scale: float = 1.0, digits: int = 2) -> str:
@@ -26,6 +28,16 @@ def _pm(d: dict | None, scale: float = 1.0, digits: int = 2) -> str:
         return "–"
     std = d.get("std")
     return f"{scale * d['mean']:.{digits}f} ± {scale * std:.{digits}f}" if std is not None else f"{scale * d['mean']:.{digits}f}"
+
+
+def _count(k: int | None, n: int) -> str:
+    return "–" if k is None else f"{k} / {n}"
+
+
+def _clearance(c: dict | None) -> str:
+    """The closest any rollout came to an obstacle and the median rollout's closest (mm); pybullet resolves
+    distances up to env.clearance_query (0.3 m), so larger ones read as that."""
+    return "–" if not c else f"{1000 * c['least']:.1f} / {1000 * c['median']:.1f}"
 
 
 def rows(metrics: dict, with_expert: bool) -> list[str]:
@@ -46,7 +58,8 @@ def rows(metrics: dict, with_expert: bool) -> list[str]:
             *("1" if expert else _pm(ratio.get(k)) for k in RATIOS),
             _pm(r.get("timeout_goal_distance"), 1000.0, 1),
             "1" if expert else _pm(ratio.get("timeout_goal_distance"), digits=2),
-            f"{r['collisions']} / {n}", count]) + " |")
+            f"{r['collisions']} / {n}", _count(r.get("close_passes"), n), _clearance(r.get("clearance")),
+            count]) + " |")
     return out
 
 

@@ -174,6 +174,10 @@ class TreeSpec(_Strict):
     shared_weights: dict[str, Any] = Field(default_factory=dict)
     nodes: dict[str, NodeSpec] = Field(min_length=1)
     description: str = ""
+    roles: dict[str, list[str]] = Field(
+        default_factory=dict, description="role -> the nodes and shared weights that play it (a generator declares "
+                                          "them, e.g. fig1b's attractor, ground and obstacle), so an expert can weight "
+                                          "them by role whatever their number")
 
 
 _TREE_MODELS: dict[tuple, type[TreeSpec]] = {}
@@ -275,6 +279,17 @@ def _node_issues(ts: TreeSpec, children: Mapping[str, list[str]], where: str) ->
     return issues
 
 
+def _role_issues(ts: TreeSpec, where: str) -> list[Issue]:
+    """Every member of a role is a node or a shared weight, and a role's name is no other entry's."""
+    issues = []
+    for role, members in ts.roles.items():
+        stray = [m for m in members if m not in ts.nodes and m not in ts.shared_weights]
+        if stray:
+            issues.append(Issue(f"{where}.roles.{role}", f"{', '.join(map(repr, stray))} not a node or shared weight "
+                                                         f"of the tree"))
+    return issues
+
+
 def validate_tree_spec(spec: Mapping[str, Any] | TreeSpec, where: str = "tree") -> TreeSpec:
     """The typed tree, or one ConfigError with every structural and per-entry problem."""
     ts = parse_spec(spec, where)
@@ -282,6 +297,7 @@ def validate_tree_spec(spec: Mapping[str, Any] | TreeSpec, where: str = "tree") 
     children = _children(ts, where, issues)
     issues += _unreachable(ts, children, where)
     issues += _node_issues(ts, children, where)
+    issues += _role_issues(ts, where)
     if issues:
         raise ConfigError(issues)
     return ts

@@ -252,7 +252,17 @@ def fig1b(p: ManipulatorTreeParams) -> dict[str, Any]:
         "aux": aux,
         "shared_weights": shared,
         "nodes": nodes,
+        "roles": weight_roles(r, p.scene),
     }
+
+
+def weight_roles(robot, scene: Scene) -> dict[str, list[str]]:
+    """The tree's weighted entries by role, what an expert names to weight any robot's tree (``conf/expert/reach.yaml``):
+    ``attractor`` (the ee → attractor edge), ``ground`` (the shared weight of every control point's ground edge, when
+    the scene has a ground) and ``obstacle`` (each control point's shared obstacle weight)."""
+    obstacle = [f"cp{i}_obstacle" for i in range(1, len(robot.control_points) + 1)] if scene.obstacles else []
+    return {"attractor": ["attractor"], "ground": ["ground"] if scene.ground is not None else [],
+            "obstacle": obstacle}
 
 
 def _robot_map(p: ManipulatorTreeParams, kind: str, **keys: Any) -> dict[str, Any]:

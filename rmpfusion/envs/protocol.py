@@ -87,6 +87,25 @@ class HasTaskMetrics(Protocol):
 
 
 @runtime_checkable
+class Reaches(Protocol):
+    """A reaching task: how far each start's straight end-effector reach to its goal passes from the obstacles, so a
+    run can say whether the obstacle is in the way (``scenes/crossing.py``) before it trains."""
+
+    @property
+    def ee_radius(self) -> float:
+        """The end effector's control-sphere radius (m): a reach whose path clearance is below it crosses."""
+        ...
+
+    def path_clearance(self, q0: Tensor, aux: Mapping[str, Tensor]) -> Tensor:
+        """(B, K) clearance of each straight reach from each obstacle's surface (m)."""
+        ...
+
+    def describe_task(self) -> str | None:
+        """A line saying how the task was laid out, when the environment derived it (else None)."""
+        ...
+
+
+@runtime_checkable
 class HasRatioMetrics(Protocol):
     """The task metrics compared with the expert as per-trajectory ratios learner/expert (paper Fig. 5b). It
     exists because a ratio means something only for some metrics (a distance that is ~0 for every policy makes

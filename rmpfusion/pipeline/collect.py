@@ -12,6 +12,8 @@ import torch
 from ..assembly.weighting import plain_data
 from ..envs.demonstrations import Dataset, load_dataset, save_dataset
 from ..evaluate.divergence import Divergence, divergence_of_records
+from ..envs.protocol import Reaches
+from ..scenes.crossing import summarize
 from .config import RunConfig
 from .experiment import Experiment
 
@@ -72,6 +74,50 @@ def _describe(ds: Dataset) -> dict:
             "expert_collision": float(ds.collided.double().mean())}
 
 
+#: below these the run warns before training: a reaching task whose obstacle is seldom in the way, and an expert that
+#: does not reach the validation goals (what the learners imitate would then not be the task's solution)
+MIN_CROSSING, MIN_EXPERT_SUCCESS = 0.8, 0.8
+
+
+def _crossing(env, ds: Dataset) -> dict:
+    """How many of the split's straight reaches cross an obstacle (``scenes/crossing.py``), for a reaching task."""
+    if not isinstance(env, Reaches):
+        return {}
+    q0, _, aux = ds.initial_states()
+    return {"crossing": summarize(env.path_clearance(q0, aux), env.ee_radius).as_dict()}
+
+
+def check_task(exp: Experiment, splits: "Splits") -> list[str]:
+    """Say, before any training, how the task was laid out, whether its obstacle is in the way of the reaches, and
+    whether the expert reached the validation goals; returns the warnings (also printed)."""
+    env, say, warnings = exp.env, exp.say.say, []
+    if not isinstance(env, Reaches):
+        return warnings
+    layout = env.describe_task()
+    if layout:
+        say(f"task: {layout}")
+    for split, info in splits.info.items():
+        c = info.get("crossing")
+        if c:
+            say(f"task: {split}: {c['crossing_fraction']:.0%} of {c['paths']} straight reaches cross an obstacle "
+                f"(median clearance {c['clearance_quantiles']['median']:.3f} m, crossing below {c['radius']:.3f} m); "
+                f"the expert reached {info['expert_success']:.0%} of the goals, collided on "
+                f"{info['expert_collision']:.0%}")
+    train = splits.info["train"].get("crossing")
+    if train and train["crossing_fraction"] < MIN_CROSSING:
+        warnings.append(f"only {train['crossing_fraction']:.0%} of the training reaches cross an obstacle (fewer "
+                        f"than {MIN_CROSSING:.0%}): the obstacle is seldom in the way; move the goals or the obstacle")
+    check = splits.info.get("val") or splits.info["train"]
+    if check["expert_success"] < MIN_EXPERT_SUCCESS:
+        warnings.append(f"the expert reached only {check['expert_success']:.0%} of the "
+                        f"{'validation' if 'val' in splits.info else 'training'} goals (fewer than "
+                        f"{MIN_EXPERT_SUCCESS:.0%}): its weights do not solve this task on this robot, and the learners "
+                        f"will imitate a failing expert")
+    for w in warnings:
+        say(f"warning: {w}")
+    return warnings
+
+
 def load_or_collect(exp: Experiment, split: str) -> tuple[Dataset, dict]:
     """The split's dataset from the cache when present and valid, else collected and saved (then reused).
 
@@ -85,7 +131,8 @@ def load_or_collect(exp: Experiment, split: str) -> tuple[Dataset, dict]:
     if path.exists():
         ds = load_dataset(path, meta)  # damaged or foreign files raise, naming the file and the fix
         exp.say.say(f"data: reusing {split} set {path} ({len(ds)} points)")
-        return ds, {"path": str(path), "sha256": ds.checksum(), "points": len(ds), "reused": True, **_describe(ds)}
+        return ds, {"path": str(path), "sha256": ds.checksum(), "points": len(ds), "reused": True, **_describe(ds),
+                    **_crossing(exp.env, ds)}
     n_envs, n_traj = {"train": (d.train_envs, d.train_trajectories), "val": (d.val_envs, d.val_trajectories),
                       "test": (d.test_envs, d.test_trajectories)}[split]
     gen = torch.Generator().manual_seed(exp.run.seed + SPLIT_SEED_OFFSET[split])
@@ -97,7 +144,7 @@ def load_or_collect(exp: Experiment, split: str) -> tuple[Dataset, dict]:
         raise expert_diverged(f"{split} demonstrations", found)
     sha = save_dataset(path, ds, meta)
     return ds, {"path": str(path), "sha256": sha, "points": len(ds), "reused": False, "seconds": time.time() - t0,
-                **_describe(ds)}
+                **_describe(ds), **_crossing(exp.env, ds)}
 
 
 def collect(exp: Experiment, splits: tuple[str, ...] | None = None) -> Splits:
@@ -107,4 +154,7 @@ def collect(exp: Experiment, splits: tuple[str, ...] | None = None) -> Splits:
     t0 = time.time()
     loaded = {s: load_or_collect(exp, s) for s in names}
     exp.timing["data_s"] = time.time() - t0
-    return Splits({s: ds for s, (ds, _) in loaded.items()}, {s: info for s, (_, info) in loaded.items()})
+    splits = Splits({s: ds for s, (ds, _) in loaded.items()}, {s: info for s, (_, info) in loaded.items()})
+    if "train" in splits.info:
+        check_task(exp, splits)
+    return splits

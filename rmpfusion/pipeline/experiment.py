@@ -78,11 +78,16 @@ class Experiment:
 
     def learner_seed(self, name: str) -> int:
         """Each learner's own seed (its initial weights; training uses this + 1): independent of the others."""
-        return (self.run.seed * 1_000_003 + zlib.crc32(name.encode())) % (2**63 - 1)
+        return learner_seed(self.run.seed, name)
 
     def log_scalars(self, name: str, metrics: Mapping[str, float]) -> None:
         if self.log is not None:
             self.log({k if k == "iteration" else f"{name}/{k}": v for k, v in metrics.items()})
+
+
+def learner_seed(seed: int, name: str) -> int:
+    """The seed learner ``name``'s initial weights are drawn from in a run with seed ``seed``."""
+    return (seed * 1_000_003 + zlib.crc32(name.encode())) % (2**63 - 1)
 
 
 def prepare(run: RunConfig, run_dir: Path, say: Progress, log: Log | None = None) -> Experiment:

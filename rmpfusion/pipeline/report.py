@@ -105,6 +105,12 @@ def task_table(expert: StageResult, stages: list[StageResult], ratio_keys) -> li
             row[k] = {"mean": v["mean"], "std": v["std"]}
         collided = st.per_trajectory.get("collided")
         row["collisions"] = int(round(float(collided.sum()))) if collided is not None else None
+        close, clearance = st.per_trajectory.get("close_pass"), st.per_trajectory.get("min_clearance")
+        if close is not None:
+            row["close_passes"] = int(round(float(close.sum())))
+        if clearance is not None and clearance.numel():
+            # beside min_clearance's mean ± std: the closest any rollout came, and the (lower) median rollout's
+            row["clearance"] = {"least": float(clearance.min()), "median": float(clearance.median())}
         row["trajectories"] = int(st.rollout.q.shape[1])
         if st.ratios:
             row["ratio"] = {k: {"mean": v["mean"], "std": v["std"]} for k, v in st.ratios.items() if k in ratio_keys}

@@ -24,6 +24,7 @@ from pydantic import BaseModel, ValidationError
 from ..assembly.errors import ConfigError, Issue, issues_from_pydantic
 from ..assembly.generated import expand_tree
 from ..assembly.spec import check_typed, validate_tree_spec
+from ..assembly.weighting import own_weights, weights_by_name
 from ..core.auxstate import AuxOrValue
 from ..registry import ENVS, LEAF_RMPS, TASK_MAPS, TRAIN_METHODS, WEIGHTS, Registry
 from .config import RunConfig, run_config_model
@@ -142,15 +143,24 @@ def _method_issues(run: RunConfig, env: Any) -> list[Issue]:
 
 
 def _expert_issues(run: RunConfig) -> list[Issue]:
-    """Expert names are edges (nodes) or shared weights of the tree."""
-    nodes, shared, root = run.tree.nodes, run.tree.shared_weights, run.tree.root.name
+    """Expert keys are edges (nodes), shared weights or roles of the tree (already expanded to the names they cover),
+    and every weight the tree carries itself is replaced by one of them."""
+    nodes, shared, root, roles = run.tree.nodes, run.tree.shared_weights, run.tree.root.name, run.tree.roles
     issues = []
+    role_note = f"; roles: {', '.join(roles)}" if roles else ""
     for n in run.expert:
         if n not in nodes and n not in shared:
             why = "is the root, which has no incoming edge to weight" if n == root else "is not a node of the tree"
-            names = [*nodes, *shared]
+            names = [*nodes, *shared, *roles]
             issues.append(Issue(f"expert.{n}", f"'{n}' {why}; {_close(n, names)}nodes and shared weights: "
-                                               f"{_listing(names)}"))
+                                               f"{_listing([*nodes, *shared])}{role_note}"))
+    missing = [n for n in own_weights(run.tree) if n not in run.expert]
+    if missing:
+        by_role = {n: r for r, members in roles.items() for n in members}
+        said = ", ".join(f"{n} (role {by_role[n]})" if n in by_role else n for n in missing)
+        issues.append(Issue("expert", f"no expert weight for {said}: the tree carries a learnable weight there, which "
+                                      f"the expert would keep at its random initialisation; give each by name or by "
+                                      f"its role"))
     return issues
 
 
@@ -290,6 +300,7 @@ def resolve_and_validate(cfg: DictConfig | Mapping[str, Any]) -> RunConfig:
         validate_graph(run)
     except ConfigError as e:
         issues += e.issues
+    run = run.model_copy(update={"expert": weights_by_name(run.tree, run.expert)})  # roles -> the names they cover
     issues += _expert_issues(run) + _learner_issues(run)
     if env is not None:
         issues += _method_issues(run, env)

@@ -11,7 +11,7 @@ from torch import Tensor
 
 from ...registry import ENVS
 from ...robots import build_robot
-from ...scenes import Scene, aux_at, distances, scene_aux, scene_aux_dims
+from ...scenes import Scene, aux_at, distances, same_layout, scene_aux, scene_aux_dims
 from ..common import DTYPES, ComputesOnDevice, SeededSampling, check_initial_states, on_device, redraw_until_ok, time_grid
 from ..demonstrations import Dataset
 from ..protocol import RenderSettings
@@ -19,7 +19,9 @@ from ..rollout import Rollout
 from . import demonstrations as demos
 from . import render as rendering
 from .kinematic import rollout_kinematic
+from .layout import Derived, derive
 from .metrics import RATIO_METRICS, task_metrics
+from .paths import end_effector_radius, path_clearance
 from .params import ManipulatorParams
 from .scene import HelperWorlds, _Scene, sample_aux
 from .torque import rollout_torque
@@ -37,9 +39,11 @@ class Manipulator(ComputesOnDevice, SeededSampling):
             params = self.Params(**overrides)
         elif overrides:
             params = self.Params.model_validate({**params.model_dump(), **overrides})
-        self.params = params
         self.dtype = DTYPES[params.dtype]
         self.robot = build_robot(params.robot)
+        self.layout = None if params.reach_layout is None else derive(self.robot, params.start_centre(),
+                                                                      params.spread(), params.reach_layout)
+        self.params = params if self.layout is None else _laid_out(params, self.layout)
         self.dim = self.robot.dof
         self.lower, self.upper = self.robot.lower.to(self.dtype), self.robot.upper.to(self.dtype)
         self.worlds = HelperWorlds(self.robot, params.gravity)
@@ -118,6 +122,20 @@ class Manipulator(ComputesOnDevice, SeededSampling):
             sc.reset(q[b].detach().cpu().numpy())
             out.append(sc.start_margin(p.start_clearance, p.clearance_query))
         return torch.tensor(out, dtype=self.dtype)
+
+    @property
+    def ee_radius(self) -> float:
+        """The end effector's control-sphere radius (m), what a straight reach must clear the obstacles by."""
+        return end_effector_radius(self.robot)
+
+    def path_clearance(self, q0: Tensor, aux: Mapping[str, Tensor]) -> Tensor:
+        """(B, K) clearance of the straight end-effector reach from each start ``q0`` to its goal from each obstacle's
+        surface (m); the reach crosses obstacle k when it is below ``ee_radius`` (``scenes/crossing.py``)."""
+        return path_clearance(self.scene, self.ee_position(q0.to(self.dtype)), aux)
+
+    def describe_task(self) -> str | None:
+        """What ``reach_layout`` derived for this robot (None when the task is read from the config)."""
+        return None if self.layout is None else self.layout.describe()
 
     def in_collision(self, q: Tensor, aux: Mapping[str, Tensor]) -> Tensor:
         """(B,) bool: some link within zero distance of an obstacle."""
@@ -277,6 +295,18 @@ class Manipulator(ComputesOnDevice, SeededSampling):
 def _centre_key(p: ManipulatorParams) -> str:
     """How the user sets the starts' centre: the robot file's ``home`` unless ``env.nominal_q`` overrides it."""
     return "env.nominal_q" if p.nominal_q is not None else f"home in the robot file of {p.robot.name}, env.robot.home"
+
+
+def _laid_out(p: ManipulatorParams, d: Derived) -> ManipulatorParams:
+    """``p`` with the task a reach layout derived: its goal region, the two scenes, the per-environment jitter."""
+    try:
+        same_layout(p.scene, d.scene, "the reach layout's scene")
+    except ValueError as e:
+        raise ValueError(f"env.reach_layout places one standing cylinder above a ground plane; env.scene must have "
+                         f"that layout (conf/scene/reach_post.yaml), as the tree is built from it: {e}") from None
+    return p.model_copy(update={"goal_region": d.goal_region, "scene": d.scene, "test_scene": d.test_scene,
+                                "obstacle_jitter": d.obstacle_jitter,
+                                "min_start_goal_distance": d.min_start_goal_distance})
 
 
 def _reporting(monitor: Callable[..., Any] | None, progress: Callable[[int, int], Any],

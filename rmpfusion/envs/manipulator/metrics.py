@@ -11,6 +11,9 @@ from ..rollout import Rollout
 #: for every policy that reaches the goal it is ~0.05 m and its ratio is 1 by construction. The distance at the
 #: time-out (the rollout always continues to it) and the closest approach say how well each policy got there.
 RATIO_METRICS = ("time", "cspace_length", "ee_length", "timeout_goal_distance", "min_goal_distance")
+#: A rollout that never collides but comes closer than this to an obstacle (m) is a close pass: what the expert's
+#: obstacle weights prevent (ours; the expert keeps ≥ 3 cm on the validation starts, unit obstacle weights < 1 cm).
+CLOSE_PASS = 0.01
 
 
 def task_metrics(ro: Rollout, dtype: torch.dtype) -> dict[str, Tensor]:
@@ -21,7 +24,8 @@ def task_metrics(ro: Rollout, dtype: torch.dtype) -> dict[str, Tensor]:
     space (rad) and by the end effector (m) during it; ``goal_distance``: end-effector–goal distance when it
     ended (the paper's). ``timeout_goal_distance``: the distance at the time-out; ``min_goal_distance``: the
     closest the end effector came at any record. Also ``reached``, ``collided`` (any link within zero distance
-    of an obstacle during the whole rollout) and ``min_clearance``. A rollout ended by an error gets NaN
+    of an obstacle during the whole rollout), ``min_clearance`` and ``close_pass`` (no collision, but closer than
+    ``CLOSE_PASS``). A rollout ended by an error gets NaN
     execution metrics.
     """
     timeout = float(ro.times[-1])
@@ -33,5 +37,6 @@ def task_metrics(ro: Rollout, dtype: torch.dtype) -> dict[str, Tensor]:
            "min_goal_distance": closest}
     out = {k: torch.where(failed, float("nan"), v) for k, v in out.items()}
     out.update({"reached": ro.reached.to(dtype), "collided": ro.collided.to(dtype),
-                "min_clearance": ro.min_clearance, "error": failed.to(dtype)})
+                "min_clearance": ro.min_clearance, "error": failed.to(dtype),
+                "close_pass": (~ro.collided & (ro.min_clearance < CLOSE_PASS)).to(dtype)})
     return out

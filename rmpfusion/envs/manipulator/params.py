@@ -10,6 +10,7 @@ from pydantic import Field, ValidationInfo, field_validator, model_validator
 from ...registry import Params
 from ...robots import RobotField
 from ...scenes import Scene, same_layout
+from .layout import ReachLayout
 
 Vec3 = tuple[float, float, float]
 Range = tuple[float, float]
@@ -52,6 +53,9 @@ class ManipulatorParams(Params):
                                                               "at most data.points records")
     goal_region: tuple[Range, Range, Range] = Field(((0.3, 0.6), (-0.45, -0.2), (0.15, 0.55)),
                                                     description="goal ~ uniform in this box (m)")
+    reach_layout: ReachLayout | None = Field(
+        None, description="lay the task out from the robot's kinematics (experiment=reach): goal_region, the scenes' "
+                          "placement, obstacle_jitter and min_start_goal_distance are derived, not read")
     goal_clearance: float = Field(0.15, ge=0, description="min horizontal distance from goal to obstacle surfaces")
     nominal_q: tuple[float, ...] | None = Field(None, description="centre of the starts (rad); null: the robot's home")
     start_spread: tuple[float, ...] | float = Field(0.3, description="± uniform per joint (rad): one value for every "

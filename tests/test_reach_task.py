@@ -1,0 +1,105 @@
+"""The reaching task for any arm (experiment=reach): the expert's weights by role, the task laid out from the arm's
+kinematics with its obstacle in the way, and the run saying so before it trains."""
+from __future__ import annotations
+
+from pathlib import Path
+from types import SimpleNamespace
+
+import pytest
+import torch
+from hydra import compose, initialize_config_dir
+
+pytest.importorskip("pybullet")
+
+from rmpfusion.assembly.errors import ConfigError  # noqa: E402
+from rmpfusion.assembly.weighting import own_weights, weights_by_name  # noqa: E402
+from rmpfusion.envs.manipulator import Manipulator  # noqa: E402
+from rmpfusion.envs.manipulator.layout import ReachLayout  # noqa: E402
+from rmpfusion.envs.manipulator_tree import manipulator_tree_spec  # noqa: E402
+from rmpfusion.pipeline.collect import check_task  # noqa: E402
+from rmpfusion.pipeline.validate import resolve_and_validate  # noqa: E402
+from rmpfusion.scenes.crossing import summarize  # noqa: E402
+from manipulators import robot, scene  # noqa: E402
+
+CONF = Path(__file__).resolve().parents[1] / "conf"
+ROBOTS = sorted(p.stem for p in (CONF / "robot").glob("*.yaml"))
+EXPERT = {"attractor": {"type": "constant", "value": 40.0}, "obstacle": {"type": "constant", "value": 200.0},
+          "ground": {"type": "constant", "value": 100.0}}
+
+
+def _validated(*overrides: str):
+    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
+        return resolve_and_validate(compose("config", overrides=["logger=disabled", *overrides]))
+
+
+@pytest.mark.parametrize("name", ["panda", "xarm6"])
+def test_an_expert_by_role_weights_every_control_point_of_any_arm(name):
+    spec = manipulator_tree_spec(robot(name), scene("reach_post"))
+    n = len(robot(name)["control_points"])
+    named = weights_by_name(spec, {**EXPERT, "cp2_obstacle": {"type": "constant", "value": 7.0}})
+    assert sorted(own_weights(spec)) == sorted(named)  # every weighted entry, nothing else
+    assert [k for k in named if k.endswith("_obstacle")] == [f"cp{i}_obstacle" for i in range(1, n + 1)]
+    assert named["cp2_obstacle"]["value"] == 7.0 and named["cp1_obstacle"]["value"] == 200.0  # a name beats its role
+    assert named["ground"]["value"] == 100.0 and named["attractor"]["value"] == 40.0
+
+
+def test_an_expert_that_leaves_a_weighted_edge_out_is_refused_naming_it():
+    with pytest.raises(ConfigError) as e:
+        _validated("experiment=reach", "robot=xarm6", "~expert.ground")
+    assert "no expert weight for ground (role ground)" in str(e.value)
+    run = _validated("experiment=reach", "robot=xarm6")
+    assert {"attractor", "ground", *(f"cp{i}_obstacle" for i in range(1, 11))} == set(run.expert)
+
+
+@pytest.mark.parametrize("name", ROBOTS)
+def test_the_layout_puts_the_obstacle_in_the_way_of_most_reaches_on_every_robot(name):
+    env = Manipulator(robot=robot(name), scene=scene("reach_post"), reach_layout=ReachLayout(), start_spread=0.25,
+                      goal_clearance=0.05)
+    try:
+        g = torch.Generator().manual_seed(0)
+        q0, _, aux = env.sample_initial_states(env.sample_envs(1, g), 30, g)
+        s = summarize(env.path_clearance(q0, aux), env.ee_radius)
+        assert s.crossing_fraction >= 0.8, s
+        d = env.layout
+        assert 0.3 < d.reach < 2.0
+        post = env.scene.obstacles[0]
+        mid = (torch.tensor(d.start_point) + torch.tensor(d.goal_point))[:2] / 2
+        out = mid / mid.norm()
+        # the midpoint of the start and goal points, moved 0.05 of the reach away from the base
+        assert torch.allclose(torch.tensor(post.center[:2]), mid + 0.05 * d.reach * out, atol=1e-9)
+        test_post = env.params.test_scene.obstacles[0]
+        moved = torch.tensor(test_post.center[:2]) - torch.tensor(post.center[:2])
+        assert float(moved.norm()) == pytest.approx(0.04 * d.reach) and abs(float(moved @ out)) < 0.5 * float(moved.norm())
+        assert post.radius == pytest.approx(0.06 * d.reach)  # sizes scale with the reach
+        assert env.params.test_scene.obstacles[0].radius == pytest.approx(1.2 * post.radius)
+        assert "reach layout" in env.describe_task()
+    finally:
+        env.close()
+
+
+class _Say:
+    def __init__(self):
+        self.lines: list[str] = []
+
+    def say(self, line: str) -> None:
+        self.lines.append(line)
+
+
+def test_the_run_warns_before_training_when_the_expert_fails_or_the_obstacle_is_not_in_the_way():
+    env = Manipulator(robot=robot("panda"), scene=scene("franka_cylinder"))
+    crossing = lambda f: {"paths": 20, "crossing_fraction": f, "radius": 0.095,  # noqa: E731
+                          "clearance_quantiles": {"median": 0.01}}
+    try:
+        good = {"train": {"expert_success": 1.0, "expert_collision": 0.0, "crossing": crossing(0.9)},
+                "val": {"expert_success": 0.95, "expert_collision": 0.0, "crossing": crossing(1.0)}}
+        say = _Say()
+        exp = SimpleNamespace(env=env, say=say)
+        assert check_task(exp, SimpleNamespace(info=good)) == []
+        assert any("90% of 20 straight reaches cross" in line for line in say.lines)
+        bad = {"train": {**good["train"], "crossing": crossing(0.5)}, "val": {**good["val"], "expert_success": 0.35}}
+        warnings = check_task(exp, SimpleNamespace(info=bad))
+        assert len(warnings) == 2
+        assert "only 50% of the training reaches cross" in warnings[0]
+        assert "the expert reached only 35% of the validation goals" in warnings[1]
+    finally:
+        env.close()
