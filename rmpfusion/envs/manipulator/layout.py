@@ -72,7 +72,9 @@ def derive(robot, centre: tuple[float, ...], spread: tuple[float, ...], layout: 
     """The task for ``robot`` (a built robot: kinematics and limits) with starts centred on ``centre`` ± ``spread``."""
     g = torch.Generator().manual_seed(_SEED)
     lo, hi = robot.lower, robot.upper
-    anywhere = lo + (hi - lo) * torch.rand(_SAMPLES, robot.dof, generator=g, dtype=torch.float64)
+    # a continuous joint (no finite limits) is sampled over one turn each way, as robots/home.py samples it
+    turn_lo, turn_hi = lo.clamp(min=-math.pi), hi.clamp(max=math.pi)
+    anywhere = turn_lo + (turn_hi - turn_lo) * torch.rand(_SAMPLES, robot.dof, generator=g, dtype=torch.float64)
     workspace = robot.ee_position(anywhere)
     reach = float(torch.quantile(workspace[:, :2].norm(dim=-1), 0.99))
     c, s = torch.tensor(centre, dtype=torch.float64), torch.tensor(spread, dtype=torch.float64)
