@@ -29,3 +29,30 @@ def test_the_fused_training_reference_computes_the_learner_s_acceleration():
     aux = learner.tree._normalise_aux(aux, q.shape[0])
     with torch.no_grad():
         torch.testing.assert_close(bench.Fused2d2level(learner)(q, qd, aux), learner(q, qd, aux), rtol=1e-9, atol=1e-9)
+
+
+def _checked(spec):
+    """The scaling rows' 1024 states among 10 and 100 cylinders take minutes of pybullet distance queries: slow."""
+    return pytest.param(spec, marks=pytest.mark.slow) if spec[0] * spec[1] >= 10 * 1024 else spec
+
+
+@pytest.mark.parametrize("spec", [_checked(s) for s in bench.TIMED_FRANKA_STATES],
+                         ids=lambda s: f"obstacles{s[0]}-B{s[1]}-seed{s[2]}")
+def test_every_franka_state_the_benchmark_times_is_inside_the_joint_limits_and_clear_of_the_obstacles(spec):
+    """A state past a joint limit (the Panda's joint 4 spans [−3.07, −0.07] in pybullet_data's URDF) or inside an
+    obstacle would time a barrier's saturated branch. Checked here independently of the sampler: the URDF's
+    limits as the tree reads them, and pybullet's distance from the robot to every obstacle."""
+    tree, q, qd, aux = bench.franka_states(*spec)
+    n_obstacles, batch, _ = spec
+    assert q.shape == qd.shape == (batch, 7) and all(v.shape[0] == batch for v in aux.values())
+    lo, hi = tree.maps["ee"].chain.joint_limits()
+    assert float(hi[3]) <= 0.0 and float(lo[3]) >= -3.15  # joint 4 as pybullet_data's Panda has it
+    assert ((q > lo) & (q < hi)).all(), (q.min(0).values, q.max(0).values)
+    _, env = bench.franka_subject(n_obstacles)
+    try:
+        clearance = env.clearance(q, aux)
+    finally:
+        env.close()
+    assert (clearance > 0).all(), clearance.min()
+    with torch.no_grad():
+        assert torch.isfinite(tree(q, qd, aux).qdd).all()

@@ -57,3 +57,37 @@ def test_compare_holds_residuals_to_an_absolute_tolerance_and_everything_else_to
     b["rmp"]["online_loss"] = 1.0 + 1e-6
     differ = compare(a, b, rtol=1e-9)[2]
     assert len(differ) == 2 and "a residual" in differ[0] and "online_loss" in differ[1], differ
+
+
+def test_unit_weights_and_a_test_split_of_its_own_sampler(tmp_path):
+    """eval.unit_weights rolls out the expert's tree with every weight 1 from the test starts, and what it reports
+    is that tree's rollout, recomputed here; env.test_sampling moves only the test split's starts (train and
+    validation are those of the run without it)."""
+    import torch
+
+    from rmpfusion.envs.demonstrations import load_dataset
+    from rmpfusion.evaluate.metrics import rollout_rates
+    from rmpfusion.pipeline.construct import build_tree, expert_spec, make_env
+
+    hard = ["eval.unit_weights=true", "+env.test_sampling={start_speed: [2.0, 3.0]}"]
+    run = _run_config(["experiment=2d1level", *hard])
+    m = run_experiment(run, tmp_path / "hard", progress=False)
+    plain = run_experiment(_run_config(["experiment=2d1level", "eval.unit_weights=true"]), tmp_path / "plain",
+                           progress=False)
+    assert m["data"]["train"]["sha256"] == plain["data"]["train"]["sha256"]
+    assert m["data"]["val"]["sha256"] == plain["data"]["val"]["sha256"]
+    assert m["data"]["test"]["sha256"] != plain["data"]["test"]["sha256"]
+    q0, qd0, aux = load_dataset(m["data"]["test"]["path"]).initial_states()
+    speeds = qd0.norm(dim=-1)
+    assert speeds.min() >= 2.0 - 1e-12 and speeds.max() <= 3.0 + 1e-12  # drawn from test_sampling's range
+
+    env = make_env(run)
+    unit = {name: {"type": "constant", "value": 1.0} for name in run.expert}
+    tree = build_tree(expert_spec(run.model_copy(update={"expert": unit})), aux_dims=env.aux_dims())
+    exp = start(run, tmp_path / "hard", progress=False)
+    with torch.no_grad():
+        ro = env.rollout(tree, q0, qd0, aux, horizon=exp.horizon, record_every=exp.fine_interval)
+    expected = rollout_rates(ro)
+    for key in ("success", "collision", "lyapunov_monotone_fraction"):
+        assert m["unit_weights"][key] == pytest.approx(expected[key]), key
+    assert {"online_loss", "online_loss_median", "online_loss_before_collision"} <= set(m["unit_weights"])

@@ -106,10 +106,9 @@ def learner_2d2level(seed: int = 0):
     return build_learners(cfg, env.aux_dims())["rmp"].double(), env
 
 
-def franka_expert(n_obstacles: int = 1):
+def franka_subject(n_obstacles: int = 1):
     """The Franka experiment's expert tree among ``n_obstacles`` standing cylinders (14 control points each, the
-    experiment's cylinder's size, spread in a row in front of the robot), and one sample of its aux state from the
-    environment of that scene: a goal and the cylinders."""
+    experiment's cylinder's size, spread in a row in front of the robot), and the environment of that scene."""
     from hydra import compose as hcompose, initialize_config_dir
     from omegaconf import OmegaConf
 
@@ -127,8 +126,36 @@ def franka_expert(n_obstacles: int = 1):
     tree = rmpfusion.build_tree(spec)
     settings = {**raw["env"], "scene": scene, "test_scene": None}
     entry = ENVS.get(settings.pop("type"))
-    env = entry.obj(entry.validate(settings))
+    return tree, entry.obj(entry.validate(settings))
+
+
+def franka_expert(n_obstacles: int = 1):
+    """The subject of ``franka_subject`` and one sample of its aux state from its environment: a goal and the
+    cylinders."""
+    tree, env = franka_subject(n_obstacles)
     return tree, env.sample_envs(1, torch.Generator().manual_seed(0))
+
+
+#: Every Franka state the benchmark times, as the arguments of ``franka_states`` (obstacles, batch, seed):
+#: tests/test_bench.py checks each one is inside the joint limits and clear of the obstacles.
+LATENCY_STATES = (1, 1, 0)  # the latency rows (eager, compiled) and the time to compile
+EXPORT_STATES = (1, 2, 0)  # the AOTInductor row: traced on both, timed on the first
+SCALING_STATES = tuple((n, B, B) for n in (1, 10, 100) for B in (1, 1024))
+TIMED_FRANKA_STATES = (LATENCY_STATES, EXPORT_STATES, *SCALING_STATES)
+
+
+def franka_states(n_obstacles: int, batch: int, seed: int):
+    """(tree, q, q̇, aux): the subject of ``franka_subject`` and ``batch`` states a controller meets, drawn by the
+    experiment's own sampler of start states (inside the joint limits by its ``joint_margin``, clear of every
+    obstacle by its ``start_clearance`` in pybullet, at its start speeds); a state deep in a joint-limit barrier
+    or inside an obstacle would time the barrier's saturated branch, not the policy."""
+    tree, env = franka_subject(n_obstacles)
+    g = torch.Generator().manual_seed(seed)
+    try:
+        q, qd, aux = env.sample_initial_states(env.sample_envs(1, g), batch, g)
+    finally:
+        env.close()
+    return tree, q, qd, aux
 
 
 # ---------------------------------------------------------------------------------------------- the hand-fused reference
@@ -357,11 +384,14 @@ def section_latency(compile_: bool) -> None:
             row("latency", f"test-vector tree, policy, compiled ({ct:.0f} s)", _fmt_time(t), ref, f"{t / t_np:.2f}",
                 "≤ 0.5", t / t_np <= 0.5)
     if compile_:
-        _exported_latency("test-vector tree", tv, {}, reference=t_np)
+        g = torch.Generator().manual_seed(0)
+        q2, qd2 = torch.tensor([[2.5, 0.0], [1.0, -1.5]], dtype=torch.float64), torch.randn(2, 2, generator=g,
+                                                                                            dtype=torch.float64)
+        _exported_latency("test-vector tree", tv, q2, qd2, {}, reference=t_np)
     learner, env = learner_2d2level()
     args = env.sample(n_envs=1, n_per_env=1, seed=3)
-    fr, faux = franka_expert()
-    fargs = (torch.full((1, 7), 0.1, dtype=torch.float64), torch.full((1, 7), 0.1, dtype=torch.float64), faux)
+    fr, fq, fqd, faux = franka_states(*LATENCY_STATES)
+    fargs = (fq, fqd, faux)
     with torch.inference_mode():
         for name, tree, a, eager_target, compiled_target in (
                 ("2d2level learner tree", learner.tree, args, None, None),
@@ -374,21 +404,22 @@ def section_latency(compile_: bool) -> None:
                 target = dict(target=f"≤ {_fmt_time(compiled_target)}", ok=t <= compiled_target) if compiled_target else {}
                 row("latency", f"{name}, compiled ({ct:.0f} s)", _fmt_time(t), **target)
     if compile_:
-        _exported_latency("Franka expert tree", fr, faux)
+        fr, fq, fqd, faux = franka_states(*EXPORT_STATES)
+        _exported_latency("Franka expert tree", fr, fq, fqd, faux)
 
 
-def _exported_latency(name: str, tree, aux: dict, reference: float | None = None, target: float | None = None) -> None:
-    """The tree exported and compiled ahead of time (what rmpfusion-export --aoti writes), at B = 1, beside
-    ``reference`` (seconds) when given."""
+def _exported_latency(name: str, tree, q2, qd2, aux2: dict, reference: float | None = None,
+                      target: float | None = None) -> None:
+    """The tree exported and compiled ahead of time (what rmpfusion-export --aoti writes), traced on the two
+    states (q2, qd2, aux2) and timed at B = 1 on the first, beside ``reference`` (seconds) when given."""
     import tempfile
 
     from rmpfusion.core.export import export_tree
 
-    names = sorted(aux)
-    g = torch.Generator().manual_seed(0)
-    q2, qd2 = 0.3 * torch.rand(2, tree.dim, generator=g, dtype=torch.float64), torch.randn(2, tree.dim, generator=g,
-                                                                                          dtype=torch.float64)
-    program = export_tree(tree, q2, qd2, {k: v.expand(2, -1) for k, v in aux.items()}, names)
+    names = sorted(aux2)
+    aux2 = {k: v.expand(2, -1) for k, v in aux2.items()}
+    aux = {k: v[:1] for k, v in aux2.items()}
+    program = export_tree(tree, q2, qd2, aux2, names)
     with tempfile.TemporaryDirectory() as d:
         t0 = time.perf_counter()
         path = torch._inductor.aoti_compile_and_package(program, package_path=os.path.join(d, "tree.pt2"))
@@ -411,12 +442,11 @@ import sys, time, torch
 sys.path.insert(0, {tools!r}); sys.path.insert(0, {tests!r})
 torch.set_num_threads(1)
 import bench
-tree, aux = bench.franka_expert()
-q = torch.full((1, 7), 0.1, dtype=torch.float64)
+tree, q, qd, aux = bench.franka_states(*bench.LATENCY_STATES)
 tree.compile(dynamic=False, fixed_structure=True, vectorize=False)
 t0 = time.perf_counter()
 with torch.inference_mode():
-    tree(q, q, aux)
+    tree(q, qd, aux)
 print(time.perf_counter() - t0)
 """
 
@@ -438,22 +468,16 @@ def section_compile(compile_: bool) -> None:
 def section_scaling(compile_: bool) -> None:
     print("\nFranka tree with 1, 10 and 100 obstacles (14 control points each): how the cost grows")
     compiled_b1 = {}
-    for n in (1, 10, 100):
-        tree, aux = franka_expert(n)
-        for B in (1, 1024):
-            g = torch.Generator().manual_seed(B)
-            lo, hi = tree.maps["ee"].chain.joint_limits()
-            q = lo + (hi - lo) * torch.rand(B, 7, generator=g, dtype=torch.float64)
-            qd = torch.randn(B, 7, generator=g, dtype=torch.float64)
-            a = {k: v.expand(B, -1) for k, v in aux.items()}
-            with torch.inference_mode():
-                t = median_time(lambda: tree(q, qd, a), min_time=1.0)
-                row("scaling", f"{n} obstacle(s), B = {B}, eager", _fmt_time(t), "", "", "")
-                if compile_:
-                    ct, t = _compiled_time(tree, (q, qd, a))
-                    row("scaling", f"{n} obstacle(s), B = {B}, compiled ({ct:.0f} s)", _fmt_time(t))
-                    if B == 1:
-                        compiled_b1[n] = t
+    for n, B, seed in SCALING_STATES:
+        tree, q, qd, a = franka_states(n, B, seed)
+        with torch.inference_mode():
+            t = median_time(lambda: tree(q, qd, a), min_time=1.0)
+            row("scaling", f"{n} obstacle(s), B = {B}, eager", _fmt_time(t), "", "", "")
+            if compile_:
+                ct, t = _compiled_time(tree, (q, qd, a))
+                row("scaling", f"{n} obstacle(s), B = {B}, compiled ({ct:.0f} s)", _fmt_time(t))
+                if B == 1:
+                    compiled_b1[n] = t
     if compile_:
         r = compiled_b1[100] / compiled_b1[1]
         row("scaling", "100 obstacles / 1, B = 1, compiled", f"{r:.2f}", "", "", "≤ 3", r <= 3)

@@ -1,6 +1,7 @@
 """Compare two runs' metrics.json number by number: did a change keep the results?
 
     python tools/compare_metrics.py outputs/a/metrics.json outputs/b/metrics.json [--rtol 1e-12]
+    python tools/compare_metrics.py results/2d1level outputs/2d1level/<time>   # a fresh run against a stored one
 
 Every number present in both files is compared (nested keys flattened to paths like
 ``learners.rmp.snapshots.60.online_loss``), except what says how a run went rather than what it found:
@@ -78,6 +79,12 @@ def compare(a: dict, b: dict, rtol: float, residual_atol: float = 1e-7) -> tuple
     return len(shared), worst, differ, one_sided
 
 
+def metrics_path(p: Path) -> Path:
+    """A run's metrics.json given the file itself or the directory holding it: a run directory, or a run stored in
+    results/ (``results/2d1level``), so a fresh run is compared with the stored one by naming both."""
+    return p / "metrics.json" if p.is_dir() else p
+
+
 def read_metrics(path: Path) -> dict:
     """A run's metrics.json, or a ValueError naming the file and what is wrong with it (missing, cut short)."""
     try:
@@ -94,14 +101,14 @@ def read_metrics(path: Path) -> dict:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("first", type=Path)
-    ap.add_argument("second", type=Path)
+    ap.add_argument("first", type=Path, help="a metrics.json, or the directory holding one (e.g. results/2d1level)")
+    ap.add_argument("second", type=Path, help="the same")
     ap.add_argument("--rtol", type=float, default=1e-12, help="largest relative difference counted as equal")
     ap.add_argument("--residual-atol", type=float, default=1e-7,
                     help="largest absolute difference of two residuals counted as equal")
     args = ap.parse_args(argv)
     try:
-        a, b = (read_metrics(p) for p in (args.first, args.second))
+        a, b = (read_metrics(metrics_path(p)) for p in (args.first, args.second))
     except ValueError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2

@@ -5,8 +5,13 @@ learner-un-large. Writes <out>/table.md with our numbers beside the paper's, plu
     python tools/reproduce_2d.py                 # the paper protocol (20x50x60 demos, 20k iterations)
     python tools/reproduce_2d.py --scale 0.1     # 10% of the trajectories per env and of the iterations
     python tools/reproduce_2d.py --only 2d2level_per_edge   # one experiment
+    python tools/reproduce_2d.py --only 2d1level_hard_test 2d2level_hard_test   # the harder test splits (ours)
+    python tools/reproduce_2d.py --table-only --out results # the README's table from the stored runs
 
-2d2level_per_edge (ours, not in the paper) is learner-rmp with each weight reading only its own edge's aux.
+Each experiment's rows: the expert, the same tree with unit weights (RMPflow), learner-rmp before training (the
+paper's learner-0), then every learner trained. 2d2level_per_edge (ours, not in the paper) is learner-rmp with each
+weight reading only its own edge's aux; *_hard_test (ours) train as the paper does and test on starts that are
+harder to get right (conf/experiment/2d1level_hard_test.yaml says how, and how it was chosen).
 The validation loss (5 × 10 trajectories in environments drawn like the training ones) is the one settings are
 chosen on; the test losses are only reported.
 """
@@ -32,7 +37,13 @@ PAPER = {  # (experiment, learner): batch, online, success, collision   (None = 
 
 LEARNER_NAMES = {"rmp": "learner-rmp", "un": "learner-un", "un_large": "learner-un-large"}
 # table row -> conf/experiment
-EXPERIMENTS = {"2d1level": "2d1level", "2d2level": "2d2level_unstructured", "2d2level_per_edge": "2d2level_per_edge"}
+EXPERIMENTS = {"2d1level": "2d1level", "2d2level": "2d2level_unstructured", "2d2level_per_edge": "2d2level_per_edge",
+               "2d1level_hard_test": "2d1level_hard_test", "2d2level_hard_test": "2d2level_hard_test"}
+#: the paper's table; the harder test splits (ours) are run with --only
+PAPER_EXPERIMENTS = ("2d1level", "2d2level", "2d2level_per_edge")
+HEADER = ("| experiment | policy | parameters | validation loss | batch-loss (ours / paper) | online-loss (ours / paper) "
+          "| online-loss, median over trajectories | online-loss before first collision | success (ours / paper) "
+          "| collisions (ours / paper) | time to 0.1 (s) | closest approach to an obstacle | V_r monotone |")
 
 
 def config(exp: str, scale: float, seed: int, lr: float | None, cache: str | None, extra: list[str]) -> RunConfig:
@@ -56,43 +67,83 @@ def config(exp: str, scale: float, seed: int, lr: float | None, cache: str | Non
         return resolve_and_validate(compose("config", overrides=over + list(extra)))
 
 
-def _f(x, pct=False):
+def number(x) -> str:
+    """Two significant digits, in scientific notation below 1e-3 and from 1e3 on: 3.2e-6, 0.27, 2.8e9; – when
+    absent."""
     if x is None:
         return "–"
-    return f"{100 * x:.0f}%" if pct else f"{x:.3g}"
+    if x != 0 and not 1e-3 <= abs(x) < 1e3:
+        mantissa, exponent = f"{x:.1e}".split("e")
+        return f"{mantissa}e{int(exponent)}"
+    return f"{x:.2g}"
+
+
+def paper_number(x) -> str:
+    """A number the paper prints, with its three digits: 5.42e-5, 0.111, 12.2."""
+    mantissa, _, exponent = f"{x:.3g}".partition("e")
+    return f"{mantissa}e{int(exponent)}" if exponent else mantissa
+
+
+def _task(m: dict, key: str, stat: str, digits: int = 2) -> str:
+    """A statistic of the environment's per-trajectory task metric ``key`` over the test rollouts."""
+    x = ((m.get("task") or {}).get(key) or {}).get(stat)
+    return f"{x:.{digits}g}" if x is not None and 1e-3 <= abs(x) < 1e3 else number(x)
+
+
+def percent(x) -> str:
+    return "–" if x is None else f"{100 * x:.0f} %"
+
+
+def _ours_paper(ours: str, paper: str | None) -> str:
+    return ours if paper is None else f"{ours} / {paper}"
+
+
+def _monotone(fractions: list) -> str:
+    """The Lyapunov monitor's fraction of monotone rollouts: the worst over the snapshots given."""
+    fractions = [f for f in fractions if f is not None]
+    if not fractions:
+        return "–"
+    return percent(min(fractions)) + (f" (every one of {len(fractions)} snapshots)" if len(fractions) > 1 else "")
+
+
+def _policy_row(exp: str, policy: str, m: dict, parameters="–", val=None, batch=None, paper=(None,) * 4,
+                monotone: str | None = None) -> str:
+    given = [None if p is None else (percent(p) if i >= 2 else paper_number(p)) for i, p in enumerate(paper)]
+    cells = [exp, policy, str(parameters), number(val), _ours_paper(number(batch), given[0]),
+             _ours_paper(number(m.get("online_loss")), given[1]), number(m.get("online_loss_median")),
+             number(m.get("online_loss_before_collision")), _ours_paper(percent(m.get("success")), given[2]),
+             _ours_paper(percent(m.get("collision")), given[3]), _task(m, "time", "mean", digits=3),
+             _task(m, "min_clearance", "min"),
+             monotone if monotone is not None else _monotone([m.get("lyapunov_monotone_fraction")])]
+    return "| " + " | ".join(cells) + " |"
+
+
+def rows(exp: str, metrics: dict) -> list[str]:
+    """The rows of one experiment: the expert, the same tree with unit weights (RMPflow) when the run evaluated
+    it, learner-rmp untrained (snapshot 0, the paper's learner-0), then every learner trained."""
+    out = [_policy_row(exp, "expert", metrics["expert"])]
+    if "unit_weights" in metrics:
+        out.append(_policy_row(exp, "unit weights (RMPflow)", metrics["unit_weights"]))
+    learners = {LEARNER_NAMES.get(k, k): v for k, v in metrics["learners"].items()}
+    rmp = learners.get("learner-rmp")
+    if rmp is not None and "0" in rmp["snapshots"]:
+        s0 = rmp["snapshots"]["0"]
+        out.append(_policy_row(exp, "learner-rmp @ 0 (learner-0)", s0, rmp["num_parameters"], s0.get("val_loss"),
+                               s0.get("batch_loss")))
+    for name, r in learners.items():
+        paper = PAPER.get((exp, name), (None,) * 4)
+        monotone = _monotone([s.get("lyapunov_monotone_fraction") for s in r["snapshots"].values()])
+        out.append(_policy_row(exp, name, r, r["num_parameters"], r.get("val_loss"), r.get("batch_loss"), paper,
+                               monotone))
+    return out
 
 
 def table(results: dict) -> str:
-    rows = ["| experiment | learner | parameters | validation loss | batch-loss (ours / paper) "
-            "| online-loss (ours / paper) | online-loss, median over trajectories | online-loss before first collision "
-            "| success (ours / paper) | collision (ours / paper) | V_r monotone, all snapshots | train s |",
-            "|---|---|---|---|---|---|---|---|---|---|---|---|"]
-    for (exp, name), paper in PAPER.items():
-        r = {LEARNER_NAMES.get(k, k): v for k, v in results.get(exp, {}).get("learners", {}).items()}.get(name)
-        if r is None:
-            continue
-        lyap = [s.get("lyapunov_monotone_fraction") for s in r["snapshots"].values()]
-        ly = "–" if not lyap or lyap[0] is None else f"{100 * min(lyap):.0f}% (min over {len(lyap)})"
-        rows.append(f"| {exp} | {name} | {r['num_parameters']} | {_f(r.get('val_loss'))} "
-                    f"| {_f(r['batch_loss'])} / {_f(paper[0])} | {_f(r['online_loss'])} / {_f(paper[1])} "
-                    f"| {_f(r.get('online_loss_median'))} | {_f(r.get('online_loss_before_collision'))} "
-                    f"| {_f(r['success'], 1)} / {_f(paper[2], 1)} "
-                    f"| {_f(r['collision'], 1)} / {_f(paper[3], 1)} | {ly} | {r['train_seconds']:.0f} |")
-    rmp2 = {LEARNER_NAMES.get(k, k): v for k, v in results.get("2d2level", {}).get("learners", {}).items()}
-    ratio_lines = []
-    for un in ("learner-un", "learner-un-large"):
-        if "learner-rmp" in rmp2 and un in rmp2:
-            parts = []
-            for key in ("batch_loss", "online_loss"):
-                a, b = rmp2["learner-rmp"].get(key), rmp2[un].get(key)
-                parts.append(f"{key} {b / a:.3g}x" if a and b else f"{key} –")
-            ratio_lines.append(f"- 2d2level {un} / learner-rmp: " + ", ".join(parts))
-    for exp, m in results.items():
-        e = m["expert"]
-        rows.append(f"| {exp} | expert | – | 0 | 0 | 0 | 0 | 0 | {_f(e['success'], 1)} | {_f(e['collision'], 1)} "
-                    f"| {_f(e.get('lyapunov_monotone_fraction'), 1)} | – |")
-    return "\n".join(rows) + "\n" + ("\nLoss ratios (the paper's claim: learner-rmp's losses are orders of magnitude lower):\n"
-                                      + "\n".join(ratio_lines) + "\n" if ratio_lines else "")
+    """The README's table of the runs in ``results`` ({table row: metrics.json}), in the order given."""
+    lines = [HEADER, "|" + "---|" * (HEADER.count("|") - 1)]
+    for exp, metrics in results.items():
+        lines += rows(exp, metrics)
+    return "\n".join(lines) + "\n"
 
 
 def main(argv=None) -> int:
@@ -100,7 +151,8 @@ def main(argv=None) -> int:
     ap.add_argument("--scale", type=float, default=1.0, help="fraction of trajectories per env and of iterations")
     ap.add_argument("--out", type=Path, default=Path("outputs/reproduce_2d"))
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--only", choices=list(EXPERIMENTS), nargs="*", default=list(EXPERIMENTS))
+    ap.add_argument("--only", choices=list(EXPERIMENTS), nargs="*", default=list(PAPER_EXPERIMENTS),
+                    help="these experiments (default: the paper's three; *_hard_test are ours)")
     ap.add_argument("--lr", type=float, default=None, help="override train.lr (default: conf/train/bc_rmsprop.yaml)")
     ap.add_argument("overrides", nargs="*", help="further Hydra overrides, e.g. weights@learners.rmp.weights=mlp_small")
     ap.add_argument("--cache", default=None, help="shared dataset cache directory")

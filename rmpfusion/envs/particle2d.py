@@ -10,7 +10,7 @@ from __future__ import annotations
 from typing import Any, Callable, Literal, Mapping
 
 import torch
-from pydantic import Field, ValidationInfo, field_validator
+from pydantic import Field, ValidationError, ValidationInfo, field_validator, model_validator
 from torch import Tensor
 
 from ..registry import ENVS, Params
@@ -18,6 +18,10 @@ from .common import (DTYPES, ComputesOnDevice, SeededSampling, check_initial_sta
                      obstacle_aux_dims, qdd_of, redraw_until_ok, rk4, semi_implicit_euler, stack_obstacles, time_grid)
 from .demonstrations import Dataset, collect
 from .rollout import Rollout
+
+#: The settings that say where environments and starts are drawn: the ones ``test_sampling`` may change.
+SAMPLER_SETTINGS = ("goal_region", "start_region", "start_speed", "obstacle_along", "obstacle_across",
+                    "obstacle_radius", "clearance", "obstacle_gap")
 
 Range = tuple[float, float]
 Box = tuple[tuple[float, float], tuple[float, float]]  # ((x_low, x_high), (y_low, y_high))
@@ -60,6 +64,11 @@ class Particle2D(ComputesOnDevice, SeededSampling):
         integrator: Literal["semi_implicit_euler", "rk4"] = "rk4"
         goal_tolerance: float = Field(0.1, gt=0)
         dtype: Literal["float64", "float32"] = "float64"
+        test_sampling: dict[str, Any] = Field(
+            default_factory=dict,
+            description="the test split's own sampler settings, over the ones above (any of goal_region, start_region, "
+                        "start_speed, obstacle_along, obstacle_across, obstacle_radius, clearance, obstacle_gap): a "
+                        "test distribution unlike training's; the training and validation splits draw from the above")
 
         @field_validator("workspace")
         @classmethod
@@ -111,6 +120,24 @@ class Particle2D(ComputesOnDevice, SeededSampling):
                                      f"sample lies in the workspace); given {tuple(r)}")
             return v
 
+        @model_validator(mode="after")
+        def _test_sampling(self):
+            unknown = sorted(set(self.test_sampling) - set(SAMPLER_SETTINGS))
+            if unknown:
+                raise ValueError(f"test_sampling may set only the sampler's settings ({', '.join(SAMPLER_SETTINGS)}); "
+                                 f"given {unknown}")
+            if self.test_sampling:
+                try:
+                    self.for_test()
+                except ValidationError as e:
+                    raise ValueError(f"test_sampling: {e.errors()[0]['loc'][0]}: {e.errors()[0]['msg']}") from None
+            return self
+
+        def for_test(self) -> "Particle2D.Params":
+            """These settings with ``test_sampling`` laid over them: what the test split is drawn from."""
+            settings = self.model_dump(include=set(type(self).model_fields))
+            return type(self).model_validate({**settings, **self.test_sampling, "test_sampling": {}})
+
         def integration_step(self) -> tuple[float, str]:
             """(seconds, the key that sets it) of the fixed step rollouts integrate on: a run config's recording
             interval and horizon are checked against it before anything runs (``time_grid`` at rollout time)."""
@@ -150,6 +177,13 @@ class Particle2D(ComputesOnDevice, SeededSampling):
         if c.shape[1] == 0:
             return q.new_full(q.shape[:-1], float("inf"))
         return ((q[..., None, :] - c).norm(dim=-1) - r).min(dim=-1).values
+
+    def for_split(self, split: str) -> "Particle2D":
+        """The particle whose sampler draws ``split``: for ``test``, ``test_sampling`` laid over the sampler's
+        settings (a harder test distribution than training's); itself for the other splits."""
+        if split != "test" or not self.params.test_sampling:
+            return self
+        return Particle2D(self.params.for_test())
 
     def with_step(self, dt: float) -> "Particle2D":
         """The same particle and sampling, integrated on the step ``dt``."""
@@ -222,10 +256,12 @@ class Particle2D(ComputesOnDevice, SeededSampling):
                     split: str = "train") -> dict[str, Tensor]:
         """``n_envs`` environments as an aux dict of (n_envs, k) tensors; reproducible given the generator.
 
-        Every split (``train``, ``val``, ``test``) is drawn from the same distribution: the splits differ only by
-        their generators. Rejection sampling: every environment is redrawn until its goal clears every obstacle
+        The training and validation splits are drawn from the same distribution; the test split too unless
+        ``test_sampling`` changes its sampler (``for_split``). Rejection sampling: every environment is redrawn until its goal clears every obstacle
         by ``clearance``, obstacles stay inside the workspace and apart by ``obstacle_gap``.
         """
+        if split == "test" and self.params.test_sampling:
+            return self.for_split("test").sample_envs(n_envs, generator)
         max_tries = self.params.max_tries
         goal, centre, radius = redraw_until_ok(
             lambda: self._draw_envs(n_envs, generator), lambda v, _: self._env_ok(*v), {}, max_tries,
@@ -339,6 +375,7 @@ class Particle2D(ComputesOnDevice, SeededSampling):
                        generator: torch.Generator | None = None, split: str = "train",
                        progress: Callable[[int, int], Any] | None = None) -> Dataset:
         """The expert's demonstrations (paper §4.1 "Data"): ``collect`` of ``n_points`` records ``interval`` s
-        apart from ``n_traj`` starts in each of ``n_envs`` environments. Every split is drawn from the same
-        distribution (``sample_envs``), so ``split`` changes nothing; the caller's generator tells splits apart."""
-        return collect(self, expert, n_envs, n_traj, n_points, interval, generator, progress=progress)
+        apart from ``n_traj`` starts in each of ``n_envs`` environments. The splits are drawn from the same
+        distribution unless ``test_sampling`` sets the test split's own (``for_split``); the caller's generator
+        tells splits apart."""
+        return collect(self.for_split(split), expert, n_envs, n_traj, n_points, interval, generator, progress=progress)

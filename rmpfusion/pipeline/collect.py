@@ -54,9 +54,15 @@ class Splits:
         return self.data.get("val")
 
 
-def data_hash(run: RunConfig) -> str:
-    """What determines the demonstrations: env, tree, expert, data sizes and seed (not the cache location)."""
-    key = {"env": run.env.model_dump(), "tree": run.tree.model_dump(), "expert": {k: plain_data(w) for k, w in run.expert.items()},
+def data_hash(run: RunConfig, split: str | None = None) -> str:
+    """What determines the demonstrations: env, tree, expert, data sizes and seed (not the cache location). An
+    environment's ``test_sampling`` (the test split's own sampler settings) determines only the test split: the
+    hash of the training and validation splits leaves it out, so a run that changes only the test split reuses
+    their cached files, and it is left out wherever it is empty (the hashes of runs that never set it)."""
+    env = run.env.model_dump()
+    if not env.get("test_sampling") or split in ("train", "val"):
+        env.pop("test_sampling", None)
+    key = {"env": env, "tree": run.tree.model_dump(), "expert": {k: plain_data(w) for k, w in run.expert.items()},
            "seed": run.seed, "data": run.data.model_dump(exclude={"cache_dir"})}
     return hashlib.sha256(json.dumps(key, sort_keys=True, default=str).encode()).hexdigest()
 
@@ -124,7 +130,7 @@ def load_or_collect(exp: Experiment, split: str) -> tuple[Dataset, dict]:
     ``val`` is drawn like ``train`` (the training environments' distribution, for Franka the training obstacle
     placement) from its own seed: the split settings are chosen on, never trained on.
     """
-    d, h = exp.run.data, data_hash(exp.run)
+    d, h = exp.run.data, data_hash(exp.run, split)
     cache = Path(d.cache_dir) if d.cache_dir else exp.dir / "data"
     path = cache / f"{split}-{h[:16]}.pt"
     meta = {"seed": exp.run.seed, "config_hash": h, "split": split}

@@ -88,6 +88,8 @@ class EvalConfig(_Frozen):
     figures: bool = True
     compile: bool = Field(False, description="roll out through torch.compile'd trees (same numbers, faster "
                                              "after a one-off compile per tree)")
+    unit_weights: bool = Field(False, description="also roll out the expert's tree with every weight 1 (RMPflow) "
+                                                  "from the test starts: what the expert's weights add")
 
 
 class LoggerConfig(_Frozen):

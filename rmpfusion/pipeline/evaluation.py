@@ -13,6 +13,7 @@ from typing import Any
 import torch
 from torch import Tensor
 
+from ..assembly.tree import build_tree
 from ..envs.demonstrations import Dataset
 from ..envs.protocol import HasTaskMetrics
 from ..evaluate.certificate import certify_rollout
@@ -23,17 +24,20 @@ from ..learn.learner import Learner
 from ..learn.objectives import dataset_loss
 from ..learn.loop import load_snapshot
 from .collect import Splits, expert_diverged
+from .construct import expert_spec
 from .experiment import COMPILING, Experiment, clean
 from .fit import Fitted
 
 
 @dataclass
 class ExpertEval:
-    """The expert on the test initial states: the reference for rates, ratios and the dashed lines of figures."""
+    """The expert on the test initial states: the reference for rates, ratios and the dashed lines of figures;
+    with ``eval.unit_weights``, the same tree with every weight 1 (RMPflow) beside it in ``unit``."""
 
     rollout: Any
     metrics: dict
     stage: StageResult | None  # task metrics, for environments that have them
+    unit: "ExpertEval | None" = None
 
 
 def task_line(st: StageResult) -> str:
@@ -43,23 +47,48 @@ def task_line(st: StageResult) -> str:
     return ", ".join(parts)
 
 
-def evaluate_expert(exp: Experiment, test: Dataset) -> ExpertEval:
-    t0 = time.time()
-    exp.say.say("eval: expert")
+UNIT_WEIGHTS = "unit weights (RMPflow)"
+
+
+def _evaluate_tree(exp: Experiment, test: Dataset, label: str, tree, expert: StageResult | None = None,
+                   online_losses: bool = False) -> ExpertEval:
+    """A fixed tree rolled out from the test initial states: rates, the Lyapunov monitor, the online losses
+    against the expert when asked (the expert's own are 0), and the task metrics (with their ratios to ``expert``
+    when given) for environments that have them."""
+    exp.say.say(f"eval: {label}")
     q0, qd0, aux0 = test.initial_states()
     ev, d = exp.run.eval, exp.run.data
-    ro = online_loss(exp.expert, exp.expert_at(), exp.env, q0, qd0, aux0, exp.horizon, d.interval, exp.fine_interval,
-                     exp.say.bar("rollout expert")).rollout
-    if (found := divergence(ro.q, ro.qd, ro.V, theorem2_applies=not ro.moving)) is not None:
-        raise expert_diverged("test rollouts", found)
+    online = online_loss(tree, exp.expert_at(), exp.env, q0, qd0, aux0, exp.horizon, d.interval,
+                         exp.fine_interval, exp.say.bar(f"rollout {label}"))
+    ro = online.rollout
     metrics = rollout_rates(ro, ev.lyapunov_rtol, ev.lyapunov_atol)
+    if online_losses:
+        metrics.update(online.metrics())
     stage = None
     if isinstance(exp.env, HasTaskMetrics):
-        stage = task_stage("expert", ro, exp.env, rtol=ev.lyapunov_rtol, atol=ev.lyapunov_atol)
+        stage = task_stage(label, ro, exp.env, expert, rtol=ev.lyapunov_rtol, atol=ev.lyapunov_atol)
         metrics["task"] = stage.summary
-        exp.say.say("expert: " + task_line(stage))
-    exp.timing["expert_eval_s"] = time.time() - t0
+        exp.say.say(f"{label}: " + task_line(stage))
     return ExpertEval(ro, metrics, stage)
+
+
+def unit_weight_tree(exp: Experiment):
+    """The expert's tree with every weight the expert sets replaced by the constant 1: RMPflow's unit weights."""
+    unit = {name: {"type": "constant", "value": 1.0} for name in exp.run.expert}
+    tree = build_tree(expert_spec(exp.run.model_copy(update={"expert": unit})), aux_dims=exp.env.aux_dims())
+    return tree.to(device=exp.device)
+
+
+def evaluate_expert(exp: Experiment, test: Dataset) -> ExpertEval:
+    t0 = time.time()
+    out = _evaluate_tree(exp, test, "expert", exp.expert_at())
+    ro = out.rollout
+    if (found := divergence(ro.q, ro.qd, ro.V, theorem2_applies=not ro.moving)) is not None:
+        raise expert_diverged("test rollouts", found)
+    if exp.run.eval.unit_weights:
+        out.unit = _evaluate_tree(exp, test, UNIT_WEIGHTS, unit_weight_tree(exp), out.stage, online_losses=True)
+    exp.timing["expert_eval_s"] = time.time() - t0
+    return out
 
 
 class WeightReport:

@@ -133,9 +133,13 @@ def report(exp: Experiment, splits: Splits, fitted: dict[str, Fitted], expert: E
                                                     if isinstance(v, float) and k not in ("train_seconds", "eval_seconds")))
     metrics = {"name": exp.run.name, "seed": exp.run.seed, "config_hash": data_hash(exp.run), "data": splits.info,
                "expert": clean(expert_metrics), "learners": results, "figures": [], "timing": exp.timing}
+    if expert.unit is not None:
+        metrics["unit_weights"] = clean(expert.unit.metrics)
     if expert.stage is not None:
         keys = exp.env.ratio_metrics if isinstance(exp.env, HasRatioMetrics) else ()
         stages = [st for ev in evals.values() for st in ev.task_stages]
+        if expert.unit is not None:
+            stages.insert(0, expert.unit.stage)
         metrics["task_table"] = clean(task_table(expert.stage, stages, keys))
     if exp.run.eval.figures:  # the numbers first: a figure that cannot be written (a full disk) loses no result
         atomic_write_json(exp.dir / "metrics.json", metrics)

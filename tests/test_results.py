@@ -1,0 +1,103 @@
+"""The README's results tables are what the stored runs say: each table backed by results/ is regenerated from the
+metrics.json files there with the table tool that made it and must equal the README's text; every other results
+table is listed in results/tables.yaml as not yet backed, with the commands that would back it."""
+from __future__ import annotations
+
+import json
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import yaml
+
+ROOT = Path(__file__).resolve().parents[1]
+RESULTS = ROOT / "results"
+sys.path.insert(0, str(ROOT / "tools"))
+import compare_metrics  # noqa: E402
+import reproduce_2d  # noqa: E402
+
+MARKER = re.compile(r"^<!-- results table: (\S+) -->$")
+TABLES = yaml.safe_load((RESULTS / "tables.yaml").read_text(encoding="utf-8"))
+RUNS = yaml.safe_load((RESULTS / "runs.yaml").read_text(encoding="utf-8"))
+
+#: the table tools, by the name tables.yaml gives them: {row label: metrics} -> the table's markdown
+TOOLS = {"reproduce_2d": reproduce_2d.table}
+
+
+def _marked() -> dict[str, tuple[int, str]]:
+    """{id: (first line's index, the table's text)} for every README table a ``<!-- results table: ID -->`` line
+    precedes (blank or prose lines may come between)."""
+    lines = (ROOT / "README.md").read_text(encoding="utf-8").splitlines()
+    out = {}
+    for i, line in enumerate(lines):
+        m = MARKER.match(line)
+        if m:
+            j = i + 1
+            while j < len(lines) and not lines[j].startswith("|"):
+                j += 1
+            k = j
+            while k < len(lines) and lines[k].startswith("|"):
+                k += 1
+            assert m.group(1) not in out, f"two README tables are marked {m.group(1)}"
+            out[m.group(1)] = (j, "\n".join(lines[j:k]) + "\n")
+    return out
+
+
+def readme_tables() -> dict[str, str]:
+    """{id: the table's text} of every marked README table."""
+    return {name: text for name, (_, text) in _marked().items()}
+
+
+def stored(run: str) -> dict:
+    return json.loads((RESULTS / run / "metrics.json").read_text(encoding="utf-8"))
+
+
+def test_every_marked_readme_table_is_listed_and_every_listed_table_is_in_the_readme():
+    assert set(readme_tables()) == set(TABLES)
+    for name, entry in TABLES.items():
+        assert ("tool" in entry) != ("pending" in entry), f"{name}: either a tool with its runs, or pending commands"
+        if "pending" in entry:
+            assert entry["pending"] and all(isinstance(c, str) and c for c in entry["pending"]), name
+
+
+def test_every_results_table_of_the_readme_is_marked():
+    """Every README table with a success, reached or collisions column carries a marker, so none is missed."""
+    lines = (ROOT / "README.md").read_text(encoding="utf-8").splitlines()
+    starts = {start for start, _ in _marked().values()}
+    for i, line in enumerate(lines):
+        first = line.startswith("| ") and (i == 0 or not lines[i - 1].startswith("|"))
+        if first and re.search(r"\b(success|reached|collisions)\b", line):
+            assert i in starts, f"README line {i + 1} starts a results table without a marker: {line[:80]}"
+
+
+@pytest.mark.parametrize("name", [n for n, e in TABLES.items() if "tool" in e])
+def test_a_backed_table_is_regenerated_from_results_exactly(name):
+    entry = TABLES[name]
+    runs = {label: stored(run) for label, run in entry["runs"].items()}
+    assert TOOLS[entry["tool"]](runs) == readme_tables()[name]
+
+
+def test_every_stored_run_says_how_it_was_made_and_is_used_by_a_table():
+    used = {run for e in TABLES.values() if "runs" in e for run in e["runs"].values()}
+    assert used <= set(RUNS), sorted(used - set(RUNS))
+    for run, info in RUNS.items():
+        assert {"command", "commit", "seed", "wall_time_s"} <= set(info), run
+        m = stored(run)
+        assert m["seed"] == info["seed"] and m["timing"]["total_s"] == pytest.approx(info["wall_time_s"], abs=1)
+        assert re.fullmatch(r"[0-9a-f]{40}", info["commit"]), run
+        known = subprocess.run(["git", "cat-file", "-e", f"{info['commit']}^{{commit}}"], cwd=ROOT, capture_output=True)
+        if known.returncode != 0:  # a shallow clone may lack it; a full one must have it
+            shallow = subprocess.run(["git", "rev-parse", "--is-shallow-repository"], cwd=ROOT, capture_output=True,
+                                     text=True).stdout.strip()
+            assert shallow == "true", f"{run}: commit {info['commit']} is not in this repository"
+        assert run in used, f"results/{run} is stored but no README table reads it"
+
+
+def test_compare_metrics_finds_a_stored_run_by_its_name():
+    run = next(iter(RUNS))
+    assert compare_metrics.metrics_path(RESULTS / run) == RESULTS / run / "metrics.json"
+    assert compare_metrics.metrics_path(RESULTS / run / "metrics.json") == RESULTS / run / "metrics.json"
+    n, worst, differ, one_sided = compare_metrics.compare(stored(run), stored(run), rtol=0.0)
+    assert n > 50 and worst == 0 and not differ and not one_sided
