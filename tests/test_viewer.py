@@ -214,3 +214,28 @@ def test_command_draws_a_config_expert_and_unit_weights(tmp_path):
     html = out.read_text()
     for label in ("\"expert\"", "\"unit weights\"", "obstacle 1 (capsule)", "\"goal\"", "xarm6"):
         assert label in html, label
+
+
+@pytest.mark.slow
+def test_command_draws_every_snapshot_of_a_trained_run(tmp_path):
+    """A tiny Franka run trained for 3 steps: the page holds the expert and the learner at both snapshots, each
+    rolled out from the run's checkpoints; a second call refuses to replace the page."""
+    from conftest import compose_cfg
+    from rmpfusion.pipeline.run import run_experiment
+    from rmpfusion.pipeline.validate import resolve_and_validate
+
+    overrides = ["experiment=franka", "logger=disabled", "env.control_rate=60", "data.train_trajectories=3",
+                 "data.test_trajectories=2", "data.val_trajectories=2", "data.points=6", "env.demo_min_duration=0.2",
+                 "train.iterations=3", "train.batch_size=8", "train.snapshots=[0,3]", "train.checkpoint_every=3",
+                 "eval.horizon=0.5", "eval.compile=false", "eval.figures=false"]
+    run_experiment(resolve_and_validate(compose_cfg(overrides)), tmp_path, progress=False)
+    r = _view(str(tmp_path), "--frames", "4")
+    assert r.returncode == 0, r.stderr
+    html = (tmp_path / "viewer.html").read_text()
+    for label in ("\"expert\"", "\"learner @ 0\"", "\"learner @ 3\"", "obstacle 1 (cylinder)"):
+        assert label in html, label
+    again = _view(str(tmp_path))
+    assert again.returncode == 2 and "exists; nothing was written" in again.stderr
+    (tmp_path / "checkpoints" / "rmp").rename(tmp_path / "checkpoints" / "other")
+    missing = _view(str(tmp_path), "--force")
+    assert missing.returncode == 2 and "no checkpoints for learners ['rmp']" in missing.stderr, missing.stderr

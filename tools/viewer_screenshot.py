@@ -29,9 +29,10 @@ def browser_missing() -> str | None:
 
 
 def screenshot(html: str | Path, png: str | Path, size: tuple[int, int] = (1200, 900),
-               wait_s: float = 60.0) -> list[dict]:
-    """Open ``html`` in headless Chromium, wait until plotly drew its WebGL scene, save a screenshot to ``png``
-    and return the browser log's entries of level SEVERE (JavaScript errors)."""
+               wait_s: float = 60.0, at_end: bool = False) -> list[dict]:
+    """Open ``html`` in headless Chromium, wait until plotly drew its WebGL scene (moved to the last frame of the
+    time slider with ``at_end``), save a screenshot to ``png`` and return the browser log's entries of level
+    SEVERE (JavaScript errors)."""
     from selenium import webdriver
     from selenium.webdriver.chrome.service import Service
 
@@ -47,6 +48,11 @@ def screenshot(html: str | Path, png: str | Path, size: tuple[int, int] = (1200,
         deadline = time.time() + wait_s
         while not driver.execute_script(drawn) and time.time() < deadline:
             time.sleep(0.5)
+        if at_end:
+            driver.execute_script(
+                "const gd = document.querySelector('.plotly-graph-div'); const f = gd._transitionData._frames;"
+                "Plotly.animate(gd, [f[f.length - 1].name], {frame: {duration: 0, redraw: true}, mode: 'immediate'});"
+                "const s = gd.layout.sliders; if (s && s.length) Plotly.relayout(gd, {'sliders[0].active': f.length - 1});")
         time.sleep(2.0)  # the first WebGL frame after the canvas appears
         driver.save_screenshot(str(png))
         return [e for e in driver.get_log("browser") if e.get("level") == "SEVERE"]
@@ -59,11 +65,12 @@ def main(argv=None) -> int:
     ap.add_argument("html", type=Path)
     ap.add_argument("png", type=Path)
     ap.add_argument("--size", type=int, nargs=2, default=(1200, 900), metavar=("WIDTH", "HEIGHT"))
+    ap.add_argument("--at-end", action="store_true", help="show the time slider's last frame")
     a = ap.parse_args(argv)
     if (why := browser_missing()) is not None:
         print(f"error: {why}", file=sys.stderr)
         return 2
-    errors = screenshot(a.html, a.png, tuple(a.size))
+    errors = screenshot(a.html, a.png, tuple(a.size), at_end=a.at_end)
     for e in errors:
         print(f"javascript error: {e['message']}", file=sys.stderr)
     print(f"wrote {a.png}")
