@@ -189,9 +189,11 @@ def _obstacle_centers(scene: Scene, aux: Mapping[str, Tensor], times: Tensor) ->
     return np.asarray(out, dtype=float).reshape(len(times), len(scene.obstacles), 3)
 
 
-def _ground(scene: Scene, extent: float) -> go.Mesh3d:
+def _ground(scene: Scene, points: np.ndarray, margin: float = 0.25) -> go.Mesh3d:
+    """The ground plane under everything else drawn (``points`` (N, 3)), ``margin`` m beyond it on every side."""
     h = scene.ground.height
-    v = np.array([[-extent, -extent, h], [extent, -extent, h], [extent, extent, h], [-extent, extent, h]])
+    (x0, y0), (x1, y1) = points[:, :2].min(0) - margin, points[:, :2].max(0) + margin
+    v = np.array([[x0, y0, h], [x1, y0, h], [x1, y1, h], [x0, y1, h]])
     return _mesh(v, np.array([(0, 1, 2), (0, 2, 3)]), GROUND_COLOR, "ground", opacity=0.6)
 
 
@@ -218,7 +220,8 @@ def viewer_figure(inp: ViewerInput, max_frames: int = 40) -> go.Figure:
 
     static: list = []
     if inp.scene.ground is not None:
-        static.append(_ground(inp.scene, 1.0))
+        drawn = [c[0].reshape(-1, 3).numpy() for c in centers.values()] + [obstacles.reshape(-1, 3), goal[None]]
+        static.append(_ground(inp.scene, np.concatenate(drawn)))
     moving = [k for k, o in enumerate(inp.scene.obstacles) if o.moving]
     for k, o in enumerate(inp.scene.obstacles):
         if not o.moving:
