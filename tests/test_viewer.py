@@ -239,3 +239,25 @@ def test_command_draws_every_snapshot_of_a_trained_run(tmp_path):
     (tmp_path / "checkpoints" / "rmp").rename(tmp_path / "checkpoints" / "other")
     missing = _view(str(tmp_path), "--force")
     assert missing.returncode == 2 and "no checkpoints for learners ['rmp']" in missing.stderr, missing.stderr
+
+
+def test_unit_weights_put_one_on_every_edge_the_tree_weights():
+    """The tree the viewer calls "unit weights" (RMPflow) has w = 1 on every edge, also where the run's tree spec
+    carries weights of its own (the generated Franka tree starts an MLP on every edge)."""
+    from conftest import compose_cfg
+    from rmpfusion.evaluate.weights import edge_weights
+    from rmpfusion.pipeline.construct import build_unit_weights, make_env
+    from rmpfusion.pipeline.validate import resolve_and_validate
+
+    run = resolve_and_validate(compose_cfg(["experiment=franka"]))
+    assert run.tree.model_dump().get("shared_weights"), "the case this test is about: a tree spec with weights"
+    env = make_env(run)
+    tree = build_unit_weights(run, env.aux_dims())
+    gen = torch.Generator().manual_seed(0)
+    q, qd, aux = env.sample_initial_states(env.sample_envs(2, gen), 3, gen)
+    qd = qd + 0.1 * torch.randn(qd.shape, generator=gen, dtype=qd.dtype)
+    edges = list(tree.weights)
+    assert "attractor" not in edges  # its own weight removed: an edge without one has w = 1
+    assert len(edges) == len(run.env.robot.control_points)  # each control point's shared obstacle weight, now 1
+    for e, w in edge_weights(tree, q, qd, aux, edges).items():
+        assert torch.allclose(w, torch.ones_like(w)), (e, w)

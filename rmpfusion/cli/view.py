@@ -18,13 +18,12 @@ from pathlib import Path
 import torch
 
 from ..assembly.errors import ConfigError
-from ..assembly.tree import build_tree
-from ..assembly.weighting import tree_with_weights
 from ..envs.demonstrations import DatasetError
 from ..learn.checkpoints import CheckpointError, latest_checkpoint, load_checkpoint
 from ..learn.loop import load_snapshot
 from ..pipeline.collect import SPLIT_SEED_OFFSET
 from ..pipeline.config import RunConfig, upgrade_run_config
+from ..pipeline.construct import build_unit_weights
 from ..pipeline.experiment import Experiment, prepare
 from ..pipeline.fit import learners
 from ..pipeline.progress import Progress
@@ -112,8 +111,7 @@ def _learner_policies(exp: Experiment, checkpoints: dict[str, Path]) -> list[tup
         final = checkpoints[name].parent / "final.pt"
         done = {int(i) for i in state.get("snapshots", {})}
         if final.is_file() and int(exp.run.train.iterations) not in done:
-            load_checkpoint(final, model)
-            model.load_state_dict(load_checkpoint(final)["model"])
+            model.load_state_dict(load_checkpoint(final, model)["model"])  # checked to fit the learner first
             out.append((f"{name} @ {exp.run.train.iterations}" if many else f"learner @ {exp.run.train.iterations}",
                         model))
     return [(label, m.to(torch.float64).eval()) for label, m in out]
@@ -139,8 +137,7 @@ def view_input(run: RunConfig, run_dir: Path | None, checkpoints: dict[str, Path
     start = _test_start(exp)
     policies: list[tuple[str, torch.nn.Module]] = [("expert", exp.expert)]
     if checkpoints is None:
-        unit = build_tree(tree_with_weights(run.tree, {}, where="unit"), aux_dims=exp.env.aux_dims())
-        policies.append(("unit weights", unit))
+        policies.append(("unit weights", build_unit_weights(run, exp.env.aux_dims())))
     else:
         policies += _learner_policies(exp, checkpoints)
     tracks, times = [], None
