@@ -44,7 +44,8 @@ def test_control_spheres_sit_where_pybullet_puts_their_links(mount):
         xyz, rpy = (mount["xyz"], mount["rpy"]) if mount else ([0, 0, 0], [0, 0, 0])
         body = pybullet.loadURDF(_urdf_file(desc), xyz,
                                  pybullet.getQuaternionFromEuler(rpy), useFixedBase=True, physicsClientId=cid)
-        info = [pybullet.getJointInfo(body, i, physicsClientId=cid) for i in range(pybullet.getNumJoints(body, physicsClientId=cid))]
+        info = [pybullet.getJointInfo(body, i, physicsClientId=cid)
+                for i in range(pybullet.getNumJoints(body, physicsClientId=cid))]
         joint, link = {j[1].decode(): j[0] for j in info}, {j[12].decode(): j[0] for j in info}
         for b, q in enumerate(qs):
             for name, v in zip(desc.joints, q.tolist()):
@@ -106,7 +107,8 @@ def test_frames_are_a_bounded_even_subset_with_both_ends():
 # ----------------------------------------------------------------------------------------------- the figure
 def _moving_input(n_times: int = 21) -> ViewerInput:
     scene = Scene.model_validate({"obstacles": [
-        {"type": "sphere", "center": [0.5, 0.0, 0.4], "radius": 0.1, "motion": {"type": "linear", "velocity": [0, 0.2, 0]}},
+        {"type": "sphere", "center": [0.5, 0.0, 0.4], "radius": 0.1,
+         "motion": {"type": "linear", "velocity": [0, 0.2, 0]}},
         {"type": "cylinder", "center": [0.4, -0.3, 0.3], "radius": 0.05, "height": 0.6}], "ground": {"height": 0.0}})
     aux = scene_aux(scene, torch.tensor([[[0.5, 0.0, 0.4], [0.4, -0.3, 0.3]]], dtype=F64), F64)
     aux["goal"] = torch.tensor([[0.4, -0.3, 0.5]], dtype=F64)
@@ -218,21 +220,22 @@ def test_command_draws_a_config_expert_and_unit_weights(tmp_path):
 
 @pytest.mark.slow
 def test_command_draws_every_snapshot_of_a_trained_run(tmp_path):
-    """A tiny Franka run trained for 3 steps: the page holds the expert and the learner at both snapshots, each
-    rolled out from the run's checkpoints; a second call refuses to replace the page."""
+    """A tiny Franka run trained for 3 steps: the page holds the expert, the learner at both snapshots (0 and 2)
+    and trained (3, from final.pt), each rolled out from the run's checkpoints; a second call refuses to replace
+    the page, and a learner without checkpoints is one line."""
     from conftest import compose_cfg
     from rmpfusion.pipeline.run import run_experiment
     from rmpfusion.pipeline.validate import resolve_and_validate
 
     overrides = ["experiment=franka", "logger=disabled", "env.control_rate=60", "data.train_trajectories=3",
                  "data.test_trajectories=2", "data.val_trajectories=2", "data.points=6", "env.demo_min_duration=0.2",
-                 "train.iterations=3", "train.batch_size=8", "train.snapshots=[0,3]", "train.checkpoint_every=3",
+                 "train.iterations=3", "train.batch_size=8", "train.snapshots=[0,2]", "train.checkpoint_every=3",
                  "eval.horizon=0.5", "eval.compile=false", "eval.figures=false"]
     run_experiment(resolve_and_validate(compose_cfg(overrides)), tmp_path, progress=False)
     r = _view(str(tmp_path), "--frames", "4")
     assert r.returncode == 0, r.stderr
     html = (tmp_path / "viewer.html").read_text()
-    for label in ("\"expert\"", "\"learner @ 0\"", "\"learner @ 3\"", "obstacle 1 (cylinder)"):
+    for label in ("\"expert\"", "\"learner @ 0\"", "\"learner @ 2\"", "\"learner @ 3\"", "obstacle 1 (cylinder)"):
         assert label in html, label
     again = _view(str(tmp_path))
     assert again.returncode == 2 and "exists; nothing was written" in again.stderr

@@ -52,7 +52,8 @@ def screenshot(html: str | Path, png: str | Path, size: tuple[int, int] = (1200,
             driver.execute_script(
                 "const gd = document.querySelector('.plotly-graph-div'); const f = gd._transitionData._frames;"
                 "Plotly.animate(gd, [f[f.length - 1].name], {frame: {duration: 0, redraw: true}, mode: 'immediate'});"
-                "const s = gd.layout.sliders; if (s && s.length) Plotly.relayout(gd, {'sliders[0].active': f.length - 1});")
+                "const s = gd.layout.sliders;"
+                "if (s && s.length) Plotly.relayout(gd, {'sliders[0].active': f.length - 1});")
         time.sleep(2.0)  # the first WebGL frame after the canvas appears
         driver.save_screenshot(str(png))
         return [e for e in driver.get_log("browser") if e.get("level") == "SEVERE"]

@@ -93,7 +93,8 @@ def _unit_cylinder(segments: int = 2 * SPHERE_SEGMENTS) -> tuple[np.ndarray, np.
     """A cylinder of radius 1 from z = -1 to z = 1, with its two caps."""
     lon = np.linspace(0, 2 * math.pi, segments, endpoint=False)
     circle = np.stack([np.cos(lon), np.sin(lon)], 1)
-    verts = np.concatenate([np.c_[circle, -np.ones(segments)], np.c_[circle, np.ones(segments)], [[0, 0, -1], [0, 0, 1]]])
+    verts = np.concatenate([np.c_[circle, -np.ones(segments)], np.c_[circle, np.ones(segments)],
+                            [[0, 0, -1], [0, 0, 1]]])
     tris = []
     for s in range(segments):
         n = (s + 1) % segments
