@@ -4,7 +4,7 @@ What a user of a collision-sphere model wants to *see*: the control spheres wher
 own kinematics, ``maps/kinematics.py``, with the robot's mount), the obstacles as the tree reads them (``scenes/``;
 moving ones where ``scenes/aux.py`` moves them), the goal, and what each policy did, on one time slider. Nothing
 here simulates: the rollouts are given, so the page shows exactly the recorded states. The plotly JavaScript is
-inlined, so the file opens with no network (about 4.7 MB of it is plotly.js itself).
+inlined, so the file opens with no network (4.8 MB of it is plotly.js itself).
 
 Sizes stay small on purpose: each sphere is a low-resolution mesh (``SPHERE_RINGS`` × ``SPHERE_SEGMENTS``), all
 spheres of one robot are one mesh trace, frames are at most ``max_frames`` of the recorded times, and vertex
