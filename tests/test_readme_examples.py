@@ -78,6 +78,8 @@ EXCLUDED = {
         "needs a SLURM cluster (the submitit_local lines run the same launcher plugin on this machine)",
     "python tools/summarize_sweep.py outputs/multirun/<time>":
         "<time> stands for a sweep's directory; tests/test_runs.py runs summarize_sweep.py on a real sweep",
+    "rmpfusion-view outputs/franka/<time>":
+        "<time> stands for a Franka run's directory; tests/test_viewer.py views a real run's directory",
     "rmpfusion-export outputs/franka/<time>/checkpoints/rmp/final.pt --aoti":
         "<time> stands for a Franka run's directory; tests/test_export.py runs rmpfusion-export (and --aoti) on a real "
         "run's checkpoint",
@@ -144,7 +146,8 @@ class Unit:
         def one(c: str) -> bool:
             if self.needs_plugin:
                 return False
-            if c.startswith(("rmpfusion-validate", "rmpfusion-fit-spheres", "python tools/tracking_demo.py")):
+            if c.startswith(("rmpfusion-validate", "rmpfusion-fit-spheres", "python tools/tracking_demo.py",
+                             "rmpfusion-view")):
                 return True  # the tracking demo runs 0.1 s of its rollouts here (appended)
             return c.startswith("rmpfusion-run ") and " -m " not in c and "data=tiny train=tiny" in c  # the smoke run
         return all(one(c) for c in self.cmds)
@@ -182,6 +185,8 @@ def appended(cmd: str, out: Path) -> list[str]:
         return [f"hydra.run.dir={out}"]
     if cmd.startswith("python tools/tracking_demo.py"):
         return ["--seconds", "0.1"]  # every robot and leaf, 10 integration steps
+    if cmd.startswith("rmpfusion-view"):
+        return ["--horizon", "0.1", "--out", str(out / "viewer.html")]  # a tenth of a second of each rollout
     if cmd.startswith("rmpfusion-fit-spheres"):
         return []  # writes where the README says: under outputs/, which git ignores
     if cmd.startswith("python tools/reproduce_2d.py"):

@@ -33,6 +33,17 @@ def build_expert(run: RunConfig, aux_dims: Mapping[str, int]) -> RMPTree:
                       weight_paths={n: f"expert.{n}" for n in run.expert if n in run.tree.nodes})
 
 
+def build_unit_weights(run: RunConfig, aux_dims: Mapping[str, int]) -> RMPTree:
+    """The run's tree with every edge weight 1: RMPflow, the reference the paper's learned weights are compared
+    with. The tree spec may carry weights of its own (the generated Franka tree starts learners' MLPs there): a
+    node's own weight is removed (absent = 1) and every shared weight becomes the constant 1."""
+    tree = plain_data(run.tree)
+    own = {n: None for n, node in (tree.get("nodes") or {}).items()
+           if isinstance(node.get("weight"), Mapping) and "shared" not in node["weight"]}
+    shared = {n: {"type": "constant", "value": 1.0} for n in tree.get("shared_weights") or {}}
+    return build_tree(tree_with_weights(tree, {**own, **shared}, where="unit weights"), aux_dims=aux_dims)
+
+
 def build_learners(run: RunConfig, aux_dims: Mapping[str, int], seeded=None) -> dict:
     """Every learner, in an order where ``match_parameters_of`` targets come first. ``seeded(name)`` is a
     context entered around each construction (the pipeline draws each learner's initial weights from its

@@ -13,7 +13,6 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from ..assembly.tree import build_tree
 from ..envs.demonstrations import Dataset
 from ..envs.protocol import HasTaskMetrics
 from ..evaluate.certificate import certify_rollout
@@ -24,7 +23,7 @@ from ..learn.learner import Learner
 from ..learn.objectives import dataset_loss
 from ..learn.loop import load_snapshot
 from .collect import Splits, expert_diverged
-from .construct import expert_spec
+from .construct import build_unit_weights
 from .experiment import COMPILING, Experiment, clean
 from .fit import Fitted
 
@@ -72,13 +71,6 @@ def _evaluate_tree(exp: Experiment, test: Dataset, label: str, tree, expert: Sta
     return ExpertEval(ro, metrics, stage)
 
 
-def unit_weight_tree(exp: Experiment):
-    """The expert's tree with every weight the expert sets replaced by the constant 1: RMPflow's unit weights."""
-    unit = {name: {"type": "constant", "value": 1.0} for name in exp.run.expert}
-    tree = build_tree(expert_spec(exp.run.model_copy(update={"expert": unit})), aux_dims=exp.env.aux_dims())
-    return tree.to(device=exp.device)
-
-
 def evaluate_expert(exp: Experiment, test: Dataset) -> ExpertEval:
     t0 = time.time()
     out = _evaluate_tree(exp, test, "expert", exp.expert_at())
@@ -86,7 +78,7 @@ def evaluate_expert(exp: Experiment, test: Dataset) -> ExpertEval:
     if (found := divergence(ro.q, ro.qd, ro.V, theorem2_applies=not ro.moving)) is not None:
         raise expert_diverged("test rollouts", found)
     if exp.run.eval.unit_weights:
-        out.unit = _evaluate_tree(exp, test, UNIT_WEIGHTS, unit_weight_tree(exp), out.stage, online_losses=True)
+        out.unit = _evaluate_tree(exp, test, UNIT_WEIGHTS, build_unit_weights(exp.run, exp.env.aux_dims()).to(device=exp.device), out.stage, online_losses=True)
     exp.timing["expert_eval_s"] = time.time() - t0
     return out
 
