@@ -214,7 +214,7 @@ def test_command_draws_a_config_expert_and_unit_weights(tmp_path):
     r = _view("experiment=xarm6_reach", "--horizon", "0.2", "--out", str(out))
     assert r.returncode == 0, r.stderr
     html = out.read_text()
-    for label in ("\"expert\"", "\"unit weights\"", "obstacle 1 (capsule)", "\"goal\"", "xarm6"):
+    for label in ("\"expert\"", "\"unit weights\"", "obstacle 1 (cylinder)", "\"goal\"", "xarm6"):
         assert label in html, label
 
 

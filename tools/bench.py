@@ -108,7 +108,8 @@ def learner_2d2level(seed: int = 0):
 
 def franka_subject(n_obstacles: int = 1):
     """The Franka experiment's expert tree among ``n_obstacles`` standing cylinders (14 control points each, the
-    experiment's cylinder's size, spread in a row in front of the robot), and the environment of that scene."""
+    experiment's cylinder's size, spread in a row in front of the robot, beyond the goals so every goal stays clear
+    of them), and the environment of that scene."""
     from hydra import compose as hcompose, initialize_config_dir
     from omegaconf import OmegaConf
 
@@ -120,7 +121,7 @@ def franka_subject(n_obstacles: int = 1):
     with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):  # the tree as declared: its generator
         raw = OmegaConf.to_container(hcompose("config", overrides=["experiment=franka"]), resolve=True)
     cylinder = raw["env"]["scene"]["obstacles"][0]
-    scene = {"obstacles": [{**cylinder, "center": [0.5, -0.6 + 1.2 * k / (n_obstacles + 1), cylinder["center"][2]]}
+    scene = {"obstacles": [{**cylinder, "center": [0.85, -0.6 + 1.2 * k / (n_obstacles + 1), cylinder["center"][2]]}
                            for k in range(1, n_obstacles + 1)]}
     spec = tree_with_weights(expand_tree({**raw["tree"], "scene": scene}), raw["expert"])
     tree = rmpfusion.build_tree(spec)
