@@ -246,3 +246,29 @@ def test_a_set_tensor_of_the_wrong_shape_is_one_clear_error():
     aux = {"spheres_center": torch.zeros(2, 4, 3), "spheres_radius": torch.ones(2, 3, 1), "spheres_mask": torch.ones(2, 3)}
     with pytest.raises(ValueError, match=r"aux 'spheres_center' must be \(B, 3, 3\) for obstacle set 'spheres'"):
         with_slots([s], aux)
+
+
+@pytest.mark.slow
+def test_a_compiled_tree_serves_every_mask_without_recompiling():
+    """Members appear and vanish between calls of one compiled tree: once warm (two calls with one mask: a tree with
+    learned leaf numbers compiles again on its second call, whatever its aux), no change of mask compiles anything,
+    and each call equals the eager tree."""
+    from torch._dynamo.utils import counters
+
+    s = ObstacleSet(shape="sphere", n_max=N_MAX)
+    q, qd, raw = inputs(s, B=3, seed=2)
+    eager = build_tree(tree_spec(s, list(range(1, N_MAX + 1)), masked=True))
+    compiled = build_tree(tree_spec(s, list(range(1, N_MAX + 1)), masked=True))
+    compiled.load_state_dict(eager.state_dict())
+    compiled.compile()
+    torch._dynamo.reset()
+    counters.clear()
+    graphs = []
+    for mask in [MASKS[0], *MASKS]:
+        raw[f"{s.prefix}_mask"] = torch.tensor(mask, dtype=torch.float64).expand(3, N_MAX)
+        aux = with_slots([s], raw)
+        with torch.no_grad():
+            a, b = compiled(q, qd, aux), eager(q, qd, aux)
+        graphs.append(counters["stats"]["unique_graphs"])
+        torch.testing.assert_close(a.qdd, b.qdd, rtol=1e-10, atol=1e-10)
+    assert graphs[1] >= 1 and graphs[-1] == graphs[1], f"graphs compiled after each call: {graphs}"

@@ -53,7 +53,7 @@ class ObstacleSet(Params):
 
     @property
     def prefix(self) -> str:
-        return self.name or f"{self.shape}s"
+        return self.name or ("boxes" if self.shape == "box" else f"{self.shape}s")
 
     def fields(self) -> dict[str, int]:
         """Field name -> dimension k of the member's ``(B, N_max, k)`` tensor."""
