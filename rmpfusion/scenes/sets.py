@@ -96,6 +96,9 @@ class ObstacleSet(Params):
 
     def slots(self, aux: Mapping[str, Tensor]) -> dict[str, Tensor]:
         """The slot entries of this set from its ``(B, N_max, k)`` tensors and mask: absent members parked first."""
+        if f"{self.prefix}_mask" not in aux:
+            raise KeyError(f"obstacle set '{self.prefix}' needs aux '{self.prefix}_mask' of shape (B, {self.n_max}): "
+                           f"1 where a member is present, 0 where absent")
         mask = aux[f"{self.prefix}_mask"]
         self._check(f"{self.prefix}_mask", mask, (self.n_max,))
         present = mask if mask.dtype == torch.bool else mask > 0.5
