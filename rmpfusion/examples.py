@@ -32,6 +32,13 @@ def radius_like(gen: torch.Generator, n: int, dim: int) -> Tensor:
     return 0.5 + torch.rand(n, dim, generator=gen)
 
 
+def presence_like(gen: torch.Generator, n: int, dim: int) -> Tensor:
+    """1 or 0 at random, the first value 1 and the second 0: an obstacle set member present or absent."""
+    v = (torch.rand(n, dim, generator=gen) < 0.5).to(torch.get_default_dtype())
+    v[0], v[min(1, n - 1)] = 1.0, 0.0
+    return v
+
+
 @dataclass(frozen=True)
 class AuxInput:
     """One aux input an example reads (a centre, a radius, a goal): its dimension and how its values are drawn."""
@@ -48,6 +55,11 @@ class AuxInput:
     def radius(cls, dim: int = 1) -> "AuxInput":
         """Drawn from [0.5, 1.5): a radius."""
         return cls(dim, radius_like)
+
+    @classmethod
+    def presence(cls) -> "AuxInput":
+        """1 or 0: whether a member of an obstacle set is present."""
+        return cls(1, presence_like)
 
 
 @dataclass(frozen=True)

@@ -7,6 +7,12 @@ acceleration is taken as 0: constant velocity, or straight segments between wayp
 rate relative to the obstacle and the curvature term of the relative velocity. With ``velocity`` absent
 (a static obstacle) ẏ = Jẋ as for every other map. What Theorem 2 still says when an obstacle moves is in
 docs/math.md §8.
+
+A map given ``present`` (the aux entry of one member of an obstacle set, 1 present, 0 absent; ``scenes/sets.py``)
+is masked BEFORE anything is measured: where the obstacle is absent, or where the point sits where the distance has
+no direction (a sphere's centre, a capsule's or cylinder's axis), the shape is measured at a safe offset instead and
+the map returns y = ABSENT_DISTANCE with ẏ = 0, J = 0, J̇ẋ = 0, so a barrier above it is exactly zero and no
+infinity or NaN ever enters the values or their gradients (docs/math.md §13).
 """
 from __future__ import annotations
 
@@ -23,6 +29,10 @@ from ..registry import TASK_MAPS, Params
 from .distances import _positive_radius, _radial, _values
 
 Measure = tuple[Tensor, Tensor, Tensor]  # distance (B, 1), gradient (B, 3), d²d[v, v] (B, 1)
+
+#: what a masked map reports for an absent obstacle (m): beyond the support of every barrier, so the barrier above it
+#: is exactly zero (G, B, Φ and their derivatives); its J, ẏ and J̇ẋ are 0
+ABSENT_DISTANCE = 1e6
 
 
 def _checked(v: AuxOrValue | None, ok, what: str) -> AuxOrValue | None:
@@ -50,6 +60,13 @@ def _dot(a: Tensor, b: Tensor) -> Tensor:
     return (a * b).sum(-1, keepdim=True)
 
 
+def _perpendicular(a: Tensor) -> Tensor:
+    """A unit vector perpendicular to the unit vector a (…, 3): off the axis of a capsule or cylinder."""
+    ex, ey = a.new_tensor((1.0, 0.0, 0.0)), a.new_tensor((0.0, 1.0, 0.0))
+    u = torch.linalg.cross(a, torch.where(a[..., :1].abs() < 0.9, ex, ey).expand_as(a))
+    return u / u.norm(dim=-1, keepdim=True)
+
+
 class ShapeParams(Params):
     center: AuxOrValue = Field(description="the shape's centre (3), or an aux name")
     velocity: AuxOrValue | None = Field(None, description="the shape's velocity (3) or an aux name; absent: static")
@@ -60,6 +77,9 @@ class ShapeParams(Params):
         return _checked(v, lambda x: len(x) == 3 and all(abs(a) <= 100.0 for a in x),
                         "velocity must be 3 numbers within ±100 m/s, or the name of an aux entry")
 
+    present: str | None = Field(None, description="aux entry (1): 1 where the obstacle is present, 0 where absent; "
+                                                  "absent: always present")
+
 
 class ObstacleDistance(TaskMap):
     """Base: the distance to a shape around ``center`` moving at ``velocity``; subclasses give ``measure``.
@@ -68,10 +88,11 @@ class ObstacleDistance(TaskMap):
     tree evaluate as one group, each member reading its own obstacle's aux state."""
 
     Params = ShapeParams
-    stack_fields = ("center", "velocity")
+    stack_fields = ("center", "velocity", "present")
 
     def stack_settings(self) -> tuple:
-        return (self.velocity is None,)  # static and moving obstacles compute different rates
+        # static and moving obstacles compute different rates; masked and unmasked ones different outputs
+        return (self.velocity is None, self.present is None)
 
     def __init__(self, params: ShapeParams, in_dim: int, aux_dims: Mapping[str, int] | None = None):
         super().__init__(in_dim, aux_dims)
@@ -80,6 +101,7 @@ class ObstacleDistance(TaskMap):
             raise ValueError(f"{name} measures distances in 3-D space; the parent has dimension {in_dim}")
         self.center = self._param(params.center, "center", 3)
         self.velocity = None if params.velocity is None else self._param(params.velocity, "velocity", 3)
+        self.present = None if params.present is None else self._param(params.present, "present", 1)
         self.out_dim = 1
 
     def _param(self, value: AuxOrValue, key: str, dim: int) -> AuxParam:
@@ -91,19 +113,46 @@ class ObstacleDistance(TaskMap):
     def measure(self, p: Tensor, v: Tensor, aux) -> Measure:  # pragma: no cover - abstract
         raise NotImplementedError
 
+    def safe_offset(self, aux) -> Tensor:
+        """An offset from the centre where the shape's distance has a direction, whatever its size and pose: where
+        a masked map measures an absent obstacle (a subclass whose distance is singular along a line overrides it)."""
+        return self.center(aux).new_tensor((1.0, 0.0, 0.0))
+
     def psi(self, x, aux=None):
+        if self.present is not None:
+            return self.forward(x, torch.zeros_like(x), aux)[0]
         return self.measure(x - self.center(aux), torch.zeros_like(x), aux)[0]
 
     def forward(self, x, xd, aux=None):
+        p = x - self.center(aux)
         rel = xd if self.velocity is None else xd - self.velocity(aux)
-        d, g, c = self.measure(x - self.center(aux), rel, aux)
-        return d, _dot(g, rel), g.unsqueeze(-2), c
+        if self.present is None:
+            d, g, c = self.measure(p, rel, aux)
+            return d, _dot(g, rel), g.unsqueeze(-2), c
+        acting = self._acting(p, rel, aux)
+        p = torch.where(acting, p, self.safe_offset(aux))  # masked before measuring: nothing singular is computed
+        rel = torch.where(acting, rel, torch.zeros_like(rel))
+        d, g, c = self.measure(p, rel, aux)
+        zero = torch.zeros_like(d)
+        return (torch.where(acting, d, zero + ABSENT_DISTANCE), torch.where(acting, _dot(g, rel), zero),
+                torch.where(acting, g, torch.zeros_like(g)).unsqueeze(-2), torch.where(acting, c, zero))
+
+    def _acting(self, p: Tensor, rel: Tensor, aux) -> Tensor:
+        """(…, 1) bool: the obstacle is present and the distance at ``p`` has a direction (its gradient is finite
+        and of unit length). Found without a graph, so a singular point never reaches autograd."""
+        with torch.no_grad():
+            d, g, c = self.measure(p.detach(), rel.detach(), aux)
+            regular = torch.isfinite(d) & torch.isfinite(c) & torch.isfinite(g).all(-1, keepdim=True) \
+                & (_dot(g, g) > 0.25)
+        return (self.present(aux) > 0.5) & regular
 
 
 # The examples are static obstacles (no velocity: ẏ = Jẋ); tests/test_scenes.py checks moving ones in time.
 @TASK_MAPS.register("sphere_obstacle", examples=[
     Example({"center": [0.3, -0.2, 0.1], "radius": 0.5}, 3, scale=2.0),
-    Example({"center": "c3", "radius": "r"}, 3, scale=2.0, aux={"c3": AuxInput.normal(3), "r": AuxInput.radius()})])
+    Example({"center": "c3", "radius": "r"}, 3, scale=2.0, aux={"c3": AuxInput.normal(3), "r": AuxInput.radius()}),
+    Example({"center": "c3", "radius": "r", "present": "on"}, 3, scale=2.0,  # a member of an obstacle set
+            aux={"c3": AuxInput.normal(3), "r": AuxInput.radius(), "on": AuxInput.presence()})])
 class SphereObstacle(ObstacleDistance):
     """|x − c| − R."""
 
@@ -124,7 +173,9 @@ class SphereObstacle(ObstacleDistance):
 
 
 @TASK_MAPS.register("capsule_obstacle", examples=[
-    Example({"center": [0.1, 0.0, 0.2], "radius": 0.2, "half_length": 0.6, "axis": [0.6, 0.0, 0.8]}, 3, scale=1.5)])
+    Example({"center": [0.1, 0.0, 0.2], "radius": 0.2, "half_length": 0.6, "axis": [0.6, 0.0, 0.8]}, 3, scale=1.5),
+    Example({"center": [0.1, 0.0, 0.2], "radius": 0.2, "half_length": 0.6, "axis": [0.6, 0.0, 0.8], "present": "on"},
+            3, scale=1.5, aux={"on": AuxInput.presence()})])
 class CapsuleObstacle(ObstacleDistance):
     """Distance to the segment c ± h·a, minus R: a cylinder of radius R with hemispherical caps."""
 
@@ -145,6 +196,9 @@ class CapsuleObstacle(ObstacleDistance):
         self.axis = self._param(params.axis, "axis", 3)
         self.half_length = self._param(params.half_length, "half_length", 1)
 
+    def safe_offset(self, aux):
+        return _perpendicular(self.axis(aux))
+
     def measure(self, p, v, aux):
         a, h = self.axis(aux), self.half_length(aux)
         z = _dot(p, a)
@@ -156,7 +210,9 @@ class CapsuleObstacle(ObstacleDistance):
 
 
 @TASK_MAPS.register("cylinder_obstacle", examples=[
-    Example({"center": [0.0, 0.1, 0.0], "radius": 0.4, "half_height": 0.5, "axis": [0.0, 0.6, 0.8]}, 3, scale=1.5)])
+    Example({"center": [0.0, 0.1, 0.0], "radius": 0.4, "half_height": 0.5, "axis": [0.0, 0.6, 0.8]}, 3, scale=1.5),
+    Example({"center": [0.0, 0.1, 0.0], "radius": 0.4, "half_height": 0.5, "axis": [0.0, 0.6, 0.8], "present": "on"},
+            3, scale=1.5, aux={"on": AuxInput.presence()})])
 class CylinderObstacle(ObstacleDistance):
     """Signed distance to a finite cylinder: radius R around the axis a through c, |z| ≤ h along it."""
 
@@ -176,6 +232,9 @@ class CylinderObstacle(ObstacleDistance):
         self.radius = self._param(params.radius, "radius", 1)
         self.axis = self._param(params.axis, "axis", 3)
         self.half_height = self._param(params.half_height, "half_height", 1)
+
+    def safe_offset(self, aux):
+        return _perpendicular(self.axis(aux))
 
     def measure(self, p, v, aux):
         a = self.axis(aux)
@@ -198,7 +257,9 @@ class CylinderObstacle(ObstacleDistance):
 @TASK_MAPS.register("box_obstacle", examples=[
     # rotated about (1, 2, 2)/3 by 0.7 rad, the box's axes in the world row by row
     Example({"center": [0.1, 0.0, -0.1], "half_extents": [0.3, 0.5, 0.2],
-             "rotation": [0.791, -0.3772, 0.4817, 0.4817, 0.8694, -0.1102, -0.3772, 0.3193, 0.8694]}, 3, scale=1.5)])
+             "rotation": [0.791, -0.3772, 0.4817, 0.4817, 0.8694, -0.1102, -0.3772, 0.3193, 0.8694]}, 3, scale=1.5),
+    Example({"center": [0.1, 0.0, -0.1], "half_extents": [0.3, 0.5, 0.2], "present": "on"}, 3, scale=1.5,
+            aux={"on": AuxInput.presence()})])
 class BoxObstacle(ObstacleDistance):
     """Signed distance to a box with half extents e, rotated by R (world = R · box frame), around c."""
 
@@ -243,6 +304,32 @@ class BoxObstacle(ObstacleDistance):
         gl = torch.where(outside, g_out, g_in)
         g = (R @ gl.unsqueeze(-1)).squeeze(-1)
         return torch.where(outside, d_out, d_in), g, torch.where(outside, c_out, torch.zeros_like(c_out))
+
+
+@TASK_MAPS.register("plane_obstacle", examples=[
+    Example({"center": [0.1, -0.2, 0.3], "normal": [0.0, 0.6, 0.8]}, 3, scale=2.0),
+    Example({"center": "c3", "normal": "n", "present": "on"}, 3, scale=2.0,
+            aux={"c3": AuxInput.normal(3), "n": AuxInput.normal(3), "on": AuxInput.presence()})])
+class PlaneObstacle(ObstacleDistance):
+    """nᵀ(x − c) / |n|: the signed height above the plane through c with normal n (a table top, a wall) as an
+    obstacle of a set: its pose is aux state and it may move; ``plane_distance`` is the fixed ground."""
+
+    registered = "plane_obstacle"
+    stack_fields = ObstacleDistance.stack_fields + ("normal",)
+
+    class Params(ShapeParams):
+        normal: AuxOrValue = Field((0.0, 0.0, 1.0), description="the plane's normal (3, normalised), or an aux name")
+        _normal = field_validator("normal")(_axis)
+
+    def __init__(self, params, in_dim, aux_dims=None):
+        super().__init__(params, in_dim, aux_dims)
+        self.normal = self._param(params.normal, "normal", 3)
+
+    def measure(self, p, v, aux):
+        n = self.normal(aux)
+        n = (n / n.norm(dim=-1, keepdim=True)).expand_as(p)
+        d = _dot(p, n)
+        return d, n, torch.zeros_like(d)
 
 
 @TASK_MAPS.register("plane_distance", examples=[

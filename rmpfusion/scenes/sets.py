@@ -1,0 +1,149 @@
+"""Obstacle sets: the obstacles of one shape as batched, masked aux state, so that how many are present may change
+from one call to the next (0 … N_max) while the tree, and its compiled code, stay the same.
+
+A set named ``spheres`` of N_max members reaches the caller as one ``(B, N_max, k)`` tensor per field,
+``spheres_center`` (k = 3), ``spheres_radius`` (1), …, and ``spheres_mask`` ``(B, N_max)`` (1 or True: present). The
+tree is built once with one slot per member: slot i (from 1) reads ``spheres{i}_center``, ``spheres{i}_radius``, …
+and ``spheres{i}_present`` (B, 1), which ``ObstacleSet.slots`` makes from the set tensors (column views). Where a
+member is absent its fields are replaced by a parked obstacle before anything reads them (whatever the caller left
+there, NaN included, never reaches a value or a gradient), and its distance map, masked by ``present``, reports it
+absent (``maps/shapes.py``): the member then contributes exactly nothing to the tree (docs/math.md §13).
+
+The fields of each shape are those of a scene's obstacles (``scenes/aux.py``) plus ``velocity`` for a moving set;
+every shape has a ``radius``, the size the shared obstacle weights read (a box's smallest half extent, as in a
+scene; for a plane, the size the caller wants its weight to see).
+"""
+from __future__ import annotations
+
+from typing import Any, Literal, Mapping
+
+import torch
+from pydantic import Field
+from torch import Tensor
+
+from ..registry import Params
+from .aux import SHAPE_AUX
+
+#: every shape a controller may meet; a policy allocates a set of each it will meet before it is compiled or exported
+SET_SHAPES = ("sphere", "box", "cylinder", "capsule", "plane")
+#: the fields of each shape's members beyond centre and radius (name -> dimension)
+SET_FIELDS: dict[str, dict[str, int]] = {**SHAPE_AUX, "plane": {"normal": 3}}
+#: the distance map measuring each shape's members
+SET_MAPS = {"sphere": "sphere_obstacle", "box": "box_obstacle", "cylinder": "cylinder_obstacle",
+            "capsule": "capsule_obstacle", "plane": "plane_obstacle"}
+#: what an absent member's fields hold: a small, well-formed obstacle at the origin (its distance is never used)
+PARKED: dict[str, tuple[float, ...]] = {
+    "center": (0.0, 0.0, 0.0), "radius": (0.1,), "velocity": (0.0, 0.0, 0.0), "half_extents": (0.1, 0.1, 0.1),
+    "rotation": (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0), "axis": (0.0, 0.0, 1.0), "half_height": (0.1,),
+    "half_length": (0.1,), "normal": (0.0, 0.0, 1.0)}
+#: map parameter reading each field (a box's radius is read by the weights only)
+_MAP_KEYS = {"center": "center", "radius": "radius", "velocity": "velocity", "half_extents": "half_extents",
+             "rotation": "rotation", "axis": "axis", "half_height": "half_height", "half_length": "half_length",
+             "normal": "normal"}
+
+
+class ObstacleSet(Params):
+    """Up to ``n_max`` obstacles of one shape, present or absent call by call."""
+
+    shape: Literal["sphere", "box", "cylinder", "capsule", "plane"]
+    n_max: int = Field(ge=1, le=4096, description="how many members the tree allocates")
+    moving: bool = Field(False, description="members carry a velocity (3) as well")
+    name: str | None = Field(None, pattern=r"^[A-Za-z_][A-Za-z0-9_]*[A-Za-z_]$",
+                             description="prefix of its aux entries; default: the shape's plural, e.g. 'spheres'")
+
+    @property
+    def prefix(self) -> str:
+        return self.name or ("boxes" if self.shape == "box" else f"{self.shape}s")
+
+    def fields(self) -> dict[str, int]:
+        """Field name -> dimension k of the member's ``(B, N_max, k)`` tensor."""
+        out = {"center": 3, "radius": 1, **SET_FIELDS[self.shape]}
+        if self.moving:
+            out["velocity"] = 3
+        return out
+
+    def set_dims(self) -> dict[str, tuple[int, ...]]:
+        """Aux name -> per-sample shape of what the caller passes: ``(N_max, k)`` per field, ``(N_max,)`` the mask."""
+        dims: dict[str, tuple[int, ...]] = {f"{self.prefix}_{f}": (self.n_max, k) for f, k in self.fields().items()}
+        dims[f"{self.prefix}_mask"] = (self.n_max,)
+        return dims
+
+    def slot_name(self, i: int, field: str) -> str:
+        """The aux entry slot ``i`` (from 1) reads for ``field`` (or ``present``)."""
+        return f"{self.prefix}{i}_{field}"
+
+    def slot_dims(self) -> dict[str, int]:
+        """Aux name -> dimension of every slot's entries: what a tree holding this set declares."""
+        dims = {}
+        for i in range(1, self.n_max + 1):
+            dims.update({self.slot_name(i, f): k for f, k in self.fields().items()})
+            dims[self.slot_name(i, "present")] = 1
+        return dims
+
+    def slot_map(self, i: int) -> dict[str, Any]:
+        """The tree-spec map measuring slot ``i``'s member from a control point (3-D), masked by its presence."""
+        spec: dict[str, Any] = {"type": SET_MAPS[self.shape], "present": self.slot_name(i, "present")}
+        for f in self.fields():
+            if f == "radius" and self.shape in ("box", "plane"):
+                continue  # read by the weights only
+            spec[_MAP_KEYS[f]] = self.slot_name(i, f)
+        return spec
+
+    def weight_bind(self, i: int) -> dict[str, str]:
+        """How a control point's shared obstacle weight (reading ``obstacle_center``, ``obstacle_radius``) reads
+        slot ``i``'s member."""
+        return {"obstacle_center": self.slot_name(i, "center"), "obstacle_radius": self.slot_name(i, "radius")}
+
+    def slots(self, aux: Mapping[str, Tensor]) -> dict[str, Tensor]:
+        """The slot entries of this set from its ``(B, N_max, k)`` tensors and mask: absent members parked first."""
+        if f"{self.prefix}_mask" not in aux:
+            raise KeyError(f"obstacle set '{self.prefix}' needs aux '{self.prefix}_mask' of shape (B, {self.n_max}): "
+                           f"1 where a member is present, 0 where absent")
+        mask = aux[f"{self.prefix}_mask"]
+        self._check(f"{self.prefix}_mask", mask, (self.n_max,))
+        present = mask if mask.dtype == torch.bool else mask > 0.5
+        out: dict[str, Tensor] = {}
+        dtype = None
+        for f, k in self.fields().items():
+            name = f"{self.prefix}_{f}"
+            if name not in aux:
+                raise KeyError(f"obstacle set '{self.prefix}' needs aux '{name}' of shape (B, {self.n_max}, {k})")
+            t = aux[name]
+            self._check(name, t, (self.n_max, k))
+            dtype = t.dtype
+            safe = torch.where(present.unsqueeze(-1), t, t.new_tensor(PARKED[f]))
+            for i in range(1, self.n_max + 1):
+                out[self.slot_name(i, f)] = safe[:, i - 1]
+        on = present.to(dtype)
+        for i in range(1, self.n_max + 1):
+            out[self.slot_name(i, "present")] = on[:, i - 1: i]
+        return out
+
+    def _check(self, name: str, t: Tensor, shape: tuple[int, ...]) -> None:
+        if t.dim() != len(shape) + 1 or tuple(t.shape[1:]) != shape:
+            raise ValueError(f"aux '{name}' must be (B, {', '.join(map(str, shape))}) for obstacle set "
+                             f"'{self.prefix}' (n_max = {self.n_max}); got {tuple(t.shape)}")
+
+
+def every_shape(n_max: int, moving: bool = False) -> list[ObstacleSet]:
+    """One set of every shape a controller may meet, each of ``n_max`` members: what a policy allocates up front
+    (an exported policy cannot add a shape later)."""
+    return [ObstacleSet(shape=s, n_max=n_max, moving=moving) for s in SET_SHAPES]
+
+
+def set_dims(sets: list[ObstacleSet]) -> dict[str, int]:
+    """Every slot entry of ``sets``: the aux a tree holding them declares."""
+    dims: dict[str, int] = {}
+    for s in sets:
+        dims.update(s.slot_dims())
+    if len({s.prefix for s in sets}) != len(sets):
+        raise ValueError(f"obstacle sets need distinct names; given {[s.prefix for s in sets]}")
+    return dims
+
+
+def with_slots(sets: list[ObstacleSet], aux: Mapping[str, Tensor]) -> dict[str, Tensor]:
+    """``aux`` with every set's slot entries added: what the tree is called with."""
+    out = dict(aux)
+    for s in sets:
+        out.update(s.slots(aux))
+    return out
