@@ -217,9 +217,13 @@ def test_submitit_local_two_jobs(tmp_path):
     r = _cli("rmpfusion.cli.validate", "-m", "hydra/launcher=submitit_local", "seed=1,2",
              f"hydra.sweep.dir={tmp_path}", "hydra.launcher.timeout_min=5", timeout=600)
     assert r.returncode == 0, r.stderr[-3000:]
-    outs = sorted(tmp_path.glob(".submitit/*/*_result.pkl"))
-    assert len(outs) == 2 and sorted(p.parent.parent.name for p in tmp_path.glob("*/.hydra/config.yaml")) == [
-        "0_default_seed=1", "1_default_seed=2"]  # no experiment=: the default config, and each job's override
+    assert len(sorted(tmp_path.glob(".submitit/*/*_result.pkl"))) == 2
+    # Each job ran in its own submitit process and validated its own override; rmpfusion-validate keeps no run
+    # directory, so the jobs' logs say which directory a run with those overrides would write.
+    said = sorted(line.split()[2].rsplit("/", 1)[-1] for log in tmp_path.glob(".submitit/*/*_log.out")
+                  for line in log.read_text().splitlines() if line.startswith("run directory: "))
+    assert said == ["0_default_seed=1", "1_default_seed=2"]  # no experiment=: the default config, each job's override
+    assert not list(tmp_path.glob("*/.hydra")), "rmpfusion-validate left a run directory behind"
 
 
 @pytest.mark.slow

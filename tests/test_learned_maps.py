@@ -50,16 +50,17 @@ def latent_attractor_tree(seed: int):
 @pytest.mark.parametrize("seed", [0, pytest.param(1, marks=pytest.mark.slow)])
 def test_theorem_2_and_convergence_on_rollouts_of_an_untrained_random_map(seed):
     """A random map stretches space by up to e^4 here, which slows the arrival (the latent attractor's force is
-    bounded) but cannot add an equilibrium: every start reaches the goal within 60 s."""
+    bounded) but cannot add an equilibrium: every start reaches the goal (within 1e-6) in 180 s. The arrival is
+    slow: at 60 s a start of seed 1 is still 3 cm away, closing in."""
     tree = latent_attractor_tree(seed)
     gen = torch.Generator().manual_seed(seed)
     q = 2.0 * torch.randn(16, 2, generator=gen)
     qd = torch.randn(16, 2, generator=gen)
     aux = {"goal": 0.5 * torch.randn(16, 2, generator=gen)}
-    rec = rk4_rollout(tree, q, qd, aux, dt=0.05, steps=1200)
+    rec = rk4_rollout(tree, q, qd, aux, dt=0.05, steps=3600)
     assert_lyapunov_non_increasing(rec, rtol=1e-7)
     final = (rec["q"][-1] - aux["goal"]).norm(dim=-1)
-    assert float(final.max()) < 1e-3, f"did not converge to the goal: final distances {final.tolist()}"
+    assert float(final.max()) < 1e-6, f"did not converge to the goal: final distances {final.tolist()}"
 
 
 def test_normalize_refuses_a_zero_scale_and_a_wrong_length():

@@ -1511,6 +1511,21 @@ def _dt_hang(tmp_path, monkeypatch):
     return said(_validate_main(), "env.dt=1e-300", f"hydra.run.dir={tmp_path / 'v'}", code=2, monkeypatch=monkeypatch)
 
 
+@row("starts-impossible", "a sampling region that cannot hold a start clear of the obstacles",
+     "rmpfusion-run (tiny) experiment=2d1level with +env.clearance=4 (every start must be 4 m from the obstacle)",
+     "one line naming the keys to change, no traceback, no metrics or checkpoints (before: a RuntimeError traceback "
+     "inside Hydra's job); exit status 2",
+     shows="error: particle2d: could not sample <num> environments in 1000 rounds (env.max_tries) with the goal "
+           "env.clearance = 4.0 from every obstacle, the obstacles env.obstacle_gap = <num> apart and inside "
+           "env.workspace; widen env.goal_region or env.obstacle_along/obstacle_across, or lower env.obstacle_radius, "
+           "env.clearance or env.obstacle_gap")
+def _starts_impossible(tmp_path, monkeypatch):
+    msg = said(_run_main(), *TINY, "+env.clearance=4", f"hydra.run.dir={tmp_path / 'run'}", code=2,
+               monkeypatch=monkeypatch)
+    assert not (tmp_path / "run" / "metrics.json").exists() and not (tmp_path / "run" / "checkpoints").exists()
+    return msg
+
+
 @row("expert-diverges", "an expert whose rollouts diverge (tree.nodes.goal.rmp.gain=1e6 env.dt=0.1)",
      "rmpfusion-run (tiny) tree.nodes.goal.rmp.gain=1e6 env.dt=0.1",
      "the run stops after collecting, before training, stating the tolerance (before: exit 0 and normal-looking "

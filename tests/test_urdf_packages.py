@@ -243,7 +243,7 @@ def test_the_fitted_robot_validates_with_a_shipped_experiment(config_dir, tmp_pa
 
 @pytest.mark.slow
 def test_the_fitted_robot_runs_a_tiny_experiment(config_dir, tmp_path):
-    done = _rmpfusion("run", config_dir, "experiment=xarm6_reach", "robot=testarm", "data=tiny", "train=tiny",
+    done = _rmpfusion("run", config_dir, "experiment=reach", "robot=testarm", "data=tiny", "train=tiny",
                       "eval=fast", "logger=disabled", "eval.compile=false", f"hydra.run.dir={tmp_path}")
     assert done.returncode == 0, done.stderr[-2000:]
     assert (tmp_path / "metrics.json").is_file()

@@ -18,6 +18,7 @@ from typing import Any, Callable, Iterator
 import hydra
 from ..assembly.errors import ConfigError
 from ..core.diagnosis import NumericalError
+from ..envs.common import SamplingError
 from ..envs.demonstrations import DatasetError
 from ..files import DiskFullError, atomic_write_bytes, remove_stale_temporaries
 from ..learn.checkpoints import CheckpointError
@@ -143,8 +144,8 @@ def plugin_report(e: "PluginError") -> str:
 #: stopped. Anything else is a bug in rmpfusion or a plugin and keeps its traceback.
 USER_ERRORS: tuple[tuple[type[BaseException], int], ...] = (
     (ConfigError, CONFIG_ERROR_EXIT), (RegistryError, CONFIG_ERROR_EXIT), (RunDirError, CONFIG_ERROR_EXIT),
-    (CheckpointError, CONFIG_ERROR_EXIT), (DatasetError, CONFIG_ERROR_EXIT), (ExpertDivergedError, 1),
-    (NotTrainedError, 1), (DiskFullError, 1), (TrainingDivergedError, 1), (NumericalError, 1))
+    (CheckpointError, CONFIG_ERROR_EXIT), (DatasetError, CONFIG_ERROR_EXIT), (SamplingError, CONFIG_ERROR_EXIT),
+    (ExpertDivergedError, 1), (NotTrainedError, 1), (DiskFullError, 1), (TrainingDivergedError, 1), (NumericalError, 1))
 
 
 def user_error_code(e: BaseException) -> int | None:

@@ -133,6 +133,11 @@ def rk4(accel, q, qd, dt, a=None):
             qd + dt / 6 * (k1v + 2 * k2v + 2 * k3v + k4v))
 
 
+class SamplingError(RuntimeError):
+    """The environment's sampling region cannot give the states its config asks for (starts clear of the
+    obstacles, goals apart from starts): a setting to change, so the command line prints the message alone."""
+
+
 def redraw_until_ok(draw: Callable[[], tuple[Tensor, ...]], ok: Callable[[tuple[Tensor, ...], Mapping[str, Tensor]], Tensor],
                     aux: Mapping[str, Tensor], max_tries: int, failure: Callable[[int], str]) -> tuple[Tensor, ...]:
     """Rejection sampling of a batch: redraw every rejected sample until ``ok`` accepts it.
@@ -140,14 +145,14 @@ def redraw_until_ok(draw: Callable[[], tuple[Tensor, ...]], ok: Callable[[tuple[
     Every round draws the whole batch, so the random stream (and with it every sample) does not depend on how
     many were rejected before. ``ok`` is only asked about the samples still rejected (with their aux rows), so
     expensive checks (pybullet clearance) run on few samples; ``failure(n_left)`` is the error after
-    ``max_tries`` rounds.
+    ``max_tries`` rounds (a ``SamplingError``).
     """
     vals = draw()
     bad = ~ok(vals, aux)
     tries = 1
     while bool(bad.any()):
         if tries >= max_tries:
-            raise RuntimeError(failure(int(bad.sum())))
+            raise SamplingError(failure(int(bad.sum())))
         new = draw()
         idx = bad.nonzero().flatten()
         good = ok(tuple(v[idx] for v in new), {k: v[idx] for k, v in aux.items()})

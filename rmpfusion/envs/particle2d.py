@@ -265,8 +265,11 @@ class Particle2D(ComputesOnDevice, SeededSampling):
         max_tries = self.params.max_tries
         goal, centre, radius = redraw_until_ok(
             lambda: self._draw_envs(n_envs, generator), lambda v, _: self._env_ok(*v), {}, max_tries,
-            lambda left: f"particle2d: could not sample {left} environments in {max_tries} rounds; "
-                         "widen the sampling ranges or lower clearance/obstacle_gap")
+            lambda left: f"particle2d: could not sample {left} environments in {max_tries} rounds (env.max_tries) "
+                         f"with the goal env.clearance = {self.params.clearance} from every obstacle, the obstacles "
+                         f"env.obstacle_gap = {self.params.obstacle_gap} apart and inside env.workspace; widen "
+                         "env.goal_region or env.obstacle_along/obstacle_across, or lower env.obstacle_radius, "
+                         "env.clearance or env.obstacle_gap")
         return obstacle_aux(goal, centre, radius)
 
     def sample_initial_states(
@@ -289,7 +292,9 @@ class Particle2D(ComputesOnDevice, SeededSampling):
 
         q0, qd0 = redraw_until_ok(
             draw, lambda v, a: self.clearance(v[0], a) >= p.clearance, aux, p.max_tries,
-            lambda left: f"particle2d: could not place {left} start states clear of the obstacles")
+            lambda left: f"particle2d: could not place {left} start states env.clearance = {p.clearance} clear of "
+                         f"the obstacles in {p.max_tries} rounds (env.max_tries); widen env.start_region, or lower "
+                         "env.clearance or env.obstacle_radius")
         return q0, qd0, aux
 
     # ------------------------------------------------------------------ dynamics

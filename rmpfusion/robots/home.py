@@ -60,6 +60,16 @@ def spheres_at_fixed_height(robot: RobotDescription) -> list[int]:
     return [i for i, s in enumerate(still.tolist()) if s]
 
 
+def ground_check(robot: RobotDescription, ground: float = 0.0, clearance: float = 0.05, seed: int = 0):
+    """A function of configurations (B, dof) -> (B,) bool: every control sphere that can move up or down is
+    ``clearance`` above the ground or, if it can never rise that far (beside a shoulder axis), as high as it can get
+    less 2 mm: the rule the environment's start check applies to links."""
+    heights = sphere_heights(robot, sampled_configurations(robot, SAMPLES, seed))
+    moves = (heights.max(0).values - heights.min(0).values) > STILL
+    need = torch.minimum(torch.full_like(heights[0], ground + clearance), heights.max(0).values - 0.002)
+    return lambda q: (sphere_heights(robot, q)[:, moves] >= need[moves]).all(-1)
+
+
 def propose_home(robot: RobotDescription, ground: float = 0.0, clearance: float = 0.05,
                  seed: int = 0) -> tuple[list[float], str]:
     """(home, how it was chosen): mid-range when every sphere that can move up or down is ``clearance`` above the
@@ -70,15 +80,10 @@ def propose_home(robot: RobotDescription, ground: float = 0.0, clearance: float 
     lo = torch.tensor([max(lim[0], -math.pi) for lim in robot.joint_limits()], dtype=torch.float64)
     hi = torch.tensor([min(lim[1], math.pi) for lim in robot.joint_limits()], dtype=torch.float64)
     samples = sampled_configurations(robot, SAMPLES, seed)
-    heights = sphere_heights(robot, samples)
-    moves = (heights.max(0).values - heights.min(0).values) > STILL
-    # a sphere is asked for ``clearance`` or, if it can never rise that far (beside a shoulder axis), for the height
-    # it can reach, less 2 mm: the rule the environment's start check applies to links
-    need = torch.minimum(torch.full_like(heights[0], ground + clearance), heights.max(0).values - 0.002)
-    clear = lambda h: (h[:, moves] >= need[moves]).all(-1)  # noqa: E731
-    if bool(clear(sphere_heights(robot, mid))[0]):
+    clear = ground_check(robot, ground, clearance, seed)
+    if bool(clear(mid)[0]):
         return mid[0].tolist(), "the middle of every joint's range (clear of the ground)"
-    ok = clear(heights)
+    ok = clear(samples)
     if not bool(ok.any()):
         return mid[0].tolist(), (f"the middle of every joint's range, though some sphere is less than {clearance} m "
                                  f"above the ground there and no sampled configuration clears it: set home by hand")

@@ -19,11 +19,11 @@ from ..rollout import Rollout
 from . import demonstrations as demos
 from . import render as rendering
 from .kinematic import rollout_kinematic
-from .layout import Derived, derive
+from .layout import Clearances, Derived, derive
 from .metrics import RATIO_METRICS, task_metrics
 from .paths import end_effector_radius, path_clearance
 from .params import ManipulatorParams
-from .scene import HelperWorlds, _Scene, sample_aux
+from .scene import HelperWorlds, _Scene, fixed_links_extent, sample_aux
 from .torque import rollout_torque
 
 
@@ -41,12 +41,16 @@ class Manipulator(ComputesOnDevice, SeededSampling):
             params = self.Params.model_validate({**params.model_dump(), **overrides})
         self.dtype = DTYPES[params.dtype]
         self.robot = build_robot(params.robot)
-        self.layout = None if params.reach_layout is None else derive(self.robot, params.start_centre(),
-                                                                      params.spread(), params.reach_layout)
+        self.worlds = HelperWorlds(self.robot, params.gravity)
+        self.layout = None if params.reach_layout is None else derive(
+            self.robot, params.start_centre(), params.spread(), params.reach_layout,
+            Clearances(start=params.start_clearance, goal=params.goal_clearance,
+                       end_effector=end_effector_radius(self.robot),
+                       fixed_extent=fixed_links_extent(self.worlds.checker(), self.robot)),
+            centre_given=params.nominal_q is not None)
         self.params = params if self.layout is None else _laid_out(params, self.layout)
         self.dim = self.robot.dof
         self.lower, self.upper = self.robot.lower.to(self.dtype), self.robot.upper.to(self.dtype)
-        self.worlds = HelperWorlds(self.robot, params.gravity)
 
     # ------------------------------------------------------------------ bookkeeping
     @property
@@ -304,9 +308,10 @@ def _laid_out(p: ManipulatorParams, d: Derived) -> ManipulatorParams:
     except ValueError as e:
         raise ValueError(f"env.reach_layout places one standing cylinder above a ground plane; env.scene must have "
                          f"that layout (conf/scene/reach_post.yaml), as the tree is built from it: {e}") from None
+    centre = {} if d.start_centre is None else {"nominal_q": d.start_centre}
     return p.model_copy(update={"goal_region": d.goal_region, "scene": d.scene, "test_scene": d.test_scene,
                                 "obstacle_jitter": d.obstacle_jitter,
-                                "min_start_goal_distance": d.min_start_goal_distance})
+                                "min_start_goal_distance": d.min_start_goal_distance, **centre})
 
 
 def _reporting(monitor: Callable[..., Any] | None, progress: Callable[[int, int], Any],

@@ -252,3 +252,20 @@ class HelperWorlds:
             if s is not None:
                 s.close()
         self._checker = self._renderer = None
+
+
+def fixed_links_extent(world: _Scene, robot: URDFRobot) -> float:
+    """How far (m) the links no actuated joint moves (the base and what is welded to it) reach horizontally from
+    the base's vertical axis: the corners of their collision shapes' bounding boxes. An obstacle nearer than this
+    (plus a start's clearance) leaves no start clear of it, whatever the joints do."""
+    p, cid = world.p, world.cid
+    base = np.array(robot.base_pose()[0][:2])
+    names = {i: p.getJointInfo(world.robot, i, physicsClientId=cid)[12].decode()
+             for i in range(p.getNumJoints(world.robot, physicsClientId=cid))}
+    fixed = [-1] + [i for i, link in names.items() if not robot.moves(link)]
+    extent = 0.0
+    for i in fixed:
+        lo, hi = (np.array(v[:2]) for v in p.getAABB(world.robot, i, physicsClientId=cid))
+        corners = np.array([[x, y] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])])
+        extent = max(extent, float(np.linalg.norm(corners - base, axis=1).max()))
+    return extent
