@@ -116,3 +116,41 @@ def test_the_run_warns_before_training_when_the_expert_fails_or_the_obstacle_is_
         assert "the expert reached only 35% of the validation goals" in warnings[1]
     finally:
         env.close()
+
+
+def test_the_layout_of_a_mounted_arm_is_the_unmounted_layout_moved_with_its_base():
+    """Turned about the base, not the world's origin: a Panda mounted 0.3 m along x and −0.2 m along y gets the same
+    task shifted by its mount, to rounding."""
+    shift = torch.tensor([0.3, -0.2, 0.0], dtype=torch.float64)
+    layouts = []
+    for mount in (None, {"xyz": shift.tolist(), "rpy": [0.0, 0.0, 0.0]}):
+        env = Manipulator(robot={**robot("panda"), "mount": mount}, scene=scene("reach_post"),
+                          reach_layout=ReachLayout(), start_spread=0.25, goal_clearance=0.05)
+        layouts.append(env.layout)
+        env.close()
+    plain, mounted = layouts
+    torch.testing.assert_close(torch.tensor(mounted.start_point), torch.tensor(plain.start_point) + shift)
+    torch.testing.assert_close(torch.tensor(mounted.goal_point), torch.tensor(plain.goal_point) + shift)
+    torch.testing.assert_close(torch.tensor(mounted.scene.obstacles[0].center),
+                               torch.tensor(plain.scene.obstacles[0].center) + shift)
+    assert mounted.scene.obstacles[0].radius == pytest.approx(plain.scene.obstacles[0].radius)
+
+
+def test_an_upright_home_starts_leaning_out_and_an_upright_nominal_q_is_refused():
+    """The Panda with every joint at 0 stands upright (end effector over the base): the layout starts the reaches
+    around the nearest configuration that leans out and says so; the same centre given as env.nominal_q is the
+    user's choice, never moved, so it is refused naming the fix."""
+    upright = [0.0, 0.0, 0.0, -0.1, 0.0, 0.1, 0.0]  # joint 4 of the Panda must stay below 0
+    env = Manipulator(robot={**robot("panda"), "home": upright}, scene=scene("reach_post"), reach_layout=ReachLayout(),
+                      start_spread=0.25, goal_clearance=0.05)
+    try:
+        d = env.layout
+        assert d.start_centre is not None and env.params.nominal_q == d.start_centre
+        out = (env.ee_position(torch.tensor([d.start_centre], dtype=torch.float64))[0, :2]).norm()
+        assert 0.45 * d.reach <= float(out) <= 0.75 * d.reach
+        assert "home leaves the end effector too near the base's axis" in env.describe_task()
+    finally:
+        env.close()
+    with pytest.raises(ValueError, match=r"env.nominal_q puts panda's end effector less than 0.35 of its reach"):
+        Manipulator(robot=robot("panda"), scene=scene("reach_post"), reach_layout=ReachLayout(), start_spread=0.25,
+                    goal_clearance=0.05, nominal_q=upright)
