@@ -33,7 +33,7 @@ import math
 from dataclasses import dataclass
 
 import torch
-from pydantic import Field
+from pydantic import Field, field_validator
 
 from ...registry import Params
 from ...robots.home import ground_check
@@ -75,6 +75,20 @@ class ReachLayout(Params):
     test_shift: float = Field(0.04, ge=0, le=0.5, description="the test cylinder moved along the reach (towards the "
                                                               "goals) by this fraction")
     test_widen: float = Field(1.2, gt=0, description="the test cylinder's radius, times the training one's")
+
+    @field_validator("radius_steps")
+    @classmethod
+    def _positive_steps(cls, v: tuple[float, ...]) -> tuple[float, ...]:
+        if not all(0 < k <= 10 for k in v):
+            raise ValueError(f"radius_steps: every step must lie in (0, 10] (a multiple of obstacle_radius); given {v}")
+        return v
+
+    @field_validator("along", "outreach")
+    @classmethod
+    def _fractions(cls, v: tuple[float, float], info) -> tuple[float, float]:
+        if not 0 <= v[0] <= v[1] <= 1:
+            raise ValueError(f"{info.field_name}: must be two fractions 0 <= low <= high <= 1; given {list(v)}")
+        return v
 
 
 @dataclass(frozen=True)
