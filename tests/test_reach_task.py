@@ -25,10 +25,6 @@ CONF = Path(__file__).resolve().parents[1] / "conf"
 ROBOTS = sorted(p.stem for p in (CONF / "robot").glob("*.yaml"))
 
 
-def layout_cases():
-    return ROBOTS
-
-
 EXPERT = {"attractor": {"type": "constant", "value": 40.0}, "obstacle": {"type": "constant", "value": 200.0},
           "ground": {"type": "constant", "value": 100.0}}
 
@@ -57,7 +53,7 @@ def test_an_expert_that_leaves_a_weighted_edge_out_is_refused_naming_it():
     assert {"attractor", "ground", *(f"cp{i}_obstacle" for i in range(1, 11))} == set(run.expert)
 
 
-@pytest.mark.parametrize("name", layout_cases())
+@pytest.mark.parametrize("name", ROBOTS)
 def test_the_layout_puts_the_obstacle_in_the_way_of_most_reaches_on_every_robot(name):
     # the environment as experiment=reach sets it (conf/experiment/reach.yaml): every trajectory its own goal
     env = Manipulator(robot=robot(name), scene=scene("reach_post"), reach_layout=ReachLayout(), start_spread=0.25,
@@ -137,7 +133,7 @@ def test_the_layout_of_a_mounted_arm_is_the_unmounted_layout_moved_with_its_base
 
 
 def test_an_upright_home_starts_leaning_out_and_an_upright_nominal_q_is_refused():
-    """The Panda with every joint at 0 stands upright (end effector over the base): the layout starts the reaches
+    """The Panda with its joints at 0 (4 and 6 just off it, inside their limits) stands upright (end effector over the base): the layout starts the reaches
     around the nearest configuration that leans out and says so; the same centre given as env.nominal_q is the
     user's choice, never moved, so it is refused naming the fix."""
     upright = [0.0, 0.0, 0.0, -0.1, 0.0, 0.1, 0.0]  # joint 4 of the Panda must stay below 0

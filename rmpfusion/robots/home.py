@@ -31,15 +31,8 @@ def mid_range(robot: RobotDescription) -> list[float]:
 
 def sphere_heights(robot: RobotDescription, q: torch.Tensor) -> torch.Tensor:
     """(B, S) height of every control sphere's lowest point at configurations ``q`` (B, dof)."""
-    r = build_robot(robot)
-    links = sorted({cp.link for cp in robot.control_points})
-    poses = r.chain.forward_kinematics(q, links)
-    out = []
-    for cp in robot.control_points:
-        R, p = poses[cp.link]
-        centre = p + (R @ torch.tensor(cp.offset, dtype=q.dtype).unsqueeze(-1)).squeeze(-1)
-        out.append(centre[:, 2] - cp.radius)
-    return torch.stack(out, -1)
+    radii = torch.tensor([cp.radius for cp in robot.control_points], dtype=q.dtype)
+    return build_robot(robot).sphere_centres(q)[..., 2] - radii
 
 
 def sampled_configurations(robot: RobotDescription, n: int = SAMPLES, seed: int = 0) -> torch.Tensor:

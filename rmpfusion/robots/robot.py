@@ -57,6 +57,14 @@ class URDFRobot:
         R, p = self.chain.forward_kinematics(q, [link])[link]
         return p + (R @ self.ee_offset.to(q).unsqueeze(-1)).squeeze(-1)
 
+    def sphere_centres(self, q: Tensor) -> Tensor:
+        """(B, C, 3) world centres of the robot's control spheres at configurations ``q`` (B, dof), in the order of
+        ``params.control_points``."""
+        cps = self.params.control_points
+        poses = self.chain.forward_kinematics(q, sorted({cp.link for cp in cps}))
+        return torch.stack([poses[cp.link][1] + (poses[cp.link][0] @ torch.tensor(cp.offset, dtype=q.dtype)
+                                                 .unsqueeze(-1)).squeeze(-1) for cp in cps], 1)
+
     def moves(self, link: str) -> bool:
         """Whether some actuated joint moves ``link`` (links fixed to the base cannot reach an obstacle's side)."""
         return any(j.name in self.params.joints or j.name in self.chain.followers

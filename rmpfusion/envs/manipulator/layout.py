@@ -19,8 +19,8 @@ turns the expert around it, where a cylinder on the midpoint met head on pins it
 reached 7 of 20 validation goals so, 18 of 20 at 0.05 of the reach outward). That place is kept while at least
 ``keep`` of the most reaches cross there; on an arm whose reaches fan out (a UR5, a Kinova: 20-47 % crossed at that
 place) the nearest place that does is taken. A place where the cylinder would stand within ``start_clearance`` of
-the links no joint moves (the base) is never taken: no start could be placed. Every environment moves the cylinder by ``jitter``; the test
-split's is moved along the reach by ``test_shift`` (moving it outward would take it off the reaches' line) and made
+the links no joint moves (the base) is never taken: no start could be placed. Every environment moves the cylinder
+by ``jitter``; the test split's is moved along the reach by ``test_shift`` (moving it outward would take it off the reaches' line) and made
 ``test_widen`` times wider (the paper's Franka test set moves and resizes its obstacle). Goals are drawn in a box
 around G (``goal_half_width``).
 
@@ -209,9 +209,11 @@ def _place_cylinder(robot, starts, ee, goals, S, G, base, reach: float, layout: 
     line = (G - S)[:2]
     normal = torch.stack([-line[1], line[0]]) / line.norm().clamp_min(1e-9)
     places = (S[:2] + along.reshape(-1, 1) * line + across.reshape(-1, 1) * reach * normal)  # (P, 2)
-    outward = ((S + G)[:2] / 2 - base[:2]) / ((S + G)[:2] / 2 - base[:2]).norm().clamp_min(1e-9)
-    preferred_distance = (places - ((S + G)[:2] / 2 + layout.outward * reach * outward)).norm(dim=-1)
-    spheres, sphere_r = _control_spheres(robot, starts)  # (N, C, 2), (C,)
+    mid = (S + G)[:2] / 2
+    outward = (mid - base[:2]) / (mid - base[:2]).norm().clamp_min(1e-9)
+    preferred_distance = (places - (mid + layout.outward * reach * outward)).norm(dim=-1)
+    spheres = robot.sphere_centres(starts)[..., :2]  # (N, C, 2)
+    sphere_r = torch.tensor([cp.radius for cp in robot.params.control_points], dtype=starts.dtype)
     seg = _point_to_segments(places, ee[:, :2], goals[:, :2])  # (P, N)
     best: tuple | None = None
     for step in layout.radius_steps:
@@ -232,15 +234,6 @@ def _place_cylinder(robot, starts, ee, goals, S, G, base, reach: float, layout: 
                          f"env.start_clearance; raise reach_layout.turn or reach_layout.across, or lower "
                          f"env.start_clearance")
     return best[1], best[2], best[3], best[4]
-
-
-def _control_spheres(robot, q: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """(N, C, 2) horizontal centres of the robot's control spheres at configurations ``q`` (N, dof), and (C,) radii."""
-    cps = robot.params.control_points
-    poses = robot.chain.forward_kinematics(q, sorted({cp.link for cp in cps}))
-    centres = [poses[cp.link][1] + (poses[cp.link][0] @ torch.tensor(cp.offset, dtype=q.dtype).unsqueeze(-1)).squeeze(-1)
-               for cp in cps]
-    return torch.stack(centres, 1)[..., :2], torch.tensor([cp.radius for cp in cps], dtype=q.dtype)
 
 
 def _point_to_segments(points: torch.Tensor, a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:

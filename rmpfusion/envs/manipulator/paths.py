@@ -15,19 +15,11 @@ def end_effector_radius(robot) -> float:
     """The radius of the control sphere that carries the end effector: of the robot's control spheres, the one whose
     centre lies nearest the end-effector point at the robot's home configuration (a sphere moved along the straight
     path, it is what "the path crosses the obstacle" measures)."""
-    p = robot.params
-    home = torch.tensor([list(p.home)], dtype=torch.float64)
-    ee = robot.ee_position(home)[0]
-    links = sorted({cp.link for cp in p.control_points})
-    poses = robot.chain.forward_kinematics(home, links)
-    best, radius = float("inf"), 0.0
-    for cp in p.control_points:
-        R, t = poses[cp.link]
-        centre = t[0] + R[0] @ torch.tensor(cp.offset, dtype=torch.float64)
-        d = float((centre - ee).norm())
-        if d < best:
-            best, radius = d, float(cp.radius)
-    return radius
+    if not robot.params.control_points:
+        return 0.0
+    home = torch.tensor([list(robot.params.home)], dtype=torch.float64)
+    distance = (robot.sphere_centres(home)[0] - robot.ee_position(home)[0]).norm(dim=-1)
+    return float(robot.params.control_points[int(distance.argmin())].radius)
 
 
 def path_clearance(scene: Scene, ee_start: Tensor, aux: Mapping[str, Tensor]) -> Tensor:
