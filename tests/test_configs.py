@@ -38,6 +38,8 @@ def _overrides_for(group: str, option: str) -> list[str]:
         return [f"weights@learners.rmp.weights={option}"]
     if group == "learner":
         return [f"+learner@learners.extra={option}"]
+    if (group, option) in VARIANTS:
+        return VARIANTS[group, option]
     for exp in EXPERIMENTS:  # env/tree/expert/data/train files belonging to an experiment are used with it
         text = (CONF / "experiment" / f"{exp}.yaml").read_text()
         if f"override /{group}: {option}\n" in text or f"/{group}@env.test_scene: {option}\n" in text:
@@ -47,6 +49,11 @@ def _overrides_for(group: str, option: str) -> list[str]:
     if group == "scene":  # any scene: the Panda experiment's goals with it
         return ["experiment=franka", f"scene={option}", f"scene@env.test_scene={option}"]
     return [f"{group}={option}"]
+
+
+#: files that are an experiment's documented variants, used with it
+VARIANTS = {("tree", "lasa"): ["experiment=lasa", "tree=lasa"],  # LASA's weights-only baseline
+            ("data", "recorded"): ["experiment=lasa", "data=recorded", "data.format=lasa", "data.shape=Angle"]}
 
 
 CONFIG_FILES = sorted(
@@ -76,7 +83,9 @@ def test_every_experiment_validates_and_builds(experiment):
     run = resolve_and_validate(compose_cfg([f"experiment={experiment}"]))
     # named for the experiment; experiment=reach and its smoke preset add the robot (reach_panda), whatever it is
     robot = run.env.robot.name if experiment.startswith("reach") else None
-    assert run.name == (experiment if robot is None else f"{experiment}_{robot}")
+    shape = run.data.shape if experiment == "lasa" else None  # experiment=lasa adds the shape (lasa_Angle)
+    suffix = robot or shape
+    assert run.name == (experiment if suffix is None else f"{experiment}_{suffix}")
     env, expert, learners = build_all(run)
     assert set(learners) == set(run.learners)
     assert expert.describe().startswith(run.tree.root.name)

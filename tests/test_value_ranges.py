@@ -17,11 +17,11 @@ from pydantic.fields import FieldInfo
 
 import rmpfusion  # noqa: F401  (registers the built-ins)
 from rmpfusion.learn.config import TrainParams
-from rmpfusion.pipeline.config import DataConfig, EvalConfig
+from rmpfusion.pipeline.config import DataConfig, EvalConfig, RecordedDataConfig
 from rmpfusion.registry import ENVS, LEAF_RMPS, LEARNERS, ROBOTS, TASK_MAPS, TRAIN_METHODS, TREE_GENERATORS, WEIGHTS
 
 REGISTRIES = (LEAF_RMPS, TASK_MAPS, WEIGHTS, ROBOTS, ENVS, LEARNERS, TREE_GENERATORS, TRAIN_METHODS)
-CONFIG_BLOCKS = {"data": DataConfig, "train": TrainParams, "eval": EvalConfig}
+CONFIG_BLOCKS = {"data": DataConfig, "data (recorded)": RecordedDataConfig, "train": TrainParams, "eval": EvalConfig}
 
 #: Words that make a numeric field a physical quantity, a size, a count or a range (a field name is split at
 #: ``_``). Positions and linear maps (center, offset, origin, matrix, bias) are left out: any value is a place.

@@ -25,6 +25,7 @@ from ..learn.checkpoints import CheckpointError
 from ..learn.loop import TrainingDivergedError
 from ..pipeline.collect import ExpertDivergedError
 from ..pipeline.fit import NotTrainedError
+from ..recordings.recording import RecordingError
 from ..registry import PluginError, RegistryError
 from .rundir import RESOLVED
 from ..pipeline.validate import resolve_and_validate
@@ -145,6 +146,7 @@ def plugin_report(e: "PluginError") -> str:
 USER_ERRORS: tuple[tuple[type[BaseException], int], ...] = (
     (ConfigError, CONFIG_ERROR_EXIT), (RegistryError, CONFIG_ERROR_EXIT), (RunDirError, CONFIG_ERROR_EXIT),
     (CheckpointError, CONFIG_ERROR_EXIT), (DatasetError, CONFIG_ERROR_EXIT), (SamplingError, CONFIG_ERROR_EXIT),
+    (RecordingError, CONFIG_ERROR_EXIT),
     (ExpertDivergedError, 1), (NotTrainedError, 1), (DiskFullError, 1), (TrainingDivergedError, 1), (NumericalError, 1))
 
 

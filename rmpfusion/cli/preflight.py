@@ -175,7 +175,7 @@ def _added_group(overrides: list[str], groups: list[str], keys: Callable[[], lis
     for o in overrides:
         if not o.startswith("+") or o.startswith("++"):
             continue
-        head = o[1:].split("=", 1)[0].split(".")[0].split("/")[0]
+        head = o[1:].split("=", 1)[0].split("@", 1)[0].split(".")[0].split("/")[0]  # group@package: the group
         if head in groups or head in keys():
             continue
         close = difflib.get_close_matches(head, groups, n=1, cutoff=0.6)

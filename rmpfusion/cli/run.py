@@ -49,8 +49,11 @@ def result_line(run_dir, result: dict) -> str:
     """The run's outcome in one line, printed after everything else (the logger's summary included)."""
     parts = []
     for name, res in (result.get("learners") or {}).items():
-        shown = ", ".join(f"{k}={res[k]:.4g}" for k in ("online_loss", "batch_loss", "success", "collision")
-                          if isinstance(res.get(k), (int, float)))
+        found = {**res, "test_dtw": (res.get("reproduction_test") or {}).get("dtw"),
+                 "converged": (res.get("convergence") or {}).get("converged")}
+        shown = ", ".join(f"{k}={found[k]:.4g}" for k in ("online_loss", "batch_loss", "success", "collision",
+                                                          "test_dtw", "converged")
+                          if isinstance(found.get(k), (int, float)))
         flag = " DIVERGED" if res.get("diverged") else ""
         parts.append(f"learner {name}{flag}: {shown or 'no metrics'}")
     return f"result: {'; '.join(parts) or 'no learners'} ({run_dir / 'metrics.json'})"

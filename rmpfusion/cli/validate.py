@@ -28,9 +28,17 @@ def summary(run, env, expert, learners) -> str:
         extra = f", learns the weights of edges {learned_edges(model.tree)}" if model.tree is not None else ""
         lines.append(f"learner {name}: {run.learners[name].type}, {model.num_parameters()} parameters{extra}")
     d, t = run.data, run.train
+    if d.source == "recorded":
+        what = f"LASA shape {d.shape}" if d.format == "lasa" else ", ".join(d.files)
+        data_line = (f"data: recorded demonstrations ({d.format}: {what}), split {d.split}, derivatives "
+                     f"{d.derivatives}" + (f" (Savitzky-Golay window {d.window}, order {d.polyorder})"
+                                           if d.derivatives == "filter" else ""))
+    else:
+        data_line = (f"data: {d.train_envs} envs x {d.train_trajectories} trajectories x {d.points} points (test "
+                     f"{d.test_envs} x {d.test_trajectories}, validation {d.val_envs} x {d.val_trajectories}), every "
+                     f"{d.interval}s")
     lines += [
-        f"data: {d.train_envs} envs x {d.train_trajectories} trajectories x {d.points} points (test "
-        f"{d.test_envs} x {d.test_trajectories}, validation {d.val_envs} x {d.val_trajectories}), every {d.interval}s",
+        data_line,
         f"train: {t.method}, {t.describe()}",
         f"logger: wandb {run.logger.mode}",
         "OK: the configuration is valid and builds; nothing was run.",

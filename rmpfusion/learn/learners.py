@@ -7,7 +7,7 @@ from __future__ import annotations
 from typing import Any, Mapping
 
 from ..registry import LEARNERS
-from . import rmp_learner, unstructured  # noqa: F401  (the built-in learners register themselves)
+from . import first_order, rmp_learner, unstructured  # noqa: F401  (the built-in learners register themselves)
 from .learner import Learner
 
 

@@ -63,7 +63,7 @@ def data_hash(run: RunConfig, split: str | None = None) -> str:
     if not env.get("test_sampling") or split in ("train", "val"):
         env.pop("test_sampling", None)
     key = {"env": env, "tree": run.tree.model_dump(), "expert": {k: plain_data(w) for k, w in run.expert.items()},
-           "seed": run.seed, "data": run.data.model_dump(exclude={"cache_dir"})}
+           "seed": run.seed, "data": run.data.model_dump(exclude={"cache_dir", "source"})}
     return hashlib.sha256(json.dumps(key, sort_keys=True, default=str).encode()).hexdigest()
 
 

@@ -8,12 +8,13 @@ from __future__ import annotations
 
 import re
 from pathlib import Path
-from typing import Annotated, Any, Literal, Mapping
+from typing import Annotated, Any, Literal, Mapping, Union
 
-from pydantic import (BaseModel, BeforeValidator, ConfigDict, Field, ValidationError, create_model,
-                      field_validator, model_validator)
+from pydantic import (BaseModel, BeforeValidator, ConfigDict, Discriminator, Field, Tag, ValidationError,
+                      create_model, field_validator, model_validator)
 from pydantic_core import InitErrorDetails, PydanticCustomError
 
+from ..assembly.errors import TAG_SEPARATOR
 from ..assembly.spec import TreeSpec, TypedBlock, tree_spec_model, typed_union, weight_field
 from ..envs.common import time_grid
 from ..learn import methods  # noqa: F401  (the built-in training methods register themselves)
@@ -28,6 +29,7 @@ class _Frozen(BaseModel):
 class DataConfig(_Frozen):
     """Demonstrations (paper §4.1 "Data"): environments × trajectories × equidistant points."""
 
+    source: Literal["expert"] = Field("expert", description="the expert tree's own rollouts (the paper's data)")
     train_envs: int = Field(20, gt=0)
     train_trajectories: int = Field(50, gt=0, description="per environment, from unique initial states")
     test_envs: int = Field(5, gt=0)
@@ -51,6 +53,86 @@ class DataConfig(_Frozen):
                                  f"{'in' if blocking == Path(v) else 'below'} it; point data.cache_dir at a directory "
                                  "(it is created if missing), or leave it out to keep data in the run directory")
         return v
+
+
+class RecordedDataConfig(_Frozen):
+    """Demonstrations a person recorded (``source: recorded``): files read by ``rmpfusion.recordings``, resampled
+    onto the environment's step, differentiated by one Savitzky–Golay filter (or the file's own derivatives),
+    trimmed of the rest at either end and split by whole demonstration. No expert exists: learners are trained on
+    the demonstrations and evaluated against the held-out ones (``pipeline/recorded.py``)."""
+
+    source: Literal["recorded"]
+    format: Literal["lasa", "csv", "npz", "hdf5"] = Field(description="how the files are laid out")
+    shape: str | None = Field(None, description="format lasa: the handwriting shape (e.g. Angle, Sshape)")
+    files: list[str] = Field(default_factory=list, description="csv / npz / hdf5: the files, one or many "
+                                                                 "demonstrations each")
+    units: Literal["m", "cm", "mm", "rad", "deg"] = Field("m", description="the files' position units; LASA: the "
+                                                                           "dataset's mm are read as m whatever this says")
+    columns: list[str] | None = Field(None, description="csv / npz: the coordinates' names, in order (csv default: "
+                                                        "every column but time, demonstration id and aux)")
+    time_column: str = Field("t", description="csv: the time column; npz: the time array's key")
+    demo_column: str | None = Field(None, description="csv: a column naming each row's demonstration")
+    position_key: str = Field("pos", description="npz / hdf5: the positions' key (hdf5: inside each demo group)")
+    rate: float | None = Field(None, gt=0, description="hdf5 without a time dataset: the recording rate (Hz)")
+    goal: list[float] | None = Field(None, description="the goal of every demonstration; default the mean of its "
+                                                       "final rest")
+    derivatives: Literal["filter", "file"] = Field("filter", description="velocities and accelerations from the "
+                                                   "Savitzky–Golay filter, or from the file (every demonstration)")
+    window: int = Field(21, ge=3, le=401, description="the filter's window (samples of the step grid, odd); "
+                                                      "chosen on validation rollouts (tools/lasa_table.py)")
+    polyorder: int = Field(3, ge=2, le=6, description="the filter's polynomial order")
+    rest_fraction: float = Field(0.02, ge=0, lt=1, description="speeds below this fraction of the peak at either "
+                                                               "end are rest, trimmed")
+    every: int = Field(1, ge=1, le=1000, description="keep every this-many grid samples for training")
+    split: Literal["holdout", "leave_one_out", "all"] = Field(
+        "holdout", description="holdout (val / test counts), leave_one_out (fold), or all: train and test on every "
+                               "demonstration, the protocol of most published LASA numbers")
+    val: int = Field(1, ge=0, le=1000, description="holdout: validation demonstrations")
+    test: int = Field(1, ge=0, le=1000, description="holdout: test demonstrations")
+    fold: int = Field(0, ge=0, description="leave_one_out: the demonstration tested (the next one validates)")
+    starts: int = Field(100, ge=0, le=100000, description="starts at rest in the demonstrations' box, enlarged by "
+                                                           "`enlarge`, for the convergence check")
+    enlarge: float = Field(0.5, ge=0, le=10, description="the box of those starts: the demonstrations' bounding "
+                                                         "box, each side longer by this fraction")
+    horizon_factor: float = Field(3.0, gt=0, le=100, description="their horizon: this times the longest "
+                                                                 "demonstration")
+    tolerance: float = Field(0.001, gt=0, description="converged: within this distance of the goal (m, the "
+                                                      "positions' SI unit) at the horizon")
+    cache_dir: str | None = Field(None, description="where the split datasets are cached (keyed by the files' "
+                                                    "content); default the run directory")
+
+    @model_validator(mode="after")
+    def _what_the_format_needs(self):
+        if self.format == "lasa" and not self.shape:
+            raise ValueError("format lasa needs data.shape, one of the dataset's shapes (e.g. data.shape=Angle)")
+        if self.format != "lasa" and not self.files:
+            raise ValueError(f"format {self.format} needs data.files, the recorded files to read")
+        if self.window % 2 == 0 or self.window <= self.polyorder:
+            raise ValueError(f"data.window ({self.window}) must be odd and larger than data.polyorder "
+                             f"({self.polyorder})")
+        return self
+
+    @property
+    def points(self) -> None:
+        """Recorded demonstrations have their own lengths: no fixed number of points."""
+        return None
+
+
+#: the data block's union tags: the separator marks them as schema bookkeeping, left out of error locations
+_EXPERT_DATA, _RECORDED_DATA = f"data source{TAG_SEPARATOR}expert", f"data source{TAG_SEPARATOR}recorded"
+
+
+def _data_source(value: Any) -> str:
+    """The data block's kind: ``source`` when given, else ``expert`` (every block before recordings existed)."""
+    source = value.get("source", "expert") if isinstance(value, Mapping) else getattr(value, "source", "expert")
+    return f"data source{TAG_SEPARATOR}{source}"
+
+
+#: the data block: the expert's rollouts (default) or recorded demonstrations
+DataBlock = Annotated[Union[Annotated[DataConfig, Tag(_EXPERT_DATA)], Annotated[RecordedDataConfig, Tag(_RECORDED_DATA)]],
+                      Discriminator(_data_source, custom_error_type="data_source",
+                                    custom_error_message="data.source must be expert (the expert tree's rollouts, "
+                                                         "the default) or recorded (files of recorded demonstrations)")]
 
 
 def upgrade_run_config(run: Mapping[str, Any]) -> dict[str, Any]:
@@ -116,7 +198,8 @@ class RunConfig(_Frozen):
     tree: TreeSpec = Field(description="the tree spec (docs/architecture.md §2) without learned weights")
     expert: dict[str, Any] = Field(default_factory=dict, description="node or shared-weight name -> weight spec")
     learners: dict[str, TypedBlock] = Field(default_factory=dict, description="learner name -> {type: rmp|unstructured, ...}")
-    data: DataConfig = DataConfig()
+    data: DataBlock = Field(default_factory=DataConfig, description="the expert's demonstrations (source: expert) or "
+                            "recorded ones (source: recorded)")
     train: Annotated[Any, BeforeValidator(_typed_train)] = Field(
         default_factory=dict, validate_default=True,
         description="the training method (method: bc | dagger | apg | pg | a plugin's) and its settings")
@@ -149,6 +232,9 @@ class RunConfig(_Frozen):
                    f"snapshots {bad} lie outside 0..train.iterations={self.train.iterations} (a snapshot is the "
                    f"learner after that many iterations); given {self.train.snapshots}")
         step = getattr(self.env, "integration_step", None) if not isinstance(self.env, TypedBlock) else None
+        if isinstance(self.data, RecordedDataConfig):
+            found += self._recorded_issues()
+            step = None
         if callable(step):  # environments that name their fixed step; others are checked when they roll out
             dt, key = step()
             if (too_many := self._too_many_steps(dt, key)) is not None:
@@ -159,8 +245,8 @@ class RunConfig(_Frozen):
                     refuse(loc, t, f"must be {what} of the environment's step {key} = {dt:.6g} s (rollouts "
                                    f"integrate and record on that step's grid only); given {t}")
         shown = getattr(self.env, "render_trajectory", None) if not isinstance(self.env, TypedBlock) else None
-        n_test = self.data.test_envs * self.data.test_trajectories
-        if isinstance(shown, int) and shown >= n_test:
+        n_test = self.data.test_envs * self.data.test_trajectories if isinstance(self.data, DataConfig) else 0
+        if isinstance(shown, int) and n_test and shown >= n_test:
             refuse(("env", "render_trajectory"), shown,
                    f"must be < {n_test}, the number of test trajectories (data.test_envs × data.test_trajectories, "
                    f"numbered from 0); given {shown}")
@@ -168,6 +254,21 @@ class RunConfig(_Frozen):
             raise ValidationError.from_exception_data(type(self).__name__, found)
         return self
 
+
+    def _recorded_issues(self) -> list[InitErrorDetails]:
+        """Recorded demonstrations have no expert: an expert block, or a method that queries one, is refused."""
+        issues = []
+        if self.expert:
+            issues.append(("expert", dict(self.expert), "recorded demonstrations (data.source=recorded) have no expert "
+                           "tree: remove the expert block; the tree with every weight 1 is reported as the untrained "
+                           "reference"))
+        method = getattr(self.train, "method", None)
+        if method not in (None, "bc"):
+            issues.append((("train", "method"), method, f"train.method={method} needs an expert or the environment's "
+                           "task cost, which recorded demonstrations do not give; use train.method=bc (behavior "
+                           "cloning on the recorded accelerations)"))
+        return [InitErrorDetails(type=PydanticCustomError("run_config", "{message}", {"message": m}),
+                                 loc=(loc,) if isinstance(loc, str) else loc, input=given) for loc, given, m in issues]
 
     def _too_many_steps(self, dt: float, key: str) -> str | None:
         """Why a rollout on the step ``dt`` (set by ``key``) would never end, or None: its longest rollout (the

@@ -71,8 +71,11 @@ def method(exp: Experiment) -> TrainingMethod:
 def context(exp: Experiment, name: str, splits: Splits) -> MethodContext:
     """What a training method may use for learner ``name``: the splits, the environment, the expert, the
     demonstrations' recording grid, its checkpoint directory, progress and logging."""
-    return MethodContext(data=dict(splits.data), seed=exp.learner_seed(name) + 1, env=exp.env, expert=exp.expert,
-                         interval=exp.run.data.interval, points=exp.run.data.points,
+    d = exp.run.data
+    recorded = d.source == "recorded"  # no expert, and demonstrations of their own lengths
+    return MethodContext(data=dict(splits.data), seed=exp.learner_seed(name) + 1, env=exp.env,
+                         expert=None if recorded else exp.expert, interval=None if recorded else d.interval,
+                         points=None if recorded else d.points,
                          checkpoint_dir=exp.dir / "checkpoints" / name, run_config=exp.config,
                          progress=exp.say.bar(f"train {name}"), say=exp.say.say,
                          log=(lambda m: exp.log_scalars(name, m)) if exp.log is not None else None)

@@ -23,6 +23,7 @@ from .evaluation import ExpertEval, evaluate, evaluate_expert
 from .experiment import Experiment, Log, prepare
 from .fit import Fitted, fit
 from .progress import Progress
+from .recorded import run_recorded
 from .report import report
 
 
@@ -59,6 +60,8 @@ def run_experiment(run: RunConfig, run_dir: str | os.PathLike, progress: bool = 
     started = time.time()
     with _threads(threads):
         exp = start(run, run_dir, progress, log)
+        if run.data.source == "recorded":
+            return run_recorded(exp, require_trained)
         splits = collect(exp)
         expert = evaluate_expert(exp, splits.test)  # before training: an expert that diverges stops the run here
         fitted = fit(exp, splits, require_trained=require_trained)

@@ -26,6 +26,8 @@ from ..assembly.generated import expand_tree
 from ..assembly.spec import check_typed, validate_tree_spec
 from ..assembly.weighting import own_weights, weights_by_name
 from ..core.auxstate import AuxOrValue
+from ..recordings.recording import RecordingError
+from ..recordings.source import read_recordings, to_grid
 from ..registry import ENVS, LEAF_RMPS, TASK_MAPS, TRAIN_METHODS, WEIGHTS, Registry
 from .config import RunConfig, run_config_model
 from .construct import build_expert, build_learners
@@ -138,8 +140,26 @@ def _make_env(data: Mapping[str, Any]) -> tuple[Any, list[Issue]]:
 def _method_issues(run: RunConfig, env: Any) -> list[Issue]:
     """What the training method needs of the run (an environment it can roll out in, enough demonstrations)."""
     method = TRAIN_METHODS.get(run.train.method).obj
+    if run.data.source == "recorded":  # only behavior cloning; the model's own check says so
+        return []
     return [Issue(path, message) for path, message in
             method.requirements(run.train, env, run.data.train_envs * run.data.train_trajectories)]
+
+
+def _recording_issues(run: RunConfig, env: Any) -> list[Issue]:
+    """Recorded demonstrations read now (they are small), so a bad file is said before anything runs: the
+    reader's message names the file, row and column; a dimension unlike the environment's is said too."""
+    if run.data.source != "recorded":
+        return []
+    try:
+        states = to_grid(read_recordings(run.data), run.data, env.dt)
+    except RecordingError as e:
+        return [Issue("data", str(e))]
+    if states[0].q.shape[1] != env.dim:
+        return [Issue("data", f"{states[0].source}: the demonstrations have {states[0].q.shape[1]} coordinates but "
+                              f"the environment {run.env.type} has {env.dim}; choose an environment of that "
+                              "dimension (env=...) or the columns to read (data.columns)")]
+    return []
 
 
 def _expert_issues(run: RunConfig) -> list[Issue]:
@@ -303,7 +323,7 @@ def resolve_and_validate(cfg: DictConfig | Mapping[str, Any]) -> RunConfig:
     run = run.model_copy(update={"expert": weights_by_name(run.tree, run.expert)})  # roles -> the names they cover
     issues += _expert_issues(run) + _learner_issues(run)
     if env is not None:
-        issues += _method_issues(run, env)
+        issues += _method_issues(run, env) + _recording_issues(run, env)
     if aux_dims is not None and not issues:
         issues += _build_issues(run, aux_dims)
     if issues:

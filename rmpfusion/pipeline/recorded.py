@@ -1,0 +1,258 @@
+"""An experiment on recorded demonstrations (``data.source: recorded``): read -> split by demonstration -> train
+(behavior cloning on the recorded accelerations) -> evaluate against the held-out demonstrations -> report.
+
+There is no expert. The reference beside the learners is the tree as configured with every weight 1 (``tree``):
+what the structure alone does before anything is learned. Each policy is measured the way the LASA literature
+measures learned dynamical systems (Khansari-Zadeh & Billard 2011; Rana et al. 2020):
+
+* reproduction, from each held-out demonstration's first state (its position and velocity): DTW distance per
+  sample and swept error area over the demonstration's duration, the distance to the goal after
+  ``horizon_factor`` durations, and the time to come within ``tolerance``;
+* convergence, from ``starts`` states at rest drawn uniformly in the demonstrations' bounding box enlarged by
+  ``enlarge``, over ``horizon_factor`` times the longest demonstration: the fraction within ``tolerance`` of the
+  goal at the end, V_r non-increasing (Theorem 2), and where the others stopped (spurious equilibria);
+* the trained tree's certificate (Theorem 2's premises and energy identity) at every record of those rollouts.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import torch
+
+from ..envs.demonstrations import Dataset, load_dataset, save_dataset
+from ..evaluate.lyapunov import lyapunov_monotone
+from ..evaluate.reproduction import dtw_distance, swept_error_area
+from ..files import atomic_write_json
+from ..learn.loop import load_snapshot
+from ..plots.recorded import recorded_figures
+from ..recordings import Split, holdout, leave_one_out, recorded_dataset
+from ..recordings.recording import RecordingError
+from ..recordings.signals import States
+from ..recordings.source import content_hash, read_recordings, to_grid
+from .collect import Splits
+from .evaluation import certificate
+from .experiment import Experiment, clean
+from .fit import fit
+
+#: the reference policy's name: the configured tree with every weight 1, nothing learned
+TREE = "tree"
+
+
+# ------------------------------------------------------------------ data
+def split_of(d, n: int, seed: int) -> Split:
+    """Which demonstrations train, validate and test (``data.split``)."""
+    if d.split == "leave_one_out":
+        return leave_one_out(n, d.fold)
+    if d.split == "all":  # the field's usual protocol: train and evaluate on every demonstration
+        every = tuple(range(n))
+        return Split(train=every, val=(), test=every)
+    return holdout(n, d.val, d.test, seed)
+
+
+def _check_dimension(states: list[States], dim: int) -> None:
+    if states[0].q.shape[1] != dim:
+        raise RecordingError(f"{states[0].source}: the demonstrations have {states[0].q.shape[1]} coordinates but the "
+                             f"environment has {dim}; choose an environment of that dimension (env=...) or the "
+                             "columns to read (data.columns)")
+
+
+def _cache_key(exp: Experiment, split: str, members: tuple[int, ...]) -> str:
+    d = exp.run.data
+    key = {"files": content_hash(d), "data": d.model_dump(exclude={"cache_dir", "starts", "enlarge",
+                                                                   "horizon_factor", "tolerance"}),
+           "dt": exp.env.dt, "split": split, "members": members}
+    return hashlib.sha256(json.dumps(key, sort_keys=True, default=str).encode()).hexdigest()
+
+
+def _dataset(exp: Experiment, split: str, members: tuple[int, ...], states: list[States]) -> tuple[Dataset, dict]:
+    """The split's dataset, from the cache when the files and settings are the same, else made and cached."""
+    d = exp.run.data
+    h = _cache_key(exp, split, members)
+    path = (Path(d.cache_dir) if d.cache_dir else exp.dir / "data") / f"{split}-{h[:16]}.pt"
+    meta = {"seed": exp.run.seed, "config_hash": h, "split": split}
+    info = {"path": str(path), "demonstrations": [states[i].source for i in members]}
+    if path.exists():
+        ds = load_dataset(path, meta)
+        return ds, {**info, "sha256": ds.checksum(), "points": len(ds), "reused": True}
+    ds = recorded_dataset([states[i] for i in members], every=d.every if split == "train" else 1)
+    return ds, {**info, "sha256": save_dataset(path, ds, meta), "points": len(ds), "reused": False}
+
+
+def recorded_splits(exp: Experiment) -> tuple[Splits, dict[str, list[States]], list[States]]:
+    """The run's splits as datasets, the demonstrations of each split on the step grid, and all of them."""
+    d = exp.run.data
+    t0 = time.time()
+    states = to_grid(read_recordings(d), d, exp.env.dt)
+    _check_dimension(states, exp.env.dim)
+    split = split_of(d, len(states), exp.run.seed)
+    parts = {"train": split.train, "test": split.test, **({"val": split.val} if split.val else {})}
+    made = {name: _dataset(exp, name, members, states) for name, members in parts.items()}
+    for name, (ds, info) in made.items():
+        exp.say.say(f"data: {name}: {len(info['demonstrations'])} demonstration(s), {info['points']} points"
+                    f"{' (reused)' if info['reused'] else ''}")
+    exp.timing["data_s"] = time.time() - t0
+    splits = Splits({k: ds for k, (ds, _) in made.items()}, {k: info for k, (_, info) in made.items()})
+    return splits, {k: [states[i] for i in m] for k, m in parts.items()}, states
+
+
+# ------------------------------------------------------------------ evaluation
+def _as_tensor(x: np.ndarray) -> torch.Tensor:
+    return torch.as_tensor(np.asarray(x), dtype=torch.float64)
+
+
+def start_box(demos: list[States], enlarge: float) -> tuple[np.ndarray, np.ndarray]:
+    """The demonstrations' bounding box, each side ``enlarge`` times longer (about its centre)."""
+    q = np.concatenate([s.q for s in demos])
+    lo, hi = q.min(0), q.max(0)
+    pad = 0.5 * enlarge * (hi - lo)
+    return lo - pad, hi + pad
+
+
+def grid_starts(demos: list[States], d) -> np.ndarray:
+    """``data.starts`` positions at rest on a regular grid over the enlarged box (as many per side as the
+    starts' root allows, rounded down; every dimension the same count)."""
+    lo, hi = start_box(demos, d.enlarge)
+    per_side = max(2, int(np.floor(d.starts ** (1.0 / len(lo)) + 1e-9)))
+    axes = [np.linspace(lo[k], hi[k], per_side) for k in range(len(lo))]
+    return np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, len(lo))
+
+
+@dataclass
+class Batch:
+    """Every rollout a policy is judged on, as one batch: each held-out demonstration from its first state
+    (``demos``: split -> indices into the batch), then the grid of starts at rest (``grid``)."""
+
+    q0: torch.Tensor
+    qd0: torch.Tensor
+    aux: dict[str, torch.Tensor]
+    demos: dict[str, list[States]]
+    index: dict[str, slice]
+    grid: slice
+    horizon: float
+
+
+def evaluation_batch(exp: Experiment, demos: dict[str, list[States]], every_demo: list[States]) -> Batch:
+    d, dt = exp.run.data, exp.env.dt
+    held = {k: demos[k] for k in ("test", "val") if k in demos}
+    q0 = [s.q[0] for v in held.values() for s in v]
+    qd0 = [s.qd[0] for v in held.values() for s in v]
+    goals = [s.goal for v in held.values() for s in v]
+    index, at = {}, 0
+    for k, v in held.items():
+        index[k], at = slice(at, at + len(v)), at + len(v)
+    grid = grid_starts(every_demo, d)
+    goal = np.mean([s.goal for s in every_demo], axis=0)
+    q0 += list(grid)
+    qd0 += [np.zeros_like(goal)] * len(grid)
+    goals += [goal] * len(grid)
+    longest = max(float(s.t[-1]) for s in every_demo)
+    horizon = dt * int(np.ceil(d.horizon_factor * longest / dt - 1e-9))
+    return Batch(_as_tensor(np.stack(q0)), _as_tensor(np.stack(qd0)), {"goal": _as_tensor(np.stack(goals))}, held,
+                 index, slice(at, at + len(grid)), horizon)
+
+
+def reproduction(batch: Batch, ro, split: str, tolerance: float) -> dict:
+    """DTW per sample and swept error area over each demonstration's duration, the distance to the goal at the
+    horizon, the time to within ``tolerance``: the mean over the split's demonstrations and each one's own."""
+    path, dist = ro.q.numpy(), ro.goal_distance.numpy()
+    per = []
+    for n, demo in zip(range(batch.index[split].start, batch.index[split].stop), batch.demos[split]):
+        T = len(demo.t)
+        within = np.flatnonzero(dist[:, n] <= tolerance)
+        per.append({"demonstration": demo.source, "dtw": dtw_distance(path[:T, n], demo.q),
+                    "swept_error_area": swept_error_area(path[:T, n], demo.q), "final_distance": float(dist[-1, n]),
+                    "time_to_tolerance": float(ro.times[within[0]]) if within.size else float("inf")})
+    mean = {k: float(np.mean([p[k] for p in per])) for k in ("dtw", "swept_error_area", "final_distance")}
+    reached = [p["time_to_tolerance"] for p in per if np.isfinite(p["time_to_tolerance"])]
+    return {**mean, "reached": len(reached) / len(per),
+            "time_to_tolerance": float(np.mean(reached)) if reached else None, "per_demonstration": per}
+
+
+def convergence(batch: Batch, ro, d, rtol: float, atol: float, dt: float) -> dict:
+    """From the grid of starts at rest: the fraction within ``tolerance`` of the goal at the horizon, V_r
+    non-increasing, and where the others stopped (nearly at rest away from the goal: spurious equilibria)."""
+    g = batch.grid
+    final = ro.goal_distance[-1, g]
+    ok = final <= d.tolerance
+    stalled = (~ok & (ro.qd[-1, g].norm(dim=-1) < 1e-3 * d.tolerance / dt)).nonzero().flatten()
+    V = ro.V[:, g] if ro.V is not None else None
+    out = {"starts": int(final.numel()), "horizon_s": batch.horizon, "converged": float(ok.double().mean()),
+           "final_distance_max": float(final.max()), "final_distance_median": float(final.median()),
+           "stalled": [ro.q[-1, g][int(b)].tolist() for b in stalled[:10]], "stalled_count": int(stalled.numel())}
+    if V is not None:
+        out["lyapunov_monotone_fraction"] = float(lyapunov_monotone(V, rtol=rtol, atol=atol).double().mean())
+    return out
+
+
+def evaluate_policy(exp: Experiment, label: str, policy: Callable, batch: Batch) -> tuple[dict, object]:
+    """One policy on the evaluation batch: reproduction of the held-out demonstrations, convergence from the grid."""
+    d, ev = exp.run.data, exp.run.eval
+    ro = exp.env.rollout(policy, batch.q0, batch.qd0, batch.aux, batch.horizon, exp.env.dt,
+                         progress=exp.say.bar(f"rollout {label}"))
+    out = {f"reproduction_{k}": reproduction(batch, ro, k, d.tolerance) for k in batch.index}
+    out["convergence"] = conv = convergence(batch, ro, d, ev.lyapunov_rtol, ev.lyapunov_atol, exp.env.dt)
+    rep = out["reproduction_test"]
+    monotone = conv.get("lyapunov_monotone_fraction")
+    exp.say.say(f"{label}: test DTW {rep['dtw']:.4g} m, swept area {rep['swept_error_area']:.4g} m², final "
+                f"{rep['final_distance']:.2e} m; converged {conv['converged']:.0%} of {conv['starts']} starts"
+                + (f", V_r monotone {monotone:.0%}" if monotone is not None else " (no V_r: not a tree)"))
+    if conv["stalled_count"]:
+        exp.say.say(f"{label}: {conv['stalled_count']} start(s) stopped away from the goal (spurious equilibria), "
+                    f"e.g. at {conv['stalled'][0]}")
+    return out, ro
+
+
+def evaluate_recorded(exp: Experiment, fitted: dict, batch: Batch) -> tuple[dict, dict]:
+    """The configured tree (every weight 1) and every learner at every training snapshot; the results and the
+    final rollout of each policy (for the figures)."""
+    res, rollouts = {"learners": {}}, {}
+    res[TREE], rollouts[f"{TREE} (every weight 1)"] = evaluate_policy(exp, TREE, exp.expert_at(), batch)
+    for name, f in fitted.items():
+        model = f.model.to(torch.float64)
+        snaps = {}
+        for it in sorted(f.result.snapshots):
+            snap = load_snapshot(model, f.result.snapshots[it]).to(torch.float64)
+            snaps[str(it)], ro = evaluate_policy(exp, f"{name}-{it}", snap.policy, batch)
+        final = snaps.get(str(exp.run.train.iterations))
+        if final is None:
+            final, ro = evaluate_policy(exp, name, model.policy, batch)
+        rollouts[f"{name} after {exp.run.train.iterations} iterations"] = ro
+        if model.tree is not None:
+            final["certificate"] = certificate(model, ro, batch.aux)
+        if learned := model.learned_numbers():
+            final["learned_leaf_parameters"] = learned
+        res["learners"][name] = {**final, "snapshots": snaps, "train_seconds": f.seconds,
+                                 "final_train_loss": f.result.curve[-1][1] if f.result.curve else None}
+    return res, rollouts
+
+
+# ------------------------------------------------------------------ the run
+def objective(results: dict) -> float | None:
+    """What a sweep minimises: the first learner's DTW on the validation demonstrations (settings such as the
+    filter's window are chosen there, never on the test demonstrations); None without a validation split."""
+    for res in results["learners"].values():
+        return (res.get("reproduction_val") or {}).get("dtw")
+    return None
+
+
+def run_recorded(exp: Experiment, require_trained: bool = False) -> dict:
+    """The whole experiment on recorded demonstrations in ``exp.dir``; returns (and writes) metrics.json."""
+    started = time.time()
+    splits, demos, every_demo = recorded_splits(exp)
+    fitted = fit(exp, splits, require_trained=require_trained)
+    batch = evaluation_batch(exp, demos, every_demo)
+    results, rollouts = evaluate_recorded(exp, fitted, batch)
+    results["objective"] = objective(results)
+    metrics = clean({"name": exp.run.name, "seed": exp.run.seed, "source": "recorded",
+                     "data": {k: {kk: vv for kk, vv in v.items() if kk != "path"} for k, v in splits.info.items()},
+                     **results, "timing": {**exp.timing, "total_s": time.time() - started}})
+    if exp.run.eval.figures:
+        metrics["figures"] = recorded_figures(exp.dir / "figures", rollouts, batch, demos)
+    atomic_write_json(exp.dir / "metrics.json", metrics)
+    return metrics

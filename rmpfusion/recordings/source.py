@@ -1,0 +1,85 @@
+"""A data block's recordings read and brought onto the step grid: the one place that turns ``data: {source:
+recorded, ...}`` into demonstrations, whatever the format, so the pipeline, the tools and the tests read them the
+same way.
+
+Velocities and accelerations come from one place for the whole dataset: the Savitzky–Golay filter
+(``derivatives: filter``) or the files (``derivatives: file``, refused unless every demonstration carries both).
+"""
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from .lasa import lasa_file, read_lasa
+from .readers import read_csv, read_hdf5, read_npz
+from .recording import Recording, RecordingError
+from .signals import States, to_states
+
+
+def source_files(d: Any) -> list[Path]:
+    """The files a data block reads (the LASA shape's ``.mat`` file, or ``data.files``)."""
+    return [lasa_file(d.shape)] if d.format == "lasa" else [Path(f) for f in d.files]
+
+
+def content_hash(d: Any) -> str:
+    """sha256 over the contents of every file the block reads: a cache key that changes when a recording does,
+    not when a file is moved."""
+    h = hashlib.sha256()
+    for path in source_files(d):
+        if not path.is_file():
+            raise RecordingError(f"{path}: no such file (data.files); give the path of a recorded file, relative "
+                                 "to the directory the command runs in or absolute")
+        h.update(path.read_bytes())
+    return h.hexdigest()
+
+
+def read_recordings(d: Any) -> list[Recording]:
+    """Every demonstration the block names, in file order, positions in SI units."""
+    if d.format == "lasa":
+        return read_lasa(d.shape, use_file_derivatives=d.derivatives == "file")
+    out: list[Recording] = []
+    for path in source_files(d):
+        if not path.is_file():
+            raise RecordingError(f"{path}: no such file (data.files)")
+        if d.format == "csv":
+            out += read_csv(path, columns=d.columns, time_column=d.time_column, demo_column=d.demo_column,
+                            units=d.units)
+        elif d.format == "npz":
+            out += read_npz(path, time_key=d.time_column, position_key=d.position_key, columns=d.columns,
+                            units=d.units)
+        else:
+            out += read_hdf5(path, position_key=d.position_key, rate=d.rate, columns=d.columns, units=d.units)
+    if not out:
+        raise RecordingError(f"{', '.join(map(str, source_files(d)))}: no demonstration in the file(s)")
+    return out
+
+
+def check_derivatives(recordings: Sequence[Recording], derivatives: str) -> None:
+    """``derivatives: file`` needs velocities and accelerations in every demonstration: a dataset never mixes the
+    file's with the filter's."""
+    if derivatives != "file":
+        return
+    lacking = [r.source for r in recordings if r.vel is None or r.acc is None]
+    if lacking:
+        raise RecordingError(f"{lacking[0]}: data.derivatives=file but this demonstration has no velocity and "
+                             f"acceleration columns ({len(lacking)} of {len(recordings)} lack them); use "
+                             "data.derivatives=filter for the whole dataset")
+
+
+def to_grid(recordings: Sequence[Recording], d: Any, dt: float) -> list[States]:
+    """Every demonstration on the step grid ``dt`` with its derivatives and goal, the rest trimmed."""
+    check_derivatives(recordings, d.derivatives)
+    goal = np.asarray(d.goal, np.float64) if d.goal is not None else None
+    if goal is not None and goal.shape != (recordings[0].dim,):
+        raise RecordingError(f"data.goal has {goal.size} coordinates but the demonstrations have "
+                             f"{recordings[0].dim} ({', '.join(recordings[0].columns)})")
+    out = []
+    for rec in recordings:
+        if d.derivatives == "filter":  # the file's derivatives are never mixed with the filter's
+            rec = Recording(t=rec.t, pos=rec.pos, source=rec.source, columns=rec.columns, aux=rec.aux, rows=rec.rows)
+        out.append(to_states(rec, dt, window=d.window, polyorder=d.polyorder, rest_fraction=d.rest_fraction,
+                             goal=goal))
+    return out

@@ -1,0 +1,152 @@
+"""Experiments on recorded demonstrations (``data.source: recorded``): the LASA preset and a user's CSV run end to
+end without an expert, the measures are those of the demonstrations themselves, Theorem 2 holds for the trained
+tree, and every bad input is one error naming the key or file."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from conftest import compose_cfg
+from rmpfusion.assembly.errors import ConfigError
+from rmpfusion.envs.rollout import Rollout
+from rmpfusion.evaluate.reproduction import dtw_distance
+from rmpfusion.pipeline.recorded import Batch, convergence, grid_starts, reproduction
+from rmpfusion.pipeline.run import run_experiment
+from rmpfusion.pipeline.validate import resolve_and_validate
+from rmpfusion.recordings.signals import States
+
+#: the smallest LASA run: 20 iterations, 4 starts, rollouts as long as the longest demonstration
+TINY_LASA = ["experiment=lasa", "logger=disabled", "train.iterations=20", "train.snapshots=[0,20]", "data.starts=4",
+             "data.horizon_factor=1.0"]
+
+
+def validated(overrides):
+    return resolve_and_validate(compose_cfg(overrides))
+
+
+def test_a_tiny_lasa_run_end_to_end_then_resumed(tmp_path):
+    run = validated(TINY_LASA + ["data.shape=Sshape"])
+    m = run_experiment(run, tmp_path, progress=False)
+    assert m["source"] == "recorded" and json.loads((tmp_path / "metrics.json").read_text())["name"] == "lasa_Sshape"
+    used = [set(m["data"][s]["demonstrations"]) for s in ("train", "val", "test")]
+    assert [len(u) for u in used] == [5, 1, 1] and len(set.union(*used)) == 7  # split by whole demonstration
+    rmp = m["learners"]["rmp"]
+    for policy in (m["tree"], rmp, rmp["snapshots"]["0"]):
+        assert policy["convergence"]["lyapunov_monotone_fraction"] == 1.0  # Theorem 2, any parameters
+        assert policy["reproduction_test"]["dtw"] > 0 and policy["reproduction_val"]["dtw"] > 0
+    assert rmp["certificate"]["ok"] and rmp["certificate"]["failing_states"] == 0
+    assert set(rmp["learned_leaf_parameters"]) == {"attractor.gain", "attractor.alpha", "attractor.eta"}
+    assert m["objective"] == rmp["reproduction_val"]["dtw"]  # a sweep chooses on validation
+    assert (tmp_path / "figures" / "rollouts.png").stat().st_size > 0
+    again = run_experiment(run, tmp_path, progress=False)
+    assert all(again["data"][s]["reused"] for s in ("train", "val", "test"))
+    assert again["learners"]["rmp"]["reproduction_test"] == rmp["reproduction_test"]
+
+
+def via_point_demonstrations(n: int, seed: int) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Demonstrations no RMP tree made: cubic splines through jittered via-points, sampled at irregular times
+    (a 100 Hz recorder with jitter), with 0.2 mm of measurement noise and a second of rest at either end."""
+    from scipy.interpolate import CubicSpline
+
+    rng = np.random.default_rng(seed)
+    out = []
+    for _ in range(n):
+        via = np.array([[-0.05, 0.02], [-0.03, 0.04], [-0.01, 0.03], [0.0, 0.0]]) + rng.normal(0, 0.003, (4, 2))
+        via[-1] = 0.0
+        path = CubicSpline([0.0, 1.0, 2.0, 3.0], via, bc_type="clamped")
+        t = np.cumsum(rng.uniform(0.007, 0.013, 500))
+        s = np.clip(t - 1.0, 0.0, 3.0)  # at rest for a second, moving for three, at rest again
+        out.append((t, path(s) + rng.normal(0, 2e-4, (len(t), 2))))
+    return out
+
+
+def write_csv(path, demos) -> None:
+    lines = ["demo,t,x_mm,y_mm"] + [f"d{k},{ti:.6f},{1e3 * p[0]:.5f},{1e3 * p[1]:.5f}"
+                                     for k, (t, pos) in enumerate(demos) for ti, p in zip(t, pos)]
+    path.write_text("\n".join(lines) + "\n")
+
+
+def test_a_users_csv_of_noisy_irregular_recordings_runs(tmp_path):
+    csv = tmp_path / "recorded.csv"
+    write_csv(csv, via_point_demonstrations(5, seed=3))
+    run = validated(TINY_LASA + ["data.format=csv", f"data.files=[{csv}]", "data.demo_column=demo", "data.units=mm",
+                                 "data.goal=[0.0,0.0]", "name=csv_demo"])
+    m = run_experiment(run, tmp_path / "run", progress=False)
+    assert m["data"]["test"]["demonstrations"][0].startswith(str(csv))
+    assert m["learners"]["rmp"]["convergence"]["lyapunov_monotone_fraction"] == 1.0
+
+
+def test_bad_recorded_configs_are_one_error_naming_the_key(tmp_path):
+    cases = [
+        (["train=dagger"], "train.method", "needs an expert"),
+        (["+expert.attractor=1.0"], "expert", "have no expert"),
+        (["data.shape=Sshap"], "data", "did you mean 'Sshape'"),
+        (["data.window=10"], "data", "must be odd"),
+        (["data.format=csv"], "data", "needs data.files"),
+        (["data.source=robot"], "data", "data.source must be expert"),
+        (["data.format=csv", f"data.files=[{tmp_path / 'missing.csv'}]"], "data", "no such file"),
+    ]
+    three = tmp_path / "three.csv"
+    three.write_text("t,x,y,z\n" + "".join(f"{0.01 * k},{k},{2 * k},{3 * k}\n" for k in range(60)))
+    cases.append((["data.format=csv", f"data.files=[{three}]", "data.split=all"], "data", "3 coordinates but the "
+                                                                                             "environment"))
+    for extra, path, words in cases:
+        with pytest.raises(ConfigError) as err:
+            validated(TINY_LASA + extra)
+        found = [i for i in err.value.issues if i.path == path]
+        assert found and words in found[0].message, (extra, err.value.issues)
+
+
+def demo_states(T: int = 50) -> States:
+    t = 0.02 * np.arange(T)
+    q = np.stack([np.cos(t) - 1.0, np.sin(2 * t)], -1)
+    return States(t=t, q=q, qd=np.gradient(q, axis=0) / 0.02, qdd=np.zeros_like(q), goal=np.array([0.0, 0.0]),
+                  source="demo", aux={})
+
+
+def replay(states: States, extra: int, grid: np.ndarray) -> Rollout:
+    """A rollout that follows the demonstration exactly (then rests at its end), beside starts that stay put."""
+    path = np.concatenate([states.q, np.repeat(states.q[-1:], extra, axis=0)])
+    T = len(path)
+    q = np.concatenate([path[:, None], np.repeat(grid[None], T, axis=0)], axis=1)
+    qt = torch.as_tensor(q)
+    goal = np.zeros(2)
+    return Rollout(times=torch.arange(T, dtype=torch.float64) * 0.02, q=qt, qd=torch.zeros_like(qt),
+                   qdd=torch.zeros_like(qt), collided=torch.zeros(q.shape[1], dtype=torch.bool),
+                   reached=torch.zeros(q.shape[1], dtype=torch.bool), success=torch.zeros(q.shape[1], dtype=torch.bool),
+                   min_clearance=torch.zeros(q.shape[1]), first_collision_time=torch.zeros(q.shape[1]),
+                   goal_distance=torch.as_tensor(np.linalg.norm(q - goal, axis=-1)))
+
+
+def test_reproduction_of_an_exact_replay_is_zero_and_stalled_starts_are_found():
+    demo = demo_states()
+    grid = np.array([[0.0, 0.0005], [0.3, 0.3]])  # one at the goal (within 1 mm), one stalled away from it
+    ro = replay(demo, 20, grid)
+    batch = Batch(q0=ro.q[0], qd0=torch.zeros(3, 2), aux={"goal": torch.zeros(3, 2)}, demos={"test": [demo]},
+                  index={"test": slice(0, 1)}, grid=slice(1, 3), horizon=float(ro.times[-1]))
+    rep = reproduction(batch, ro, "test", tolerance=1e-3)
+    assert rep["dtw"] == 0.0 and rep["swept_error_area"] == 0.0
+    assert rep["final_distance"] == pytest.approx(np.linalg.norm(demo.q[-1]))
+    shifted = demo.q + [0.01, 0.0]  # against the demonstration moved 1 cm along x: at most 1 cm per sample (the
+    assert 0.005 < dtw_distance(demo.q, shifted) <= 0.01 + 1e-12  # warping may pair samples closer than the shift
+
+    class D:
+        tolerance = 1e-3
+
+    conv = convergence(batch, ro, D, rtol=1e-6, atol=1e-9, dt=0.02)
+    assert conv["converged"] == 0.5 and conv["stalled_count"] == 1 and conv["stalled"] == [[0.3, 0.3]]
+
+
+def test_the_convergence_grid_covers_the_enlarged_box():
+    class D:
+        starts, enlarge = 100, 0.5
+
+    demo = demo_states()
+    g = grid_starts([demo], D)
+    lo, hi = demo.q.min(0), demo.q.max(0)
+    assert g.shape == (100, 2)
+    np.testing.assert_allclose(g.min(0), lo - 0.25 * (hi - lo))
+    np.testing.assert_allclose(g.max(0), hi + 0.25 * (hi - lo))

@@ -1,0 +1,166 @@
+#!/usr/bin/env python
+"""The LASA table: every single-pattern shape of the LASA handwriting dataset learned by experiment=lasa, per
+variant of the tree, as one Hydra multirun per variant (so a joblib or SLURM launcher runs it unchanged).
+
+    python tools/lasa_table.py                                  # the 26 shapes, every variant (hours on 2 cores)
+    python tools/lasa_table.py --variants both --shapes Angle Sshape --out outputs/lasa_table
+    python tools/lasa_table.py --variants both -- hydra/launcher=joblib hydra.launcher.n_jobs=2 data.split=all
+    python tools/lasa_table.py --summarize-only --out outputs/lasa_table   # the table of runs already made
+
+Variants (the tree and what the learner learns; conf/experiment/lasa.yaml):
+  weights  tree=lasa: normalising map -> attractor; a learned weight on the attractor edge (the force points at
+           the goal, so the path stays straight: the baseline)
+  map      tree=lasa_map, learners.rmp.edges=[]: the learned map (a diffeomorphism) without a weight
+  both     tree=lasa_map: the learned map and the weight
+The trees also learn the attractor's gain, softness and damping.
+  first_order  not a tree: the first-order baseline (a velocity field through the same kind of learned map,
+           Euclideanizing-Flows style, executed by velocity tracking; rmpfusion/learn/first_order.py)
+The "tree" row of a shape is the first variant's tree with every weight 1, nothing learned. Arguments after ``--``
+go to every run.
+
+Writes ``<out>/lasa_table.md`` (the table: test DTW per sample, swept error area, final distance, convergence from
+the grid of starts at rest, V_r monotone, the certificate, training time; the mean over shapes as the last row),
+``<out>/lasa_table.json`` (every number) and ``<out>/lasa_grid.png`` (the rollouts figure of each shape for the
+last variant listed). A shape whose run failed or is still running is listed, not silently left out.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from rmpfusion.recordings import SINGLE_PATTERN_SHAPES  # noqa: E402
+
+VARIANTS = {"weights": ["tree=lasa"], "map": ["learners.rmp.edges=[]"], "both": [],
+            "first_order": ["~learners.rmp", "+learner@learners.first_order=first_order"]}
+COLUMNS = (("test DTW (mm)", lambda r: 1e3 * r["reproduction_test"]["dtw"]),
+           ("swept area (mm²)", lambda r: 1e6 * r["reproduction_test"]["swept_error_area"]),
+           ("final distance (mm)", lambda r: 1e3 * r["reproduction_test"]["final_distance"]),
+           ("converged", lambda r: r["convergence"]["converged"]),
+           ("V_r monotone", lambda r: r["convergence"].get("lyapunov_monotone_fraction", float("nan"))))
+
+
+def run_variant(variant: str, shapes: list[str], out: Path, extra: list[str]) -> int:
+    """One multirun over the shapes; returns its exit status (failed jobs are listed by rmpfusion-run)."""
+    cmd = [sys.executable, "-m", "rmpfusion.cli.run", "-m", "experiment=lasa", f"data.shape={','.join(shapes)}",
+           *VARIANTS[variant], f"hydra.sweep.dir={out / variant}", "hydra.sweep.subdir=${data.shape}", *extra]
+    print("$", " ".join(cmd), flush=True)
+    return subprocess.call(cmd, cwd=ROOT)
+
+
+def read_runs(out: Path, variant: str, shapes: list[str]) -> tuple[dict[str, dict], list[str]]:
+    found, missing = {}, []
+    for shape in shapes:
+        path = out / variant / shape / "metrics.json"
+        if path.is_file():
+            found[shape] = json.loads(path.read_text())
+        else:
+            missing.append(shape)
+    return found, missing
+
+
+def row(shape: str, m: dict, policy: str) -> dict:
+    r = m["tree"] if policy == "tree" else next(iter(m["learners"].values()))
+    out = {"shape": shape, "policy": policy, **{title: f(r) for title, f in COLUMNS}}
+    if policy != "tree":
+        out["certificate"] = bool(r["certificate"]["ok"]) if "certificate" in r else None  # None: not a tree
+        out["train s"] = r.get("train_seconds")
+    return out
+
+
+def fmt(v) -> str:
+    if isinstance(v, bool):
+        return "ok" if v else "FAILS"
+    if isinstance(v, float):
+        return "–" if math.isnan(v) else f"{v:.3g}"
+    return "–" if v is None else str(v)
+
+
+def table(rows: list[dict]) -> str:
+    keys = ["shape", "policy", *(t for t, _ in COLUMNS), "certificate", "train s"]
+    lines = ["| " + " | ".join(keys) + " |", "|" + "---|" * len(keys)]
+    lines += ["| " + " | ".join(fmt(r.get(k)) for k in keys) + " |" for r in rows]
+    return "\n".join(lines)
+
+
+def mean_rows(rows: list[dict]) -> list[dict]:
+    out = []
+    for policy in dict.fromkeys(r["policy"] for r in rows):
+        mine = [r for r in rows if r["policy"] == policy]
+        mean = {"shape": f"mean of {len(mine)}", "policy": policy}
+        for title, _ in COLUMNS:
+            mean[title] = sum(r[title] for r in mine) / len(mine)
+        if policy != "tree":
+            mean["certificate"] = all(r["certificate"] for r in mine) if mine[0]["certificate"] is not None else None
+            mean["train s"] = sum(r["train s"] or 0.0 for r in mine) / len(mine)
+        out.append(mean)
+    return out
+
+
+def grid_figure(out: Path, variant: str, shapes: list[str]) -> Path | None:
+    import matplotlib.image as mpimg
+    from matplotlib.figure import Figure
+
+    pngs = [(s, out / variant / s / "figures" / "rollouts.png") for s in shapes]
+    pngs = [(s, p) for s, p in pngs if p.is_file()]
+    if not pngs:
+        return None
+    cols = 4
+    rows_n = math.ceil(len(pngs) / cols)
+    fig = Figure(figsize=(4.2 * cols, 2.4 * rows_n), layout="constrained")
+    axes = fig.subplots(rows_n, cols, squeeze=False)
+    for ax in axes.flat:
+        ax.axis("off")
+    for ax, (shape, p) in zip(axes.flat, pngs):
+        ax.imshow(mpimg.imread(p))
+        ax.set_title(shape, fontsize=9)
+    fig.suptitle(f"LASA, variant '{variant}': the tree (left) and the trained learner (right) of each shape")
+    path = out / "lasa_grid.png"
+    fig.savefig(path, dpi=120)
+    return path
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--shapes", nargs="+", default=list(SINGLE_PATTERN_SHAPES), choices=SINGLE_PATTERN_SHAPES)
+    ap.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
+    ap.add_argument("--out", type=Path, default=ROOT / "outputs" / "lasa_table")
+    ap.add_argument("--summarize-only", action="store_true", help="read the runs already in --out; run nothing")
+    args, extra = ap.parse_known_args(argv)
+    extra = [e for e in extra if e != "--"]
+    args.out = args.out.resolve()
+    if not args.summarize_only:
+        for variant in args.variants:
+            run_variant(variant, args.shapes, args.out, extra)
+    rows, report = [], {}
+    for variant in args.variants:
+        found, missing = read_runs(args.out, variant, args.shapes)
+        if missing:
+            print(f"{variant}: no metrics.json for {', '.join(missing)} (failed or not run)")
+        for shape, m in found.items():
+            if variant == args.variants[0]:
+                rows.append(row(shape, m, "tree"))
+            rows.append(row(shape, m, variant))
+        report[variant] = {"runs": found and {s: str(args.out / variant / s) for s in found}, "missing": missing}
+    if not rows:
+        print("no finished run to tabulate", file=sys.stderr)
+        return 1
+    rows = sorted(rows, key=lambda r: (args.shapes.index(r["shape"]), r["policy"] != "tree"))
+    text = table(rows + mean_rows(rows))
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "lasa_table.md").write_text(text + "\n")
+    (args.out / "lasa_table.json").write_text(json.dumps({"rows": rows, "runs": report}, indent=1))
+    grid = grid_figure(args.out, args.variants[-1], args.shapes)
+    print(text)
+    print(f"wrote {args.out / 'lasa_table.md'}" + (f" and {grid}" if grid else ""))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
