@@ -28,8 +28,9 @@ from ..rmps.gds_leaves import CollisionAvoidance, Damper, GoalAttractor, Identit
 from ..rmps.orientation import OrientationAttractor
 from ..rmps.velocity_limit import VelocityLimit
 from ..robots import RobotField
+from ..robots.robot import build_robot
 from ..robots.home import spheres_at_fixed_height
-from ..scenes import Scene, obstacle_map, scene_aux_dims
+from ..scenes import ObstacleSet, Scene, obstacle_map, scene_aux_dims, set_dims
 from ..weights.neural import MLPWeight
 
 # Leaf parameters tuned for metre/radian scales of an arm; all GDSs, so Theorem 2 holds for any weights.
@@ -152,6 +153,10 @@ class ManipulatorTreeParams(Params):
                                                      "learnable weight shared by one control point's obstacle edges")
     ground_weight: MLPWeight.Params = _tuned_field(MLPWeight.Params, "ground_weight",
                                                    "learnable weight shared by every control point's ground edge")
+    obstacle_sets: list[ObstacleSet] = Field(
+        default_factory=list, description="obstacles that come and go at run time: per set of one shape, n_max members "
+                                          "present or absent call by call (scenes/sets.py; a World fills them), beside "
+                                          "the scene's fixed obstacles, under the same shared obstacle weights")
     self_collision: SelfCollision | None = Field(None, description="barriers between control spheres on links far "
                                                                    "enough apart (none: no self-collision leaves)")
     orientation: Orientation | None = Field(None, description="a tool-axis attractor (none: position only)")
@@ -194,7 +199,12 @@ def _control_point_nodes(p: ManipulatorTreeParams, i: int, cp, ground: bool) -> 
     weight."""
     name, scene = f"cp{i}", p.scene
     nodes: dict[str, Any] = {name: {"parent": "q", "map": _point(p, cp.link, cp.offset)}}
-    shared = {f"{name}_obstacle": _entry(p, "obstacle_weight")} if scene.obstacles else {}
+    shared = {f"{name}_obstacle": _entry(p, "obstacle_weight")} if has_obstacles(p) else {}
+    for s in p.obstacle_sets:  # one slot per member: masked, so an absent member contributes exactly nothing
+        for j in range(1, s.n_max + 1):
+            nodes[f"{name}_{s.prefix}{j}"] = {"parent": name, "map": _surface(s.slot_map(j), cp.radius),
+                                              "weight": {"shared": f"{name}_obstacle", "bind": s.weight_bind(j)},
+                                              "rmp": _entry(p, "obstacle_rmp")}
     for k, o in enumerate(scene.obstacles, start=1):
         dist = obstacle_map(k, o.type, o.moving, p.obstacle_maps.get(o.type))
         nodes[f"{name}_obstacle{k}"] = {
@@ -221,8 +231,8 @@ def fig1b(p: ManipulatorTreeParams) -> dict[str, Any]:
     identity metric carry no weight, as in the paper.
     """
     r = p.robot
-    aux: dict[str, int] = {"goal": 3, **scene_aux_dims(p.scene)}
-    if p.scene.obstacles:  # generic names the shared obstacle weights read; every edge binds them to its own obstacle
+    aux: dict[str, int] = {"goal": 3, **scene_aux_dims(p.scene), **set_dims(p.obstacle_sets)}
+    if has_obstacles(p):  # generic names the shared obstacle weights read; every edge binds them to its own obstacle
         aux["obstacle_center"] = 3
         aux["obstacle_radius"] = 1
     nodes: dict[str, Any] = {
@@ -244,6 +254,8 @@ def fig1b(p: ManipulatorTreeParams) -> dict[str, Any]:
     extras = _optional_leaves(p, nodes, aux)
     n_limits, n_obs = len(r.finite_limits()), len(p.scene.obstacles)
     ground = " and the ground" if p.scene.ground is not None else ""
+    if p.obstacle_sets:
+        ground += " and run-time obstacle sets (" + ", ".join(f"{s.prefix}: {s.n_max}" for s in p.obstacle_sets) + ")"
     return {
         "description": (f"{r.name} (paper Fig. 1b): end-effector attractor, {n_limits} joint-limit barriers, "
                         f"{len(r.control_points)} control points x {n_obs} obstacle(s){ground} with weights shared "
@@ -252,15 +264,21 @@ def fig1b(p: ManipulatorTreeParams) -> dict[str, Any]:
         "aux": aux,
         "shared_weights": shared,
         "nodes": nodes,
-        "roles": weight_roles(r, p.scene),
+        "roles": weight_roles(r, p.scene, bool(p.obstacle_sets)),
     }
 
 
-def weight_roles(robot, scene: Scene) -> dict[str, list[str]]:
+def has_obstacles(p: ManipulatorTreeParams) -> bool:
+    """Whether the tree has obstacle edges: the scene's fixed obstacles or run-time sets."""
+    return bool(p.scene.obstacles or p.obstacle_sets)
+
+
+def weight_roles(robot, scene: Scene, obstacle_sets: bool = False) -> dict[str, list[str]]:
     """The tree's weighted entries by role, what an expert names to weight any robot's tree (``conf/expert/reach.yaml``):
     ``attractor`` (the ee → attractor edge), ``ground`` (the shared weight of every control point's ground edge, when
     the scene has a ground) and ``obstacle`` (each control point's shared obstacle weight)."""
-    obstacle = [f"cp{i}_obstacle" for i in range(1, len(robot.control_points) + 1)] if scene.obstacles else []
+    obstacle = ([f"cp{i}_obstacle" for i in range(1, len(robot.control_points) + 1)]
+                if scene.obstacles or obstacle_sets else [])
     return {"attractor": ["attractor"], "ground": ["ground"] if scene.ground is not None else [],
             "obstacle": obstacle}
 
@@ -311,9 +329,7 @@ def self_collision_pairs(robot, min_separation: int) -> tuple[list[tuple[int, in
     chain = Chain(robot.model(), list(robot.joints))
     far = set(non_adjacent_link_pairs(chain, min_separation=min_separation)) - robot.disabled_collisions()
     cps = robot.control_points
-    home = torch.tensor([list(robot.home)], dtype=torch.float64)
-    poses = chain.forward_kinematics(home, sorted({cp.link for cp in cps}))
-    centre = [poses[cp.link][1][0] + poses[cp.link][0][0] @ torch.tensor(cp.offset, dtype=torch.float64) for cp in cps]
+    centre = build_robot(robot).sphere_centres(torch.tensor([list(robot.home)], dtype=torch.float64))[0]
     pairs, overlapping = [], 0
     for i in range(len(cps)):
         for j in range(i + 1, len(cps)):

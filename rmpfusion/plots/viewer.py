@@ -135,13 +135,10 @@ def spheres_mesh(centers: np.ndarray, radii: np.ndarray) -> tuple[np.ndarray, np
 def control_sphere_centers(robot: RobotDescription, q: Tensor) -> tuple[Tensor, Tensor]:
     """World centres (..., N, 3) of the robot's control spheres at configurations q (..., d), and their radii (N,):
     the robot's own chain (its mount included) and each sphere's link and offset, as the tree's distance maps."""
-    chain = build_robot(robot).chain
     q = torch.as_tensor(q, dtype=torch.float64)
     points = robot.control_points
-    links = sorted({c.link for c in points})
-    poses = chain.forward_kinematics(q, links)
-    centers = [poses[c.link][1] + (poses[c.link][0] @ torch.tensor(c.offset, dtype=q.dtype)) for c in points]
-    return torch.stack(centers, -2), torch.tensor([c.radius for c in points], dtype=q.dtype)
+    flat = build_robot(robot).sphere_centres(q.reshape(-1, q.shape[-1]))
+    return flat.reshape(*q.shape[:-1], len(points), 3), torch.tensor([c.radius for c in points], dtype=q.dtype)
 
 
 def _forward_filled(q: Tensor) -> Tensor:
