@@ -104,6 +104,10 @@ FAILS = {"rmpfusion-validate expert.goal.type=rfb +tree.nodes.goal.rmp.gian=2 tr
 #: Appended to every command that runs the pipeline (rmpfusion-run, tools/reproduce_2d.py): tiny data, 3 training
 #: steps, evaluation without figures or torch.compile, no wandb. The README's commands stay as written before them.
 TINY = [*TINY_RUN, "eval.compile=false"]
+#: Appended to commands on recorded demonstrations (experiment=lasa): 3 training steps, 4 starts, rollouts as long
+#: as the longest demonstration, no figures (the data are the dataset's own: there is nothing to make tiny).
+TINY_RECORDED = ["logger=disabled", "train.iterations=3", "train.snapshots=[0,3]", "data.starts=4",
+                 "data.horizon_factor=1.0", "eval.figures=false"]
 #: The tools that compare training methods choose the method themselves: tiny splits and evaluation only.
 TINY_EVAL = ["data.test_envs=1", "data.test_trajectories=2", "data.val_envs=1", "data.val_trajectories=2",
              "data.points=3", "data.interval=0.1", "eval=fast", "eval.compile=false"]
@@ -201,8 +205,10 @@ def appended(cmd: str, out: Path) -> list[str]:
         return ["--out", str(out), "data=tiny", *TINY_EVAL, "train.compile=false", "train.iterations=2",
                 "train.snapshots=[0,2]", "train.horizon=0.5", "train.truncation=0.5", "train.batch_size=2",
                 "train.log_every=1", "train.checkpoint_every=1"]
+    if cmd.startswith("python tools/lasa_table.py"):
+        return ["--out", str(out), "--", *TINY_RECORDED]
     if cmd.startswith("rmpfusion-run"):
-        extra = list(TINY)
+        extra = list(TINY_RECORDED if "experiment=lasa" in cmd else TINY)
         if " -m " in f" {cmd} ":
             extra.append(f"hydra.sweep.dir={out}")
             if "sweep=optuna_lr" in cmd:

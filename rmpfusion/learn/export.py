@@ -13,7 +13,8 @@ from typing import Any, Mapping, Sequence
 import torch
 from torch import Tensor, nn
 
-from ..core.export import export_policy, export_tree
+from ..core.export import TreeProgram, export_policy, export_tree
+from ..scenes.sets import ObstacleSet, with_slots
 from .learner import Learner
 
 #: The name of the metadata an exported file carries (``torch.export.save``'s extra files; AOTInductor metadata).
@@ -44,6 +45,41 @@ def export_learner(learner: Learner, q: Tensor, qd: Tensor, aux: Mapping[str, Te
     if q.shape[0] < 2:
         raise ValueError("export_learner traces at an example batch of at least 2 states (1 would fix the batch size)")
     return export_policy(LearnerProgram(learner, aux_names), q, qd, aux, aux_names)
+
+
+class SetsProgram(nn.Module):
+    """``forward(q, q̇, *inputs)`` -> q̈ of a tree holding obstacle sets, the inputs in ``input_names`` order: the plain
+    aux entries (the goal) and every set's ``(B, N_max, k)`` tensors and ``(B, N_max)`` mask, what
+    ``scenes.World.set_aux()`` holds. The slots the tree reads are made inside the program, so the number of obstacles
+    present is an input (the masks), not part of the traced graph."""
+
+    def __init__(self, tree: nn.Module, sets: Sequence[ObstacleSet], input_names: Sequence[str],
+                 tree_aux_names: Sequence[str]):
+        super().__init__()
+        self.sets = list(sets)
+        self.input_names = list(input_names)
+        self.tree_aux_names = list(tree_aux_names)
+        self.program = TreeProgram(tree, tree_aux_names)
+
+    def forward(self, q: Tensor, qd: Tensor, *inputs: Tensor) -> Tensor:
+        aux = with_slots(self.sets, dict(zip(self.input_names, inputs)))
+        return self.program(q, qd, *(aux[n] for n in self.tree_aux_names))
+
+
+def export_with_sets(tree: nn.Module, sets: Sequence[ObstacleSet], q: Tensor, qd: Tensor,
+                     inputs: Mapping[str, Tensor]) -> torch.export.ExportedProgram:
+    """A tree holding obstacle sets exported for any obstacles present (0 … N_max of each set): the program takes
+    ``inputs`` (``World.set_aux()``: the goal, the set tensors and masks) in their order, at the example's batch size
+    (a controller's 1). The batch size is fixed: torch.export cannot yet prove the stride guards of a shared weight
+    stacked over several members for a symbolic batch (the same holds for a tree of several fixed obstacles)."""
+    names = list(inputs)
+    slots = with_slots(list(sets), inputs)
+    tree_names = [n for n in slots if n not in names or not any(n.startswith(s.prefix + "_") for s in sets)]
+    program = SetsProgram(tree, sets, names, tree_names).eval()
+    tree.plan  # planned before tracing
+    entries = tuple(inputs[n].expand(q.shape[0], *inputs[n].shape[1:]).contiguous() for n in names)
+    with torch.no_grad():
+        return torch.export.export(program, (q, qd, *entries))
 
 
 def metadata(aux_dims: Mapping[str, int], aux_names: Sequence[str], dim: int, dtype: torch.dtype, with_rmp: bool,
