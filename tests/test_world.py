@@ -142,3 +142,20 @@ def test_changes_the_world_cannot_make_are_clear_errors():
         assert words in str(err.value), (words, str(err.value))
     w.remove("spheres2")
     assert w.add("sphere", center=[0.0, 0.0, 0.9], radius=0.05) == "spheres2"  # the freed member is reused
+
+
+@pytest.mark.slow
+def test_one_compiled_controller_serves_a_world_that_changes_while_it_reaches():
+    """tools/world_demo.py: the Panda's expert tree with obstacle sets, compiled once, reaches goals that move while
+    obstacles appear in its way, move and vanish (8 changes in 6 s): nothing compiles after the first call, no
+    control sphere touches an obstacle, V_r never rises between changes, and it ends at the last goal."""
+    import sys
+
+    sys.path.insert(0, str(CONF.parent / "tools"))
+    from world_demo import run_demo
+
+    r = run_demo(compiled=True, seconds=6.0, dt=0.002)
+    assert r.changes == 8 and r.compiles_after_first_call == 0
+    assert r.min_clearance > 0.0, r.trace
+    assert r.vr_rises_between_changes == 0, r.trace
+    assert r.final_goal_distance < 0.02, r.trace
