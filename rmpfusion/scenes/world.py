@@ -17,6 +17,7 @@ from typing import Mapping, Sequence
 import torch
 from torch import Tensor
 
+from .clouds import cloud_members
 from .sets import PARKED, ObstacleSet, with_slots
 
 #: the fields that give an obstacle its size (``resize``), the others are its pose (``move``)
@@ -94,6 +95,31 @@ class World:
 
     def set_goal(self, goal: Sequence[float] | Tensor) -> None:
         self.goal = self._row(goal, 3, "goal")
+
+    def set_cloud(self, set_name: str, points: Tensor, voxel: float, radius: float,
+                  near: Tensor | None = None) -> int:
+        """Fill the sphere set ``set_name`` with a point cloud (P, 3) in world coordinates, replacing whatever it
+        held: one sphere of ``radius`` per occupied cube of side ``voxel``, the nearest to ``near`` kept when they are
+        more than the set's members (``scenes/clouds.py``). The set then belongs to the cloud (its members have no
+        ids to move or remove one by one). Returns how many members the cloud filled."""
+        if set_name not in self.sets:
+            raise WorldError(f"no obstacle set '{set_name}'; sets: {', '.join(self.sets) or 'none'}")
+        s = self.sets[set_name]
+        if s.shape != "sphere":
+            raise WorldError(f"a point cloud fills a set of spheres; '{set_name}' holds {s.shape}s")
+        if not radius > 0:
+            raise WorldError(f"a cloud's spheres need a radius > 0 (m); given {radius}")
+        if any(prefix == set_name for prefix, _ in self.where.values()):
+            raise WorldError(f"obstacle set '{set_name}' holds obstacles added one by one "
+                             f"({', '.join(o for o, (p, _) in self.where.items() if p == set_name)}); a cloud needs a "
+                             "set of its own")
+        centres, mask = cloud_members(torch.as_tensor(points, dtype=self.dtype), voxel, s.n_max, near)
+        self.tensors[f"{set_name}_center"][:] = centres
+        self.tensors[f"{set_name}_radius"][:] = radius
+        self.tensors[f"{set_name}_mask"][:] = mask
+        if "velocity" in s.fields():
+            self.tensors[f"{set_name}_velocity"][:] = 0.0
+        return int(mask.sum())
 
     # ------------------------------------------------------------------ what a controller reads
     def present(self) -> list[str]:

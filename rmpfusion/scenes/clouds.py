@@ -1,0 +1,54 @@
+"""Point clouds as obstacles: the points a depth camera sees, reduced to at most N_max spheres of one radius that
+fill a sphere obstacle set (``scenes/sets.py``), so a tree built once takes a new cloud every call.
+
+The reduction, stated: the points are binned on a grid of cubes of side ``voxel`` (from the world origin), each
+occupied cube becomes one member at the centroid of its points, with ``radius`` (choose it ≥ half the cube's
+diagonal, √3/2·voxel, and the sensor's noise, so the spheres cover the surface the points sample). Where more cubes
+are occupied than the set has members, the members kept are the cubes nearest to ``near`` (e.g. the control
+spheres' centres: what can be hit first), ties broken by the cube's index, so the choice is deterministic.
+
+What Theorem 2 promises: between two clouds the members are fixed aux state and V_r does not rise. When a new
+cloud replaces the members (or the kept cubes switch as the arm moves), the aux state jumps, and V_r may jump with
+it, as at any change of the world (docs/math.md §13).
+"""
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+
+def voxel_centroids(points: Tensor, voxel: float) -> Tensor:
+    """(M, 3) centroids of the occupied cubes of side ``voxel`` (cube index order) of ``points`` (P, 3); the
+    non-finite points (a depth camera's missing returns) are dropped first."""
+    if voxel <= 0:
+        raise ValueError(f"voxel must be > 0 (the side of the cubes the points are binned in, m); given {voxel}")
+    points = points[torch.isfinite(points).all(-1)]
+    if points.shape[0] == 0:
+        return points.new_zeros(0, 3)
+    cells = torch.floor(points / voxel).to(torch.long)
+    keys, inverse = torch.unique(cells, dim=0, return_inverse=True)
+    sums = points.new_zeros(keys.shape[0], 3).index_add_(0, inverse, points)
+    counts = torch.zeros(keys.shape[0], dtype=points.dtype).index_add_(0, inverse, torch.ones_like(points[:, 0]))
+    return sums / counts[:, None]
+
+
+def keep_nearest(centres: Tensor, n_max: int, near: Tensor | None) -> Tensor:
+    """At most ``n_max`` of ``centres`` (M, 3): all if they fit, else the ``n_max`` nearest to any row of ``near``
+    (K, 3) (without ``near``: the first ``n_max`` in cube order)."""
+    if centres.shape[0] <= n_max:
+        return centres
+    if near is None:
+        return centres[:n_max]
+    distance = torch.cdist(centres, near.to(centres)).min(-1).values
+    order = torch.sort(distance, stable=True).indices  # stable: ties keep cube order
+    return centres[order[:n_max]]
+
+
+def cloud_members(points: Tensor, voxel: float, n_max: int, near: Tensor | None = None) -> tuple[Tensor, Tensor]:
+    """The sphere members (n_max, 3) and their mask (n_max,) of a cloud: voxel centroids, the nearest kept."""
+    kept = keep_nearest(voxel_centroids(points, voxel), n_max, near)
+    centres = points.new_zeros(n_max, 3)
+    mask = points.new_zeros(n_max)
+    centres[: kept.shape[0]] = kept
+    mask[: kept.shape[0]] = 1.0
+    return centres, mask
