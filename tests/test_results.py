@@ -16,6 +16,7 @@ ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "results"
 sys.path.insert(0, str(ROOT / "tools"))
 import compare_metrics  # noqa: E402
+import lasa_table  # noqa: E402
 import reproduce_2d  # noqa: E402
 
 MARKER = re.compile(r"^<!-- results table: (\S+) -->$")
@@ -23,7 +24,7 @@ TABLES = yaml.safe_load((RESULTS / "tables.yaml").read_text(encoding="utf-8"))
 RUNS = yaml.safe_load((RESULTS / "runs.yaml").read_text(encoding="utf-8"))
 
 #: the table tools, by the name tables.yaml gives them: {row label: metrics} -> the table's markdown
-TOOLS = {"reproduce_2d": reproduce_2d.table}
+TOOLS = {"reproduce_2d": reproduce_2d.table, "lasa_table": lasa_table.table_of}
 
 
 def _marked() -> dict[str, tuple[int, str]]:

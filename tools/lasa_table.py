@@ -103,6 +103,22 @@ def mean_rows(rows: list[dict]) -> list[dict]:
     return out
 
 
+def table_of(runs: dict[str, dict]) -> str:
+    """The table (with the mean rows) of runs labelled ``<variant>/<shape>``, in label order: the tree row of each
+    shape from the first variant listed for it. What the README shows and tests/test_results.py regenerates from
+    results/."""
+    rows, seen = [], set()
+    for label, m in runs.items():
+        variant, shape = label.split("/", 1)
+        if shape not in seen:
+            rows.append(row(shape, m, "tree"))
+            seen.add(shape)
+        rows.append(row(shape, m, variant))
+    shapes = list(dict.fromkeys(r["shape"] for r in rows))
+    rows = sorted(rows, key=lambda r: (shapes.index(r["shape"]), r["policy"] != "tree"))
+    return table(rows + mean_rows(rows)) + "\n"
+
+
 def grid_figure(out: Path, variant: str, shapes: list[str]) -> Path | None:
     import matplotlib.image as mpimg
     from matplotlib.figure import Figure
@@ -138,24 +154,22 @@ def main(argv=None) -> int:
     if not args.summarize_only:
         for variant in args.variants:
             run_variant(variant, args.shapes, args.out, extra)
-    rows, report = [], {}
+    runs, report = {}, {}
     for variant in args.variants:
         found, missing = read_runs(args.out, variant, args.shapes)
         if missing:
             print(f"{variant}: no metrics.json for {', '.join(missing)} (failed or not run)")
-        for shape, m in found.items():
-            if variant == args.variants[0]:
-                rows.append(row(shape, m, "tree"))
-            rows.append(row(shape, m, variant))
-        report[variant] = {"runs": found and {s: str(args.out / variant / s) for s in found}, "missing": missing}
-    if not rows:
+        report[variant] = {"runs": {s: str(args.out / variant / s) for s in found}, "missing": missing}
+        runs.update({f"{variant}/{shape}": m for shape, m in found.items()})
+    if not runs:
         print("no finished run to tabulate", file=sys.stderr)
         return 1
-    rows = sorted(rows, key=lambda r: (args.shapes.index(r["shape"]), r["policy"] != "tree"))
-    text = table(rows + mean_rows(rows))
+    order = {s: k for k, s in enumerate(args.shapes)}
+    runs = dict(sorted(runs.items(), key=lambda kv: (order[kv[0].split("/", 1)[1]], args.variants.index(kv[0].split("/")[0]))))
+    text = table_of(runs).rstrip("\n")
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "lasa_table.md").write_text(text + "\n")
-    (args.out / "lasa_table.json").write_text(json.dumps({"rows": rows, "runs": report}, indent=1))
+    (args.out / "lasa_table.json").write_text(json.dumps({"runs": report}, indent=1))
     grid = grid_figure(args.out, args.variants[-1], args.shapes)
     print(text)
     print(f"wrote {args.out / 'lasa_table.md'}" + (f" and {grid}" if grid else ""))

@@ -22,7 +22,7 @@ import math
 from typing import Any, Literal, Mapping
 
 import torch
-from pydantic import Field
+from pydantic import Field, field_validator
 from torch import Tensor, nn
 
 from ..core.tree import RMPTree
@@ -45,6 +45,13 @@ class FirstOrderLearner(Learner):
         rate: float = Field(1.0, gt=0, le=1000, description="the latent decay rate r (1/s) at the start; learned")
         tracking_gain: float = Field(10.0, gt=0, le=10000, description="k_v (1/s): how fast q̇ follows the field")
         goal: str = Field("goal", description="the aux entry holding the goal")
+
+        @field_validator("hidden")
+        @classmethod
+        def _widths(cls, v: tuple[int, ...]) -> tuple[int, ...]:
+            if not v or any(h < 1 for h in v):
+                raise ValueError(f"hidden must list at least one width, each ≥ 1; given {list(v)}")
+            return v
 
     def __init__(self, params: Params, tree_spec: Mapping[str, Any] | None, aux_dims: Mapping[str, int], dim: int,
                  expert: Mapping[str, Any] | None = None):

@@ -176,7 +176,8 @@ def reproduction(batch: Batch, ro, split: str, tolerance: float) -> dict:
 
 def convergence(batch: Batch, ro, d, rtol: float, atol: float, dt: float) -> dict:
     """From the grid of starts at rest: the fraction within ``tolerance`` of the goal at the horizon, V_r
-    non-increasing, and where the others stopped (nearly at rest away from the goal: spurious equilibria)."""
+    non-increasing, and where the others stopped (nearly at rest away from the goal: a spurious equilibrium, or, for a
+    tree whose map is a diffeomorphism onto ℝⁿ and so has none, a region the map makes extremely slow)."""
     g = batch.grid
     final = ro.goal_distance[-1, g]
     ok = final <= d.tolerance
@@ -203,8 +204,8 @@ def evaluate_policy(exp: Experiment, label: str, policy: Callable, batch: Batch)
                 f"{rep['final_distance']:.2e} m; converged {conv['converged']:.0%} of {conv['starts']} starts"
                 + (f", V_r monotone {monotone:.0%}" if monotone is not None else " (no V_r: not a tree)"))
     if conv["stalled_count"]:
-        exp.say.say(f"{label}: {conv['stalled_count']} start(s) stopped away from the goal (spurious equilibria), "
-                    f"e.g. at {conv['stalled'][0]}")
+        exp.say.say(f"{label}: {conv['stalled_count']} start(s) nearly at rest away from the goal at the horizon (a "
+                    f"spurious equilibrium, or a region the policy makes extremely slow), e.g. at {conv['stalled'][0]}")
     return out, ro
 
 
