@@ -112,11 +112,6 @@ class RecordedDataConfig(_Frozen):
                              f"({self.polyorder})")
         return self
 
-    @property
-    def points(self) -> None:
-        """Recorded demonstrations have their own lengths: no fixed number of points."""
-        return None
-
 
 #: the data block's union tags: the separator marks them as schema bookkeeping, left out of error locations
 _EXPERT_DATA, _RECORDED_DATA = f"data source{TAG_SEPARATOR}expert", f"data source{TAG_SEPARATOR}recorded"
@@ -262,7 +257,7 @@ class RunConfig(_Frozen):
             issues.append(("expert", dict(self.expert), "recorded demonstrations (data.source=recorded) have no expert "
                            "tree: remove the expert block; the tree with every weight 1 is reported as the untrained "
                            "reference"))
-        method = getattr(self.train, "method", None)
+        method = self.train.method if isinstance(self.train, TrainParams) else None
         if method not in (None, "bc"):
             issues.append((("train", "method"), method, f"train.method={method} needs an expert or the environment's "
                            "task cost, which recorded demonstrations do not give; use train.method=bc (behavior "

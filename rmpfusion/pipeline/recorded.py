@@ -203,6 +203,11 @@ def evaluate_policy(exp: Experiment, label: str, policy: Callable, batch: Batch)
     exp.say.say(f"{label}: test DTW {rep['dtw']:.4g} m, swept area {rep['swept_error_area']:.4g} m², final "
                 f"{rep['final_distance']:.2e} m; converged {conv['converged']:.0%} of {conv['starts']} starts"
                 + (f", V_r monotone {monotone:.0%}" if monotone is not None else " (no V_r: not a tree)"))
+    if monotone is not None and monotone < 1.0:
+        exp.say.say(f"WARNING: {label}: V_r rose on {1 - monotone:.0%} of the rollouts from rest, which Theorem 2 forbids "
+                    f"for a tree in continuous time: the integrator's step (env.dt = {exp.env.dt:g} s) is too coarse "
+                    "for this policy there (the certificate checks the identity at each record); rerun with a smaller "
+                    "env.dt to tell integration error from a bug (metrics.json: convergence.lyapunov_monotone_fraction)")
     if conv["stalled_count"]:
         exp.say.say(f"{label}: {conv['stalled_count']} start(s) nearly at rest away from the goal at the horizon (a "
                     f"spurious equilibrium, or a region the policy makes extremely slow), e.g. at {conv['stalled'][0]}")
