@@ -264,7 +264,7 @@ def fig1b(p: ManipulatorTreeParams) -> dict[str, Any]:
         "aux": aux,
         "shared_weights": shared,
         "nodes": nodes,
-        "roles": weight_roles(r, p.scene, bool(p.obstacle_sets)),
+        "roles": weight_roles(r, p.scene, has_obstacles(p)),
     }
 
 
@@ -273,12 +273,12 @@ def has_obstacles(p: ManipulatorTreeParams) -> bool:
     return bool(p.scene.obstacles or p.obstacle_sets)
 
 
-def weight_roles(robot, scene: Scene, obstacle_sets: bool = False) -> dict[str, list[str]]:
+def weight_roles(robot, scene: Scene, obstacles: bool) -> dict[str, list[str]]:
     """The tree's weighted entries by role, what an expert names to weight any robot's tree (``conf/expert/reach.yaml``):
     ``attractor`` (the ee → attractor edge), ``ground`` (the shared weight of every control point's ground edge, when
-    the scene has a ground) and ``obstacle`` (each control point's shared obstacle weight)."""
-    obstacle = ([f"cp{i}_obstacle" for i in range(1, len(robot.control_points) + 1)]
-                if scene.obstacles or obstacle_sets else [])
+    the scene has a ground) and ``obstacle`` (each control point's shared obstacle weight, when the tree has
+    ``obstacles``: the scene's or run-time sets)."""
+    obstacle = [f"cp{i}_obstacle" for i in range(1, len(robot.control_points) + 1)] if obstacles else []
     return {"attractor": ["attractor"], "ground": ["ground"] if scene.ground is not None else [],
             "obstacle": obstacle}
 

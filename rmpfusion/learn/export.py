@@ -73,8 +73,8 @@ def export_with_sets(tree: nn.Module, sets: Sequence[ObstacleSet], q: Tensor, qd
     (a controller's 1). The batch size is fixed: torch.export cannot yet prove the stride guards of a shared weight
     stacked over several members for a symbolic batch (the same holds for a tree of several fixed obstacles)."""
     names = list(inputs)
-    slots = with_slots(list(sets), inputs)
-    tree_names = [n for n in slots if n not in names or not any(n.startswith(s.prefix + "_") for s in sets)]
+    set_level = {n for s in sets for n in s.set_dims()}  # the sets' own tensors: the program makes slots of them
+    tree_names = [n for n in with_slots(list(sets), inputs) if n not in set_level]
     program = SetsProgram(tree, sets, names, tree_names).eval()
     tree.plan  # planned before tracing
     entries = tuple(inputs[n].expand(q.shape[0], *inputs[n].shape[1:]).contiguous() for n in names)

@@ -8,9 +8,9 @@ measures learned dynamical systems (Khansari-Zadeh & Billard 2011; Rana et al. 2
 * reproduction, from each held-out demonstration's first state (its position and velocity): DTW distance per
   sample and swept error area over the demonstration's duration, the distance to the goal after
   ``horizon_factor`` durations, and the time to come within ``tolerance``;
-* convergence, from ``starts`` states at rest drawn uniformly in the demonstrations' bounding box enlarged by
+* convergence, from ``starts`` states at rest on a regular grid over the demonstrations' bounding box enlarged by
   ``enlarge``, over ``horizon_factor`` times the longest demonstration: the fraction within ``tolerance`` of the
-  goal at the end, V_r non-increasing (Theorem 2), and where the others stopped (spurious equilibria);
+  goal at the end, V_r non-increasing (Theorem 2), and where the others stopped nearly at rest;
 * the trained tree's certificate (Theorem 2's premises and energy identity) at every record of those rollouts.
 """
 from __future__ import annotations
@@ -32,9 +32,8 @@ from ..files import atomic_write_json
 from ..learn.loop import load_snapshot
 from ..plots.recorded import recorded_figures
 from ..recordings import Split, holdout, leave_one_out, recorded_dataset
-from ..recordings.recording import RecordingError
 from ..recordings.signals import States
-from ..recordings.source import content_hash, read_recordings, to_grid
+from ..recordings.source import check_dimension, content_hash, read_recordings, to_grid
 from .collect import Splits
 from .evaluation import certificate
 from .experiment import Experiment, clean
@@ -55,25 +54,21 @@ def split_of(d, n: int, seed: int) -> Split:
     return holdout(n, d.val, d.test, seed)
 
 
-def _check_dimension(states: list[States], dim: int) -> None:
-    if states[0].q.shape[1] != dim:
-        raise RecordingError(f"{states[0].source}: the demonstrations have {states[0].q.shape[1]} coordinates but the "
-                             f"environment has {dim}; choose an environment of that dimension (env=...) or the "
-                             "columns to read (data.columns)")
-
-
-def _cache_key(exp: Experiment, split: str, members: tuple[int, ...]) -> str:
+def _cache_key(exp: Experiment, files: str, split: str, members: tuple[int, ...]) -> str:
+    """What determines a split's dataset: the files' content hash, the data settings, the step and its members."""
     d = exp.run.data
-    key = {"files": content_hash(d), "data": d.model_dump(exclude={"cache_dir", "starts", "enlarge",
+    key = {"files": files, "data": d.model_dump(exclude={"cache_dir", "starts", "enlarge",
                                                                    "horizon_factor", "tolerance"}),
            "dt": exp.env.dt, "split": split, "members": members}
     return hashlib.sha256(json.dumps(key, sort_keys=True, default=str).encode()).hexdigest()
 
 
-def _dataset(exp: Experiment, split: str, members: tuple[int, ...], states: list[States]) -> tuple[Dataset, dict]:
-    """The split's dataset, from the cache when the files and settings are the same, else made and cached."""
+def _dataset(exp: Experiment, files: str, split: str, members: tuple[int, ...],
+             states: list[States]) -> tuple[Dataset, dict]:
+    """The split's dataset, from the cache when the files (``files``: their content hash) and settings are the
+    same, else made and cached."""
     d = exp.run.data
-    h = _cache_key(exp, split, members)
+    h = _cache_key(exp, files, split, members)
     path = (Path(d.cache_dir) if d.cache_dir else exp.dir / "data") / f"{split}-{h[:16]}.pt"
     meta = {"seed": exp.run.seed, "config_hash": h, "split": split}
     info = {"path": str(path), "demonstrations": [states[i].source for i in members]}
@@ -89,10 +84,11 @@ def recorded_splits(exp: Experiment) -> tuple[Splits, dict[str, list[States]], l
     d = exp.run.data
     t0 = time.time()
     states = to_grid(read_recordings(d), d, exp.env.dt)
-    _check_dimension(states, exp.env.dim)
+    check_dimension(states, exp.env.dim, exp.run.env.type)
     split = split_of(d, len(states), exp.run.seed)
     parts = {"train": split.train, "test": split.test, **({"val": split.val} if split.val else {})}
-    made = {name: _dataset(exp, name, members, states) for name, members in parts.items()}
+    files = content_hash(d)
+    made = {name: _dataset(exp, files, name, members, states) for name, members in parts.items()}
     for name, (ds, info) in made.items():
         exp.say.say(f"data: {name}: {len(info['demonstrations'])} demonstration(s), {info['points']} points"
                     f"{' (reused)' if info['reused'] else ''}")

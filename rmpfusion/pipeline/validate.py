@@ -27,7 +27,7 @@ from ..assembly.spec import check_typed, validate_tree_spec
 from ..assembly.weighting import own_weights, weights_by_name
 from ..core.auxstate import AuxOrValue
 from ..recordings.recording import RecordingError
-from ..recordings.source import read_recordings, to_grid
+from ..recordings.source import check_dimension, read_recordings, to_grid
 from ..registry import ENVS, LEAF_RMPS, TASK_MAPS, TRAIN_METHODS, WEIGHTS, Registry
 from .config import RunConfig, run_config_model
 from .construct import build_expert, build_learners
@@ -152,13 +152,9 @@ def _recording_issues(run: RunConfig, env: Any) -> list[Issue]:
     if run.data.source != "recorded":
         return []
     try:
-        states = to_grid(read_recordings(run.data), run.data, env.dt)
+        check_dimension(to_grid(read_recordings(run.data), run.data, env.dt), env.dim, run.env.type)
     except RecordingError as e:
         return [Issue("data", str(e))]
-    if states[0].q.shape[1] != env.dim:
-        return [Issue("data", f"{states[0].source}: the demonstrations have {states[0].q.shape[1]} coordinates but "
-                              f"the environment {run.env.type} has {env.dim}; choose an environment of that "
-                              "dimension (env=...) or the columns to read (data.columns)")]
     return []
 
 

@@ -20,8 +20,14 @@ from .signals import States, to_states
 
 
 def source_files(d: Any) -> list[Path]:
-    """The files a data block reads (the LASA shape's ``.mat`` file, or ``data.files``)."""
-    return [lasa_file(d.shape)] if d.format == "lasa" else [Path(f) for f in d.files]
+    """The files a data block reads (the LASA shape's ``.mat`` file, or ``data.files``), each one that exists."""
+    if d.format == "lasa":
+        return [lasa_file(d.shape)]
+    for f in d.files:
+        if not Path(f).is_file():
+            raise RecordingError(f"{f}: no such file (data.files); give the path of a recorded file, relative to the "
+                                 "directory the command runs in or absolute")
+    return [Path(f) for f in d.files]
 
 
 def content_hash(d: Any) -> str:
@@ -29,9 +35,6 @@ def content_hash(d: Any) -> str:
     not when a file is moved."""
     h = hashlib.sha256()
     for path in source_files(d):
-        if not path.is_file():
-            raise RecordingError(f"{path}: no such file (data.files); give the path of a recorded file, relative "
-                                 "to the directory the command runs in or absolute")
         h.update(path.read_bytes())
     return h.hexdigest()
 
@@ -42,8 +45,6 @@ def read_recordings(d: Any) -> list[Recording]:
         return read_lasa(d.shape, use_file_derivatives=d.derivatives == "file")
     out: list[Recording] = []
     for path in source_files(d):
-        if not path.is_file():
-            raise RecordingError(f"{path}: no such file (data.files)")
         if d.format == "csv":
             out += read_csv(path, columns=d.columns, time_column=d.time_column, demo_column=d.demo_column,
                             units=d.units)
@@ -67,6 +68,14 @@ def check_derivatives(recordings: Sequence[Recording], derivatives: str) -> None
         raise RecordingError(f"{lacking[0]}: data.derivatives=file but this demonstration has no velocity and "
                              f"acceleration columns ({len(lacking)} of {len(recordings)} lack them); use "
                              "data.derivatives=filter for the whole dataset")
+
+
+def check_dimension(states: Sequence[States], dim: int, env: str) -> None:
+    """The demonstrations have the environment's dimension (one coordinate per degree of freedom)."""
+    if states[0].q.shape[1] != dim:
+        raise RecordingError(f"{states[0].source}: the demonstrations have {states[0].q.shape[1]} coordinates but the "
+                             f"environment {env} has {dim}; choose an environment of that dimension (env=...) or the "
+                             "columns to read (data.columns)")
 
 
 def to_grid(recordings: Sequence[Recording], d: Any, dt: float) -> list[States]:

@@ -111,14 +111,12 @@ class ObstacleSet(Params):
             t = aux[name]
             self._check(name, t, (self.n_max, k))
             dtype = t.dtype
-            # member-major, so each member's (B, k) rows are contiguous: a strided view of the (B, N_max, k) tensor
-            # would make torch.export guard on its strides for every batch size (it cannot prove them for B = 1)
-            members = torch.where(present.unsqueeze(-1), t, t.new_tensor(PARKED[f])).movedim(1, 0).contiguous()
+            safe = torch.where(present.unsqueeze(-1), t, t.new_tensor(PARKED[f]))
             for i in range(1, self.n_max + 1):
-                out[self.slot_name(i, f)] = members[i - 1]
-        on = present.to(dtype).movedim(1, 0).contiguous().unsqueeze(-1)  # (N_max, B, 1)
+                out[self.slot_name(i, f)] = safe[:, i - 1]
+        on = present.to(dtype)
         for i in range(1, self.n_max + 1):
-            out[self.slot_name(i, "present")] = on[i - 1]
+            out[self.slot_name(i, "present")] = on[:, i - 1: i]
         return out
 
     def _check(self, name: str, t: Tensor, shape: tuple[int, ...]) -> None:
