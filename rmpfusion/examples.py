@@ -9,10 +9,12 @@ the register call, so a plugin brings its own checks without editing rmpfusion::
 
 An entry without examples fails that test, naming itself and this way of adding them.
 """
+
 from __future__ import annotations
 
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Any, Callable, Mapping
+from typing import Any
 
 import torch
 from torch import Tensor
@@ -47,17 +49,17 @@ class AuxInput:
     sample: AuxSampler = standard_normal
 
     @classmethod
-    def normal(cls, dim: int) -> "AuxInput":
+    def normal(cls, dim: int) -> AuxInput:
         """Drawn from N(0, I): a centre, a goal, a velocity, a direction."""
         return cls(dim, standard_normal)
 
     @classmethod
-    def radius(cls, dim: int = 1) -> "AuxInput":
+    def radius(cls, dim: int = 1) -> AuxInput:
         """Drawn from [0.5, 1.5): a radius."""
         return cls(dim, radius_like)
 
     @classmethod
-    def presence(cls) -> "AuxInput":
+    def presence(cls) -> AuxInput:
         """1 or 0: whether a member of an obstacle set is present."""
         return cls(1, presence_like)
 

@@ -1,6 +1,7 @@
 """Files this package writes and reads back: atomic writes (a crash or a kill leaves the old file or the new one,
 never half of one), and reading a torch payload of ours so that every way it can fail (missing, truncated,
 tampered, foreign) is one error naming the file and the fix, whatever kind of file (dataset, checkpoint) it is."""
+
 from __future__ import annotations
 
 import errno
@@ -10,9 +11,10 @@ import os
 import re
 import shutil
 import warnings
+from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 
 class DiskFullError(OSError):
@@ -38,9 +40,12 @@ def disk_full(path: Path, e: OSError) -> DiskFullError:
         space = f"{_size(usage.free)} free of {_size(usage.total)} on the file system of {path.parent}"
     except OSError:
         space = f"the file system of {path.parent} is full"
-    return DiskFullError(e.errno, f"no space left to write {path} ({space}); the files written before it are intact: "
-                                  "free some space (or point the run elsewhere) and run the same command again: it "
-                                  "resumes from what was written")
+    return DiskFullError(
+        e.errno,
+        f"no space left to write {path} ({space}); the files written before it are intact: "
+        "free some space (or point the run elsewhere) and run the same command again: it "
+        "resumes from what was written",
+    )
 
 
 def no_space(e: BaseException) -> bool:
@@ -149,8 +154,9 @@ def torch_file_format(path: Path) -> str | None:
     return payload.get("format") if isinstance(payload, dict) else None
 
 
-def read_torch_file(path: Path, what: str, fix: str, error: type[Exception], fmt: str | None = None,
-                    missing: str | None = None) -> dict:
+def read_torch_file(
+    path: Path, what: str, fix: str, error: type[Exception], fmt: str | None = None, missing: str | None = None
+) -> dict:
     """``torch.load`` (weights only) of a file this package wrote, every failure as ``error`` naming the file.
 
     ``fmt`` is the ``format`` tag the payload must carry; ``missing`` the advice when the file does not exist.
@@ -165,10 +171,12 @@ def read_torch_file(path: Path, what: str, fix: str, error: type[Exception], fmt
             payload = torch.load(path, map_location="cpu", weights_only=True)
         if not isinstance(payload, dict) or (fmt is not None and payload.get("format") != fmt):
             raise ValueError(f"not a {fmt or 'rmpfusion'} file")
-    except Exception as e:  # noqa: BLE001 - any unreadable file gets the same advice
+    except Exception as e:
         if (name := unsupported_global(e)) is not None:
-            raise error(f"{what} file {path} is damaged or was not written by rmpfusion: it asks for the Python object "
-                        f"{name}, which no file of rmpfusion holds (nothing in it was loaded or run); {fix}") from e
+            raise error(
+                f"{what} file {path} is damaged or was not written by rmpfusion: it asks for the Python object "
+                f"{name}, which no file of rmpfusion holds (nothing in it was loaded or run); {fix}"
+            ) from e
         raise error(f"{what} file {path} is unreadable or truncated ({load_error_cause(e)}); {fix}") from e
     return payload
 

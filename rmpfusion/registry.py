@@ -7,12 +7,14 @@ rmpfusion``. Every entry carries a pydantic model of its parameters, so YAML is 
 will consume it (and the run config's schema is generated from the registries, ``assembly.spec``), and the
 examples it is checked on against finite differences (``examples.Example``).
 """
+
 from __future__ import annotations
 
 import difflib
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from importlib.metadata import entry_points
-from typing import Any, Callable, Generic, Iterable, TypeVar
+from typing import Any, Generic, TypeVar
 
 from pydantic import BaseModel, ConfigDict
 
@@ -63,14 +65,15 @@ class Registry(Generic[T]):
     ``version`` counts registrations, so schemas generated from a registry know when to regenerate.
     """
 
-    def __init__(self, kind: str, plugins: "PluginLoader | None" = None):
+    def __init__(self, kind: str, plugins: PluginLoader | None = None):
         self.kind = kind
         self.plugins = plugins
         self.version = 0
         self._entries: dict[str, Entry[T]] = {}
 
-    def register(self, name: str, params: type[Params] | None = None,
-                 examples: Iterable[Example] = ()) -> Callable[[T], T]:
+    def register(
+        self, name: str, params: type[Params] | None = None, examples: Iterable[Example] = ()
+    ) -> Callable[[T], T]:
         """Decorator: register ``obj`` under ``name``; its parameter model is ``params`` or ``obj.Params``.
 
         ``examples``: the configurations a task map, leaf RMP or weight function is checked on against finite
@@ -83,8 +86,10 @@ class Registry(Generic[T]):
                 raise TypeError(f"{self.kind} '{name}' ({_owner_of(obj)}) needs a pydantic Params model")
             wrong = [type(e).__name__ for e in examples if not isinstance(e, Example)]
             if wrong:
-                raise TypeError(f"{self.kind} '{name}' ({_owner_of(obj)}): examples must be "
-                                f"rmpfusion.examples.Example, got {', '.join(wrong)}")
+                raise TypeError(
+                    f"{self.kind} '{name}' ({_owner_of(obj)}): examples must be "
+                    f"rmpfusion.examples.Example, got {', '.join(wrong)}"
+                )
             if name in self._entries:
                 other = self._entries[name]
                 if other.obj is obj:
@@ -157,8 +162,9 @@ class PluginLoader:
             except RegistryError:
                 raise
             except Exception as e:  # a broken plugin must say which one it is
-                raise PluginError(f"rmpfusion plugin '{ep.name}' ({ep.value}) failed to load: "
-                                  f"{type(e).__name__}: {e}") from e
+                raise PluginError(
+                    f"rmpfusion plugin '{ep.name}' ({ep.value}) failed to load: {type(e).__name__}: {e}"
+                ) from e
 
 
 #: The plugins of the default registries (``rmpfusion.plugins`` entry points).

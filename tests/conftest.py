@@ -1,5 +1,6 @@
 """Shared test helpers: float64 everywhere, finite differences, wandb never online, composed configs and the
 example plugin installed."""
+
 import os
 import shutil
 import subprocess
@@ -39,8 +40,23 @@ def plugin_site(tmp_path_factory) -> Path:
     root = tmp_path_factory.mktemp("plugin")
     shutil.copytree(PLUGIN_EXAMPLE, root / "src")
     site = root / "site"
-    subprocess.run([sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--no-build-isolation",
-                    "--target", str(site), str(root / "src")], check=True, capture_output=True, timeout=300)
+    subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "pip",
+            "install",
+            "-q",
+            "--no-deps",
+            "--no-build-isolation",
+            "--target",
+            str(site),
+            str(root / "src"),
+        ],
+        check=True,
+        capture_output=True,
+        timeout=300,
+    )
     assert (site / "hydra_plugins" / "rmpfusion_spring" / "searchpath.py").is_file()
     return site
 
@@ -72,14 +88,19 @@ def rk4_rollout(tree, q, qd, aux, dt: float, steps: int):
     ``dissipation`` q̇ᵀB_r q̇ (steps + 1, B).
     """
     aux_at = aux if callable(aux) else (lambda t: aux)
-    acc = lambda t, q_, qd_: tree(q_, qd_, aux_at(t)).qdd  # noqa: E731
+    acc = lambda t, q_, qd_: tree(q_, qd_, aux_at(t)).qdd
     rec = {"t": [], "q": [], "qd": [], "V": [], "dissipation": []}
     with torch.no_grad():
         for k in range(steps + 1):
             t = k * dt
             o = tree(q, qd, aux_at(t))
-            for name, value in (("t", torch.tensor(t)), ("q", q), ("qd", qd), ("V", o.V),
-                                ("dissipation", torch.einsum("bi,bij,bj->b", qd, o.B, qd))):
+            for name, value in (
+                ("t", torch.tensor(t)),
+                ("q", q),
+                ("qd", qd),
+                ("V", o.V),
+                ("dissipation", torch.einsum("bi,bij,bj->b", qd, o.B, qd)),
+            ):
                 rec[name].append(value)
             if k == steps:
                 break

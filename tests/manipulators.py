@@ -1,6 +1,7 @@
 """The robots and scenes of conf/ for tests: the Panda experiment's environment and tree built from the same
 files the experiments compose, so a test exercises what `experiment=franka` runs; and pybullet_data's Panda and
 KUKA iiwa as the robot maps' tests name them."""
+
 from __future__ import annotations
 
 from contextlib import contextmanager
@@ -41,8 +42,10 @@ def pybullet_robot(urdf: str):
     cid = pybullet.connect(pybullet.DIRECT)
     try:
         body = pybullet.loadURDF(urdf, useFixedBase=True, physicsClientId=cid)
-        info = [pybullet.getJointInfo(body, i, physicsClientId=cid)
-                for i in range(pybullet.getNumJoints(body, physicsClientId=cid))]
+        info = [
+            pybullet.getJointInfo(body, i, physicsClientId=cid)
+            for i in range(pybullet.getNumJoints(body, physicsClientId=cid))
+        ]
         yield cid, body, {j[12].decode(): j[0] for j in info}, {j[1].decode(): j[0] for j in info}
     finally:
         pybullet.disconnect(cid)
@@ -60,8 +63,11 @@ def scene(name: str) -> dict:
 
 def cylinders(centers, radii, height: float = 0.6) -> dict:
     """A scene of standing cylinders, as the Franka experiment's."""
-    return {"obstacles": [{"type": "cylinder", "center": list(c), "radius": r, "height": height}
-                          for c, r in zip(centers, radii)]}
+    return {
+        "obstacles": [
+            {"type": "cylinder", "center": list(c), "radius": r, "height": height} for c, r in zip(centers, radii)
+        ]
+    }
 
 
 def franka_env(scene_spec: dict | None = None, **overrides) -> Manipulator:

@@ -9,6 +9,7 @@ einsum, without rmpfusion.core.algebra:
 
 then q̈ = M⁻¹ f by torch.linalg.solve.
 """
+
 from __future__ import annotations
 
 import torch
@@ -23,7 +24,9 @@ def _pull(xd, J, c, w, gw, child):
     JT = J.transpose(-1, -2)
     f = w[:, None] * torch.einsum("bmn,bn->bm", JT, child["f"] - torch.einsum("bij,bj->bi", child["M"], c))
     if gw is not None:
-        JGJxd = torch.einsum("bmn,bn->bm", JT, torch.einsum("bij,bj->bi", child["G"], torch.einsum("bnm,bm->bn", J, xd)))
+        JGJxd = torch.einsum(
+            "bmn,bn->bm", JT, torch.einsum("bij,bj->bi", child["G"], torch.einsum("bnm,bm->bn", J, xd))
+        )
         f = f + child["L"][:, None] * gw - (xd * gw).sum(-1, keepdim=True) * JGJxd
     out = {"f": f}
     for k in ("M", "G", "B"):

@@ -2,6 +2,7 @@
 
 Used as the oracle: rmpfusion's trees with unit weights and the rmpflow_* leaves must reproduce it.
 """
+
 import numpy as np
 from numpy.linalg import norm
 
@@ -40,9 +41,11 @@ def damper(x, x_dot, w=1, eta=1):
 
 def sphere_map(c, R):
     """(psi, J, J_dot) of RMPflow's normalised distance to a sphere, as in its CollisionAvoidance node."""
-    psi = lambda y: np.array([norm(y - c) / R - 1])  # noqa: E731
-    J = lambda y: ((y - c) / norm(y - c) / R)[None, :]  # noqa: E731
-    J_dot = lambda y, yd: (yd @ (-1 / norm(y - c) ** 3 * np.outer(y - c, y - c) + 1 / norm(y - c) * np.eye(len(y))) / R)[None, :]  # noqa: E731
+    psi = lambda y: np.array([norm(y - c) / R - 1])
+    J = lambda y: ((y - c) / norm(y - c) / R)[None, :]
+    J_dot = lambda y, yd: (
+        yd @ (-1 / norm(y - c) ** 3 * np.outer(y - c, y - c) + 1 / norm(y - c) * np.eye(len(y))) / R
+    )[None, :]
     return psi, J, J_dot
 
 

@@ -9,6 +9,7 @@ the ground whatever the angle (it only spins, like a UR5's shoulder); ``lift`` (
 follows it (``<mimic multiplier="0.5" offset="0.1"/>``), turning ``link6``, which has visual geometry only; ``tool``
 is a fixed end-effector frame.
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -53,8 +54,10 @@ URDF = """<?xml version="1.0"?>
   <joint name="tool_joint" type="fixed"><parent link="link5"/><child link="tool"/><origin xyz="0 0 0.1"/></joint>
   <link name="tool"/>
 </robot>
-""".replace("{inertia}", '<inertial><mass value="0.5"/><inertia ixx="0.001" iyy="0.001" izz="0.001" ixy="0" ixz="0" '
-                         'iyz="0"/></inertial>')
+""".replace(
+    "{inertia}",
+    '<inertial><mass value="0.5"/><inertia ixx="0.001" iyy="0.001" izz="0.001" ixy="0" ixz="0" iyz="0"/></inertial>',
+)
 
 PACKAGE_XML = f"""<?xml version="1.0"?>
 <package format="3"><name>{PACKAGE}</name><version>0.0.1</version><description>test arm</description>

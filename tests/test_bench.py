@@ -1,6 +1,7 @@
 """What ``make bench`` times is built by the same code as the trees users run: the subjects of tools/bench.py are
 built here (no timing), so a change to the configs or the generators that breaks the benchmark fails a test, and
 the hand-fused reference it compares the training step against still computes the learner's q̈."""
+
 from __future__ import annotations
 
 import sys
@@ -10,7 +11,7 @@ import pytest
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
-import bench  # noqa: E402
+import bench
 
 
 @pytest.mark.parametrize("n_obstacles", [1, 3])
@@ -36,8 +37,9 @@ def _checked(spec):
     return pytest.param(spec, marks=pytest.mark.slow) if spec[0] * spec[1] >= 10 * 1024 else spec
 
 
-@pytest.mark.parametrize("spec", [_checked(s) for s in bench.TIMED_FRANKA_STATES],
-                         ids=lambda s: f"obstacles{s[0]}-B{s[1]}-seed{s[2]}")
+@pytest.mark.parametrize(
+    "spec", [_checked(s) for s in bench.TIMED_FRANKA_STATES], ids=lambda s: f"obstacles{s[0]}-B{s[1]}-seed{s[2]}"
+)
 def test_every_franka_state_the_benchmark_times_is_inside_the_joint_limits_and_clear_of_the_obstacles(spec):
     """A state past a joint limit (the Panda's joint 4 spans [−3.07, −0.07] in pybullet_data's URDF) or inside an
     obstacle would time a barrier's saturated branch. Checked here independently of the sampler: the URDF's

@@ -1,6 +1,7 @@
 """Point clouds as obstacles (scenes/clouds.py, World.set_cloud): one sphere per occupied cube at its points'
 centroid, the nearest cubes kept when there are more than the set's members, missing returns dropped; a cloud
 replaces the set's members, and the tree then equals the tree of those spheres."""
+
 from __future__ import annotations
 
 import math
@@ -13,9 +14,17 @@ from rmpfusion.scenes.clouds import cloud_members, keep_nearest, voxel_centroids
 
 
 def test_each_occupied_cube_becomes_the_centroid_of_its_points():
-    pts = torch.tensor([[0.01, 0.01, 0.01], [0.03, 0.05, 0.07],      # cube (0, 0, 0) at voxel 0.1
-                        [0.15, 0.02, 0.02], [0.17, 0.04, 0.06],      # cube (1, 0, 0)
-                        [-0.05, 0.0, 0.0], [float("nan"), 0.0, 0.0]], dtype=torch.float64)  # cube (-1, 0, 0); a missing return
+    pts = torch.tensor(
+        [
+            [0.01, 0.01, 0.01],
+            [0.03, 0.05, 0.07],  # cube (0, 0, 0) at voxel 0.1
+            [0.15, 0.02, 0.02],
+            [0.17, 0.04, 0.06],  # cube (1, 0, 0)
+            [-0.05, 0.0, 0.0],
+            [float("nan"), 0.0, 0.0],
+        ],
+        dtype=torch.float64,
+    )  # cube (-1, 0, 0); a missing return
     c = voxel_centroids(pts, 0.1)
     expected = {(-1, 0, 0): [-0.05, 0.0, 0.0], (0, 0, 0): [0.02, 0.03, 0.04], (1, 0, 0): [0.16, 0.03, 0.04]}
     got = {tuple(torch.floor(row / 0.1).long().tolist()): row for row in c}
@@ -65,10 +74,12 @@ def test_a_cloud_refuses_what_it_cannot_fill():
     world = World([ObstacleSet(shape="sphere", n_max=4), ObstacleSet(shape="box", n_max=1)])
     world.add("sphere", center=[0.0, 0.0, 0.5], radius=0.1)
     pts = box_surface(100, seed=1)
-    for call, words in [(lambda: world.set_cloud("boxes", pts, 0.05, 0.05), "a point cloud fills a set of spheres"),
-                        (lambda: world.set_cloud("spheres", pts, 0.05, 0.05), "holds obstacles added one by one"),
-                        (lambda: world.set_cloud("nope", pts, 0.05, 0.05), "no obstacle set 'nope'"),
-                        (lambda: world.set_cloud("spheres", pts, 0.05, 0.0), "radius > 0")]:
+    for call, words in [
+        (lambda: world.set_cloud("boxes", pts, 0.05, 0.05), "a point cloud fills a set of spheres"),
+        (lambda: world.set_cloud("spheres", pts, 0.05, 0.05), "holds obstacles added one by one"),
+        (lambda: world.set_cloud("nope", pts, 0.05, 0.05), "no obstacle set 'nope'"),
+        (lambda: world.set_cloud("spheres", pts, 0.05, 0.0), "radius > 0"),
+    ]:
         with pytest.raises(WorldError) as err:
             call()
         assert words in str(err.value)

@@ -1,4 +1,5 @@
 """The command line before a run: the debug switch, and which job of a sweep the preflight composes."""
+
 from __future__ import annotations
 
 import os
@@ -9,8 +10,14 @@ import sys
 def _validate(*args: str, **env: str) -> subprocess.CompletedProcess:
     full = {k: v for k, v in os.environ.items() if k not in ("RMPFUSION_DEBUG", "HYDRA_FULL_ERROR")}
     full.update(WANDB_MODE="disabled", **env)
-    return subprocess.run([sys.executable, "-m", "rmpfusion.cli.validate", *args], capture_output=True, text=True,
-                          env=full, cwd="/", timeout=300)
+    return subprocess.run(
+        [sys.executable, "-m", "rmpfusion.cli.validate", *args],
+        capture_output=True,
+        text=True,
+        env=full,
+        cwd="/",
+        timeout=300,
+    )
 
 
 def test_a_mistake_is_one_line_and_the_debug_switch_shows_the_traceback():
@@ -28,7 +35,15 @@ def test_every_kind_of_sweep_is_checked_on_its_first_job_or_left_to_its_sweeper(
     from rmpfusion.cli.preflight import _first_job
 
     conf = [Path(__file__).resolve().parents[1] / "conf"]
-    assert _first_job(["experiment=glob(2d*,exclude=2d1*)", "seed=1,2", "seed=range(3,5)",
-                       "train.lr=choice(1e-3,1e-2)", "train.lr=tag(log,interval(1e-4,1e-2))",
-                       "hydra.run.dir=/x", "hydra/launcher=joblib"], conf) == [
-        "experiment=2d2level", "seed=1", "seed=3", "train.lr=0.001"]
+    assert _first_job(
+        [
+            "experiment=glob(2d*,exclude=2d1*)",
+            "seed=1,2",
+            "seed=range(3,5)",
+            "train.lr=choice(1e-3,1e-2)",
+            "train.lr=tag(log,interval(1e-4,1e-2))",
+            "hydra.run.dir=/x",
+            "hydra/launcher=joblib",
+        ],
+        conf,
+    ) == ["experiment=2d2level", "seed=1", "seed=3", "train.lr=0.001"]

@@ -1,4 +1,5 @@
 """Every config in conf/ composes, validates and builds; bad configs fail with path-named errors before running."""
+
 from __future__ import annotations
 
 import os
@@ -7,13 +8,12 @@ import sys
 from pathlib import Path
 
 import pytest
+from conftest import CONF, TINY, compose_cfg
 
 from rmpfusion.assembly.errors import ConfigError
 from rmpfusion.pipeline.construct import build_all
 from rmpfusion.pipeline.validate import resolve_and_validate
 from rmpfusion.registry import LEAF_RMPS
-
-from conftest import CONF, TINY, compose_cfg
 
 EXPERIMENTS = sorted(p.stem for p in (CONF / "experiment").glob("*.yaml"))
 
@@ -31,8 +31,11 @@ def _overrides_for(group: str, option: str) -> list[str]:
         one_d = getattr(leaf, "dim", None) == 1
         assert fixed is None
         node = "obstacle" if one_d else "conditioning"
-        under = ([f"~tree.nodes.{node}.map", f"+tree.nodes.{node}.map={MAP_FOR_COORDINATES[leaf.coordinates]}"]
-                 if leaf.coordinates else [])
+        under = (
+            [f"~tree.nodes.{node}.map", f"+tree.nodes.{node}.map={MAP_FOR_COORDINATES[leaf.coordinates]}"]
+            if leaf.coordinates
+            else []
+        )
         return [f"rmp@tree.nodes.{node}.rmp={option}", *under]
     if group == "weights":
         return [f"weights@learners.rmp.weights={option}"]
@@ -52,18 +55,30 @@ def _overrides_for(group: str, option: str) -> list[str]:
 
 
 #: files that are an experiment's documented variants, used with it
-VARIANTS = {("tree", "lasa"): ["experiment=lasa", "tree=lasa"],  # LASA's weights-only baseline
-            ("data", "recorded"): ["experiment=lasa", "data=recorded", "data.format=lasa", "data.shape=Angle"]}
+VARIANTS = {
+    ("tree", "lasa"): ["experiment=lasa", "tree=lasa"],  # LASA's weights-only baseline
+    ("data", "recorded"): ["experiment=lasa", "data=recorded", "data.format=lasa", "data.shape=Angle"],
+}
 
 
-CONFIG_FILES = sorted(
-    (p.parent.name, p.stem) for p in CONF.glob("*/*.yaml") if p.parent.name not in ("experiment",)
-)
+CONFIG_FILES = sorted((p.parent.name, p.stem) for p in CONF.glob("*/*.yaml") if p.parent.name not in ("experiment",))
 
 
 def test_every_group_file_is_listed():
     groups = {g for g, _ in CONFIG_FILES}
-    assert {"env", "tree", "expert", "rmp", "weights", "learner", "train", "data", "logger", "sweep", "launcher"} <= groups
+    assert {
+        "env",
+        "tree",
+        "expert",
+        "rmp",
+        "weights",
+        "learner",
+        "train",
+        "data",
+        "logger",
+        "sweep",
+        "launcher",
+    } <= groups
 
 
 @pytest.mark.parametrize("group,option", CONFIG_FILES, ids=[f"{g}/{o}" for g, o in CONFIG_FILES])
@@ -94,23 +109,47 @@ def test_every_experiment_validates_and_builds(experiment):
 def test_without_an_experiment_the_run_is_named_default():
     """conf/config.yaml's own configuration is not labelled as one of the experiments (issue 14, item 5)."""
     assert resolve_and_validate(compose_cfg()).name == "default"
-    assert resolve_and_validate(compose_cfg(["tree=2d2level", "env=particle2d_2obstacles", "expert=2d2level"])).name \
+    assert (
+        resolve_and_validate(compose_cfg(["tree=2d2level", "env=particle2d_2obstacles", "expert=2d2level"])).name
         == "default"
+    )
 
 
 def test_sweep_job_directories_carry_the_jobs_overrides(tmp_path):
     """hydra.sweep.subdir is <job number>_<name>_<overrides>: readable, unique, and without the keys that change
     where or how a job runs and logs (conf/config.yaml's exclude_keys) or that the name already says."""
-    r = _cli("rmpfusion.cli.validate", "-m", "experiment=2d2level", "seed=0,1", "train.lr=3e-3", "logger=disabled",
-             f"data.cache_dir={tmp_path / 'cache'}", f"hydra.sweep.dir={tmp_path / 'sweep'}")
+    r = _cli(
+        "rmpfusion.cli.validate",
+        "-m",
+        "experiment=2d2level",
+        "seed=0,1",
+        "train.lr=3e-3",
+        "logger=disabled",
+        f"data.cache_dir={tmp_path / 'cache'}",
+        f"hydra.sweep.dir={tmp_path / 'sweep'}",
+    )
     assert r.returncode == 0, r.stderr[-3000:]
-    said = [ln.split("run directory: ", 1)[1].split(" (", 1)[0] for ln in r.stdout.splitlines()
-            if ln.startswith("run directory: ")]
+    said = [
+        ln.split("run directory: ", 1)[1].split(" (", 1)[0]
+        for ln in r.stdout.splitlines()
+        if ln.startswith("run directory: ")
+    ]
     jobs = sorted(Path(d).name for d in said)
     assert jobs == ["0_2d2level_seed=0,train.lr=0.003", "1_2d2level_seed=1,train.lr=0.003"]  # as the sweeper writes it
     assert not [p for p in (tmp_path / "sweep").iterdir() if p.is_dir()]  # validating left no job directory
-    cfg = compose_cfg(["experiment=2d1level", "seed=2", "name=mine", "logger.mode=online", "launcher=joblib",
-                       "sweep=seeds", "+data.cache_dir=/shared/cache", "train=tiny"], hydra_cfg=True)
+    cfg = compose_cfg(
+        [
+            "experiment=2d1level",
+            "seed=2",
+            "name=mine",
+            "logger.mode=online",
+            "launcher=joblib",
+            "sweep=seeds",
+            "+data.cache_dir=/shared/cache",
+            "train=tiny",
+        ],
+        hydra_cfg=True,
+    )
     assert cfg.hydra.job.override_dirname == "seed=2,train=tiny"
 
 
@@ -131,8 +170,15 @@ def test_override_changes_built_rmp():
 
 
 def test_override_swaps_leaf_preset_and_weight_network():
-    run = resolve_and_validate(compose_cfg(["rmp@tree.nodes.goal.rmp=rmpflow_goal_attractor",
-                                            "weights@learners.rmp.weights=mlp_small", "learners.rmp.weights.floor=0.01"]))
+    run = resolve_and_validate(
+        compose_cfg(
+            [
+                "rmp@tree.nodes.goal.rmp=rmpflow_goal_attractor",
+                "weights@learners.rmp.weights=mlp_small",
+                "learners.rmp.weights.floor=0.01",
+            ]
+        )
+    )
     _, expert, learners = build_all(run)
     assert type(expert.rmps["goal"]).__name__ == "RMPflowGoalAttractor"
     w = learners["rmp"].tree.weights["goal"].fn
@@ -153,12 +199,18 @@ BAD = {
     "wrong_type": (["train.batch_size=lots"], "train.batch_size", "lots"),
     "wrong_param_type": (["tree.nodes.goal.rmp.gain=fast"], "tree.nodes.goal.rmp.gain", "fast"),
     "missing_parameter": (["~expert.goal.low"], "expert.goal.low", "missing"),
-    "dimension_mismatch": (["tree.nodes.goal.rmp.type=collision_avoidance", "~tree.nodes.goal.rmp.gain",
-                            "~tree.nodes.goal.rmp.w_u", "~tree.nodes.goal.rmp.w_l"],
-                           "tree.nodes.goal.rmp", "dimension"),
+    "dimension_mismatch": (
+        [
+            "tree.nodes.goal.rmp.type=collision_avoidance",
+            "~tree.nodes.goal.rmp.gain",
+            "~tree.nodes.goal.rmp.w_u",
+            "~tree.nodes.goal.rmp.w_l",
+        ],
+        "tree.nodes.goal.rmp",
+        "dimension",
+    ),
     "map_dimension_mismatch": (["tree.nodes.goal.map.origin=[1,2,3]"], "tree.nodes.goal.map", "dimension"),
-    "cycle": (["tree.nodes.goal.parent=conditioning", "tree.nodes.conditioning.parent=goal"],
-              "tree.nodes.", "cycle"),
+    "cycle": (["tree.nodes.goal.parent=conditioning", "tree.nodes.conditioning.parent=goal"], "tree.nodes.", "cycle"),
     "orphan": (["tree.nodes.goal.parent=nowhere"], "tree.nodes.goal.parent", "not a node"),
     "duplicate_name": (["+tree.nodes.q={parent: q, rmp: {type: damper}}"], "tree.nodes.q", "root's name"),
     "unknown_aux": (["tree.nodes.goal.map.origin=gaol"], "tree.nodes.goal.map.origin", "did you mean 'goal'"),
@@ -186,16 +238,18 @@ def test_bad_config_is_rejected_with_its_path(case, monkeypatch):
 
 def test_all_problems_are_reported_together():
     with pytest.raises(ConfigError) as err:
-        resolve_and_validate(compose_cfg(["expert.goal.type=rfb", "+tree.nodes.goal.rmp.gian=2",
-                                          "tree.nodes.goal.map.origin=gaol"]))
+        resolve_and_validate(
+            compose_cfg(["expert.goal.type=rfb", "+tree.nodes.goal.rmp.gian=2", "tree.nodes.goal.map.origin=gaol"])
+        )
     paths = {i.path for i in err.value.issues}
     assert {"expert.goal.type", "tree.nodes.goal.rmp.gian", "tree.nodes.goal.map.origin"} <= paths
 
 
 def _cli(*args, timeout=300, cwd="/"):
     env = {**os.environ, "WANDB_MODE": "disabled", "HYDRA_FULL_ERROR": "0"}
-    return subprocess.run([sys.executable, "-m", *args], capture_output=True, text=True, timeout=timeout, cwd=cwd,
-                          env=env)
+    return subprocess.run(
+        [sys.executable, "-m", *args], capture_output=True, text=True, timeout=timeout, cwd=cwd, env=env
+    )
 
 
 def test_cli_bad_config_exits_nonzero_without_traceback(tmp_path):
@@ -223,14 +277,25 @@ def test_sweep_all_experiments_tiny(tmp_path):
 
 @pytest.mark.slow
 def test_submitit_local_two_jobs(tmp_path):
-    r = _cli("rmpfusion.cli.validate", "-m", "hydra/launcher=submitit_local", "seed=1,2",
-             f"hydra.sweep.dir={tmp_path}", "hydra.launcher.timeout_min=5", timeout=600)
+    r = _cli(
+        "rmpfusion.cli.validate",
+        "-m",
+        "hydra/launcher=submitit_local",
+        "seed=1,2",
+        f"hydra.sweep.dir={tmp_path}",
+        "hydra.launcher.timeout_min=5",
+        timeout=600,
+    )
     assert r.returncode == 0, r.stderr[-3000:]
     assert len(sorted(tmp_path.glob(".submitit/*/*_result.pkl"))) == 2
     # Each job ran in its own submitit process and validated its own override; rmpfusion-validate keeps no run
     # directory, so the jobs' logs say which directory a run with those overrides would write.
-    said = sorted(line.split()[2].rsplit("/", 1)[-1] for log in tmp_path.glob(".submitit/*/*_log.out")
-                  for line in log.read_text().splitlines() if line.startswith("run directory: "))
+    said = sorted(
+        line.split()[2].rsplit("/", 1)[-1]
+        for log in tmp_path.glob(".submitit/*/*_log.out")
+        for line in log.read_text().splitlines()
+        if line.startswith("run directory: ")
+    )
     assert said == ["0_default_seed=1", "1_default_seed=2"]  # no experiment=: the default config, each job's override
     assert not list(tmp_path.glob("*/.hydra")), "rmpfusion-validate left a run directory behind"
 
@@ -238,8 +303,19 @@ def test_submitit_local_two_jobs(tmp_path):
 @pytest.mark.slow
 def test_optuna_sweep_searches_and_reports_the_best_learning_rate(tmp_path):
     """conf/sweep/optuna_lr.yaml: two tiny trials, each a full run whose returned loss Optuna minimises."""
-    r = _cli("rmpfusion.cli.run", "-m", "experiment=2d1level", "sweep=optuna_lr", "data=tiny", "train=tiny", "eval=fast",
-             "logger=disabled", "hydra.sweeper.n_trials=2", f"hydra.sweep.dir={tmp_path}", timeout=600)
+    r = _cli(
+        "rmpfusion.cli.run",
+        "-m",
+        "experiment=2d1level",
+        "sweep=optuna_lr",
+        "data=tiny",
+        "train=tiny",
+        "eval=fast",
+        "logger=disabled",
+        "hydra.sweeper.n_trials=2",
+        f"hydra.sweep.dir={tmp_path}",
+        timeout=600,
+    )
     assert r.returncode == 0, r.stderr[-3000:]
     best = (tmp_path / "optimization_results.yaml").read_text()
     assert "train.lr" in best and "best_value" in best

@@ -4,15 +4,16 @@ are built in float64 whatever torch's default dtype is, and the tree is then cas
 conftest.py makes float64 torch's default for the whole suite, which would hide constants built at the default
 dtype; these tests build their trees under torch's out-of-the-box default, float32, as a user's script does.
 """
+
 from __future__ import annotations
 
 import math
 
 import numpy as np
 import pytest
+import rmpflow_reference as ref
 import torch
 
-import rmpflow_reference as ref
 import rmpfusion
 
 
@@ -39,15 +40,28 @@ def _rel(out: torch.Tensor, expect: np.ndarray) -> float:
 def test_issue_example_matches_rmpflow_to_rounding(default_float32):
     """The tree of the report (centre [0.3, −1.7], radius 0.7, goal [2.1, 1.3], RMPflow leaves with defaults):
     with float32-rounded constants q̈ was off by 4e-7 relative; in float64 it is RMPflow's to rounding."""
-    spec = {"root": {"name": "q", "dim": 2}, "nodes": {
-        "obstacle": {"parent": "q", "map": {"type": "sphere_distance", "center": [0.3, -1.7], "radius": 0.7, "normalized": True},
-                     "rmp": {"type": "rmpflow_collision_avoidance"}},
-        "goal": {"parent": "q", "map": {"type": "offset", "origin": [2.1, 1.3]}, "rmp": {"type": "rmpflow_goal_attractor"}}}}
+    spec = {
+        "root": {"name": "q", "dim": 2},
+        "nodes": {
+            "obstacle": {
+                "parent": "q",
+                "map": {"type": "sphere_distance", "center": [0.3, -1.7], "radius": 0.7, "normalized": True},
+                "rmp": {"type": "rmpflow_collision_avoidance"},
+            },
+            "goal": {
+                "parent": "q",
+                "map": {"type": "offset", "origin": [2.1, 1.3]},
+                "rmp": {"type": "rmpflow_goal_attractor"},
+            },
+        },
+    }
     tree = rmpfusion.build_tree(spec)
     q, qd = np.array([0.3, -0.85]), np.array([0.2, -0.5])
     out = tree(torch.from_numpy(q)[None], torch.from_numpy(qd)[None])
-    children = [(ref.sphere_map(np.array([0.3, -1.7]), 0.7), ref.collision_avoidance),
-                (ref.offset_map(np.array([2.1, 1.3])), ref.goal_attractor)]
+    children = [
+        (ref.sphere_map(np.array([0.3, -1.7]), 0.7), ref.collision_avoidance),
+        (ref.offset_map(np.array([2.1, 1.3])), ref.goal_attractor),
+    ]
     a, f, M = ref.rmpflow_root(q, qd, children)
     np.testing.assert_allclose(a, [0.29787391, 1.94333152], atol=5e-9)  # the reference's value quoted in the report
     assert _rel(out.qdd[0], a) <= 1e-12
@@ -62,16 +76,31 @@ def _random_rmpflow_tree(seed: int, n_obstacles: int = 2):
         c, R = rng.uniform(-2, 2, 2), float(rng.uniform(0.3, 1.2))
         eps, alpha, eta = float(rng.uniform(0.1, 0.5)), float(rng.uniform(1e-6, 1e-4)), float(rng.uniform(0.05, 1.0))
         _inexact32(*c, R, eps, alpha, eta)
-        nodes[f"o{k}"] = {"parent": "q", "map": {"type": "sphere_distance", "center": c.tolist(), "radius": R, "normalized": True},
-                          "rmp": {"type": "rmpflow_collision_avoidance", "epsilon": eps, "alpha": alpha, "eta": eta}}
-        children.append((ref.sphere_map(c, R), lambda x, xd, e=eps, a=alpha, n=eta: ref.collision_avoidance(x, xd, e, a, n)))
+        nodes[f"o{k}"] = {
+            "parent": "q",
+            "map": {"type": "sphere_distance", "center": c.tolist(), "radius": R, "normalized": True},
+            "rmp": {"type": "rmpflow_collision_avoidance", "epsilon": eps, "alpha": alpha, "eta": eta},
+        }
+        children.append(
+            (ref.sphere_map(c, R), lambda x, xd, e=eps, a=alpha, n=eta: ref.collision_avoidance(x, xd, e, a, n))
+        )
         obstacles.append((c, R))
     g = rng.uniform(-3, 3, 2)
-    gp = {"w_u": float(rng.uniform(2, 12)), "w_l": float(rng.uniform(0.3, 1.5)), "sigma": float(rng.uniform(0.4, 2.0)),
-          "alpha": float(rng.uniform(0.5, 3.0)), "eta": float(rng.uniform(0.5, 3.0)), "gain": float(rng.uniform(0.3, 3.0)),
-          "tol": float(rng.uniform(1e-3, 1e-2))}
+    gp = {
+        "w_u": float(rng.uniform(2, 12)),
+        "w_l": float(rng.uniform(0.3, 1.5)),
+        "sigma": float(rng.uniform(0.4, 2.0)),
+        "alpha": float(rng.uniform(0.5, 3.0)),
+        "eta": float(rng.uniform(0.5, 3.0)),
+        "gain": float(rng.uniform(0.3, 3.0)),
+        "tol": float(rng.uniform(1e-3, 1e-2)),
+    }
     _inexact32(*g, *gp.values())
-    nodes["goal"] = {"parent": "q", "map": {"type": "offset", "origin": g.tolist()}, "rmp": {"type": "rmpflow_goal_attractor", **gp}}
+    nodes["goal"] = {
+        "parent": "q",
+        "map": {"type": "offset", "origin": g.tolist()},
+        "rmp": {"type": "rmpflow_goal_attractor", **gp},
+    }
     children.append((ref.offset_map(g), lambda x, xd: ref.goal_attractor(x, xd, **gp)))
     dp = {"w": float(rng.uniform(0.05, 0.5)), "eta": float(rng.uniform(0.3, 2.0))}
     _inexact32(*dp.values())
@@ -131,30 +160,73 @@ EXACT_SPEC = {
     "root": {"name": "q", "dim": 3},
     "aux": {"goal": 3},
     "nodes": {
-        "sphere": {"parent": "q", "map": {"type": "sphere_distance", "center": [0.3, -1.7, 0.1], "radius": 0.7},
-                   "weight": {"type": "rbf", "center": [0.3, -1.7, 0.1], "radius": 0.7, "sigma": 0.35, "low": 0.1, "high": 2.3},
-                   "rmp": {"type": "collision_avoidance", "r_w": 0.9, "sigma": 0.3, "epsilon": 0.15, "alpha": 1.1e-5}},
-        "cylinder": {"parent": "q", "map": {"type": "cylinder_distance", "center": [0.7, 0.2, -0.3], "radius": 0.45,
-                                            "axis": [0.3, 0.4, 1.1]},
-                     "weight": {"type": "logistic", "center": [0.7, 0.2, -0.3], "radius": 0.45, "low": 0.3, "high": 1.7,
-                                "steepness": -3.3, "switch_distance": 0.1},
-                     "rmp": {"type": "rmpflow_collision_avoidance", "epsilon": 0.3, "alpha": 1.3e-5, "eta": 0.1}},
-        "box": {"parent": "q", "map": {"type": "box_distance", "center": [-1.1, 0.9, 0.3], "half_extents": [0.2, 0.3, 0.7]},
-                "weight": {"type": "constant", "value": 0.3},
-                "rmp": {"type": "collision_avoidance"}},
-        "goal": {"parent": "q", "map": {"type": "offset", "origin": "goal"},
-                 "weight": {"type": "mlp", "hidden": [8], "init_bias": 0.7, "floor": 0.01, "aux": ["goal"]},
-                 "rmp": {"type": "goal_attractor", "gain": 1.3, "alpha": 0.9, "sigma": 0.6}},
-        "home": {"parent": "q", "map": {"type": "offset", "origin": [2.1, 1.3, -0.9]}, "rmp": {"type": "rmpflow_goal_attractor"}},
-        "plane": {"parent": "q", "map": {"type": "linear", "matrix": [[0.1, 0.2, 0.3], [-0.7, 0.0, 1.9]], "bias": [0.3, -0.6]},
-                  "rmp": {"type": "damper", "w": 0.1, "eta": 1.3}},
-        "shifted": {"parent": "q", "map": {"type": "compose", "maps": [{"type": "select", "indices": [2, 0]},
-                                                                        {"type": "offset", "origin": [0.1, 0.7]}]},
-                    "rmp": {"type": "rmpflow_damper", "w": 0.3, "eta": 0.7}},
-        "limit": {"parent": "q", "map": {"type": "joint_limit", "side": "upper", "limit": 1.1, "joints": 1},
-                  "rmp": {"type": "joint_limit"}},
-        "lower": {"parent": "q", "map": {"type": "joint_limit", "side": "lower", "limit": [-0.3, -2.9], "joints": [0, 2]},
-                  "rmp": {"type": "identity_metric", "scale": 0.03}},
+        "sphere": {
+            "parent": "q",
+            "map": {"type": "sphere_distance", "center": [0.3, -1.7, 0.1], "radius": 0.7},
+            "weight": {
+                "type": "rbf",
+                "center": [0.3, -1.7, 0.1],
+                "radius": 0.7,
+                "sigma": 0.35,
+                "low": 0.1,
+                "high": 2.3,
+            },
+            "rmp": {"type": "collision_avoidance", "r_w": 0.9, "sigma": 0.3, "epsilon": 0.15, "alpha": 1.1e-5},
+        },
+        "cylinder": {
+            "parent": "q",
+            "map": {"type": "cylinder_distance", "center": [0.7, 0.2, -0.3], "radius": 0.45, "axis": [0.3, 0.4, 1.1]},
+            "weight": {
+                "type": "logistic",
+                "center": [0.7, 0.2, -0.3],
+                "radius": 0.45,
+                "low": 0.3,
+                "high": 1.7,
+                "steepness": -3.3,
+                "switch_distance": 0.1,
+            },
+            "rmp": {"type": "rmpflow_collision_avoidance", "epsilon": 0.3, "alpha": 1.3e-5, "eta": 0.1},
+        },
+        "box": {
+            "parent": "q",
+            "map": {"type": "box_distance", "center": [-1.1, 0.9, 0.3], "half_extents": [0.2, 0.3, 0.7]},
+            "weight": {"type": "constant", "value": 0.3},
+            "rmp": {"type": "collision_avoidance"},
+        },
+        "goal": {
+            "parent": "q",
+            "map": {"type": "offset", "origin": "goal"},
+            "weight": {"type": "mlp", "hidden": [8], "init_bias": 0.7, "floor": 0.01, "aux": ["goal"]},
+            "rmp": {"type": "goal_attractor", "gain": 1.3, "alpha": 0.9, "sigma": 0.6},
+        },
+        "home": {
+            "parent": "q",
+            "map": {"type": "offset", "origin": [2.1, 1.3, -0.9]},
+            "rmp": {"type": "rmpflow_goal_attractor"},
+        },
+        "plane": {
+            "parent": "q",
+            "map": {"type": "linear", "matrix": [[0.1, 0.2, 0.3], [-0.7, 0.0, 1.9]], "bias": [0.3, -0.6]},
+            "rmp": {"type": "damper", "w": 0.1, "eta": 1.3},
+        },
+        "shifted": {
+            "parent": "q",
+            "map": {
+                "type": "compose",
+                "maps": [{"type": "select", "indices": [2, 0]}, {"type": "offset", "origin": [0.1, 0.7]}],
+            },
+            "rmp": {"type": "rmpflow_damper", "w": 0.3, "eta": 0.7},
+        },
+        "limit": {
+            "parent": "q",
+            "map": {"type": "joint_limit", "side": "upper", "limit": 1.1, "joints": 1},
+            "rmp": {"type": "joint_limit"},
+        },
+        "lower": {
+            "parent": "q",
+            "map": {"type": "joint_limit", "side": "lower", "limit": [-0.3, -2.9], "joints": [0, 2]},
+            "rmp": {"type": "identity_metric", "scale": 0.03},
+        },
     },
 }
 
@@ -221,9 +293,18 @@ def test_mlp_initialisation_does_not_depend_on_the_default_dtype(default_float32
 
 
 def test_aux_given_as_python_numbers_keeps_float64(default_float32):
-    spec = {"root": {"name": "q", "dim": 2}, "aux": {"goal": 2}, "nodes": {
-        "goal": {"parent": "q", "map": {"type": "offset", "origin": "goal"}, "rmp": {"type": "rmpflow_goal_attractor"}},
-        "damp": {"parent": "q", "map": {"type": "identity"}, "rmp": {"type": "rmpflow_damper"}}}}
+    spec = {
+        "root": {"name": "q", "dim": 2},
+        "aux": {"goal": 2},
+        "nodes": {
+            "goal": {
+                "parent": "q",
+                "map": {"type": "offset", "origin": "goal"},
+                "rmp": {"type": "rmpflow_goal_attractor"},
+            },
+            "damp": {"parent": "q", "map": {"type": "identity"}, "rmp": {"type": "rmpflow_damper"}},
+        },
+    }
     tree = rmpfusion.build_tree(spec)
     q, qd = torch.tensor([[0.3, -0.85]], dtype=torch.float64), torch.tensor([[0.2, -0.5]], dtype=torch.float64)
     as_list = tree(q, qd, {"goal": [2.1, 1.3]}).qdd

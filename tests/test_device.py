@@ -2,6 +2,7 @@
 run config names it and the fix before anything runs; the evaluation path creates no tensor on another device
 (checked on the meta device, here on any machine); on a machine with CUDA, trees, training and a tiny run agree with
 the CPU (skipped elsewhere, never failing for lack of a GPU)."""
+
 from __future__ import annotations
 
 import os
@@ -10,7 +11,9 @@ import sys
 
 import pytest
 import torch
+from conftest import compose_cfg
 from pydantic import ValidationError
+from trees import TWO_LEVEL, grouping_tree_spec, two_level_inputs
 
 import rmpfusion
 from rmpfusion.assembly.errors import ConfigError
@@ -19,8 +22,6 @@ from rmpfusion.envs.common import OnDevice, on_device
 from rmpfusion.envs.protocol import ComputesOn
 from rmpfusion.pipeline.config import RunConfig
 from rmpfusion.pipeline.validate import resolve_and_validate
-from conftest import compose_cfg
-from trees import TWO_LEVEL, grouping_tree_spec, two_level_inputs
 
 cuda = pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device on this machine")
 no_cuda = pytest.mark.skipif(torch.cuda.is_available(), reason="this machine has a CUDA device")
@@ -37,7 +38,8 @@ def test_a_device_this_machine_lacks_is_a_config_error_naming_it_and_the_fix():
         with pytest.raises(ConfigError) as err:
             resolve_and_validate(compose_cfg([f"device={device}"]))
         assert [str(i) for i in err.value.issues] == [
-            f"device: '{device}' is not available here ({why}); set device=cpu, or run where a GPU is"]
+            f"device: '{device}' is not available here ({why}); set device=cpu, or run where a GPU is"
+        ]
 
 
 def test_an_unknown_device_is_reported_with_the_other_problems():
@@ -50,7 +52,9 @@ def test_an_unknown_device_is_reported_with_the_other_problems():
 def test_run_config_itself_takes_cpu_and_cuda_devices_only():
     tree = {"root": {"dim": 2}, "nodes": {"a": {"parent": "q", "rmp": {"type": "damper"}}}}
     for device in ("cpu", "cuda", "cuda:3"):
-        assert RunConfig.model_validate({"env": {"type": "particle2d"}, "tree": tree, "device": device}).device == device
+        assert (
+            RunConfig.model_validate({"env": {"type": "particle2d"}, "tree": tree, "device": device}).device == device
+        )
     with pytest.raises(ValidationError, match="device"):
         RunConfig.model_validate({"env": {"type": "particle2d"}, "tree": tree, "device": "tpu"})
 
@@ -58,8 +62,14 @@ def test_run_config_itself_takes_cpu_and_cuda_devices_only():
 @no_cuda
 def test_validate_cli_prints_the_message(tmp_path):
     env = {**os.environ, "WANDB_MODE": "disabled", "HYDRA_FULL_ERROR": "0"}
-    r = subprocess.run([sys.executable, "-m", "rmpfusion.cli.validate", "device=cuda", f"hydra.run.dir={tmp_path}"],
-                       capture_output=True, text=True, timeout=300, cwd=str(tmp_path), env=env)
+    r = subprocess.run(
+        [sys.executable, "-m", "rmpfusion.cli.validate", "device=cuda", f"hydra.run.dir={tmp_path}"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        cwd=str(tmp_path),
+        env=env,
+    )
     assert r.returncode == 2, r.stderr
     assert "device: 'cuda' is not available here" in r.stderr
 
@@ -81,6 +91,7 @@ def test_the_evaluation_creates_no_tensor_off_the_trees_device(which):
 
 def test_environments_compute_on_a_chosen_device_and_return_cpu_records():
     from manipulators import franka_env
+
     from rmpfusion.envs import Particle2D
 
     for env in (Particle2D(n_obstacles=1), franka_env()):
@@ -109,9 +120,24 @@ def test_a_tiny_run_on_cuda_matches_the_cpu(tmp_path):
 
     metrics = {}
     for device in ("cpu", "cuda"):
-        r = subprocess.run([sys.executable, "-m", "rmpfusion.cli.run", "experiment=2d1level", "data=tiny", "train=tiny",
-                            "eval=fast", "eval.figures=false", "logger=disabled", f"device={device}",
-                            f"hydra.run.dir={tmp_path / device}"], capture_output=True, text=True, timeout=900)
+        r = subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "rmpfusion.cli.run",
+                "experiment=2d1level",
+                "data=tiny",
+                "train=tiny",
+                "eval=fast",
+                "eval.figures=false",
+                "logger=disabled",
+                f"device={device}",
+                f"hydra.run.dir={tmp_path / device}",
+            ],
+            capture_output=True,
+            text=True,
+            timeout=900,
+        )
         assert r.returncode == 0, r.stderr[-3000:]
         metrics[device] = json.loads((tmp_path / device / "metrics.json").read_text())
     a, b = metrics["cpu"]["learners"]["rmp"]["final"], metrics["cuda"]["learners"]["rmp"]["final"]

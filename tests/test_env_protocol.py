@@ -1,12 +1,22 @@
 """Both environments satisfy the pipeline's ``Env`` protocol and exactly the capability protocols they claim: the
 pipeline decides task metrics, renders and 2-D figures by these ``isinstance`` checks."""
+
 from __future__ import annotations
 
 import pytest
 import torch
 
-from rmpfusion.envs import (DifferentiableRollouts, Env, HasRatioMetrics, HasTaskMetrics, Particle2D,
-                            PlanarWorkspace, RenderSettings, Renders, collect)
+from rmpfusion.envs import (
+    DifferentiableRollouts,
+    Env,
+    HasRatioMetrics,
+    HasTaskMetrics,
+    Particle2D,
+    PlanarWorkspace,
+    Renders,
+    RenderSettings,
+    collect,
+)
 from rmpfusion.registry import ENVS
 
 
@@ -33,8 +43,9 @@ def test_particle2d_demonstrations_are_the_generic_collection():
 
 def test_the_manipulator_is_an_env_with_task_metrics_ratios_and_renders():
     pytest.importorskip("pybullet")
-    from rmpfusion.envs.manipulator import Manipulator
     from manipulators import franka_env
+
+    from rmpfusion.envs.manipulator import Manipulator
 
     env = franka_env()
     try:
@@ -42,8 +53,14 @@ def test_the_manipulator_is_an_env_with_task_metrics_ratios_and_renders():
         assert isinstance(env, HasTaskMetrics) and isinstance(env, HasRatioMetrics) and isinstance(env, Renders)
         assert not isinstance(env, (PlanarWorkspace, DifferentiableRollouts))  # pybullet: no gradients
         assert env.dim == 7 and env.dt == pytest.approx(1.0 / env.params.control_rate)
-        assert set(env.ratio_metrics) <= {"time", "cspace_length", "ee_length", "goal_distance",
-                                          "timeout_goal_distance", "min_goal_distance"}
+        assert set(env.ratio_metrics) <= {
+            "time",
+            "cspace_length",
+            "ee_length",
+            "goal_distance",
+            "timeout_goal_distance",
+            "min_goal_distance",
+        }
         s = env.render_settings
         assert isinstance(s, RenderSettings) and s.size == tuple(env.params.render_size)
         assert s.times == tuple(env.params.render_times) and s.gif_fps == env.params.gif_fps

@@ -1,18 +1,19 @@
 """An exported policy is the tree, in a file that runs without rmpfusion: equal to the tree to 1e-10 at any batch
 size (the pseudo-inverse where M is singular included), its metadata naming the inputs; ``rmpfusion-export``
 writes it from a checkpoint, refuses to overwrite, and its AOTInductor package agrees too (slow)."""
+
 import json
 import subprocess
 import sys
 
 import pytest
 import torch
+from conftest import compose_cfg
+from trees import TWO_LEVEL, two_level_inputs
 
 import rmpfusion
 from rmpfusion.core.export import export_tree
 from rmpfusion.learn.export import METADATA
-from conftest import compose_cfg
-from trees import TWO_LEVEL, two_level_inputs
 
 #: Load an exported file in a fresh interpreter where rmpfusion cannot be imported, run it, print its outputs.
 RUN_WITHOUT_RMPFUSION = """
@@ -27,8 +28,12 @@ torch.save(out if isinstance(out, tuple) else (out,), sys.argv[3])
 
 def _run_elsewhere(path, inputs, tmp_path):
     torch.save(inputs, tmp_path / "inputs.pt")
-    r = subprocess.run([sys.executable, "-c", RUN_WITHOUT_RMPFUSION, str(path), str(tmp_path / "inputs.pt"),
-                        str(tmp_path / "out.pt")], capture_output=True, text=True, timeout=300)
+    r = subprocess.run(
+        [sys.executable, "-c", RUN_WITHOUT_RMPFUSION, str(path), str(tmp_path / "inputs.pt"), str(tmp_path / "out.pt")],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert r.returncode == 0, r.stderr[-2000:]
     return torch.load(tmp_path / "out.pt")
 
@@ -52,8 +57,16 @@ def test_the_exported_tree_runs_without_rmpfusion_and_equals_the_tree(tmp_path):
 
 
 def test_the_exported_tree_answers_with_the_pseudo_inverse_where_m_is_singular(tmp_path):
-    spec = {"root": {"name": "q", "dim": 2}, "nodes": {
-        "x": {"parent": "q", "map": {"type": "select", "indices": [0]}, "rmp": {"type": "damper", "w": 1.0, "eta": 1.0}}}}
+    spec = {
+        "root": {"name": "q", "dim": 2},
+        "nodes": {
+            "x": {
+                "parent": "q",
+                "map": {"type": "select", "indices": [0]},
+                "rmp": {"type": "damper", "w": 1.0, "eta": 1.0},
+            }
+        },
+    }
     tree = rmpfusion.build_tree(spec)
     q = torch.zeros(3, 2, dtype=torch.float64)
     qd = torch.tensor([[1.0, 2.0], [-1.0, 0.5], [0.0, 3.0]], dtype=torch.float64)
@@ -76,9 +89,23 @@ def test_a_tree_exports_only_from_a_batch_of_two_or_more():
 def tiny_run(tmp_path_factory):
     """A finished tiny 2d1level run: its final checkpoint."""
     run_dir = tmp_path_factory.mktemp("run")
-    r = subprocess.run([sys.executable, "-m", "rmpfusion.cli.run", "experiment=2d1level", "data=tiny", "train=tiny",
-                        "eval=fast", "eval.figures=false", "logger=disabled", f"hydra.run.dir={run_dir}"],
-                       capture_output=True, text=True, timeout=900)
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "rmpfusion.cli.run",
+            "experiment=2d1level",
+            "data=tiny",
+            "train=tiny",
+            "eval=fast",
+            "eval.figures=false",
+            "logger=disabled",
+            f"hydra.run.dir={run_dir}",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=900,
+    )
     assert r.returncode == 0, r.stderr[-3000:]
     return run_dir / "checkpoints" / "rmp" / "final.pt"
 
@@ -92,7 +119,11 @@ def test_rmpfusion_export_writes_a_checked_file_and_refuses_to_overwrite_it(tiny
     extra = {METADATA: ""}
     torch.export.load(out, extra_files=extra)
     meta = json.loads(extra[METADATA])
-    assert meta["outputs"] == ["qdd", "M", "f"] and meta["aux_names"] == ["goal", "obstacle1_center", "obstacle1_radius"]
+    assert meta["outputs"] == ["qdd", "M", "f"] and meta["aux_names"] == [
+        "goal",
+        "obstacle1_center",
+        "obstacle1_radius",
+    ]
     assert meta["inputs"][0] == "q ({B}, 2)" and meta["learner"] == "rmp"
     before = out.read_bytes()
     assert main([str(tiny_run), "--out", str(out)]) == 2
@@ -109,8 +140,11 @@ def test_the_aoti_package_equals_the_tree(tiny_run, tmp_path):
     program = torch.export.load(out).module()
     g = torch.Generator().manual_seed(5)
     q, qd = torch.rand(3, 2, generator=g, dtype=torch.float64), torch.randn(3, 2, generator=g, dtype=torch.float64)
-    aux = (torch.rand(3, 2, generator=g, dtype=torch.float64), torch.rand(3, 2, generator=g, dtype=torch.float64),
-           torch.full((3, 1), 0.5, dtype=torch.float64))
+    aux = (
+        torch.rand(3, 2, generator=g, dtype=torch.float64),
+        torch.rand(3, 2, generator=g, dtype=torch.float64),
+        torch.full((3, 1), 0.5, dtype=torch.float64),
+    )
     with torch.no_grad():
         assert (runner(q, qd, *aux) - program(q, qd, *aux)).abs().max() <= 1e-10
 

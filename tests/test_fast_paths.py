@@ -2,14 +2,15 @@
 tree, the one kinematics pass for every control point, the pullback* shortcuts (tested in test_tree), the fused GDS
 terms (test_leaves) and the forward-mode MLP tangent (test_weights); level-batched evaluation against the
 node-by-node computation is test_grouped_evaluation. No test here looks at wall time."""
+
 import copy
 import warnings
 
 import pytest
 import torch
+from trees import TWO_LEVEL, two_level_inputs
 
 import rmpfusion
-from trees import TWO_LEVEL, two_level_inputs
 
 FIELDS = ("qdd", "f", "M", "G", "B", "Phi", "V", "L")
 
@@ -39,8 +40,16 @@ def test_compiled_tree_equals_eager_values_and_parameter_gradients(gen):
 def test_compiled_tree_falls_back_to_the_pseudo_inverse_where_the_solve_fails():
     """A root inertia that is singular for some samples: the compiled fast path reports it and the eager
     resolve gives the Moore–Penrose answer, exactly as without compilation."""
-    spec = {"root": {"name": "q", "dim": 2}, "nodes": {
-        "x": {"parent": "q", "map": {"type": "select", "indices": [0]}, "rmp": {"type": "damper", "w": 1.0, "eta": 1.0}}}}
+    spec = {
+        "root": {"name": "q", "dim": 2},
+        "nodes": {
+            "x": {
+                "parent": "q",
+                "map": {"type": "select", "indices": [0]},
+                "rmp": {"type": "damper", "w": 1.0, "eta": 1.0},
+            }
+        },
+    }
     eager = rmpfusion.build_tree(spec)
     fast = copy.deepcopy(eager).compile(dynamic=False)
     q = torch.zeros(3, 2, dtype=torch.float64)
@@ -122,6 +131,7 @@ def test_a_tree_whose_compile_fails_runs_eagerly_and_says_why(gen, monkeypatch):
     def compile_that_fails(fn, **kwargs):
         def call(*args):
             raise torch._dynamo.exc.BackendCompilerFailed(lambda *a: None, RuntimeError("no C++ compiler found"), None)
+
         return call
 
     eager = rmpfusion.build_tree(TWO_LEVEL)

@@ -1,6 +1,7 @@
 """Every figure reads on its own: a title, axis labels with units, a legend naming every kind of mark, the
 expert's line drawn over the learner's, which test environment a panel shows, and one V_r scale across the panels
 of a grid. Drawn on small synthetic data; the ``_draw_*`` helpers return the Figure without saving it."""
+
 from __future__ import annotations
 
 import re
@@ -61,9 +62,13 @@ def assert_expert_on_top(ax, learner_label: str) -> None:
 def scene():
     """One 2D environment with two obstacles, three starts, an expert and a learner that follows it closely."""
     g = torch.Generator().manual_seed(0)
-    aux = {"goal": torch.tensor([[3.0, 1.0]]), "obstacle1_center": torch.tensor([[0.5, 0.5]]),
-           "obstacle1_radius": torch.tensor([[0.8]]), "obstacle2_center": torch.tensor([[0.0, -1.5]]),
-           "obstacle2_radius": torch.tensor([[0.6]])}
+    aux = {
+        "goal": torch.tensor([[3.0, 1.0]]),
+        "obstacle1_center": torch.tensor([[0.5, 0.5]]),
+        "obstacle1_radius": torch.tensor([[0.8]]),
+        "obstacle2_center": torch.tensor([[0.0, -1.5]]),
+        "obstacle2_radius": torch.tensor([[0.6]]),
+    }
     q0 = torch.tensor([[-3.0, 0.0], [-2.5, 1.0], [-3.0, -1.0]])
     qd0 = torch.randn(N, 2, generator=g) * 0.5
     s = torch.linspace(0, 1, T)[:, None, None]
@@ -79,8 +84,14 @@ def decreasing_V(scale: float, n: int = N) -> torch.Tensor:
 
 # ------------------------------------------------------------------------------------------------- the 2D set
 def test_trajectories_name_every_mark_and_keep_the_expert_visible(scene):
-    fig = F._draw_trajectories(scene.aux, scene.expert, {"learner-rmp": scene.learner}, scene.q0, scene.qd0,
-                               title="2d2level: expert vs learner-rmp, test environment 0")
+    fig = F._draw_trajectories(
+        scene.aux,
+        scene.expert,
+        {"learner-rmp": scene.learner},
+        scene.q0,
+        scene.qd0,
+        title="2d2level: expert vs learner-rmp, test environment 0",
+    )
     (ax,) = fig.axes
     assert_labelled(ax)
     assert ax.get_xlabel() == f"x ({F.PLANE_UNIT})" and ax.get_ylabel() == f"y ({F.PLANE_UNIT})"
@@ -114,10 +125,14 @@ def test_lyapunov_names_its_curves_and_axes(scene):
 
 
 def test_learning_curves_label_loss_units_and_every_curve_kind():
-    curves = {"rmp": {"train": [(i, 1.0 / (i + 1)) for i in range(1, 61)], "val": [(0, 0.9), (30, 0.2), (60, 0.1)],
-                      "test": [(0, 1.0), (60, 0.05)]}}
-    fig = F._draw_learning_curves(curves, {"rmp": [0, 30, 60]}, title="2d2level: learning curve of rmp",
-                                  unit="a.u./s²")
+    curves = {
+        "rmp": {
+            "train": [(i, 1.0 / (i + 1)) for i in range(1, 61)],
+            "val": [(0, 0.9), (30, 0.2), (60, 0.1)],
+            "test": [(0, 1.0), (60, 0.05)],
+        }
+    }
+    fig = F._draw_learning_curves(curves, {"rmp": [0, 30, 60]}, title="2d2level: learning curve of rmp", unit="a.u./s²")
     (ax,) = fig.axes
     assert ax.get_ylabel() == "MSE of q̈ ((a.u./s²)²)" and ax.get_xlabel() == "training iteration"
     assert ax.get_yscale() == "log"
@@ -133,10 +148,18 @@ def test_learning_curves_label_loss_units_and_every_curve_kind():
 
 
 def test_progression_shares_one_V_scale_and_names_the_environment(scene):
-    stages = [{"label": f"rmp @ {it}", "q": scene.learner + k * 0.3, "times": scene.times, "V": decreasing_V(scale)}
-              for k, (it, scale) in enumerate([(0, 4.0), (30, 2.0), (60, 1.0)])]
-    fig = F._draw_progression(scene.aux, scene.expert, stages, scene.q0, scene.qd0,
-                              title="2d2level: rmp vs the expert at each training snapshot, test environment 0")
+    stages = [
+        {"label": f"rmp @ {it}", "q": scene.learner + k * 0.3, "times": scene.times, "V": decreasing_V(scale)}
+        for k, (it, scale) in enumerate([(0, 4.0), (30, 2.0), (60, 1.0)])
+    ]
+    fig = F._draw_progression(
+        scene.aux,
+        scene.expert,
+        stages,
+        scene.q0,
+        scene.qd0,
+        title="2d2level: rmp vs the expert at each training snapshot, test environment 0",
+    )
     axes = fig.axes
     top, bottom = axes[:3], axes[3:]
     assert [ax.get_title() for ax in top] == ["rmp @ 0", "rmp @ 30", "rmp @ 60"]
@@ -166,9 +189,11 @@ def test_progression_without_V_has_one_row(scene):
 
 def test_weights_label_every_panel_and_draw_the_expert_on_top(scene):
     t = scene.times
-    expert = {"goal": 1 + t / 20, "obstacle1": 1 + 4 * torch.exp(-(t - 10) ** 2 / 8)}
-    learned = {"rmp @ 0": {"goal": 0.5 + 0 * t, "obstacle1": 0.7 + 0 * t},
-               "rmp @ 60": {"goal": 1 + t / 21, "obstacle1": 1 + 3.8 * torch.exp(-(t - 10) ** 2 / 8)}}
+    expert = {"goal": 1 + t / 20, "obstacle1": 1 + 4 * torch.exp(-((t - 10) ** 2) / 8)}
+    learned = {
+        "rmp @ 0": {"goal": 0.5 + 0 * t, "obstacle1": 0.7 + 0 * t},
+        "rmp @ 60": {"goal": 1 + t / 21, "obstacle1": 1 + 3.8 * torch.exp(-((t - 10) ** 2) / 8)},
+    }
     fig = F._draw_weights(t, expert, learned, title="2d2level: rmp's weights vs the expert's, test environment 0")
     axes = data_axes(fig)
     assert len(axes) == 2
@@ -183,14 +208,22 @@ def test_weights_label_every_panel_and_draw_the_expert_on_top(scene):
 def test_the_old_positional_calls_still_write_pngs(scene, tmp_path):
     """The callers' signatures are unchanged: every new argument is a keyword with a default."""
     paths = [
-        F.plot_trajectories(tmp_path / "t.png", scene.aux, scene.expert, {"rmp": scene.learner}, scene.q0, scene.qd0,
-                            "title", (-5, 5)),
+        F.plot_trajectories(
+            tmp_path / "t.png", scene.aux, scene.expert, {"rmp": scene.learner}, scene.q0, scene.qd0, "title", (-5, 5)
+        ),
         F.plot_lyapunov(tmp_path / "v.png", scene.times, decreasing_V(1.0), "title"),
-        F.plot_learning_curves(tmp_path / "l.png", {"rmp": {"train": [(1, 1.0), (2, 0.5)], "test": [(0, 1.0)]}},
-                               {"rmp": [0]}, 50),
-        F.plot_progression(tmp_path / "p.png", scene.aux, scene.expert,
-                           [{"label": "rmp @ 0", "q": scene.learner, "times": scene.times, "V": decreasing_V(1.0)}],
-                           scene.q0, scene.qd0, (-5, 5)),
+        F.plot_learning_curves(
+            tmp_path / "l.png", {"rmp": {"train": [(1, 1.0), (2, 0.5)], "test": [(0, 1.0)]}}, {"rmp": [0]}, 50
+        ),
+        F.plot_progression(
+            tmp_path / "p.png",
+            scene.aux,
+            scene.expert,
+            [{"label": "rmp @ 0", "q": scene.learner, "times": scene.times, "V": decreasing_V(1.0)}],
+            scene.q0,
+            scene.qd0,
+            (-5, 5),
+        ),
         F.plot_weights(tmp_path / "w.png", scene.times, {"goal": scene.times}, {"rmp": {"goal": scene.times}}, "t"),
     ]
     for p in paths:
@@ -199,8 +232,10 @@ def test_the_old_positional_calls_still_write_pngs(scene, tmp_path):
 
 # ------------------------------------------------------------------------------------------------- the Franka set
 def _ratios():
-    return {"learner-0": {"time": {"mean": 2.0, "std": 0.5}, "ee_length": {"mean": 1.4, "std": 0.2}},
-            "learner-4": {"time": {"mean": 1.1, "std": 0.1}, "ee_length": {"mean": 1.0, "std": 0.05}}}
+    return {
+        "learner-0": {"time": {"mean": 2.0, "std": 0.5}, "ee_length": {"mean": 1.4, "std": 0.2}},
+        "learner-4": {"time": {"mean": 1.1, "std": 0.1}, "ee_length": {"mean": 1.0, "std": 0.05}},
+    }
 
 
 def test_ratio_bars_name_the_policies_the_expert_and_the_error_bars():
@@ -215,9 +250,16 @@ def test_ratio_bars_name_the_policies_the_expert_and_the_error_bars():
 
 
 def test_goal_distances_in_metres_with_the_precision_line():
-    policies = [SimpleNamespace(label=lab, summary={"timeout_goal_distance": {"mean": m, "std": m / 2},
-                                                    "min_goal_distance": {"mean": m / 3, "std": m / 4}})
-                for lab, m in (("expert", 0.003), ("learner-0", 0.4), ("learner-4", 0.1))]
+    policies = [
+        SimpleNamespace(
+            label=lab,
+            summary={
+                "timeout_goal_distance": {"mean": m, "std": m / 2},
+                "min_goal_distance": {"mean": m / 3, "std": m / 4},
+            },
+        )
+        for lab, m in (("expert", 0.003), ("learner-0", 0.4), ("learner-4", 0.1))
+    ]
     fig = FR._draw_goal_distances(policies)
     (ax,) = fig.axes
     assert_labelled(ax, x_unit=False)
@@ -228,8 +270,10 @@ def test_goal_distances_in_metres_with_the_precision_line():
 
 
 def test_lyapunov_stages_share_one_scale_and_name_both_line_kinds(scene):
-    panels = [{"label": lab, "times": scene.times, "V": decreasing_V(scale), "highlight": 1}
-              for lab, scale in (("expert", 1.0), ("learner-0", 5.0), ("learner-4", 2.0))]
+    panels = [
+        {"label": lab, "times": scene.times, "V": decreasing_V(scale), "highlight": 1}
+        for lab, scale in (("expert", 1.0), ("learner-0", 5.0), ("learner-4", 2.0))
+    ]
     fig = FR._draw_lyapunov_stages(panels, title="franka: $V_r(t)$ on the test set")
     axes = fig.axes
     assert [ax.get_title() for ax in axes] == ["expert", "learner-0", "learner-4"]
@@ -245,8 +289,13 @@ def test_lyapunov_stages_share_one_scale_and_name_both_line_kinds(scene):
 def test_render_strip_names_the_trail_and_the_goal():
     img = np.full((60, 80, 3), 200, dtype=np.uint8)
     trail = np.array([[10.0, 10.0], [30.0, 20.0], [50.0, 40.0]])
-    rows = [{"label": lab, "frames": [{"t": t, "image": img, "trail": trail, "goal": np.array([60.0, 45.0])}
-                                      for t in (0.0, 1.0)]} for lab in ("expert", "learner-0")]
+    rows = [
+        {
+            "label": lab,
+            "frames": [{"t": t, "image": img, "trail": trail, "goal": np.array([60.0, 45.0])} for t in (0.0, 1.0)],
+        }
+        for lab in ("expert", "learner-0")
+    ]
     fig = FR._draw_render_strip(rows, title="franka: test execution 1")
     assert [ax.get_ylabel() for ax in fig.axes[::2]] == ["expert", "learner-0"]
     assert [ax.get_title() for ax in fig.axes[:2]] == ["t = 0.0 s", "t = 1.0 s"]
@@ -255,8 +304,11 @@ def test_render_strip_names_the_trail_and_the_goal():
 
 
 def test_ee_paths_in_metres_with_the_expert_over_the_learners():
-    aux = {"goal": torch.tensor([[0.44, -0.18, 0.3]]), "obstacle1_center": torch.tensor([[0.5, 0.08, 0.3]]),
-           "obstacle1_radius": torch.tensor([[0.06]])}
+    aux = {
+        "goal": torch.tensor([[0.44, -0.18, 0.3]]),
+        "obstacle1_center": torch.tensor([[0.5, 0.08, 0.3]]),
+        "obstacle1_radius": torch.tensor([[0.06]]),
+    }
     s = torch.linspace(0, 1, 30)[:, None]
     expert = torch.tensor([0.32, 0.35, 0.4]) * (1 - s) + aux["goal"] * s
     paths = {"expert": expert, "learner-0": expert + 0.01, "learner-4": expert + 0.002}
@@ -276,7 +328,7 @@ def test_gif_labels_fit_their_text_and_the_caption_spans_the_frame():
     tile = np.full((36, 48, 3), 100, dtype=np.uint8)  # as small as the tests' renders
     labelled = FR._label(tile, "learner-4, t = 1.0 s")
     assert labelled.shape[1] == tile.shape[1] and labelled.shape[0] > tile.shape[0]
-    assert (labelled[-tile.shape[0]:] == tile).all()  # the label sits above the render, never over it
+    assert (labelled[-tile.shape[0] :] == tile).all()  # the label sits above the render, never over it
     for text in ("learner-4, t = 10.0 s", "expert, t = 0.1 s", "a much longer policy label, t = 0.0 s"):
         assert FR._label(tile, text).shape == labelled.shape  # the tiles of a GIF frame line up
     caption = FR._caption(360, ["franka: test execution 1", f"yellow line: {FR.TRAIL_LABEL}"])

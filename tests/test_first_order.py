@@ -1,5 +1,6 @@
 """The first-order baseline for recorded demonstrations: its field moves the latent point as ż = −r·z exactly (so the
 goal is reached from anywhere), and its tracking acceleration's (∂f/∂q)q̇ equals a finite difference of the field."""
+
 from __future__ import annotations
 
 import torch

@@ -1,5 +1,6 @@
 """The Franka Panda environment and tree: spec generation, stability, pybullet torque control vs. the
 kinematic integration, collision checks, shared obstacle weights with several obstacles, rendering."""
+
 from __future__ import annotations
 
 import os
@@ -11,15 +12,19 @@ import yaml
 
 pytest.importorskip("pybullet")
 
-import rmpfusion  # noqa: E402
-from rmpfusion.envs import Rollout  # noqa: E402
-from rmpfusion.envs.manipulator_tree import copy_weights, with_weights  # noqa: E402
-from rmpfusion.envs.manipulator import Manipulator  # noqa: E402
-from rmpfusion.envs.manipulator_tree import manipulator_tree_spec  # noqa: E402
-from conftest import compose_cfg  # noqa: E402
-from manipulators import cylinders, franka_env, franka_tree_spec, make_aux, robot  # noqa: E402
-from rmpfusion.evaluate import lyapunov_monotone, max_relative_increase  # noqa: E402
-from rmpfusion.registry import ENVS  # noqa: E402
+from conftest import compose_cfg
+from manipulators import cylinders, franka_env, franka_tree_spec, make_aux, robot
+
+import rmpfusion
+from rmpfusion.envs import Rollout
+from rmpfusion.envs.manipulator import Manipulator
+from rmpfusion.envs.manipulator_tree import (
+    copy_weights,
+    manipulator_tree_spec,
+    with_weights,
+)
+from rmpfusion.evaluate import lyapunov_monotone, max_relative_increase
+from rmpfusion.registry import ENVS
 
 F64 = torch.float64
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -46,6 +51,7 @@ def expert(env, expert_weights):
 
 # ---------------------------------------------------------------- spec and tree
 
+
 def test_spec_structure_follows_the_paper():
     spec = franka_tree_spec(2)
     nodes = spec["nodes"]
@@ -58,8 +64,10 @@ def test_spec_structure_follows_the_paper():
     assert set(spec["shared_weights"]) == {f"cp{i}_obstacle" for i in range(1, ncp + 1)}
     for k in (1, 2):
         w = nodes[f"cp3_obstacle{k}"]["weight"]
-        assert w == {"shared": "cp3_obstacle",
-                     "bind": {"obstacle_center": f"obstacle{k}_center", "obstacle_radius": f"obstacle{k}_radius"}}
+        assert w == {
+            "shared": "cp3_obstacle",
+            "bind": {"obstacle_center": f"obstacle{k}_center", "obstacle_radius": f"obstacle{k}_radius"},
+        }
     for n in ("damper", "identity_metric"):
         assert "weight" not in nodes[n] and nodes[n]["parent"] == "q"
     bad = {**robot("panda"), "control_points": [{"link": "panda_link3", "radius": 0.1, "size": 2}]}
@@ -84,6 +92,7 @@ def test_tree_finite_qdd_and_positive_definite_M(env, expert, expert_weights):
 
 
 # ---------------------------------------------------------------- rollouts
+
 
 def test_torque_control_tracks_the_kinematic_rollout(expert):
     """pybullet's computed-torque loop realises the tree's q̈ (same semi-implicit Euler step), and V falls."""
@@ -163,6 +172,7 @@ def test_expert_reaches_a_goal_in_front_of_the_obstacle(expert):
 
 # ---------------------------------------------------------------- shared weights, several obstacles
 
+
 def test_weights_trained_with_one_obstacle_run_with_two(env):
     tree1 = rmpfusion.build_tree(franka_tree_spec(1), aux_dims=env.aux_dims())
     g = torch.Generator().manual_seed(3)
@@ -173,7 +183,7 @@ def test_weights_trained_with_one_obstacle_run_with_two(env):
     tree2 = rmpfusion.build_tree(franka_tree_spec(2), aux_dims=env2.aux_dims())
     copied = copy_weights(tree1, tree2)
     assert "attractor" in copied and "cp5_obstacle" in copied
-    n_params = lambda t: sum(p.numel() for p in t.parameters())  # noqa: E731
+    n_params = lambda t: sum(p.numel() for p in t.parameters())
     assert n_params(tree1) == n_params(tree2)  # the second obstacle adds no parameters
     assert tree2.weights["cp5_obstacle2"].fn is tree2.shared["cp5_obstacle"] is tree2.weights["cp5_obstacle1"].fn
 
@@ -192,14 +202,18 @@ def test_weights_trained_with_one_obstacle_run_with_two(env):
         a1 = tree1(q, qd, aux1).qdd
         a2 = tree2(q, qd, aux2).qdd
         torch.testing.assert_close(a2, a1, rtol=1e-9, atol=1e-10)
-        near = make_aux([0.4, -0.3, 0.35], [[0.5, 0.05, 0.25], list(env.ee_position(q)[0] + torch.tensor([0.0, 0.2, 0.0]))],
-                        [0.06, 0.05])
+        near = make_aux(
+            [0.4, -0.3, 0.35],
+            [[0.5, 0.05, 0.25], list(env.ee_position(q)[0] + torch.tensor([0.0, 0.2, 0.0]))],
+            [0.06, 0.05],
+        )
         out = tree2(q, qd, near)
     assert out.qdd.isfinite().all() and torch.linalg.eigvalsh(out.M).min() > 0
     assert (out.qdd - a1).abs().max() > 1e-3
 
 
 # ---------------------------------------------------------------- env plumbing
+
 
 def test_registered_params_and_sampling(env):
     entry = ENVS.get("manipulator")
@@ -230,6 +244,7 @@ def test_render_returns_an_rgb_image(env):
 
 # ---------------------------------------------------------------- execution metrics, demonstrations
 
+
 def test_execution_metrics_match_the_recorded_path(expert):
     """The rollout's execution metrics (paper §4.2) agree with the path recorded at every integration step."""
     env = franka_env(control_rate=60.0)
@@ -241,8 +256,8 @@ def test_execution_metrics_match_the_recorded_path(expert):
     assert bool(r.reached[0])
     k = int(round(r.time_to_goal.item() / env.dt))  # the record where the execution ended
     assert r.goal_distance[k, 0] <= env.params.goal_tolerance < r.goal_distance[k - 1, 0]
-    torch.testing.assert_close(r.cspace_length[0], (r.q[1:k + 1, 0] - r.q[:k, 0]).norm(dim=-1).sum())
-    torch.testing.assert_close(r.ee_length[0], (r.ee[1:k + 1, 0] - r.ee[:k, 0]).norm(dim=-1).sum())
+    torch.testing.assert_close(r.cspace_length[0], (r.q[1 : k + 1, 0] - r.q[:k, 0]).norm(dim=-1).sum())
+    torch.testing.assert_close(r.ee_length[0], (r.ee[1 : k + 1, 0] - r.ee[:k, 0]).norm(dim=-1).sum())
     torch.testing.assert_close(r.end_goal_distance[0], r.goal_distance[k, 0])
     m = env.task_metrics(r)
     assert m["time"].item() == pytest.approx(r.time_to_goal.item())
@@ -260,28 +275,36 @@ def _fake_rollout(gd, speed, dt=0.1):
     qd[..., 0] = speed
     q = torch.zeros(T, B, 7, dtype=F64)
     z = torch.zeros(B, dtype=F64)
-    return Rollout(mode="kinematic", times=torch.arange(T, dtype=F64) * dt, q=q, qd=qd, qdd=qd.clone(),
-                   ee=torch.zeros(T, B, 3, dtype=F64), goal_distance=gd, collided=torch.zeros(B, dtype=torch.bool),
-                   min_clearance=z + 0.1, first_collision_time=z + float("inf"), reached=torch.ones(B, dtype=torch.bool),
-                   time_to_goal=z + 0.1, success=torch.ones(B, dtype=torch.bool), error=[None] * B, cspace_length=z,
-                   ee_length=z, end_goal_distance=z)
+    return Rollout(
+        mode="kinematic",
+        times=torch.arange(T, dtype=F64) * dt,
+        q=q,
+        qd=qd,
+        qdd=qd.clone(),
+        ee=torch.zeros(T, B, 3, dtype=F64),
+        goal_distance=gd,
+        collided=torch.zeros(B, dtype=torch.bool),
+        min_clearance=z + 0.1,
+        first_collision_time=z + float("inf"),
+        reached=torch.ones(B, dtype=torch.bool),
+        time_to_goal=z + 0.1,
+        success=torch.ones(B, dtype=torch.bool),
+        error=[None] * B,
+        cspace_length=z,
+        ee_length=z,
+        end_goal_distance=z,
+    )
 
 
 def test_demonstrations_last_until_the_expert_rests_at_the_goal():
     env = franka_env(demo_min_duration=0.3, demo_settle_distance=0.01, demo_settle_speed=0.05)
     far, near = 0.2, 0.001
-    gd = torch.tensor([[far, far, far],
-                       [near, far, far],
-                       [near, near, far],
-                       [near, near, far],
-                       [near, near, far],
-                       [near, near, far]])
-    speed = torch.tensor([[1.0, 1.0, 1.0],
-                          [0.0, 1.0, 1.0],
-                          [0.0, 0.5, 1.0],
-                          [0.0, 0.01, 1.0],
-                          [0.0, 0.0, 1.0],
-                          [0.0, 0.0, 1.0]])
+    gd = torch.tensor(
+        [[far, far, far], [near, far, far], [near, near, far], [near, near, far], [near, near, far], [near, near, far]]
+    )
+    speed = torch.tensor(
+        [[1.0, 1.0, 1.0], [0.0, 1.0, 1.0], [0.0, 0.5, 1.0], [0.0, 0.01, 1.0], [0.0, 0.0, 1.0], [0.0, 0.0, 1.0]]
+    )
     r = _fake_rollout(gd, speed)
     # 0: at rest from t = 0.1 but kept to the minimum 0.3 s; 1: at rest from t = 0.3; 2: never -> whole rollout
     assert env.demonstration_lengths(r).tolist() == [4, 4, 6]
@@ -290,9 +313,14 @@ def test_demonstrations_last_until_the_expert_rests_at_the_goal():
 
 
 def test_collected_demonstrations_have_per_trajectory_goals_lengths_and_split_obstacles(expert):
-    env = franka_env(cylinders([(0.5, 0.0, 0.25)], [0.06], height=0.5), control_rate=30.0, demo_min_duration=0.2,
-                     demo_settle_distance=0.3, demo_settle_speed=100.0,
-                     test_scene=cylinders([(0.45, 0.1, 0.25)], [0.05], height=0.5))
+    env = franka_env(
+        cylinders([(0.5, 0.0, 0.25)], [0.06], height=0.5),
+        control_rate=30.0,
+        demo_min_duration=0.2,
+        demo_settle_distance=0.3,
+        demo_settle_speed=100.0,
+        test_scene=cylinders([(0.45, 0.1, 0.25)], [0.05], height=0.5),
+    )
     g = torch.Generator().manual_seed(0)
     ds = env.demonstrations(expert, 1, 3, n_points=6, interval=0.1, generator=g, split="train")
     assert ds.traj_id.unique().tolist() == [0, 1, 2] and (ds.env_id == 0).all()
@@ -330,6 +358,7 @@ def test_ratios_to_the_expert_are_per_trajectory():
 
 # ---------------------------------------------------------------- the whole experiment, tiny
 
+
 @pytest.mark.parametrize("rate", [60, pytest.param(1000, marks=pytest.mark.slow)])
 def test_tiny_franka_experiment_end_to_end(tmp_path, rate):
     """experiment=franka on tiny sizes: data -> training -> evaluation in pybullet -> Franka metrics, ratios to the
@@ -340,13 +369,27 @@ def test_tiny_franka_experiment_end_to_end(tmp_path, rate):
     see conf/env/franka.yaml), so there only the expert is held to Theorem 2."""
     import json
 
-    from rmpfusion.pipeline.validate import resolve_and_validate
     from rmpfusion.pipeline.run import run_experiment
+    from rmpfusion.pipeline.validate import resolve_and_validate
 
-    overrides = ["experiment=franka", "logger=disabled", f"env.control_rate={rate}", "data.train_trajectories=3",
-                 "data.test_trajectories=2", "data.points=6", "env.demo_min_duration=0.2",
-                 "train.iterations=3", "train.batch_size=8", "train.snapshots=[0,3]", "train.checkpoint_every=3",
-                 "train.log_every=1", "eval.horizon=0.5", "eval.compile=false", "env.render_times=[0.0,0.5]", "env.render_size=[64,48]"]
+    overrides = [
+        "experiment=franka",
+        "logger=disabled",
+        f"env.control_rate={rate}",
+        "data.train_trajectories=3",
+        "data.test_trajectories=2",
+        "data.points=6",
+        "env.demo_min_duration=0.2",
+        "train.iterations=3",
+        "train.batch_size=8",
+        "train.snapshots=[0,3]",
+        "train.checkpoint_every=3",
+        "train.log_every=1",
+        "eval.horizon=0.5",
+        "eval.compile=false",
+        "env.render_times=[0.0,0.5]",
+        "env.render_size=[64,48]",
+    ]
     run = resolve_and_validate(compose_cfg(overrides))
     run_experiment(run, tmp_path, progress=False)
     m = json.loads((tmp_path / "metrics.json").read_text())
@@ -382,11 +425,19 @@ def test_tiny_franka_experiment_end_to_end(tmp_path, rate):
     assert rows["expert"]["collisions"] == 0
     # the task's data splits say how many straight reaches cross the cylinder (scenes/crossing.py)
     assert 0.0 <= m["data"]["train"]["crossing"]["crossing_fraction"] <= 1.0
-    assert m["data"]["train"]["crossing"]["paths"] == 3 and m["data"]["train"]["crossing"]["radius"] == pytest.approx(0.095)
+    assert m["data"]["train"]["crossing"]["paths"] == 3 and m["data"]["train"]["crossing"]["radius"] == pytest.approx(
+        0.095
+    )
     assert rows["learner-3"]["ratio"]["time"]["mean"] == pytest.approx(snaps["3"]["ratio_to_expert"]["time"]["mean"])
     figs = {os.path.basename(f) for f in m["figures"]}
-    assert {"task_ratios.png", "task_lyapunov.png", "task_execution.png", "task_execution.gif",
-            "task_ee_paths.png", "learning_curve_rmp.png"} <= figs
+    assert {
+        "task_ratios.png",
+        "task_lyapunov.png",
+        "task_execution.png",
+        "task_execution.gif",
+        "task_ee_paths.png",
+        "learning_curve_rmp.png",
+    } <= figs
     assert not any(f.startswith(("trajectories_", "progression_")) for f in figs)  # no 2-D plots of a 7-D robot
     for f in m["figures"]:
         assert os.path.getsize(f) > 1000

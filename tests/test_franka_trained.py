@@ -2,6 +2,7 @@
 behavior cloning on demonstrations around one cylinder, then rebuilt for a scene with three (one obstacle node per
 control point and obstacle, all of a control point's edges sharing its learned weight) and rolled out in pybullet.
 Slow: it collects, trains and rolls out for real (about two minutes on two cores)."""
+
 from __future__ import annotations
 
 import os
@@ -12,14 +13,15 @@ import yaml
 
 pytest.importorskip("pybullet")
 
-import rmpfusion  # noqa: E402
-from rmpfusion.learn.config import TrainConfig  # noqa: E402
-from rmpfusion.envs.manipulator_tree import copy_weights, with_weights  # noqa: E402
-from manipulators import cylinders, franka_env, franka_tree_spec  # noqa: E402
-from rmpfusion.evaluate import lyapunov_monotone, max_relative_increase  # noqa: E402
-from rmpfusion.learn.rmp_learner import RMPLearner  # noqa: E402
-from rmpfusion.learn.objectives import dataset_loss  # noqa: E402
-from rmpfusion.learn.train import train  # noqa: E402
+from manipulators import cylinders, franka_env, franka_tree_spec
+
+import rmpfusion
+from rmpfusion.envs.manipulator_tree import copy_weights, with_weights
+from rmpfusion.evaluate import lyapunov_monotone, max_relative_increase
+from rmpfusion.learn.config import TrainConfig
+from rmpfusion.learn.objectives import dataset_loss
+from rmpfusion.learn.rmp_learner import RMPLearner
+from rmpfusion.learn.train import train
 
 F64 = torch.float64
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -34,8 +36,9 @@ def _conf(group: str) -> dict:
 def _env(scene=None, **overrides):
     """The experiment's environment (conf/env/franka.yaml) with ``overrides``."""
     params = {k: v for k, v in _conf("env").items() if k not in ("type", "defaults")}
-    return franka_env(scene, **{**params, "control_rate": RATE, "mode": "kinematic", "collect_mode": "kinematic",
-                                **overrides})
+    return franka_env(
+        scene, **{**params, "control_rate": RATE, "mode": "kinematic", "collect_mode": "kinematic", **overrides}
+    )
 
 
 @pytest.mark.slow
@@ -46,12 +49,25 @@ def test_a_trained_learner_runs_with_three_obstacles_without_collision():
     g = torch.Generator().manual_seed(0)
     data = env1.demonstrations(expert1, 1, 24, 51, 0.1, g, split="train")
     spec1 = franka_tree_spec(1)
-    learner = RMPLearner(RMPLearner.Params(weights={"type": "mlp", "hidden": [32, 32], "aux": ["goal"],
-                                                   "positivity": "exp"}),  # as conf/experiment/franka.yaml
-                         spec1, env1.aux_dims(), 7, expert=weights)
+    learner = RMPLearner(
+        RMPLearner.Params(
+            weights={"type": "mlp", "hidden": [32, 32], "aux": ["goal"], "positivity": "exp"}
+        ),  # as conf/experiment/franka.yaml
+        spec1,
+        env1.aux_dims(),
+        7,
+        expert=weights,
+    )
     before = dataset_loss(learner, data)
-    cfg = TrainConfig(optimizer="adam", lr=1e-3, batch_size=200, iterations=1500, snapshots=[1500],
-                      checkpoint_every=1500, log_every=500)
+    cfg = TrainConfig(
+        optimizer="adam",
+        lr=1e-3,
+        batch_size=200,
+        iterations=1500,
+        snapshots=[1500],
+        checkpoint_every=1500,
+        log_every=500,
+    )
     train(learner, data, cfg, seed=0)
     after = dataset_loss(learner, data)
     assert after < 0.05 * before, (before, after)  # it learned: the weights are no longer their random start

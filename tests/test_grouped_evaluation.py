@@ -1,15 +1,16 @@
 """Level-batched evaluation (docs/math.md §9) against an independent node-by-node computation of eq. 6
 (tests/reference_tree.py), in float64 to 1e-12: random trees whose siblings group with a number per member, the
 Franka tree, and plugins' leaves (one that declares how it stacks, with a learned number, and one that does not)."""
+
 import pytest
 import torch
 from pydantic import Field
+from reference_tree import FIELDS, node_by_node
+from trees import grouping_tree_spec
 
 import rmpfusion
-from reference_tree import FIELDS, node_by_node
 from rmpfusion.core.gds import GDS
 from rmpfusion.registry import LEAF_RMPS, Params
-from trees import grouping_tree_spec
 
 TOL = 1e-12
 
@@ -79,15 +80,28 @@ def test_policy_equals_the_full_evaluation_where_only_f_and_m_are_needed():
 @pytest.mark.parametrize("n_obstacles", [1, 3])
 @pytest.mark.parametrize("weights", ["expert", "learner"])
 def test_the_franka_tree_equals_the_node_by_node_computation(n_obstacles, weights):
-    from rmpfusion.assembly.weighting import tree_with_weights
     from manipulators import franka_tree_spec
+
+    from rmpfusion.assembly.weighting import tree_with_weights
 
     spec = franka_tree_spec(n_obstacles=n_obstacles)
     if weights == "expert":
-        logistic = {"type": "logistic", "center": "obstacle_center", "radius": "obstacle_radius", "steepness": -20.0,
-                    "switch_distance": 0.2, "low": 1.0, "high": 200.0}
-        spec = tree_with_weights(spec, {"attractor": {"type": "rbf", "center": "goal", "sigma": 0.2, "low": 40.0,
-                                                      "high": 60.0}, **{n: logistic for n in spec["shared_weights"]}})
+        logistic = {
+            "type": "logistic",
+            "center": "obstacle_center",
+            "radius": "obstacle_radius",
+            "steepness": -20.0,
+            "switch_distance": 0.2,
+            "low": 1.0,
+            "high": 200.0,
+        }
+        spec = tree_with_weights(
+            spec,
+            {
+                "attractor": {"type": "rbf", "center": "goal", "sigma": 0.2, "low": 40.0, "high": 60.0},
+                **{n: logistic for n in spec["shared_weights"]},
+            },
+        )
     tree = rmpfusion.build_tree(spec)
     _randomise(tree, n_obstacles)
     kinds = {g.nodes[0]: len(g.nodes) for g in tree.plan.groups}
@@ -154,9 +168,12 @@ def test_plugin_leaves_group_when_they_declare_how_and_run_alone_otherwise(plugi
     nodes = {}
     for k in range(3):
         for kind in ("spring", "rubber"):
-            nodes[f"{kind}{k}"] = {"parent": "q", "map": {"type": "offset", "origin": [0.3 * k, -0.2 * k]},
-                                   "weight": {"type": "mlp", "hidden": [4]},
-                                   "rmp": {"type": f"test_{kind}", "m": 1.0 + k, "c": 0.5 * k, "k": 2.0 + k}}
+            nodes[f"{kind}{k}"] = {
+                "parent": "q",
+                "map": {"type": "offset", "origin": [0.3 * k, -0.2 * k]},
+                "weight": {"type": "mlp", "hidden": [4]},
+                "rmp": {"type": f"test_{kind}", "m": 1.0 + k, "c": 0.5 * k, "k": 2.0 + k},
+            }
     tree = rmpfusion.build_tree({"root": {"name": "q", "dim": 2}, "nodes": nodes})
     sizes = {g.nodes[0]: len(g.nodes) for g in tree.plan.groups}
     assert sizes["spring0"] == 3 and all(sizes[f"rubber{k}"] == 1 for k in range(3))
@@ -200,13 +217,23 @@ def test_a_manipulator_tree_with_every_option_equals_the_node_by_node_computatio
     distances to each shape one group, the gaps one group; values equal node by node, Theorem 2's identity holds."""
     from conftest import assert_energy_identity
     from manipulators import robot
+
     from rmpfusion.envs.manipulator_tree import manipulator_tree_spec
 
-    shapes = {"obstacles": [{"type": "cylinder", "center": [0.5, 0.0, 0.3], "radius": 0.05, "height": 0.6},
-                            {"type": "sphere", "center": [0.4, 0.3, 0.4], "radius": 0.08},
-                            {"type": "box", "center": [0.3, -0.3, 0.2], "half_extents": [0.05, 0.1, 0.2]}]}
-    spec = manipulator_tree_spec(robot("panda"), shapes, self_collision={"min_separation": 3},
-                                 orientation={"target": [0.0, 0.0, -1.0]}, velocity_limits={})
+    shapes = {
+        "obstacles": [
+            {"type": "cylinder", "center": [0.5, 0.0, 0.3], "radius": 0.05, "height": 0.6},
+            {"type": "sphere", "center": [0.4, 0.3, 0.4], "radius": 0.08},
+            {"type": "box", "center": [0.3, -0.3, 0.2], "half_extents": [0.05, 0.1, 0.2]},
+        ]
+    }
+    spec = manipulator_tree_spec(
+        robot("panda"),
+        shapes,
+        self_collision={"min_separation": 3},
+        orientation={"target": [0.0, 0.0, -1.0]},
+        velocity_limits={},
+    )
     tree = rmpfusion.build_tree(spec)
     _randomise(tree, 3)
     assert sorted(len(g.nodes) for g in tree.plan.groups if len(g.nodes) > 2) == [14, 14, 14, 14, 15, 20]
@@ -218,13 +245,17 @@ def test_a_manipulator_tree_with_every_option_equals_the_node_by_node_computatio
     aux = {"goal": torch.tensor([[0.4, -0.3, 0.4]], dtype=torch.float64).expand(B, 3)}
     for k, o in enumerate(shapes["obstacles"], start=1):
         aux[f"obstacle{k}_center"] = torch.tensor([o["center"]], dtype=torch.float64).expand(B, 3)
-    aux.update({"obstacle1_radius": torch.full((B, 1), 0.05, dtype=torch.float64),
-                "obstacle1_axis": torch.tensor([[0.0, 0.0, 1.0]], dtype=torch.float64).expand(B, 3),
-                "obstacle1_half_height": torch.full((B, 1), 0.3, dtype=torch.float64),
-                "obstacle2_radius": torch.full((B, 1), 0.08, dtype=torch.float64),
-                "obstacle3_half_extents": torch.tensor([[0.05, 0.1, 0.2]], dtype=torch.float64).expand(B, 3),
-                "obstacle3_rotation": torch.eye(3, dtype=torch.float64).reshape(1, 9).expand(B, 9),
-                "obstacle3_radius": torch.full((B, 1), 0.1, dtype=torch.float64)})
+    aux.update(
+        {
+            "obstacle1_radius": torch.full((B, 1), 0.05, dtype=torch.float64),
+            "obstacle1_axis": torch.tensor([[0.0, 0.0, 1.0]], dtype=torch.float64).expand(B, 3),
+            "obstacle1_half_height": torch.full((B, 1), 0.3, dtype=torch.float64),
+            "obstacle2_radius": torch.full((B, 1), 0.08, dtype=torch.float64),
+            "obstacle3_half_extents": torch.tensor([[0.05, 0.1, 0.2]], dtype=torch.float64).expand(B, 3),
+            "obstacle3_rotation": torch.eye(3, dtype=torch.float64).reshape(1, 9).expand(B, 9),
+            "obstacle3_radius": torch.full((B, 1), 0.1, dtype=torch.float64),
+        }
+    )
     aux = {k: v for k, v in aux.items() if k in tree.aux_dims}
     missing = sorted(set(tree.aux_dims) - set(aux) - {"obstacle_center", "obstacle_radius"})
     assert not missing, missing

@@ -1,14 +1,15 @@
 """Metrics that measure what they claim: the online loss separated into "collides" and "drifts", the first
 collision time, the weights a learner learned beside the expert's, and the validation split."""
+
 from __future__ import annotations
 
 import json
 
 import pytest
 import torch
+from conftest import compose_cfg
 
 import rmpfusion
-from conftest import compose_cfg
 from rmpfusion.envs import Particle2D
 from rmpfusion.evaluate.metrics import online_loss
 from rmpfusion.evaluate.weights import edge_weights, learned_edges, summarize_weights
@@ -18,21 +19,35 @@ F64 = torch.float64
 
 def _scene(B: int = 2):
     """Two particles at rest at x = −3: the obstacle (radius 1) at the origin, the goal at (3, 0)."""
-    aux = {"goal": torch.tensor([[3.0, 0.0]] * B, dtype=F64),
-           "obstacle1_center": torch.tensor([[0.0, 0.0]] * B, dtype=F64),
-           "obstacle1_radius": torch.tensor([[1.0]] * B, dtype=F64)}
+    aux = {
+        "goal": torch.tensor([[3.0, 0.0]] * B, dtype=F64),
+        "obstacle1_center": torch.tensor([[0.0, 0.0]] * B, dtype=F64),
+        "obstacle1_radius": torch.tensor([[1.0]] * B, dtype=F64),
+    }
     q0 = torch.tensor([[-3.0, 0.0], [-3.0, 3.0]], dtype=F64)[:B]
     return q0, torch.zeros_like(q0), aux
 
 
 def _expert(env):
-    spec = {"root": {"name": "q", "dim": 2}, "nodes": {
-        "obstacle": {"parent": "q", "map": {"type": "sphere_distance", "center": "obstacle1_center",
-                                            "radius": "obstacle1_radius"},
-                     "weight": {"type": "rbf", "center": "obstacle1_center", "radius": "obstacle1_radius",
-                                "sigma": 0.5, "low": 1.0, "high": 5.0},
-                     "rmp": {"type": "collision_avoidance", "alpha": 1e-5}},
-        "goal": {"parent": "q", "map": {"type": "offset", "origin": "goal"}, "rmp": {"type": "goal_attractor"}}}}
+    spec = {
+        "root": {"name": "q", "dim": 2},
+        "nodes": {
+            "obstacle": {
+                "parent": "q",
+                "map": {"type": "sphere_distance", "center": "obstacle1_center", "radius": "obstacle1_radius"},
+                "weight": {
+                    "type": "rbf",
+                    "center": "obstacle1_center",
+                    "radius": "obstacle1_radius",
+                    "sigma": 0.5,
+                    "low": 1.0,
+                    "high": 5.0,
+                },
+                "rmp": {"type": "collision_avoidance", "alpha": 1e-5},
+            },
+            "goal": {"parent": "q", "map": {"type": "offset", "origin": "goal"}, "rmp": {"type": "goal_attractor"}},
+        },
+    }
     return rmpfusion.build_tree(spec, aux_dims=env.aux_dims())
 
 
@@ -40,7 +55,7 @@ def test_first_collision_time_of_a_constant_acceleration():
     """x(t) = −3 + t²/2 enters the unit circle at t = 2 (x = −1); the rollout says so to within one step."""
     env = Particle2D(n_obstacles=1, integrator="semi_implicit_euler")
     q0, qd0, aux = _scene()
-    push = lambda q, qd, a: torch.tensor([[1.0, 0.0]], dtype=F64).expand_as(q)  # noqa: E731
+    push = lambda q, qd, a: torch.tensor([[1.0, 0.0]], dtype=F64).expand_as(q)
     ro = env.rollout(push, q0, qd0, aux, horizon=3.0, record_every=0.5)
     assert ro.collided.tolist() == [True, False]
     assert ro.first_collision_time[0].item() == pytest.approx(2.0, abs=2 * env.params.dt)
@@ -51,7 +66,7 @@ def test_online_loss_before_collision_and_median_separate_collides_from_drifts()
     env = Particle2D(n_obstacles=1, integrator="semi_implicit_euler")
     q0, qd0, aux = _scene()
     expert = _expert(env)
-    push = lambda q, qd, a: torch.tensor([[1.0, 0.0]], dtype=F64).expand_as(q)  # noqa: E731
+    push = lambda q, qd, a: torch.tensor([[1.0, 0.0]], dtype=F64).expand_as(q)
     res = online_loss(push, expert, env, q0, qd0, aux, horizon=3.0, interval=0.5)
     ro = res.rollout
     # independent computation: squared error per record, per trajectory, then the three reductions
@@ -79,8 +94,8 @@ def test_edge_weights_are_the_weight_functions_at_the_parent_states():
 
 
 def test_tiny_run_reports_validation_loss_weights_and_online_loss_variants(tmp_path):
-    from rmpfusion.pipeline.validate import resolve_and_validate
     from rmpfusion.pipeline.run import run_experiment
+    from rmpfusion.pipeline.validate import resolve_and_validate
 
     cfg = compose_cfg(["experiment=2d2level", "data=tiny", "train=tiny", "logger=disabled", "eval.compile=false"])
     run_experiment(resolve_and_validate(cfg), tmp_path, progress=False)

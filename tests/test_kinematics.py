@@ -1,15 +1,15 @@
 """Panda forward kinematics against pybullet, and the analytic J and J̇ẋ against finite differences / autodiff."""
+
 import numpy as np
 import pytest
 import torch
+from conftest import fd_directional, fd_jacobian
+from manipulators import PANDA_ARM_JOINTS, PANDA_URDF, load_panda_urdf_path, pybullet_robot
 
 import rmpfusion.maps.kinematics  # noqa: F401  (registers forward_kinematics)
 from rmpfusion.maps.kinematics import Chain, ForwardKinematics, rpy_matrix
 from rmpfusion.maps.urdf import parse_urdf, parse_urdf_string
 from rmpfusion.registry import TASK_MAPS
-
-from conftest import fd_directional, fd_jacobian
-from manipulators import PANDA_ARM_JOINTS, PANDA_URDF, load_panda_urdf_path, pybullet_robot
 
 pybullet = pytest.importorskip("pybullet")
 
@@ -53,9 +53,18 @@ def make_map(link="panda_hand", offset=(0.0, 0.0, 0.0), **kw):
 
 def test_parse_panda(model, chain):
     assert model.root == "panda_link0"
-    assert [j.name for j in model.joints if j.movable] == list(PANDA_ARM_JOINTS) + ["panda_finger_joint1", "panda_finger_joint2"]
+    assert [j.name for j in model.joints if j.movable] == list(PANDA_ARM_JOINTS) + [
+        "panda_finger_joint1",
+        "panda_finger_joint2",
+    ]
     j2 = model.joint("panda_joint2")
-    assert (j2.type, j2.parent, j2.child, j2.rpy[0], j2.axis) == ("revolute", "panda_link1", "panda_link2", -1.57079632679, (0, 0, 1))
+    assert (j2.type, j2.parent, j2.child, j2.rpy[0], j2.axis) == (
+        "revolute",
+        "panda_link1",
+        "panda_link2",
+        -1.57079632679,
+        (0, 0, 1),
+    )
     assert model.joint("panda_hand_joint").type == "fixed"
     lo, hi = chain.joint_limits()
     assert torch.allclose(lo, torch.tensor([-2.9671, -1.8326, -2.9671, -3.1416, -2.9671, -0.0873, -2.9671], dtype=DT))
@@ -68,8 +77,10 @@ def test_parse_errors():
     with pytest.raises(ValueError, match="root"):
         parse_urdf_string('<robot name="r"><link name="a"/><link name="b"/></robot>')
     with pytest.raises(ValueError, match="not supported"):
-        parse_urdf_string('<robot name="r"><link name="a"/><link name="b"/>'
-                          '<joint name="j" type="floating"><parent link="a"/><child link="b"/></joint></robot>')
+        parse_urdf_string(
+            '<robot name="r"><link name="a"/><link name="b"/>'
+            '<joint name="j" type="floating"><parent link="a"/><child link="b"/></joint></robot>'
+        )
 
 
 def test_rpy_matches_pybullet():
@@ -114,8 +125,10 @@ def test_fk_root_and_orthonormal(chain):
 # -- Jacobian ------------------------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("link,offset", [("panda_link3", (0.01, -0.02, 0.05)), ("panda_link8", (0.0, 0.0, 0.0)),
-                                         ("panda_hand", (0.02, 0.03, 0.1))])
+@pytest.mark.parametrize(
+    "link,offset",
+    [("panda_link3", (0.01, -0.02, 0.05)), ("panda_link8", (0.0, 0.0, 0.0)), ("panda_hand", (0.02, 0.03, 0.1))],
+)
 def test_jacobian_matches_pybullet(chain, model, bullet, link, offset):
     """calculateJacobian runs in double, so this checks J and the world joint axes to ~1e-12.
 
@@ -146,7 +159,7 @@ def test_jacobian_vs_fd_and_autodiff(chain, link):
     fkm = make_map(link, (0.05, -0.01, 0.02))
     q = random_q(chain, 6, seed=4)
     J = fkm.jacobian(q)
-    f = lambda z: fkm.psi(z, None)  # noqa: E731
+    f = lambda z: fkm.psi(z, None)
     assert torch.allclose(J, fd_jacobian(f, q), atol=1e-8)
     qg = q.clone().requires_grad_(True)
     y = f(qg)
@@ -171,7 +184,7 @@ def _second_directional_reverse(f, q, qd):
 
 def _check_curvature(fkm, q, qd):
     y, yd, J, c = fkm(q, qd)
-    Jv = lambda z: (fkm.jacobian(z) @ qd.unsqueeze(-1)).squeeze(-1)  # noqa: E731
+    Jv = lambda z: (fkm.jacobian(z) @ qd.unsqueeze(-1)).squeeze(-1)
     c_fd = fd_directional(Jv, q, qd, eps=1e-5)
     scale = c_fd.abs().max()
     assert (c - c_fd).abs().max() < 1e-6 * scale
@@ -250,8 +263,11 @@ def test_map_spec_and_errors():
         make_map("panda_hand", in_dim=6)  # the 7 arm joints under a 6-D parent
     with pytest.raises(ValueError, match="no link 'panda_hnad'.*panda_hand"):
         make_map("panda_hnad")
-    with pytest.raises(ValueError, match=r"robot \('panda'\) was retired: robots are described in "
-                                         r"conf/robot/<name>.yaml; write that file's urdf and joints here"):
+    with pytest.raises(
+        ValueError,
+        match=r"robot \('panda'\) was retired: robots are described in "
+        r"conf/robot/<name>.yaml; write that file's urdf and joints here",
+    ):
         make_map("panda_hand", robot="panda")
     with pytest.raises(ValueError, match="is fixed"):
         make_map("panda_hand", joints=["panda_joint8"], in_dim=1)

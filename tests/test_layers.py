@@ -1,5 +1,6 @@
 """The layer contract of docs/architecture.md, checked on the source: every module imports only from its own
 layer or below, never from inside a function, and core/ is torch alone."""
+
 from __future__ import annotations
 
 import ast
@@ -10,12 +11,39 @@ import pytest
 PACKAGE = pathlib.Path(__file__).resolve().parents[1] / "rmpfusion"
 
 #: Bottom to top. Folders of one rank that must not import each other are listed in SIDE_BY_SIDE.
-RANK = {"core": 0, "files": 0,
-        "registry": 1, "examples": 1, "maps": 1, "rmps": 1, "weights": 1,
-        "assembly": 2, "robots": 2, "scenes": 2, "recordings": 3, "envs": 3, "learn": 4, "evaluate": 4, "plots": 5, "pipeline": 6, "cli": 7}
+RANK = {
+    "core": 0,
+    "files": 0,
+    "registry": 1,
+    "examples": 1,
+    "maps": 1,
+    "rmps": 1,
+    "weights": 1,
+    "assembly": 2,
+    "robots": 2,
+    "scenes": 2,
+    "recordings": 3,
+    "envs": 3,
+    "learn": 4,
+    "evaluate": 4,
+    "plots": 5,
+    "pipeline": 6,
+    "cli": 7,
+}
 SIDE_BY_SIDE = {frozenset({"learn", "evaluate"})}
 #: what core/ may import besides itself: the math needs torch and the standard library only
-CORE_ALLOWED = {"torch", "__future__", "collections", "copy", "dataclasses", "logging", "math", "types", "typing", "warnings"}
+CORE_ALLOWED = {
+    "torch",
+    "__future__",
+    "collections",
+    "copy",
+    "dataclasses",
+    "logging",
+    "math",
+    "types",
+    "typing",
+    "warnings",
+}
 
 
 def _layer(module: str) -> str | None:
@@ -41,8 +69,9 @@ def _target(module: str, is_package: bool, node: ast.ImportFrom) -> str:
 def violations(module: str, source: str, is_package: bool = False) -> list[str]:
     """Every import of ``module`` (given its source) that breaks the layer contract, said in one line each."""
     tree, here = ast.parse(source), _layer(module)
-    inside_functions = {id(n) for f in ast.walk(tree) if isinstance(f, (ast.FunctionDef, ast.AsyncFunctionDef))
-                        for n in ast.walk(f)}
+    inside_functions = {
+        id(n) for f in ast.walk(tree) if isinstance(f, (ast.FunctionDef, ast.AsyncFunctionDef)) for n in ast.walk(f)
+    }
     out = []
     for node in ast.walk(tree):
         if isinstance(node, ast.ImportFrom):
@@ -89,14 +118,17 @@ def test_the_package_keeps_its_layers():
     assert not found, "\n".join(found)
 
 
-@pytest.mark.parametrize("module,source,expected", [
-    ("rmpfusion.core.tree", "from ..assembly.tree import build_tree\n", "assembly/ is above core/"),
-    ("rmpfusion.envs.particle2d", "from ..plots import plot_trajectories\n", "plots/ is above envs/"),
-    ("rmpfusion.evaluate.metrics", "from ..learn.objectives import dataset_loss\n", "side by side"),
-    ("rmpfusion.assembly.tree", "def f():\n    from ..maps import basic\n", "inside a function"),
-    ("rmpfusion.core.gds", "import pydantic\n", "core imports pydantic"),
-    ("rmpfusion.maps.basic", "import rmpfusion.pipeline.run\n", "pipeline/ is above maps/"),
-])
+@pytest.mark.parametrize(
+    "module,source,expected",
+    [
+        ("rmpfusion.core.tree", "from ..assembly.tree import build_tree\n", "assembly/ is above core/"),
+        ("rmpfusion.envs.particle2d", "from ..plots import plot_trajectories\n", "plots/ is above envs/"),
+        ("rmpfusion.evaluate.metrics", "from ..learn.objectives import dataset_loss\n", "side by side"),
+        ("rmpfusion.assembly.tree", "def f():\n    from ..maps import basic\n", "inside a function"),
+        ("rmpfusion.core.gds", "import pydantic\n", "core imports pydantic"),
+        ("rmpfusion.maps.basic", "import rmpfusion.pipeline.run\n", "pipeline/ is above maps/"),
+    ],
+)
 def test_a_deliberate_breach_is_caught(module, source, expected):
     """The checker is not vacuous: each kind of breach, written into a module, is reported."""
     found = violations(module, source)
@@ -108,9 +140,13 @@ def test_importing_the_package_chooses_no_plotting_backend():
     import subprocess
     import sys
 
-    code = ("import rmpfusion, rmpfusion.pipeline.run, rmpfusion.cli.run, sys; "
-            "print('matplotlib.pyplot' in sys.modules)")
-    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
-                       env={"RMPFUSION_CONF": "/nonexistent", "PATH": "/usr/bin:/bin"})
+    code = "import rmpfusion, rmpfusion.pipeline.run, rmpfusion.cli.run, sys; print('matplotlib.pyplot' in sys.modules)"
+    r = subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env={"RMPFUSION_CONF": "/nonexistent", "PATH": "/usr/bin:/bin"},
+    )
     assert r.returncode == 0, r.stderr  # and no conf/ lookup at import either: RMPFUSION_CONF points nowhere
     assert r.stdout.strip() == "False"

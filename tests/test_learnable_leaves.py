@@ -5,6 +5,7 @@ them), and the tree stays a GDS tree (Theorem 2's identity at random states, for
 Independent computations: the same tree with the number as a constant, the node-by-node reference evaluation
 (tests/reference_tree.py), central differences in the number itself.
 """
+
 from __future__ import annotations
 
 import copy
@@ -12,6 +13,7 @@ import math
 
 import pytest
 import torch
+from reference_tree import node_by_node
 
 from rmpfusion.assembly.errors import ConfigError
 from rmpfusion.assembly.tree import build_tree
@@ -22,23 +24,32 @@ from rmpfusion.learn import RMPLearner
 from rmpfusion.learn.config import TrainConfig
 from rmpfusion.learn.train import train
 from rmpfusion.rmps import CollisionAvoidance, GoalAttractor
-from reference_tree import node_by_node
 
 F64 = torch.float64
 
 
 def _obstacle(k: int, **rmp) -> dict:
-    return {"parent": "q", "map": {"type": "sphere_distance", "center": f"obstacle{k}_center",
-                                   "radius": f"obstacle{k}_radius"},
-            "rmp": {"type": "collision_avoidance", "r_w": 2.0, **rmp}}
+    return {
+        "parent": "q",
+        "map": {"type": "sphere_distance", "center": f"obstacle{k}_center", "radius": f"obstacle{k}_radius"},
+        "rmp": {"type": "collision_avoidance", "r_w": 2.0, **rmp},
+    }
 
 
 def _tree(goal: dict | None = None, o1: dict | None = None, o2: dict | None = None) -> dict:
-    return {"root": {"name": "q", "dim": 2}, "nodes": {
-        "goal": {"parent": "q", "map": {"type": "offset", "origin": "goal"},
-                 "rmp": {"type": "goal_attractor", **(goal or {})}},
-        "obstacle1": _obstacle(1, **(o1 or {})), "obstacle2": _obstacle(2, **(o2 or {})),
-        "metric": {"parent": "q", "rmp": {"type": "identity_metric", "scale": 0.01}}}}
+    return {
+        "root": {"name": "q", "dim": 2},
+        "nodes": {
+            "goal": {
+                "parent": "q",
+                "map": {"type": "offset", "origin": "goal"},
+                "rmp": {"type": "goal_attractor", **(goal or {})},
+            },
+            "obstacle1": _obstacle(1, **(o1 or {})),
+            "obstacle2": _obstacle(2, **(o2 or {})),
+            "metric": {"parent": "q", "rmp": {"type": "identity_metric", "scale": 0.01}},
+        },
+    }
 
 
 def _learn(x: float, **bounds) -> dict:
@@ -64,15 +75,20 @@ def test_a_learnable_number_is_validated_by_its_field_and_written_back_as_declar
     assert GoalAttractor.Params.model_validate({"gain": {"learn": False, "init": 2.0}}).model_dump()["gain"] == 2.0
 
 
-@pytest.mark.parametrize("given, says", [
-    ({"gain": _learn(-1.0)}, "Input should be greater than 0"),
-    ({"eta": _learn(0.0)}, "eta: a learned value must start strictly inside its range (0.0, None)"),
-    ({"eta": _learn(1.0, min=-1.0)}, "eta: min=-1.0 lies outside the parameter's own range (0.0, None); min can "
-                                     "only narrow it"),
-    ({"gain": _learn(5.0, max=4.0)}, "gain: a learned value must start strictly inside its range (0.0, 4.0)"),
-    ({"gain": {"learn": True}}, "gain: init: Field required (a learnable number is written {learn: true, init: x}"),
-    ({"gain": {"learn": True, "init": 1.0, "maxi": 2}}, "gain: maxi: Extra inputs are not permitted"),
-])
+@pytest.mark.parametrize(
+    "given, says",
+    [
+        ({"gain": _learn(-1.0)}, "Input should be greater than 0"),
+        ({"eta": _learn(0.0)}, "eta: a learned value must start strictly inside its range (0.0, None)"),
+        (
+            {"eta": _learn(1.0, min=-1.0)},
+            "eta: min=-1.0 lies outside the parameter's own range (0.0, None); min can only narrow it",
+        ),
+        ({"gain": _learn(5.0, max=4.0)}, "gain: a learned value must start strictly inside its range (0.0, 4.0)"),
+        ({"gain": {"learn": True}}, "gain: init: Field required (a learnable number is written {learn: true, init: x}"),
+        ({"gain": {"learn": True, "init": 1.0, "maxi": 2}}, "gain: maxi: Extra inputs are not permitted"),
+    ],
+)
 def test_bad_learnable_numbers_are_refused_saying_why(given, says):
     with pytest.raises(ValueError, match=_escaped(says)):
         GoalAttractor.Params.model_validate(given)
@@ -87,8 +103,12 @@ def _escaped(text: str) -> str:
 def test_a_bad_learnable_number_in_a_run_config_is_refused_at_its_leaf():
     from rmpfusion.pipeline.validate import resolve_and_validate
 
-    cfg = {"env": {"type": "particle2d", "n_obstacles": 2}, "tree": _tree(goal={"eta": _learn(0.0)}),
-           "logger": {"mode": "disabled"}, "train": {"iterations": 1, "snapshots": [1]}}
+    cfg = {
+        "env": {"type": "particle2d", "n_obstacles": 2},
+        "tree": _tree(goal={"eta": _learn(0.0)}),
+        "logger": {"mode": "disabled"},
+        "train": {"iterations": 1, "snapshots": [1]},
+    }
     with pytest.raises(ConfigError) as err:
         resolve_and_validate(cfg)
     assert [i.path for i in err.value.issues] == ["tree.nodes.goal.rmp"]
@@ -108,11 +128,15 @@ def test_the_parameterisation_never_leaves_its_range_and_starts_at_init(lower, u
 
 def test_a_learned_number_is_a_parameter_that_computes_what_the_constant_does(states):
     env, q, qd, aux = states
-    learned = build_tree(_tree(goal={"gain": _learn(1.7), "eta": _learn(0.8)}, o1={"alpha": _learn(0.05)}),
-                         aux_dims=env.aux_dims())
+    learned = build_tree(
+        _tree(goal={"gain": _learn(1.7), "eta": _learn(0.8)}, o1={"alpha": _learn(0.05)}), aux_dims=env.aux_dims()
+    )
     const = build_tree(_tree(goal={"gain": 1.7, "eta": 0.8}, o1={"alpha": 0.05}), aux_dims=env.aux_dims())
-    assert sorted(n for n, _ in learned.named_parameters()) == ["rmps.goal.eta_raw", "rmps.goal.gain_raw",
-                                                               "rmps.obstacle1.alpha_raw"]
+    assert sorted(n for n, _ in learned.named_parameters()) == [
+        "rmps.goal.eta_raw",
+        "rmps.goal.gain_raw",
+        "rmps.obstacle1.alpha_raw",
+    ]
     a, b = learned(q, qd, aux), const(q, qd, aux)
     for k in ("qdd", "f", "M", "V"):
         assert torch.allclose(getattr(a, k), getattr(b, k), rtol=1e-12, atol=1e-12), k
@@ -161,9 +185,14 @@ def test_the_tree_stays_a_gds_tree_wherever_its_learned_numbers_go(states, raw):
     parameter pushed far out (e^4 = 55 times, e^-6 = 1/400 of the range's scale, sigmoids within 2 % of a bound):
     the parameterisation keeps each inside the range where its leaf is a GDS."""
     env, q, qd, aux = states
-    tree = build_tree(_tree(goal={"gain": _learn(1.0), "eta": _learn(1.0, max=5.0), "sigma": _learn(1.0)},
-                            o1={"alpha": _learn(0.1), "epsilon": _learn(0.2)}, o2={"eta": _learn(0.5)}),
-                      aux_dims=env.aux_dims())
+    tree = build_tree(
+        _tree(
+            goal={"gain": _learn(1.0), "eta": _learn(1.0, max=5.0), "sigma": _learn(1.0)},
+            o1={"alpha": _learn(0.1), "epsilon": _learn(0.2)},
+            o2={"eta": _learn(0.5)},
+        ),
+        aux_dims=env.aux_dims(),
+    )
     with torch.no_grad():
         for p in tree.parameters():
             p.fill_(raw)
@@ -179,21 +208,37 @@ def test_behavior_cloning_learns_a_learner_s_own_leaf_numbers_and_reports_them()
     expert_spec = _tree(goal={"gain": 1.0, "eta": 2.0})
     expert = build_tree(expert_spec, aux_dims=env.aux_dims())
     data = collect(env, expert, 2, 3, 6, 0.5, torch.Generator().manual_seed(0))
-    learner = RMPLearner(RMPLearner.Params(weights={"type": "constant", "value": 1.0}, edges=["goal"],
-                                           leaves={"goal": {"gain": _learn(0.3), "eta": _learn(0.5)}}),
-                         expert_spec, env.aux_dims(), 2)
+    learner = RMPLearner(
+        RMPLearner.Params(
+            weights={"type": "constant", "value": 1.0},
+            edges=["goal"],
+            leaves={"goal": {"gain": _learn(0.3), "eta": _learn(0.5)}},
+        ),
+        expert_spec,
+        env.aux_dims(),
+        2,
+    )
     assert learner.describe() == {"learned_leaf_parameters": pytest.approx({"goal.gain": 0.3, "goal.eta": 0.5})}
     assert learner.num_parameters() == 2
-    train(learner, data, TrainConfig(optimizer="adam", lr=0.05, iterations=300, batch_size=32, snapshots=[300],
-                                     log_every=300), seed=0)
+    train(
+        learner,
+        data,
+        TrainConfig(optimizer="adam", lr=0.05, iterations=300, batch_size=32, snapshots=[300], log_every=300),
+        seed=0,
+    )
     got = learner.learned_numbers()
     assert got == pytest.approx({"goal.gain": 1.0, "goal.eta": 2.0}, rel=1e-3), got
 
 
 def test_a_learner_leaf_that_is_no_leaf_is_refused():
     with pytest.raises(ConfigError) as err:
-        RMPLearner(RMPLearner.Params(leaves={"obstacle": {"gain": _learn(1.0)}}), _tree(), Particle2D(
-            n_obstacles=2).aux_dims(), 2, where="learners.rmp")
+        RMPLearner(
+            RMPLearner.Params(leaves={"obstacle": {"gain": _learn(1.0)}}),
+            _tree(),
+            Particle2D(n_obstacles=2).aux_dims(),
+            2,
+            where="learners.rmp",
+        )
     assert err.value.issues[0].path == "learners.rmp.leaves.obstacle"
     assert "'obstacle' is not a leaf of the tree; leaves: goal, obstacle1, obstacle2, metric" in str(err.value)
 

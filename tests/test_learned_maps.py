@@ -1,11 +1,12 @@
 """The learned diffeomorphism and the normalising map: ψ⁻¹(ψ(x)) = x, and a tree with an untrained random map
 keeps Theorem 2 (V_r non-increasing on rollouts) and converges to the goal, its only equilibrium."""
+
 from __future__ import annotations
 
 import pytest
 import torch
-
 from conftest import assert_lyapunov_non_increasing, rk4_rollout
+
 from rmpfusion import build_tree
 from rmpfusion.registry import TASK_MAPS
 
@@ -37,13 +38,29 @@ def test_the_map_is_a_bijection_onto_the_plane_not_only_near_its_data():
 
 def latent_attractor_tree(seed: int):
     torch.manual_seed(seed)
-    spec = {"root": {"name": "x", "dim": 2}, "aux": {"goal": 2},
-            "nodes": {"latent": {"parent": "x", "map": {"type": "diffeomorphism", "origin": "goal", "layers": 4,
-                                                         "hidden": [16, 16], "init_std": 0.3, "scale_bound": 1.0}},
-                      "attractor": {"parent": "latent", "map": {"type": "identity"},
-                                    "rmp": {"type": "goal_attractor", "gain": 2.0, "eta": 0.0}},
-                      "damper": {"parent": "x", "map": {"type": "identity"}, "rmp": {"type": "damper", "w": 1.0,
-                                                                                      "eta": 2.0}}}}
+    spec = {
+        "root": {"name": "x", "dim": 2},
+        "aux": {"goal": 2},
+        "nodes": {
+            "latent": {
+                "parent": "x",
+                "map": {
+                    "type": "diffeomorphism",
+                    "origin": "goal",
+                    "layers": 4,
+                    "hidden": [16, 16],
+                    "init_std": 0.3,
+                    "scale_bound": 1.0,
+                },
+            },
+            "attractor": {
+                "parent": "latent",
+                "map": {"type": "identity"},
+                "rmp": {"type": "goal_attractor", "gain": 2.0, "eta": 0.0},
+            },
+            "damper": {"parent": "x", "map": {"type": "identity"}, "rmp": {"type": "damper", "w": 1.0, "eta": 2.0}},
+        },
+    }
     return build_tree(spec).double()
 
 

@@ -1,21 +1,22 @@
 """Learning pipeline: datasets (determinism, tamper detection), learners, behavior cloning with exact resume,
 and the whole 2D experiment end to end on tiny sizes."""
+
 import json
-from pathlib import Path
 import os
+from pathlib import Path
 
 import pytest
 import torch
 
+from rmpfusion.assembly import tree_with_weights
 from rmpfusion.assembly.errors import ConfigError
-from rmpfusion.learn.config import TrainConfig
-from rmpfusion.pipeline.config import RunConfig
 from rmpfusion.assembly.tree import build_tree
 from rmpfusion.envs import DatasetError, Particle2D, collect, load_dataset, save_dataset
 from rmpfusion.learn import RMPLearner, train, width_for_parameters
-from rmpfusion.assembly import tree_with_weights
+from rmpfusion.learn.config import TrainConfig
 from rmpfusion.learn.learners import build_learner
 from rmpfusion.learn.unstructured import mlp_parameters
+from rmpfusion.pipeline.config import RunConfig
 from rmpfusion.pipeline.run import run_experiment
 from rmpfusion.registry import LEARNERS
 
@@ -25,40 +26,77 @@ def _rbf(center, radius, low, high, sigma):
 
 
 def _obstacle(parent, k):
-    return {"parent": parent, "rmp": {"type": "collision_avoidance"},
-            "map": {"type": "sphere_distance", "center": f"obstacle{k}_center", "radius": f"obstacle{k}_radius"}}
+    return {
+        "parent": parent,
+        "rmp": {"type": "collision_avoidance"},
+        "map": {"type": "sphere_distance", "center": f"obstacle{k}_center", "radius": f"obstacle{k}_radius"},
+    }
 
 
 GOAL = {"parent": "q", "map": {"type": "offset", "origin": "goal"}, "rmp": {"type": "goal_attractor"}}
 METRIC = {"parent": "q", "rmp": {"type": "identity_metric", "scale": 0.01}}
 
-TREE_1LEVEL = {"root": {"name": "q", "dim": 2},
-               "nodes": {"obstacle": _obstacle("q", 1), "goal": GOAL, "metric": METRIC}}
-EXPERT_1LEVEL = {"obstacle": _rbf("obstacle1_center", "obstacle1_radius", 1.0, 5.0, 0.5),
-                 "goal": _rbf("goal", 0.0, 1.0, 2.0, 1.0)}
-TREE_2LEVEL = {"root": {"name": "q", "dim": 2},
-               "nodes": {"goal": GOAL, "obstacles": {"parent": "q", "map": {"type": "identity"}},
-                         "obstacle1": _obstacle("obstacles", 1), "obstacle2": _obstacle("obstacles", 2),
-                         "metric": METRIC}}
-EXPERT_2LEVEL = {"goal": _rbf("goal", 0.0, 1.0, 2.0, 1.0),
-                 "obstacles": {"type": "logistic", "center": "goal", "radius": 0.0, "low": 0.5, "high": 2.0,
-                               "steepness": 2.0, "switch_distance": 1.0},
-                 "obstacle1": _rbf("obstacle1_center", "obstacle1_radius", 1.0, 5.0, 0.5),
-                 "obstacle2": _rbf("obstacle2_center", "obstacle2_radius", 1.0, 5.0, 0.5)}
+TREE_1LEVEL = {
+    "root": {"name": "q", "dim": 2},
+    "nodes": {"obstacle": _obstacle("q", 1), "goal": GOAL, "metric": METRIC},
+}
+EXPERT_1LEVEL = {
+    "obstacle": _rbf("obstacle1_center", "obstacle1_radius", 1.0, 5.0, 0.5),
+    "goal": _rbf("goal", 0.0, 1.0, 2.0, 1.0),
+}
+TREE_2LEVEL = {
+    "root": {"name": "q", "dim": 2},
+    "nodes": {
+        "goal": GOAL,
+        "obstacles": {"parent": "q", "map": {"type": "identity"}},
+        "obstacle1": _obstacle("obstacles", 1),
+        "obstacle2": _obstacle("obstacles", 2),
+        "metric": METRIC,
+    },
+}
+EXPERT_2LEVEL = {
+    "goal": _rbf("goal", 0.0, 1.0, 2.0, 1.0),
+    "obstacles": {
+        "type": "logistic",
+        "center": "goal",
+        "radius": 0.0,
+        "low": 0.5,
+        "high": 2.0,
+        "steepness": 2.0,
+        "switch_distance": 1.0,
+    },
+    "obstacle1": _rbf("obstacle1_center", "obstacle1_radius", 1.0, 5.0, 0.5),
+    "obstacle2": _rbf("obstacle2_center", "obstacle2_radius", 1.0, 5.0, 0.5),
+}
 RMP_LEARNER = {"type": "rmp", "weights": {"type": "mlp", "hidden": [8, 8], "aux": "all"}}
 
 
 def tiny_config(level: int = 1, learners=None, iterations: int = 50, **data) -> RunConfig:
     tree, expert = (TREE_1LEVEL, EXPERT_1LEVEL) if level == 1 else (TREE_2LEVEL, EXPERT_2LEVEL)
     return RunConfig(
-        name=f"tiny-2d{level}level", seed=3,
+        name=f"tiny-2d{level}level",
+        seed=3,
         env={"type": "particle2d", "n_obstacles": level, "dt": 0.01},  # coarser RK4 steps break V's monotonicity
-        tree=tree, expert=expert,
+        tree=tree,
+        expert=expert,
         learners=learners or {"learner-rmp": RMP_LEARNER},
-        data={"train_envs": 2, "train_trajectories": 3, "test_envs": 2, "test_trajectories": 2, "points": 4,
-              "interval": 0.25, **data},
-        train={"iterations": iterations, "batch_size": 16, "snapshots": [0, iterations // 2, iterations],
-               "log_every": 10, "checkpoint_every": 25, "lr": 1e-3},
+        data={
+            "train_envs": 2,
+            "train_trajectories": 3,
+            "test_envs": 2,
+            "test_trajectories": 2,
+            "points": 4,
+            "interval": 0.25,
+            **data,
+        },
+        train={
+            "iterations": iterations,
+            "batch_size": 16,
+            "snapshots": [0, iterations // 2, iterations],
+            "log_every": 10,
+            "checkpoint_every": 25,
+            "lr": 1e-3,
+        },
         eval={"figures": True},
         logger={"mode": "disabled"},
     )
@@ -161,16 +199,22 @@ def test_learners_registered_and_rmp_edges():
 def test_edge_weights_override_the_shared_spec_per_edge():
     aux = Particle2D(n_obstacles=2).aux_dims()
     own = {"obstacle1": {"aux": ["obstacle1_center", "obstacle1_radius"]}, "goal": {"aux": ["goal"], "hidden": [4]}}
-    m = RMPLearner(RMPLearner.Params(weights={"type": "mlp", "hidden": [8], "aux": "all"}, edge_weights=own),
-                   TREE_2LEVEL, aux, 2, expert=EXPERT_2LEVEL)
+    m = RMPLearner(
+        RMPLearner.Params(weights={"type": "mlp", "hidden": [8], "aux": "all"}, edge_weights=own),
+        TREE_2LEVEL,
+        aux,
+        2,
+        expert=EXPERT_2LEVEL,
+    )
     w = {n: m.tree.weights[n].fn for n in m.edges}
     assert w["obstacle1"].aux_names == ["obstacle1_center", "obstacle1_radius"]
     assert w["obstacle1"].layers[0].in_features == 2 + 3  # q, then the obstacle's centre and radius
     assert w["goal"].aux_names == ["goal"] and w["goal"].layers[0].out_features == 4
     assert w["obstacle2"].aux_names == sorted(aux)  # untouched edges keep the shared spec
     with pytest.raises(ConfigError, match=r"learners\.rmp\.edge_weights\.metric: 'metric' is not a learned edge"):
-        RMPLearner(RMPLearner.Params(edge_weights={"metric": {"aux": ["goal"]}}), TREE_2LEVEL, aux, 2,
-                   expert=EXPERT_2LEVEL)
+        RMPLearner(
+            RMPLearner.Params(edge_weights={"metric": {"aux": ["goal"]}}), TREE_2LEVEL, aux, 2, expert=EXPERT_2LEVEL
+        )
 
 
 @pytest.mark.parametrize("target,depth", [(1000, 2), (5800, 2), (300, 1), (20000, 3)])
@@ -184,10 +228,20 @@ def test_unstructured_matches_parameter_count():
     env = Particle2D(n_obstacles=2)
     aux = env.aux_dims()
     rmp = build_learner(RMP_LEARNER, TREE_2LEVEL, aux, 2, expert=EXPERT_2LEVEL)
-    un = build_learner({"type": "unstructured", "hidden": [1, 1], "match_parameters_of": "rmp"}, TREE_2LEVEL, aux, 2,
-                       built={"rmp": rmp})
-    big = build_learner({"type": "unstructured", "hidden": [1, 1], "match_parameters_of": "rmp",
-                         "parameter_ratio": 5.8}, TREE_2LEVEL, aux, 2, built={"rmp": rmp})
+    un = build_learner(
+        {"type": "unstructured", "hidden": [1, 1], "match_parameters_of": "rmp"},
+        TREE_2LEVEL,
+        aux,
+        2,
+        built={"rmp": rmp},
+    )
+    big = build_learner(
+        {"type": "unstructured", "hidden": [1, 1], "match_parameters_of": "rmp", "parameter_ratio": 5.8},
+        TREE_2LEVEL,
+        aux,
+        2,
+        built={"rmp": rmp},
+    )
     n = rmp.num_parameters()
     assert abs(un.num_parameters() - n) / n < 0.1
     assert abs(big.num_parameters() / n - 5.8) < 0.3
@@ -207,11 +261,15 @@ def _every_tensor(model: torch.nn.Module) -> dict[str, torch.Tensor]:
     return out
 
 
-_BLOCKS = {"rmp": RMP_LEARNER,
-           "rmp_bias": {"type": "rmp", "weights": {"type": "mlp", "hidden": [8], "aux": "all", "init_bias": 1.5,
-                                                   "activation": "softplus"}},
-           "un": {"type": "unstructured", "hidden": [4, 4], "match_parameters_of": "rmp"},
-           "un_relu": {"type": "unstructured", "hidden": [5, 3], "activation": "relu"}}
+_BLOCKS = {
+    "rmp": RMP_LEARNER,
+    "rmp_bias": {
+        "type": "rmp",
+        "weights": {"type": "mlp", "hidden": [8], "aux": "all", "init_bias": 1.5, "activation": "softplus"},
+    },
+    "un": {"type": "unstructured", "hidden": [4, 4], "match_parameters_of": "rmp"},
+    "un_relu": {"type": "unstructured", "hidden": [5, 3], "activation": "relu"},
+}
 
 
 def _build_all(default_dtype: torch.dtype) -> dict[str, dict[str, torch.Tensor]]:
@@ -271,8 +329,13 @@ def test_learners_state_what_they_offer():
 # ------------------------------------------------------------------------------------------ training
 def _learner(seed=0):
     torch.manual_seed(seed)
-    return RMPLearner(RMPLearner.Params(weights={"type": "mlp", "hidden": [8], "aux": "all"}), TREE_1LEVEL,
-                      Particle2D().aux_dims(), 2, expert=EXPERT_1LEVEL)
+    return RMPLearner(
+        RMPLearner.Params(weights={"type": "mlp", "hidden": [8], "aux": "all"}),
+        TREE_1LEVEL,
+        Particle2D().aux_dims(),
+        2,
+        expert=EXPERT_1LEVEL,
+    )
 
 
 def test_training_reduces_loss_and_keeps_snapshots(small_data):
@@ -284,15 +347,18 @@ def test_training_reduces_loss_and_keeps_snapshots(small_data):
     assert sorted(res.snapshots) == [0, 30, 60]
     assert [m["iteration"] for m in logged] == [20.0, 40.0, 60.0]
     assert res.test_curve[-1][1] < res.test_curve[0][1]
-    assert not torch.equal(res.snapshots[0]["tree.weights.goal.fn.layers.0.weight"],
-                           res.snapshots[60]["tree.weights.goal.fn.layers.0.weight"])
+    assert not torch.equal(
+        res.snapshots[0]["tree.weights.goal.fn.layers.0.weight"],
+        res.snapshots[60]["tree.weights.goal.fn.layers.0.weight"],
+    )
 
 
 @pytest.mark.parametrize("optimizer", ["rmsprop", "adam"])
 def test_resume_equals_uninterrupted(tmp_path, small_data, optimizer):
     _, _, ds = small_data
-    full = TrainConfig(optimizer=optimizer, iterations=40, batch_size=8, snapshots=[0, 10, 40], checkpoint_every=20,
-                       log_every=10)
+    full = TrainConfig(
+        optimizer=optimizer, iterations=40, batch_size=8, snapshots=[0, 10, 40], checkpoint_every=20, log_every=10
+    )
     a = _learner()
     ra = train(a, ds, full, seed=5, checkpoint_dir=tmp_path / "a")
     b = _learner()
@@ -315,9 +381,17 @@ def test_cosine_schedule_anneals_and_resumes_exactly(tmp_path, small_data):
     from rmpfusion.learn.train import learning_rate
 
     _, _, ds = small_data
-    cfg = TrainConfig(optimizer="rmsprop", lr=1e-2, lr_schedule="cosine", lr_final_fraction=0.1, iterations=40,
-                      batch_size=8,
-                      snapshots=[0, 40], checkpoint_every=20, log_every=10)
+    cfg = TrainConfig(
+        optimizer="rmsprop",
+        lr=1e-2,
+        lr_schedule="cosine",
+        lr_final_fraction=0.1,
+        iterations=40,
+        batch_size=8,
+        snapshots=[0, 40],
+        checkpoint_every=20,
+        log_every=10,
+    )
     lrs = [learning_rate(cfg, i) for i in range(40)]
     assert lrs[0] == pytest.approx(1e-2) and lrs[-1] == pytest.approx(1e-3)
     assert all(a >= b for a, b in zip(lrs, lrs[1:]))
@@ -362,18 +436,34 @@ def test_a_checkpoint_that_stored_lr_final_still_resumes(tmp_path, small_data):
     """``train.lr_final`` was renamed ``lr_final_fraction``: a checkpoint written under the old name resumes to
     the weights of an uninterrupted run, its embedded config still validates (rmpfusion-evaluate-checkpoint),
     and its old value is still compared with the new setting."""
-    from rmpfusion.pipeline.config import upgrade_run_config
     from rmpfusion.learn.train import load_checkpoint
+    from rmpfusion.pipeline.config import upgrade_run_config
 
     _, _, ds = small_data
-    cfg = TrainConfig(optimizer="rmsprop", lr=1e-2, lr_schedule="cosine", lr_final_fraction=0.1, iterations=40,
-                      batch_size=8, snapshots=[0, 40], checkpoint_every=20, log_every=10)
+    cfg = TrainConfig(
+        optimizer="rmsprop",
+        lr=1e-2,
+        lr_schedule="cosine",
+        lr_final_fraction=0.1,
+        iterations=40,
+        batch_size=8,
+        snapshots=[0, 40],
+        checkpoint_every=20,
+        log_every=10,
+    )
     run_config = tiny_config(iterations=40).model_copy(update={"train": cfg}).model_dump(mode="json")
     a = _learner()
     train(a, ds, cfg, seed=5, checkpoint_dir=tmp_path / "a")
     with pytest.raises(_Interrupted):  # killed after the checkpoint at iteration 20
-        train(_learner(), ds, cfg, seed=5, checkpoint_dir=tmp_path / "b", run_config=run_config,
-              progress=lambda done, total: _interrupt_at(done, 25))
+        train(
+            _learner(),
+            ds,
+            cfg,
+            seed=5,
+            checkpoint_dir=tmp_path / "b",
+            run_config=run_config,
+            progress=lambda done, total: _interrupt_at(done, 25),
+        )
     ck = tmp_path / "b" / "ckpt-00000020.pt"
     _as_before_the_rename(ck)
     old = load_checkpoint(ck)
@@ -410,7 +500,8 @@ def test_the_old_name_lr_final_is_reported_with_the_new_one(tmp_path):
     with pytest.raises(ConfigError) as err:
         resolve_and_validate(data)
     assert [(i.path, i.message) for i in err.value.issues] == [
-        ("train.lr_final", "was renamed train.lr_final_fraction; write train.lr_final_fraction=0.01 instead")]
+        ("train.lr_final", "was renamed train.lr_final_fraction; write train.lr_final_fraction=0.01 instead")
+    ]
     (tmp_path / RESOLVED).write_text(yaml.safe_dump(data))
     check_same_config(tiny_config().model_dump(mode="json"), tmp_path)  # no RunDirError
     changed = tiny_config().model_copy(update={"train": TrainConfig(lr_final_fraction=0.5)}).model_dump(mode="json")
@@ -441,8 +532,9 @@ def test_a_registered_objective_and_optimiser_train_without_editing_train(small_
         return torch.optim.SGD(parameters, lr=lr, momentum=0.9)
 
     try:
-        cfg = TrainConfig(optimizer="test_momentum", objective="test_l1", iterations=2, batch_size=8,
-                          snapshots=[0, 2], log_every=1)
+        cfg = TrainConfig(
+            optimizer="test_momentum", objective="test_l1", iterations=2, batch_size=8, snapshots=[0, 2], log_every=1
+        )
         model = _learner()
         before = dataset_loss(model, ds, "test_l1")
         res = train(model, ds, cfg, seed=0, test_data=ds)
@@ -459,8 +551,11 @@ def test_an_unknown_optimiser_or_objective_names_the_registered_ones():
 
     from rmpfusion.pipeline.validate import resolve_and_validate
 
-    with pytest.raises(ValidationError, match=r"unknown optimizer 'adamm'; did you mean 'adam'\? "
-                                              r"registered: adam, rmsprop, sgd"):
+    with pytest.raises(
+        ValidationError,
+        match=r"unknown optimizer 'adamm'; did you mean 'adam'\? "
+        r"registered: adam, rmsprop, sgd",
+    ):
         TrainConfig(optimizer="adamm")
     with pytest.raises(ValidationError, match=r"unknown objective 'mes'; did you mean 'mse'\? registered: mse"):
         TrainConfig(objective="mes")
@@ -487,8 +582,15 @@ def test_files_stored_before_train_objective_existed_still_resume(tmp_path, smal
     a = _learner()
     train(a, ds, cfg, seed=5, checkpoint_dir=tmp_path / "a")
     with pytest.raises(_Interrupted):
-        train(_learner(), ds, cfg, seed=5, checkpoint_dir=tmp_path / "b", run_config=run_config,
-              progress=lambda done, total: _interrupt_at(done, 25))
+        train(
+            _learner(),
+            ds,
+            cfg,
+            seed=5,
+            checkpoint_dir=tmp_path / "b",
+            run_config=run_config,
+            progress=lambda done, total: _interrupt_at(done, 25),
+        )
     ck = tmp_path / "b" / "ckpt-00000020.pt"
     state = load_checkpoint(ck)
     payload = {k: v for k, v in state.items() if k not in ("sha256", "format")}
@@ -531,8 +633,13 @@ def test_pipeline_end_to_end_2d1level(tmp_path, capsys):
     assert r["snapshots"]["50"]["batch_loss"] < r["snapshots"]["0"]["batch_loss"]
     assert on_disk["expert"]["lyapunov_monotone_fraction"] == 1.0
     figs = {os.path.basename(f) for f in on_disk["figures"]}
-    assert {"trajectories_learner-rmp.png", "lyapunov_learner-rmp.png", "learning_curve_learner-rmp.png",
-            "progression_learner-rmp.png", "learning_curves.png"} <= figs
+    assert {
+        "trajectories_learner-rmp.png",
+        "lyapunov_learner-rmp.png",
+        "learning_curve_learner-rmp.png",
+        "progression_learner-rmp.png",
+        "learning_curves.png",
+    } <= figs
     for f in on_disk["figures"]:
         assert open(f, "rb").read(8) == b"\x89PNG\r\n\x1a\n"
     assert any("learner-rmp/train_loss" in e for e in logged)
@@ -553,10 +660,16 @@ def test_pipeline_end_to_end_2d1level(tmp_path, capsys):
 
 @pytest.mark.slow
 def test_pipeline_2d2level_structured_and_unstructured(tmp_path):
-    learners = {"learner-rmp": RMP_LEARNER,
-                "learner-un": {"type": "unstructured", "hidden": [4, 4], "match_parameters_of": "learner-rmp"},
-                "learner-un-large": {"type": "unstructured", "hidden": [4, 4], "match_parameters_of": "learner-rmp",
-                                     "parameter_ratio": 5.8}}
+    learners = {
+        "learner-rmp": RMP_LEARNER,
+        "learner-un": {"type": "unstructured", "hidden": [4, 4], "match_parameters_of": "learner-rmp"},
+        "learner-un-large": {
+            "type": "unstructured",
+            "hidden": [4, 4],
+            "match_parameters_of": "learner-rmp",
+            "parameter_ratio": 5.8,
+        },
+    }
     cfg = tiny_config(2, learners=learners, iterations=20)
     m = run_experiment(cfg, tmp_path / "run2", progress=False)
     L = m["learners"]

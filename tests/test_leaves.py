@@ -1,11 +1,12 @@
 """Leaf RMPs beyond the registry-driven finite-difference check of M and f (test_registry_derivatives.py):
 barrier behaviour, and the RMPflow ports against an independent transcription of RMPflow's reference code."""
+
 import numpy as np
 import pytest
+import rmpflow_reference as ref
 import torch
 from scipy.integrate import quad
 
-import rmpflow_reference as ref
 from rmpfusion.registry import LEAF_RMPS
 
 
@@ -81,6 +82,7 @@ def test_fixed_dimension_leaf_rejects_other_dimensions():
 
 def test_params_are_validated_with_clear_errors():
     from pydantic import ValidationError
+
     with pytest.raises(ValidationError, match="epsilon"):
         make("rmpflow_collision_avoidance", 1, epsilon=-1.0)
     with pytest.raises(ValidationError, match="Extra inputs are not permitted"):

@@ -1,5 +1,6 @@
 """Task-map errors. J and J̇ẋ of every registered map against finite differences, and its analytic paths
 against the autodiff base, are checked in test_registry_derivatives.py."""
+
 import pytest
 import torch
 

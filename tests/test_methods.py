@@ -10,6 +10,7 @@
   Gauss-Hermite quadrature, and bias in its cost-to-go is caught;
 - the task cost against closed forms.
 """
+
 from __future__ import annotations
 
 import itertools
@@ -38,13 +39,24 @@ from rmpfusion.registry import TRAIN_METHODS
 
 F64 = torch.float64
 GOAL = {"parent": "q", "map": {"type": "offset", "origin": "goal"}, "rmp": {"type": "goal_attractor"}}
-OBSTACLE = {"parent": "q", "rmp": {"type": "collision_avoidance"},
-            "map": {"type": "sphere_distance", "center": "obstacle1_center", "radius": "obstacle1_radius"}}
+OBSTACLE = {
+    "parent": "q",
+    "rmp": {"type": "collision_avoidance"},
+    "map": {"type": "sphere_distance", "center": "obstacle1_center", "radius": "obstacle1_radius"},
+}
 METRIC = {"parent": "q", "rmp": {"type": "identity_metric", "scale": 0.01}}
 TREE = {"root": {"name": "q", "dim": 2}, "nodes": {"obstacle": OBSTACLE, "goal": GOAL, "metric": METRIC}}
-EXPERT = {"obstacle": {"type": "rbf", "center": "obstacle1_center", "radius": "obstacle1_radius", "low": 1.0,
-                       "high": 5.0, "sigma": 0.5},
-          "goal": {"type": "rbf", "center": "goal", "radius": 0.0, "low": 1.0, "high": 2.0, "sigma": 1.0}}
+EXPERT = {
+    "obstacle": {
+        "type": "rbf",
+        "center": "obstacle1_center",
+        "radius": "obstacle1_radius",
+        "low": 1.0,
+        "high": 5.0,
+        "sigma": 0.5,
+    },
+    "goal": {"type": "rbf", "center": "goal", "radius": 0.0, "low": 1.0, "high": 2.0, "sigma": 1.0},
+}
 
 
 def _env() -> Particle2D:
@@ -57,8 +69,13 @@ def _expert(env):
 
 def _learner(seed: int = 0) -> RMPLearner:
     torch.manual_seed(seed)
-    return RMPLearner(RMPLearner.Params(weights={"type": "mlp", "hidden": [4], "aux": "all"}), TREE,
-                      _env().aux_dims(), 2, expert=EXPERT)
+    return RMPLearner(
+        RMPLearner.Params(weights={"type": "mlp", "hidden": [4], "aux": "all"}),
+        TREE,
+        _env().aux_dims(),
+        2,
+        expert=EXPERT,
+    )
 
 
 @pytest.fixture(scope="module")
@@ -66,7 +83,11 @@ def splits():
     env = _env()
     expert = _expert(env)
     gen = torch.Generator().manual_seed(0)
-    return env, expert, {"train": collect(env, expert, 2, 3, 5, 0.5, gen), "val": collect(env, expert, 1, 2, 5, 0.5, gen)}
+    return (
+        env,
+        expert,
+        {"train": collect(env, expert, 2, 3, 5, 0.5, gen), "val": collect(env, expert, 1, 2, 5, 0.5, gen)},
+    )
 
 
 def _context(splits, **kw) -> MethodContext:
@@ -76,11 +97,14 @@ def _context(splits, **kw) -> MethodContext:
 
 # ------------------------------------------------------------------------------------------ the registry
 def test_the_training_block_is_typed_by_its_method_and_defaults_to_behavior_cloning():
-    run = RunConfig.model_validate({"env": {"type": "particle2d"}, "tree": TREE, "train": {"iterations": 7, "snapshots": [7]}})
+    run = RunConfig.model_validate(
+        {"env": {"type": "particle2d"}, "tree": TREE, "train": {"iterations": 7, "snapshots": [7]}}
+    )
     assert run.train.method == "bc" and isinstance(run.train, BCParams) and run.train.iterations == 7
     assert RunConfig.model_validate({"env": {"type": "particle2d"}, "tree": TREE}).train.method == "bc"
-    dagger = RunConfig.model_validate({"env": {"type": "particle2d"}, "tree": TREE,
-                                       "train": {"method": "dagger", "rounds": 2}}).train
+    dagger = RunConfig.model_validate(
+        {"env": {"type": "particle2d"}, "tree": TREE, "train": {"method": "dagger", "rounds": 2}}
+    ).train
     assert isinstance(dagger, DAggerParams) and dagger.rounds == 2 and dagger.model_dump()["method"] == "dagger"
     assert upgrade_train_config({"lr_final": 0.1}) == {"lr_final_fraction": 0.1, "method": "bc", "objective": "mse"}
     assert upgrade_train_config({"method": "apg", "horizon": 2.0}) == {"method": "apg", "horizon": 2.0}
@@ -88,17 +112,33 @@ def test_the_training_block_is_typed_by_its_method_and_defaults_to_behavior_clon
 
 
 def _config(train: dict) -> dict:
-    return {"env": {"type": "particle2d", "n_obstacles": 1, "dt": 0.05}, "tree": TREE, "expert": EXPERT,
-            "learners": {"rmp": {"type": "rmp", "weights": {"type": "mlp", "hidden": [4], "aux": "all"}}},
-            "data": {"train_envs": 1, "train_trajectories": 2, "test_envs": 1, "test_trajectories": 2, "points": 3,
-                     "interval": 0.5}, "train": train, "logger": {"mode": "disabled"}}
+    return {
+        "env": {"type": "particle2d", "n_obstacles": 1, "dt": 0.05},
+        "tree": TREE,
+        "expert": EXPERT,
+        "learners": {"rmp": {"type": "rmp", "weights": {"type": "mlp", "hidden": [4], "aux": "all"}}},
+        "data": {
+            "train_envs": 1,
+            "train_trajectories": 2,
+            "test_envs": 1,
+            "test_trajectories": 2,
+            "points": 3,
+            "interval": 0.5,
+        },
+        "train": train,
+        "logger": {"mode": "disabled"},
+    }
 
 
 def test_bad_training_blocks_are_refused_at_their_key():
     with pytest.raises(ConfigError) as err:
         resolve_and_validate(_config({"method": "dager"}))
     assert [(i.path, i.message) for i in err.value.issues] == [
-        ("train.method", "unknown training method 'dager'; did you mean 'dagger', 'apg'? registered: apg, bc, dagger, pg")]
+        (
+            "train.method",
+            "unknown training method 'dager'; did you mean 'dagger', 'apg'? registered: apg, bc, dagger, pg",
+        )
+    ]
     with pytest.raises(ConfigError) as err:
         resolve_and_validate(_config({"method": "dagger", "beta": 0.3}))
     assert "beta is not used by beta_schedule=indicator" in str(err.value)
@@ -148,7 +188,7 @@ def test_a_plugin_method_is_selected_by_its_name_and_runs_in_the_shared_loop(spl
 
         def step(self, it):
             self.opt.zero_grad()
-            loss = sum((p ** 2).sum() for p in self.model.parameters()) * self.params.size
+            loss = sum((p**2).sum() for p in self.model.parameters()) * self.params.size
             loss.backward()
             optimizer_step(self.model, self.opt, self.params)
             self.count += 1
@@ -171,8 +211,9 @@ def test_a_plugin_method_is_selected_by_its_name_and_runs_in_the_shared_loop(spl
             return NudgeSteps(model, self.params, opt)
 
     try:
-        run = resolve_and_validate(_config({"method": "nudge", "size": 0.5, "iterations": 4, "snapshots": [0, 4],
-                                            "checkpoint_every": 2}))
+        run = resolve_and_validate(
+            _config({"method": "nudge", "size": 0.5, "iterations": 4, "snapshots": [0, 4], "checkpoint_every": 2})
+        )
         assert type(run.train).__name__ == "NudgeParamsSpec" and run.train.size == 0.5
         ctx = _context(splits, checkpoint_dir=tmp_path)
         res = Nudge(run.train).train(_learner(), ctx)
@@ -186,20 +227,33 @@ def test_a_plugin_method_is_selected_by_its_name_and_runs_in_the_shared_loop(spl
 def test_a_method_without_what_it_needs_says_so(splits):
     env, expert, data = splits
     with pytest.raises(MethodContextError, match="'dagger' needs env and expert"):
-        DAgger(DAggerParams(rounds=1, iterations=2)).train(_learner(), MethodContext(data=data, seed=0, interval=0.5,
-                                                                                      points=5))
+        DAgger(DAggerParams(rounds=1, iterations=2)).train(
+            _learner(), MethodContext(data=data, seed=0, interval=0.5, points=5)
+        )
 
 
 # ------------------------------------------------------------------------------------------ DAgger
 def test_dagger_grows_its_data_by_the_counted_expert_queries_labelled_by_the_expert(splits):
     env, expert, data = splits
-    params = DAggerParams(rounds=2, initial_trajectories=4, trajectories_per_round=3, iterations=9, batch_size=8,
-                          snapshots=[0, 9], log_every=3, checkpoint_every=100)
+    params = DAggerParams(
+        rounds=2,
+        initial_trajectories=4,
+        trajectories_per_round=3,
+        iterations=9,
+        batch_size=8,
+        snapshots=[0, 9],
+        log_every=3,
+        checkpoint_every=100,
+    )
     said: list[str] = []
     method = DAgger(params)
     model = _learner()
-    steps = method.steps(model.double(), _context(splits, say=said.append), torch.optim.SGD(model.parameters(), 0.0),
-                         torch.Generator().manual_seed(1))
+    steps = method.steps(
+        model.double(),
+        _context(splits, say=said.append),
+        torch.optim.SGD(model.parameters(), 0.0),
+        torch.Generator().manual_seed(1),
+    )
     assert len(steps.data) == 4 * 5 and steps.data.traj_id.unique().numel() == 4  # round 0: 4 demonstrations
     sizes = []
     for it in range(params.iterations):
@@ -222,11 +276,19 @@ def test_dagger_beta_mixture_blends_the_expert_and_counts_its_calls(splits):
     """β = 1 rolls out the expert itself: its records are the expert's own trajectories, and every policy call of
     the rollouts is counted as an expert call, apart from the labels."""
     env, expert, data = splits
-    params = DAggerParams(rounds=1, trajectories_per_round=2, iterations=2, beta_schedule="constant", beta=1.0,
-                          batch_size=4, snapshots=[0, 2])
+    params = DAggerParams(
+        rounds=1,
+        trajectories_per_round=2,
+        iterations=2,
+        beta_schedule="constant",
+        beta=1.0,
+        batch_size=4,
+        snapshots=[0, 2],
+    )
     model = _learner()
-    steps = DAgger(params).steps(model, _context(splits), torch.optim.SGD(model.parameters(), 0.0),
-                                 torch.Generator().manual_seed(1))
+    steps = DAgger(params).steps(
+        model, _context(splits), torch.optim.SGD(model.parameters(), 0.0), torch.Generator().manual_seed(1)
+    )
     steps.step(0), steps.step(1)
     r = steps.info()["rounds"][1]
     assert r["beta"] == 1.0 and r["labels"] == 10
@@ -238,8 +300,16 @@ def test_dagger_beta_mixture_blends_the_expert_and_counts_its_calls(splits):
 
 
 def test_dagger_interrupted_after_a_round_resumes_to_the_uninterrupted_weights(splits, tmp_path):
-    params = DAggerParams(rounds=2, initial_trajectories=3, trajectories_per_round=2, iterations=12, batch_size=8,
-                          snapshots=[0, 12], log_every=4, checkpoint_every=5)
+    params = DAggerParams(
+        rounds=2,
+        initial_trajectories=3,
+        trajectories_per_round=2,
+        iterations=12,
+        batch_size=8,
+        snapshots=[0, 12],
+        log_every=4,
+        checkpoint_every=5,
+    )
     a = _learner()
     ra = DAgger(params).train(a, _context(splits, checkpoint_dir=tmp_path / "a"))
 
@@ -266,8 +336,16 @@ def test_task_cost_terms_match_their_closed_forms():
     times = torch.linspace(0, 2, 201, dtype=F64)
     q = torch.stack([times - 3.0, torch.zeros_like(times)], -1)[:, None]  # (T, 1, 2), goal at the origin
     d = q[..., 0].abs()
-    cost = TaskCost(goal_distance=1.0, time_to_goal=1.0, path_length=1.0, clearance=1.0, final_distance=1.0,
-                    goal_tolerance=1.5, temperature=1e-3, clearance_margin=0.5)
+    cost = TaskCost(
+        goal_distance=1.0,
+        time_to_goal=1.0,
+        path_length=1.0,
+        clearance=1.0,
+        final_distance=1.0,
+        goal_tolerance=1.5,
+        temperature=1e-3,
+        clearance_margin=0.5,
+    )
     clear = torch.full((200, 1), 0.3, dtype=F64)
     terms = {k: float(v.sum()) for k, v in interval_costs(cost, times, q, d, clear).items()}
     assert terms["goal_distance"] == pytest.approx(3 * 2 - 2 * 2 / 2, rel=1e-12)  # ∫(3 − t) dt over [0, 2]
@@ -295,9 +373,11 @@ def test_apg_gradient_is_the_slope_of_the_task_cost_through_the_simulator(splits
     """The gradient back-propagated through RK4 rollouts (one window) against central differences of the cost."""
     env = _env()
     q0, qd0, aux = splits[2]["train"].initial_states()
-    params = APGParams(horizon=2.0, record_every=0.1, cost=TaskCost(goal_distance=1.0, path_length=0.5,
-                                                                   clearance=5.0, final_distance=1.0,
-                                                                   clearance_margin=1.5))
+    params = APGParams(
+        horizon=2.0,
+        record_every=0.1,
+        cost=TaskCost(goal_distance=1.0, path_length=0.5, clearance=5.0, final_distance=1.0, clearance_margin=1.5),
+    )
     cost = RolloutCost(env, params)
     model = Linear()
     sums = cost(model, q0, qd0, aux, backward=True)
@@ -318,8 +398,18 @@ def test_apg_gradient_is_the_slope_of_the_task_cost_through_the_simulator(splits
 def test_apg_lowers_the_task_cost_of_a_random_tree(splits):
     from rmpfusion.learn.methods.apg import APG
 
-    params = APGParams(horizon=2.0, truncation=1.0, record_every=0.2, batch_size=3, iterations=4, optimizer="adam",
-                       lr=0.1, snapshots=[0, 4], log_every=4, cost=TaskCost(goal_distance=1.0, final_distance=1.0))
+    params = APGParams(
+        horizon=2.0,
+        truncation=1.0,
+        record_every=0.2,
+        batch_size=3,
+        iterations=4,
+        optimizer="adam",
+        lr=0.1,
+        snapshots=[0, 4],
+        log_every=4,
+        cost=TaskCost(goal_distance=1.0, final_distance=1.0),
+    )
     res = APG(params).train(_learner(), _context(splits))
     (_, before), (_, after) = res.val_curve
     assert after < 0.95 * before, res.val_curve  # a sign error in the gradient would raise it
@@ -335,8 +425,11 @@ def _gauss_hermite(n: int, dims: int) -> tuple[torch.Tensor, torch.Tensor]:
     return nodes, weights / weights.sum()
 
 
-START = (torch.tensor([[-3.0, 0.5]], dtype=F64), torch.tensor([[0.2, -0.1]], dtype=F64),
-         {"goal": torch.tensor([[2.0, 0.0]], dtype=F64)})
+START = (
+    torch.tensor([[-3.0, 0.5]], dtype=F64),
+    torch.tensor([[0.2, -0.1]], dtype=F64),
+    {"goal": torch.tensor([[2.0, 0.0]], dtype=F64)},
+)
 
 
 def _exact_gradient(model: Linear, params: PGParams) -> torch.Tensor:
@@ -349,7 +442,7 @@ def _exact_gradient(model: Linear, params: PGParams) -> torch.Tensor:
     times = torch.tensor([0.0, h], dtype=F64)
     expected = 0.0
     for d in range(D):
-        a = model(q, qd, aux) + sigma * nodes[:, 2 * d:2 * d + 2]
+        a = model(q, qd, aux) + sigma * nodes[:, 2 * d : 2 * d + 2]
         q1, qd1 = q + h * qd + 0.5 * h * h * a, qd + h * a
         rec = torch.stack([q, q1])
         c = total(interval_costs(params.cost, times, rec, (rec - aux["goal"]).norm(dim=-1), None, final=d == D - 1))
@@ -358,8 +451,9 @@ def _exact_gradient(model: Linear, params: PGParams) -> torch.Tensor:
     return torch.stack(torch.autograd.grad(expected, [model.k, model.c]))
 
 
-def _estimates(model: Linear, params: PGParams, batches: int, episodes: int, baseline: str,
-               shift: int = 0) -> torch.Tensor:
+def _estimates(
+    model: Linear, params: PGParams, batches: int, episodes: int, baseline: str, shift: int = 0
+) -> torch.Tensor:
     """The method's score-function estimate, ``batches`` times from ``episodes`` episodes each; ``shift``
     misaligns the cost-to-go by that many decisions (a deliberately wrong estimator)."""
     env = Particle2D(n_obstacles=0, dt=0.05)
@@ -378,8 +472,12 @@ def _estimates(model: Linear, params: PGParams, batches: int, episodes: int, bas
 
 
 def test_the_policy_gradient_estimate_is_unbiased_against_the_exact_gradient():
-    params = PGParams(horizon=0.2, decision_interval=0.1, sigma=0.5,
-                      cost=TaskCost(goal_distance=1.0, path_length=0.5, final_distance=2.0))
+    params = PGParams(
+        horizon=0.2,
+        decision_interval=0.1,
+        sigma=0.5,
+        cost=TaskCost(goal_distance=1.0, path_length=0.5, final_distance=2.0),
+    )
     model = Linear()
     exact = _exact_gradient(model, params)
     g = _estimates(model, params, batches=40, episodes=500, baseline="leave_one_out")
@@ -391,8 +489,12 @@ def test_the_policy_gradient_estimate_is_unbiased_against_the_exact_gradient():
 def test_a_misaligned_cost_to_go_is_caught_as_biased():
     """Weighing each decision's score by the costs from the decision before it on (one decision late) drops
     the cost the decision causes: the same comparison rejects it."""
-    params = PGParams(horizon=0.2, decision_interval=0.1, sigma=0.5,
-                      cost=TaskCost(goal_distance=1.0, path_length=0.5, final_distance=2.0))
+    params = PGParams(
+        horizon=0.2,
+        decision_interval=0.1,
+        sigma=0.5,
+        cost=TaskCost(goal_distance=1.0, path_length=0.5, final_distance=2.0),
+    )
     model = Linear()
     exact = _exact_gradient(model, params)
     g = _estimates(model, params, batches=40, episodes=500, baseline="leave_one_out", shift=1)
@@ -434,10 +536,23 @@ def test_a_sweep_over_a_method_s_setting_runs_every_job_with_that_method(tmp_pat
     from pathlib import Path
 
     script = Path(sys.executable).with_name("rmpfusion-run")
-    cmd = [str(script), "-m", "experiment=2d2level_apg", "data=tiny", "eval=fast", "logger=disabled",
-           "train.iterations=2", "train.snapshots=[0,2]", "train.horizon=0.5", "train.truncation=0.5",
-           "train.batch_size=2", "train.log_every=1", "train.checkpoint_every=1", "train.lr=1e-3,3e-3",
-           f"hydra.sweep.dir={tmp_path}"]
+    cmd = [
+        str(script),
+        "-m",
+        "experiment=2d2level_apg",
+        "data=tiny",
+        "eval=fast",
+        "logger=disabled",
+        "train.iterations=2",
+        "train.snapshots=[0,2]",
+        "train.horizon=0.5",
+        "train.truncation=0.5",
+        "train.batch_size=2",
+        "train.log_every=1",
+        "train.checkpoint_every=1",
+        "train.lr=1e-3,3e-3",
+        f"hydra.sweep.dir={tmp_path}",
+    ]
     env = {**os.environ, "WANDB_MODE": "disabled", "OMP_NUM_THREADS": "1", "MPLBACKEND": "Agg"}
     r = subprocess.run(cmd, capture_output=True, text=True, timeout=1200, env=env, cwd=tmp_path)
     assert r.returncode == 0, r.stderr[-3000:]
@@ -481,8 +596,17 @@ def test_every_smoke_preset_runs_on_tiny_data(method, tmp_path):
     import subprocess
     import sys
 
-    cmd = [sys.executable, "-m", "rmpfusion.cli.run", "experiment=2d1level", "data=tiny", f"train={SMOKE[method]}",
-           "eval=fast", "logger=disabled", f"hydra.run.dir={tmp_path}"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "rmpfusion.cli.run",
+        "experiment=2d1level",
+        "data=tiny",
+        f"train={SMOKE[method]}",
+        "eval=fast",
+        "logger=disabled",
+        f"hydra.run.dir={tmp_path}",
+    ]
     r = subprocess.run(cmd, capture_output=True, text=True, timeout=900, env={**os.environ, "WANDB_MODE": "disabled"})
     assert r.returncode == 0, r.stderr[-3000:]
     metrics = json.loads((tmp_path / "metrics.json").read_text())

@@ -1,5 +1,6 @@
 """The suite catches the one-line bugs tools/mutants.py lists: each mutant, applied in a scratch copy of the
 repository, makes at least one of the tests written for it fail (slow: a pytest run per mutant)."""
+
 from __future__ import annotations
 
 import subprocess
@@ -10,7 +11,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tools"))
-import mutants  # noqa: E402
+import mutants
 
 
 def test_every_mutant_names_a_line_that_is_in_its_file_once_and_tests_that_exist():
@@ -23,8 +24,13 @@ def test_every_mutant_names_a_line_that_is_in_its_file_once_and_tests_that_exist
 
 @pytest.mark.slow
 def test_every_mutant_is_killed_by_the_tests_written_for_it():
-    done = subprocess.run([sys.executable, str(ROOT / "tools" / "mutants.py"), "--fast"], cwd=ROOT,
-                          capture_output=True, text=True, timeout=1800)
+    done = subprocess.run(
+        [sys.executable, str(ROOT / "tools" / "mutants.py"), "--fast"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=1800,
+    )
     print(done.stdout)
     assert done.returncode == 0, done.stdout + done.stderr
     assert f"{len(mutants.MUTANTS)} of {len(mutants.MUTANTS)} mutants killed" in done.stdout

@@ -3,6 +3,7 @@ with N_max members of a set, k of them present, equals a tree built with only th
 gradients w.r.t. every learnable parameter, to 1e-12), for every shape and several masks (none and all present among
 them); nothing absent, nor a control point inside an obstacle, ever produces NaN; V_r is non-increasing on a rollout
 with the mask fixed."""
+
 import pytest
 import torch
 
@@ -13,24 +14,39 @@ from tests.conftest import assert_lyapunov_non_increasing, rk4_rollout
 
 N_MAX = 4
 MASKS = [(0, 0, 0, 0), (1, 0, 0, 0), (0, 1, 1, 0), (1, 0, 1, 1), (1, 1, 1, 1)]
-CONTROL_POINTS = {"cp1": {"type": "identity"},
-                  "cp2": {"type": "linear", "matrix": [[0.8, 0.3, 0.0], [-0.2, 1.1, 0.1], [0.1, 0.0, 0.9]],
-                          "bias": [0.1, -0.2, 0.05]}}
+CONTROL_POINTS = {
+    "cp1": {"type": "identity"},
+    "cp2": {
+        "type": "linear",
+        "matrix": [[0.8, 0.3, 0.0], [-0.2, 1.1, 0.1], [0.1, 0.0, 0.9]],
+        "bias": [0.1, -0.2, 0.05],
+    },
+}
 OUTPUTS = ("qdd", "f", "M", "G", "B", "Phi", "V", "L")
 
 
 def obstacle_weight():
-    return {"type": "mlp", "hidden": [8], "activation": "tanh", "positivity": "exp",
-            "aux": ["obstacle_center", "obstacle_radius"]}
+    return {
+        "type": "mlp",
+        "hidden": [8],
+        "activation": "tanh",
+        "positivity": "exp",
+        "aux": ["obstacle_center", "obstacle_radius"],
+    }
 
 
 def tree_spec(s: ObstacleSet, slots: list[int], masked: bool) -> dict:
     """A 3-D point (cp1) and an affine image of it (cp2) avoiding set ``s``'s members ``slots`` with a learned barrier
     under a learned weight shared by each control point's obstacle edges; masked: through the set's masked maps."""
     aux = {"obstacle_center": 3, "obstacle_radius": 1}
-    nodes = {"goal": {"parent": "q", "map": {"type": "offset", "origin": [0.6, -0.4, 0.3]},
-                      "rmp": {"type": "goal_attractor", "gain": 2.0, "eta": 2.0}},
-             "damp": {"parent": "q", "map": {"type": "identity"}, "rmp": {"type": "damper", "w": 0.2, "eta": 1.0}}}
+    nodes = {
+        "goal": {
+            "parent": "q",
+            "map": {"type": "offset", "origin": [0.6, -0.4, 0.3]},
+            "rmp": {"type": "goal_attractor", "gain": 2.0, "eta": 2.0},
+        },
+        "damp": {"parent": "q", "map": {"type": "identity"}, "rmp": {"type": "damper", "w": 0.2, "eta": 1.0}},
+    }
     shared = {}
     for cp, m in CONTROL_POINTS.items() if slots else ():
         nodes[cp] = {"parent": "q", "map": m}
@@ -40,9 +56,16 @@ def tree_spec(s: ObstacleSet, slots: list[int], masked: bool) -> dict:
             if not masked:
                 spec.pop("present")
             nodes[f"{cp}_{s.prefix}{i}"] = {
-                "parent": cp, "map": spec, "weight": {"shared": f"{cp}_obstacle", "bind": s.weight_bind(i)},
-                "rmp": {"type": "collision_avoidance", "r_w": {"learn": True, "init": 0.8 + 0.1 * i},
-                        "alpha": 0.05, "eta": 0.5}}
+                "parent": cp,
+                "map": spec,
+                "weight": {"shared": f"{cp}_obstacle", "bind": s.weight_bind(i)},
+                "rmp": {
+                    "type": "collision_avoidance",
+                    "r_w": {"learn": True, "init": 0.8 + 0.1 * i},
+                    "alpha": 0.05,
+                    "eta": 0.5,
+                },
+            }
     dims = set_dims([s]) if masked else {s.slot_name(i, f): k for i in slots for f, k in s.fields().items()}
     return {"root": {"name": "q", "dim": 3}, "aux": {**aux, **dims}, "shared_weights": shared, "nodes": nodes}
 
@@ -56,12 +79,19 @@ def random_rotation(gen, B, N):
 
 def set_tensors(s: ObstacleSet, B: int, gen) -> dict[str, torch.Tensor]:
     """Random members of set ``s`` (B, N_max, k) around the origin."""
-    rnd = lambda *shape: torch.rand(*shape, generator=gen, dtype=torch.float64)  # noqa: E731
-    unit = lambda: torch.nn.functional.normalize(torch.randn(B, s.n_max, 3, generator=gen, dtype=torch.float64), dim=-1)  # noqa: E731
-    values = {"center": 2 * rnd(B, s.n_max, 3) - 1, "radius": 0.1 + 0.2 * rnd(B, s.n_max, 1),
-              "half_extents": 0.1 + 0.2 * rnd(B, s.n_max, 3), "rotation": random_rotation(gen, B, s.n_max).flatten(-2),
-              "axis": unit(), "normal": unit(), "half_height": 0.1 + 0.3 * rnd(B, s.n_max, 1),
-              "half_length": 0.1 + 0.3 * rnd(B, s.n_max, 1), "velocity": 0.5 * torch.randn(B, s.n_max, 3, generator=gen, dtype=torch.float64)}
+    rnd = lambda *shape: torch.rand(*shape, generator=gen, dtype=torch.float64)
+    unit = lambda: torch.nn.functional.normalize(torch.randn(B, s.n_max, 3, generator=gen, dtype=torch.float64), dim=-1)
+    values = {
+        "center": 2 * rnd(B, s.n_max, 3) - 1,
+        "radius": 0.1 + 0.2 * rnd(B, s.n_max, 1),
+        "half_extents": 0.1 + 0.2 * rnd(B, s.n_max, 3),
+        "rotation": random_rotation(gen, B, s.n_max).flatten(-2),
+        "axis": unit(),
+        "normal": unit(),
+        "half_height": 0.1 + 0.3 * rnd(B, s.n_max, 1),
+        "half_length": 0.1 + 0.3 * rnd(B, s.n_max, 1),
+        "velocity": 0.5 * torch.randn(B, s.n_max, 3, generator=gen, dtype=torch.float64),
+    }
     if s.shape == "plane":  # every point of [-1, 1]³ above the planes (points inside obstacles: tested below)
         values["center"] = -(1.8 + 0.4 * rnd(B, s.n_max, 1)) * values["normal"]
     return {f"{s.prefix}_{f}": values[f] for f in s.fields()}
@@ -69,7 +99,9 @@ def set_tensors(s: ObstacleSet, B: int, gen) -> dict[str, torch.Tensor]:
 
 def inputs(s: ObstacleSet, B: int, seed: int):
     gen = torch.Generator().manual_seed(seed)
-    q = 2 * torch.rand(B, 3, generator=gen, dtype=torch.float64) - 1  # among the obstacles, inside their barriers' support
+    q = (
+        2 * torch.rand(B, 3, generator=gen, dtype=torch.float64) - 1
+    )  # among the obstacles, inside their barriers' support
     qd = torch.randn(B, 3, generator=gen, dtype=torch.float64)
     return q, qd, set_tensors(s, B, gen)
 
@@ -96,8 +128,9 @@ def scalar(out, gen_seed=7, outputs=OUTPUTS[1:]):
     """A random linear functional of the root's RMP (f, M, G, B, Φ, V, L), so one backward pass tests the gradients of
     all of them (q̈'s are M⁻¹'s linear algebra on them: equal as far as M's conditioning allows)."""
     g = torch.Generator().manual_seed(gen_seed)
-    return sum((getattr(out, k) * torch.randn(getattr(out, k).shape, generator=g, dtype=torch.float64)).sum()
-               for k in outputs)
+    return sum(
+        (getattr(out, k) * torch.randn(getattr(out, k).shape, generator=g, dtype=torch.float64)).sum() for k in outputs
+    )
 
 
 def assert_same_outputs(a, b, rows=slice(None)):
@@ -166,8 +199,8 @@ def test_per_sample_masks_equal_each_sample_alone(shape):
         present = [i + 1 for i, m in enumerate(mask) if m]
         few = build_tree(tree_spec(s, present, masked=False))
         few.load_state_dict(full.state_dict(), strict=False)
-        one = {k: v[row: row + 1] for k, v in slot_aux(s, raw, present).items()}
-        b = few(q[row: row + 1], qd[row: row + 1], one)
+        one = {k: v[row : row + 1] for k, v in slot_aux(s, raw, present).items()}
+        b = few(q[row : row + 1], qd[row : row + 1], one)
         assert_same_outputs(a, b, slice(row, row + 1))
 
 
@@ -236,7 +269,11 @@ def test_every_shape_allocated_up_front_runs_with_none_present():
     assert [s.shape for s in sets] == list(SET_SHAPES)
     q, qd, raw = inputs(ObstacleSet(shape="sphere", n_max=2), B=3, seed=9)
     gen = torch.Generator().manual_seed(4)
-    aux, nodes, shared = {"obstacle_center": 3, "obstacle_radius": 1, **set_dims(sets)}, {}, {"cp_obstacle": obstacle_weight()}
+    aux, nodes, shared = (
+        {"obstacle_center": 3, "obstacle_radius": 1, **set_dims(sets)},
+        {},
+        {"cp_obstacle": obstacle_weight()},
+    )
     base = tree_spec(sets[0], [], masked=False)
     nodes = {**base["nodes"], "cp": {"parent": "q", "map": {"type": "identity"}}}
     tensors = {}
@@ -244,9 +281,12 @@ def test_every_shape_allocated_up_front_runs_with_none_present():
         tensors.update(set_tensors(s, 3, gen))
         tensors[f"{s.prefix}_mask"] = torch.zeros(3, 2)
         for i in (1, 2):
-            nodes[f"cp_{s.prefix}{i}"] = {"parent": "cp", "map": s.slot_map(i),
-                                          "weight": {"shared": "cp_obstacle", "bind": s.weight_bind(i)},
-                                          "rmp": {"type": "collision_avoidance", "r_w": 0.8}}
+            nodes[f"cp_{s.prefix}{i}"] = {
+                "parent": "cp",
+                "map": s.slot_map(i),
+                "weight": {"shared": "cp_obstacle", "bind": s.weight_bind(i)},
+                "rmp": {"type": "collision_avoidance", "r_w": 0.8},
+            }
     tree = build_tree({"root": {"name": "q", "dim": 3}, "aux": aux, "shared_weights": shared, "nodes": nodes})
     empty = build_tree(base)
     assert_same_outputs(tree(q, qd, with_slots(sets, tensors)), empty(q, qd))
@@ -254,7 +294,11 @@ def test_every_shape_allocated_up_front_runs_with_none_present():
 
 def test_a_set_tensor_of_the_wrong_shape_is_one_clear_error():
     s = ObstacleSet(shape="sphere", n_max=3)
-    aux = {"spheres_center": torch.zeros(2, 4, 3), "spheres_radius": torch.ones(2, 3, 1), "spheres_mask": torch.ones(2, 3)}
+    aux = {
+        "spheres_center": torch.zeros(2, 4, 3),
+        "spheres_radius": torch.ones(2, 3, 1),
+        "spheres_mask": torch.ones(2, 3),
+    }
     with pytest.raises(ValueError, match=r"aux 'spheres_center' must be \(B, 3, 3\) for obstacle set 'spheres'"):
         with_slots([s], aux)
 

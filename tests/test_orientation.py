@@ -1,16 +1,19 @@
 """The orientation maps and the orientation attractor: link axes against pybullet, the potential against the
 rotation angle, Theorem 2 on rollouts (Panda tool axis, KUKA iiwa full orientation), and that they align.
 (J and J̇ẋ against finite differences: tests/test_registry_derivatives.py.)"""
+
 import pybullet
 import pytest
 import torch
+from conftest import assert_energy_identity, assert_lyapunov_non_increasing, rk4_rollout
+from manipulators import IIWA_URDF as IIWA
+from manipulators import PANDA_ARM_JOINTS, load_panda_urdf_path, pybullet_robot
+from manipulators import PANDA_HOME as HOME
 
 import rmpfusion
-from conftest import assert_energy_identity, assert_lyapunov_non_increasing, rk4_rollout
 from rmpfusion.maps.kinematics import Chain
 from rmpfusion.maps.orientation import quaternion_matrix
 from rmpfusion.maps.urdf import parse_urdf
-from manipulators import IIWA_URDF as IIWA, PANDA_ARM_JOINTS, PANDA_HOME as HOME, load_panda_urdf_path, pybullet_robot
 from rmpfusion.registry import TASK_MAPS
 
 PANDA = load_panda_urdf_path()
@@ -38,9 +41,11 @@ def test_quaternions_become_pybullets_rotation_matrices(gen):
         torch.testing.assert_close(R_wxyz[b], expect, rtol=0, atol=1e-12)
 
 
-@pytest.mark.parametrize("urdf,joints,link", [(PANDA, PANDA_ARM_JOINTS, "panda_hand"),
-                                              (IIWA, None, "lbr_iiwa_link_7"), (IIWA, None, "lbr_iiwa_link_4")],
-                         ids=["panda_hand", "iiwa_link_7", "iiwa_link_4"])
+@pytest.mark.parametrize(
+    "urdf,joints,link",
+    [(PANDA, PANDA_ARM_JOINTS, "panda_hand"), (IIWA, None, "lbr_iiwa_link_7"), (IIWA, None, "lbr_iiwa_link_4")],
+    ids=["panda_hand", "iiwa_link_7", "iiwa_link_4"],
+)
 def test_link_axes_are_the_columns_of_pybullets_link_orientation(urdf, joints, link, gen):
     m = build_map({"type": "link_orientation", "urdf": urdf, "joints": joints, "link": link})
     lo, hi = m.chain.joint_limits()
@@ -60,13 +65,32 @@ def test_the_potential_measures_the_angle_to_the_target(gen):
     """½|e|² = 1 − cos θ for one axis; with the three axes of the frame, 2(1 − cos φ) with φ the rotation angle."""
     q = HOME + 0.5 * torch.randn(6, 7, generator=gen)
     quat = torch.randn(6, 4, generator=gen)
-    frame = build_map({"type": "link_orientation", "urdf": PANDA, "joints": list(PANDA_ARM_JOINTS), "link": "panda_hand", "target": "target"}, {"target": 4})
+    frame = build_map(
+        {
+            "type": "link_orientation",
+            "urdf": PANDA,
+            "joints": list(PANDA_ARM_JOINTS),
+            "link": "panda_hand",
+            "target": "target",
+        },
+        {"target": 4},
+    )
     e = frame.psi(q, {"target": quat})
     R, _ = frame.chain.forward_kinematics(q, ["panda_hand"])["panda_hand"]
     phi = rotation_angle(R, quaternion_matrix(quat))
     torch.testing.assert_close(0.5 * (e * e).sum(-1), 2 * (1 - torch.cos(phi)))
     direction = torch.randn(6, 3, generator=gen)
-    tool = build_map({"type": "link_axis", "urdf": PANDA, "joints": list(PANDA_ARM_JOINTS), "link": "panda_hand", "axis": [0, 0, 2.0], "target": "d"}, {"d": 3})
+    tool = build_map(
+        {
+            "type": "link_axis",
+            "urdf": PANDA,
+            "joints": list(PANDA_ARM_JOINTS),
+            "link": "panda_hand",
+            "axis": [0, 0, 2.0],
+            "target": "d",
+        },
+        {"d": 3},
+    )
     e = tool.psi(q, {"d": direction})
     cos_theta = (R[:, :, 2] * direction).sum(-1) / direction.norm(dim=-1)
     torch.testing.assert_close(0.5 * (e * e).sum(-1), 1 - cos_theta)
@@ -75,16 +99,43 @@ def test_the_potential_measures_the_angle_to_the_target(gen):
 def panda_tool_tree():
     """The end effector to a goal position with the hand's z axis (the tool axis) along a target direction; the
     orientation edge carries a random positive neural weight, so pullback*'s h terms take part."""
-    return rmpfusion.build_tree({"root": {"name": "q", "dim": 7}, "aux": {"goal": 3, "tool_direction": 3}, "nodes": {
-        "ee": {"parent": "q", "map": {"type": "forward_kinematics", "urdf": PANDA, "joints": list(PANDA_ARM_JOINTS), "link": "panda_hand",
-                                      "offset": [0, 0, 0.1034]}},
-        "reach": {"parent": "ee", "map": {"type": "offset", "origin": "goal"},
-                  "rmp": {"type": "goal_attractor", "gain": 5.0, "alpha": 10.0, "eta": 5.0}},
-        "tool": {"parent": "q", "map": {"type": "link_axis", "urdf": PANDA, "joints": list(PANDA_ARM_JOINTS), "link": "panda_hand", "target": "tool_direction"},
-                 "weight": {"type": "mlp", "hidden": [16], "aux": ["tool_direction"]},
-                 "rmp": {"type": "orientation_attractor", "gain": 10.0, "eta": 5.0, "w_u": 3.0, "sigma": 0.3}},
-        "damper": {"parent": "q", "map": {"type": "identity"}, "rmp": {"type": "damper", "w": 0.1, "eta": 5.0}},
-        "regulariser": {"parent": "q", "map": {"type": "identity"}, "rmp": {"type": "identity_metric"}}}})
+    return rmpfusion.build_tree(
+        {
+            "root": {"name": "q", "dim": 7},
+            "aux": {"goal": 3, "tool_direction": 3},
+            "nodes": {
+                "ee": {
+                    "parent": "q",
+                    "map": {
+                        "type": "forward_kinematics",
+                        "urdf": PANDA,
+                        "joints": list(PANDA_ARM_JOINTS),
+                        "link": "panda_hand",
+                        "offset": [0, 0, 0.1034],
+                    },
+                },
+                "reach": {
+                    "parent": "ee",
+                    "map": {"type": "offset", "origin": "goal"},
+                    "rmp": {"type": "goal_attractor", "gain": 5.0, "alpha": 10.0, "eta": 5.0},
+                },
+                "tool": {
+                    "parent": "q",
+                    "map": {
+                        "type": "link_axis",
+                        "urdf": PANDA,
+                        "joints": list(PANDA_ARM_JOINTS),
+                        "link": "panda_hand",
+                        "target": "tool_direction",
+                    },
+                    "weight": {"type": "mlp", "hidden": [16], "aux": ["tool_direction"]},
+                    "rmp": {"type": "orientation_attractor", "gain": 10.0, "eta": 5.0, "w_u": 3.0, "sigma": 0.3},
+                },
+                "damper": {"parent": "q", "map": {"type": "identity"}, "rmp": {"type": "damper", "w": 0.1, "eta": 5.0}},
+                "regulariser": {"parent": "q", "map": {"type": "identity"}, "rmp": {"type": "identity_metric"}},
+            },
+        }
+    )
 
 
 def test_theorem_2_and_alignment_on_panda_tool_axis_rollouts():
@@ -97,10 +148,17 @@ def test_theorem_2_and_alignment_on_panda_tool_axis_rollouts():
     aux = {"goal": p + 0.1034 * R[:, :, 2], "tool_direction": R[:, :, 2]}
     rec = rk4_rollout(tree, q0, torch.zeros(4, 7), aux, dt=0.01, steps=300)
     assert_lyapunov_non_increasing(rec)
-    assert_energy_identity(tree, rec["q"][::50].flatten(0, 1), rec["qd"][::50].flatten(0, 1),
-                           {k: v.repeat(7, 1) for k, v in aux.items()})
-    angle = lambda q: torch.acos((tree.maps["tool"].psi(q, aux) + aux["tool_direction"]).mul(  # noqa: E731
-        aux["tool_direction"]).sum(-1).clamp(-1, 1))
+    assert_energy_identity(
+        tree, rec["q"][::50].flatten(0, 1), rec["qd"][::50].flatten(0, 1), {k: v.repeat(7, 1) for k, v in aux.items()}
+    )
+    angle = lambda q: torch.acos(
+        (tree.maps["tool"].psi(q, aux) + aux["tool_direction"])
+        .mul(
+            aux["tool_direction"]
+        )
+        .sum(-1)
+        .clamp(-1, 1)
+    )
     start, end = angle(rec["q"][0]), angle(rec["q"][-1])
     assert float(start.min()) > 0.5 and float(end.max()) < 0.15, (start, end)  # from 30-75° to within 9°
 
@@ -108,20 +166,37 @@ def test_theorem_2_and_alignment_on_panda_tool_axis_rollouts():
 def test_kuka_iiwa_reaches_a_target_orientation_given_as_a_quaternion():
     """Full orientation on a second robot: from up to 165° away, within 3° of the target quaternion in 3 s, with
     V_r non-increasing on the way."""
-    tree = rmpfusion.build_tree({"root": {"name": "q", "dim": 7}, "aux": {"target": 4}, "nodes": {
-        "frame": {"parent": "q", "map": {"type": "link_orientation", "urdf": IIWA,
-                                         "link": "lbr_iiwa_link_7", "target": "target"},
-                  "rmp": {"type": "orientation_attractor", "gain": 10.0, "eta": 3.0}},
-        "damper": {"parent": "q", "map": {"type": "identity"}, "rmp": {"type": "damper", "w": 0.01, "eta": 1.0}},
-        "regulariser": {"parent": "q", "map": {"type": "identity"}, "rmp": {"type": "identity_metric"}}}})
+    tree = rmpfusion.build_tree(
+        {
+            "root": {"name": "q", "dim": 7},
+            "aux": {"target": 4},
+            "nodes": {
+                "frame": {
+                    "parent": "q",
+                    "map": {"type": "link_orientation", "urdf": IIWA, "link": "lbr_iiwa_link_7", "target": "target"},
+                    "rmp": {"type": "orientation_attractor", "gain": 10.0, "eta": 3.0},
+                },
+                "damper": {
+                    "parent": "q",
+                    "map": {"type": "identity"},
+                    "rmp": {"type": "damper", "w": 0.01, "eta": 1.0},
+                },
+                "regulariser": {"parent": "q", "map": {"type": "identity"}, "rmp": {"type": "identity_metric"}},
+            },
+        }
+    )
     g = torch.Generator().manual_seed(0)
     q0 = 0.5 * torch.randn(4, 7, generator=g)
     quat = torch.randn(4, 4, generator=g)
     rec = rk4_rollout(tree, q0, torch.zeros(4, 7), {"target": quat}, dt=0.01, steps=300)
     assert_lyapunov_non_increasing(rec)
-    assert_energy_identity(tree, rec["q"][::50].flatten(0, 1), rec["qd"][::50].flatten(0, 1), {"target": quat.repeat(7, 1)})
+    assert_energy_identity(
+        tree, rec["q"][::50].flatten(0, 1), rec["qd"][::50].flatten(0, 1), {"target": quat.repeat(7, 1)}
+    )
     chain = Chain(parse_urdf(IIWA))
-    angle = lambda q: rotation_angle(chain.forward_kinematics(q, ["lbr_iiwa_link_7"])["lbr_iiwa_link_7"][0],  # noqa: E731
-                                     quaternion_matrix(quat))
+    angle = lambda q: rotation_angle(
+        chain.forward_kinematics(q, ["lbr_iiwa_link_7"])["lbr_iiwa_link_7"][0],
+        quaternion_matrix(quat),
+    )
     assert float(angle(rec["q"][0]).max()) > 2.5
     assert float(angle(rec["q"][-1]).max()) < torch.deg2rad(torch.tensor(3.0))

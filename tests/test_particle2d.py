@@ -1,4 +1,5 @@
 """The 2D particle environment: sampling, collision/success tests, integrators, and a real RMPTree rollout."""
+
 from __future__ import annotations
 
 import math
@@ -20,6 +21,7 @@ def gen(seed: int) -> torch.Generator:
 
 
 # ---------------------------------------------------------------- registry and params
+
 
 def test_registered_with_validated_params():
     entry = ENVS.get("particle2d")
@@ -46,6 +48,7 @@ def test_aux_dims():
 
 
 # ---------------------------------------------------------------- sampling
+
 
 @pytest.mark.parametrize("K", [1, 2])
 def test_sampling_is_determined_by_the_seed(K):
@@ -106,6 +109,7 @@ def test_starts_and_goals_are_clear_and_inside(K):
 
 # ---------------------------------------------------------------- collision and success
 
+
 def test_collision_and_success_by_hand():
     env = Particle2D(n_obstacles=2, goal_tolerance=0.1)
     aux = {
@@ -122,6 +126,7 @@ def test_collision_and_success_by_hand():
 
 
 # ---------------------------------------------------------------- integrators
+
 
 def _oscillator(integrator: str, dt: float):
     """q̈ = −q from q = (1, 0), q̇ = (0, 1): exactly q(t) = (cos t, sin t), q̇(t) = (−sin t, cos t)."""
@@ -161,12 +166,17 @@ def test_rollout_rejects_misaligned_times_and_calls_hooks():
     env = Particle2D(n_obstacles=0, dt=0.01)
     q0, qd0 = torch.zeros(2, 2, dtype=F64), torch.zeros(2, 2, dtype=F64)
     aux = {"goal": torch.zeros(2, 2, dtype=F64)}
-    pol = lambda q, qd, aux: -q  # noqa: E731
+    pol = lambda q, qd, aux: -q
     with pytest.raises(ValueError, match="record_every"):
         env.rollout(pol, q0, qd0, aux, horizon=1.0, record_every=0.015)
     seen, prog = [], []
     r = env.rollout(
-        pol, q0, qd0, aux, horizon=0.5, record_every=0.2,
+        pol,
+        q0,
+        qd0,
+        aux,
+        horizon=0.5,
+        record_every=0.2,
         monitor=lambda i, t, q, qd, qdd, V: seen.append((i, round(t, 6))),
         progress=lambda k, n: prog.append((k, n)),
     )
@@ -192,6 +202,7 @@ def test_collision_is_caught_between_records():
 
 # ---------------------------------------------------------------- Lyapunov utilities
 
+
 def test_lyapunov_monotone_rule():
     V = torch.tensor([[1.0, 1.0, 0.9, 1e-10, 1.0], [0.5, 1.0 + 5e-7, 1.0, 2e-10, float("nan")]], dtype=F64)
     ok = lyapunov_monotone(V)
@@ -213,7 +224,11 @@ SPEC_2D1LEVEL = {
             "rmp": {"type": "collision_avoidance"},
         },
         # gain 2: cruise speed gain/eta = 1 m/s, so the ~5.5 m trips fit in 10 s (gain 1 needs ~20 s)
-        "goal": {"parent": "q", "map": {"type": "offset", "origin": "goal"}, "rmp": {"type": "goal_attractor", "gain": 2.0}},
+        "goal": {
+            "parent": "q",
+            "map": {"type": "offset", "origin": "goal"},
+            "rmp": {"type": "goal_attractor", "gain": 2.0},
+        },
     },
 }
 

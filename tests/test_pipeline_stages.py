@@ -1,20 +1,21 @@
 """The staged pipeline: running collect, fit, evaluate and report one at a time in one directory gives the
 metrics of one ``run_experiment``, and an evaluation before training is refused with what to run."""
+
 from __future__ import annotations
 
 import json
 import sys
 
 import pytest
-
 from conftest import ROOT, TINY, compose_cfg
+
 from rmpfusion.pipeline.collect import collect
 from rmpfusion.pipeline.fit import NotTrainedError, fit
 from rmpfusion.pipeline.run import evaluate_and_report, run_experiment, start
 from rmpfusion.pipeline.validate import resolve_and_validate
 
 sys.path.insert(0, str(ROOT / "tools"))
-from compare_metrics import compare  # noqa: E402
+from compare_metrics import compare
 
 
 def _run_config(overrides=()):
@@ -41,8 +42,11 @@ def test_stages_one_at_a_time_give_the_metrics_of_one_run(tmp_path):
 
 def test_evaluating_before_training_says_what_to_run(tmp_path):
     exp = start(_run_config(), tmp_path, progress=False)
-    with pytest.raises(NotTrainedError, match=r"no fully trained checkpoints for \['rmp', 'un', 'un_large'\].*"
-                                              r"run rmpfusion-train with the same overrides"):
+    with pytest.raises(
+        NotTrainedError,
+        match=r"no fully trained checkpoints for \['rmp', 'un', 'un_large'\].*"
+        r"run rmpfusion-train with the same overrides",
+    ):
         fit(exp, collect(exp), require_trained=True)
     assert not (tmp_path / "checkpoints").exists()  # nothing was trained
 
@@ -72,8 +76,9 @@ def test_unit_weights_and_a_test_split_of_its_own_sampler(tmp_path):
     hard = ["eval.unit_weights=true", "+env.test_sampling={start_speed: [2.0, 3.0]}"]
     run = _run_config(["experiment=2d1level", *hard])
     m = run_experiment(run, tmp_path / "hard", progress=False)
-    plain = run_experiment(_run_config(["experiment=2d1level", "eval.unit_weights=true"]), tmp_path / "plain",
-                           progress=False)
+    plain = run_experiment(
+        _run_config(["experiment=2d1level", "eval.unit_weights=true"]), tmp_path / "plain", progress=False
+    )
     assert m["data"]["train"]["sha256"] == plain["data"]["train"]["sha256"]
     assert m["data"]["val"]["sha256"] == plain["data"]["val"]["sha256"]
     assert m["data"]["test"]["sha256"] != plain["data"]["test"]["sha256"]

@@ -1,5 +1,6 @@
 """The example plugin (tests/plugin_example), pip-installed like a third-party package, extends rmpfusion
 from outside: its RMP is found through the entry point, its YAML presets through Hydra's search path."""
+
 from __future__ import annotations
 
 import os
@@ -8,26 +9,48 @@ import sys
 from pathlib import Path
 
 import pytest
-
 from conftest import TINY  # and the plugin_site fixture: the example plugin pip-installed
 
 
 def _cli(site: Path, *args, timeout=300):
-    env = {**os.environ, "WANDB_MODE": "disabled", "PYTHONPATH": os.pathsep.join([str(site), os.environ.get("PYTHONPATH", "")])}
-    return subprocess.run([sys.executable, "-m", *args], capture_output=True, text=True, timeout=timeout, cwd="/", env=env)
+    env = {
+        **os.environ,
+        "WANDB_MODE": "disabled",
+        "PYTHONPATH": os.pathsep.join([str(site), os.environ.get("PYTHONPATH", "")]),
+    }
+    return subprocess.run(
+        [sys.executable, "-m", *args], capture_output=True, text=True, timeout=timeout, cwd="/", env=env
+    )
 
 
 def test_without_plugin_the_name_is_unknown(tmp_path):
     env = {**os.environ, "WANDB_MODE": "disabled"}
-    r = subprocess.run([sys.executable, "-m", "rmpfusion.cli.validate", "tree.nodes.goal.rmp.type=spring",
-                        f"hydra.run.dir={tmp_path}"], capture_output=True, text=True, env=env, cwd="/", timeout=300)
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "rmpfusion.cli.validate",
+            "tree.nodes.goal.rmp.type=spring",
+            f"hydra.run.dir={tmp_path}",
+        ],
+        capture_output=True,
+        text=True,
+        env=env,
+        cwd="/",
+        timeout=300,
+    )
     assert r.returncode == 2 and "unknown leaf RMP 'spring'" in r.stderr
 
 
 @pytest.mark.slow
 def test_plugin_preset_from_command_line_reaches_built_tree(plugin_site, tmp_path):
-    r = _cli(plugin_site, "rmpfusion.cli.validate", "rmp@tree.nodes.goal.rmp=spring", "tree.nodes.goal.rmp.gain=7",
-             f"hydra.run.dir={tmp_path}")
+    r = _cli(
+        plugin_site,
+        "rmpfusion.cli.validate",
+        "rmp@tree.nodes.goal.rmp=spring",
+        "tree.nodes.goal.rmp.gain=7",
+        f"hydra.run.dir={tmp_path}",
+    )
     assert r.returncode == 0, r.stderr
     assert "goal (dim 2)  map=offset  weight=rbf  rmp=spring" in r.stdout
 
@@ -50,7 +73,7 @@ def test_plugin_rmp_in_process(plugin_site, monkeypatch):
     monkeypatch.syspath_prepend(str(plugin_site))
     import importlib
 
-    import rmpfusion.registry as registry
+    from rmpfusion import registry
 
     monkeypatch.setattr(registry.PLUGINS, "loaded", False)
     importlib.invalidate_caches()
@@ -58,8 +81,12 @@ def test_plugin_rmp_in_process(plugin_site, monkeypatch):
 
     from rmpfusion import build_tree
 
-    tree = build_tree({"root": {"name": "q", "dim": 2},
-                       "nodes": {"s": {"parent": "q", "map": {"type": "identity"}, "rmp": {"type": "spring", "gain": 2.0}}}})
+    tree = build_tree(
+        {
+            "root": {"name": "q", "dim": 2},
+            "nodes": {"s": {"parent": "q", "map": {"type": "identity"}, "rmp": {"type": "spring", "gain": 2.0}}},
+        }
+    )
     q = torch.tensor([[1.0, -2.0]], dtype=torch.float64)
     out = tree(q, torch.zeros_like(q))
     torch.testing.assert_close(out.qdd, -2.0 * q)
@@ -68,9 +95,9 @@ def test_plugin_rmp_in_process(plugin_site, monkeypatch):
 def _readme_leaf_recipe() -> str:
     """The README's leaf-RMP plugin code, verbatim, without the line that only lets the README run it twice."""
     readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
-    section = readme[readme.index("## Adding an RMP as a plugin"):]
-    code = section[section.index("```python\n") + len("```python\n"):]
-    code = code[:code.index("```")]
+    section = readme[readme.index("## Adding an RMP as a plugin") :]
+    code = section[section.index("```python\n") + len("```python\n") :]
+    code = code[: code.index("```")]
     assert "class MySpring(GDS)" in code and "def curvature" not in code  # curvature terms left to autodiff
     return "\n".join(line for line in code.splitlines() if not line.startswith("LEAF_RMPS.unregister"))
 
@@ -86,10 +113,26 @@ def readme_plugin_site(tmp_path_factory) -> Path:
         '[build-system]\nrequires = ["setuptools"]\nbuild-backend = "setuptools.build_meta"\n\n'
         '[project]\nname = "rmpfusion-myspring"\nversion = "0.1"\n\n'
         '[project.entry-points."rmpfusion.plugins"]\nmy_spring = "rmpfusion_myspring"\n\n'
-        '[tool.setuptools]\npackages = ["rmpfusion_myspring"]\n')
+        '[tool.setuptools]\npackages = ["rmpfusion_myspring"]\n'
+    )
     site = root / "site"
-    subprocess.run([sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--no-build-isolation",
-                    "--target", str(site), str(root / "src")], check=True, capture_output=True, timeout=300)
+    subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "pip",
+            "install",
+            "-q",
+            "--no-deps",
+            "--no-build-isolation",
+            "--target",
+            str(site),
+            str(root / "src"),
+        ],
+        check=True,
+        capture_output=True,
+        timeout=300,
+    )
     return site
 
 
@@ -98,18 +141,33 @@ def test_readme_leaf_recipe_runs_compiled_at_every_batch_size_like_eager(readme_
     """A leaf with autodiff curvature, in the default pipeline with compilation on (training and evaluation see
     several batch sizes): the run completes, says once per tree how it compiles, and equals the eager run."""
     leaf = ["~tree.nodes.goal.rmp", "+tree.nodes.goal.rmp.type=my_spring", "data=tiny", "train=tiny", "logger=disabled"]
-    compiled = _cli(readme_plugin_site, "rmpfusion.cli.run", *leaf, "+train.compile=true", "eval.compile=true",
-                    f"hydra.run.dir={tmp_path / 'compiled'}", timeout=900)
+    compiled = _cli(
+        readme_plugin_site,
+        "rmpfusion.cli.run",
+        *leaf,
+        "+train.compile=true",
+        "eval.compile=true",
+        f"hydra.run.dir={tmp_path / 'compiled'}",
+        timeout=900,
+    )
     assert compiled.returncode == 0, compiled.stderr[-3000:]
     assert "Traceback" not in compiled.stderr and "storage_offset" not in compiled.stderr
     assert "compiles once per batch size (static shapes), with the same numbers" in compiled.stderr
-    eager = _cli(readme_plugin_site, "rmpfusion.cli.run", *leaf, "eval.compile=false",
-                 f"hydra.run.dir={tmp_path / 'eager'}", timeout=600)
+    eager = _cli(
+        readme_plugin_site,
+        "rmpfusion.cli.run",
+        *leaf,
+        "eval.compile=false",
+        f"hydra.run.dir={tmp_path / 'eager'}",
+        timeout=600,
+    )
     assert eager.returncode == 0, eager.stderr[-3000:]
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
+    import json
+
     from compare_metrics import compare
 
-    import json
-    n, worst, differ, _ = compare(*(json.loads((tmp_path / d / "metrics.json").read_text()) for d in ("compiled", "eager")),
-                                  rtol=1e-9)
+    n, worst, differ, _ = compare(
+        *(json.loads((tmp_path / d / "metrics.json").read_text()) for d in ("compiled", "eager")), rtol=1e-9
+    )
     assert n > 20 and not differ, differ

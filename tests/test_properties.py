@@ -1,12 +1,13 @@
 """Property-based checks (hypothesis, bounded examples): random trees, random positive weights, random states."""
+
 import numpy as np
+import rmpflow_reference as ref
 import torch
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-
-import rmpflow_reference as ref
-import rmpfusion
 from trees import random_tree_spec, randomise_weights
+
+import rmpfusion
 
 SETTINGS = settings(max_examples=12, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.too_slow])
 
@@ -41,23 +42,40 @@ def test_random_trees_are_finite_satisfy_theorem2_and_batch_consistent(tree_seed
 
 
 @SETTINGS
-@given(cx=st.floats(-2, 2), cy=st.floats(-2, 2), R=st.floats(0.2, 1.5), gx=st.floats(-4, 4), gy=st.floats(-4, 4),
-       qx=st.floats(-4, 4), qy=st.floats(-4, 4), vx=st.floats(-2, 2), vy=st.floats(-2, 2),
-       damper=st.booleans())
+@given(
+    cx=st.floats(-2, 2),
+    cy=st.floats(-2, 2),
+    R=st.floats(0.2, 1.5),
+    gx=st.floats(-4, 4),
+    gy=st.floats(-4, 4),
+    qx=st.floats(-4, 4),
+    qy=st.floats(-4, 4),
+    vx=st.floats(-2, 2),
+    vy=st.floats(-2, 2),
+    damper=st.booleans(),
+)
 def test_unit_weights_equal_rmpflow_pullback(cx, cy, R, gx, gy, qx, qy, vx, vy, damper):
     q, qd = np.array([qx, qy]), np.array([vx, vy])
     if np.linalg.norm(q - [cx, cy]) < 1e-3 or np.linalg.norm(q - [gx, gy]) < 1e-3:
         return  # the maps' own singular points
     nodes = {
-        "o": {"parent": "q", "map": {"type": "sphere_distance", "center": [cx, cy], "radius": R, "normalized": True},
-              "rmp": {"type": "rmpflow_collision_avoidance"}},
+        "o": {
+            "parent": "q",
+            "map": {"type": "sphere_distance", "center": [cx, cy], "radius": R, "normalized": True},
+            "rmp": {"type": "rmpflow_collision_avoidance"},
+        },
         "g": {"parent": "q", "map": {"type": "offset", "origin": [gx, gy]}, "rmp": {"type": "rmpflow_goal_attractor"}},
     }
-    children = [(ref.sphere_map(np.array([cx, cy]), R), ref.collision_avoidance), (ref.offset_map(np.array([gx, gy])), ref.goal_attractor)]
+    children = [
+        (ref.sphere_map(np.array([cx, cy]), R), ref.collision_avoidance),
+        (ref.offset_map(np.array([gx, gy])), ref.goal_attractor),
+    ]
     if damper:
         nodes["d"] = {"parent": "q", "map": {"type": "identity"}, "rmp": {"type": "rmpflow_damper"}}
         children.append((((lambda y: y), (lambda y: np.eye(2)), (lambda y, yd: np.zeros((2, 2)))), ref.damper))
-    out = rmpfusion.build_tree({"root": {"name": "q", "dim": 2}, "nodes": nodes})(torch.from_numpy(q)[None], torch.from_numpy(qd)[None])
+    out = rmpfusion.build_tree({"root": {"name": "q", "dim": 2}, "nodes": nodes})(
+        torch.from_numpy(q)[None], torch.from_numpy(qd)[None]
+    )
     _, f, M = ref.rmpflow_root(q, qd, children)
     np.testing.assert_allclose(out.f[0].numpy(), f, rtol=1e-10, atol=1e-9 * (1 + np.abs(f).max()))
     np.testing.assert_allclose(out.M[0].numpy(), M, rtol=1e-10, atol=1e-9 * (1 + np.abs(M).max()))

@@ -1,5 +1,6 @@
 """The reaching task for any arm (experiment=reach): the expert's weights by role, the task laid out from the arm's
 kinematics with its obstacle in the way, and the run saying so before it trains."""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -11,22 +12,26 @@ from hydra import compose, initialize_config_dir
 
 pytest.importorskip("pybullet")
 
-from rmpfusion.assembly.errors import ConfigError  # noqa: E402
-from rmpfusion.assembly.weighting import own_weights, weights_by_name  # noqa: E402
-from rmpfusion.envs.manipulator import Manipulator  # noqa: E402
-from rmpfusion.envs.manipulator.layout import ReachLayout  # noqa: E402
-from rmpfusion.envs.manipulator_tree import manipulator_tree_spec  # noqa: E402
-from rmpfusion.pipeline.collect import check_task  # noqa: E402
-from rmpfusion.pipeline.validate import resolve_and_validate  # noqa: E402
-from rmpfusion.scenes.crossing import summarize  # noqa: E402
-from manipulators import robot, scene  # noqa: E402
+from manipulators import robot, scene
+
+from rmpfusion.assembly.errors import ConfigError
+from rmpfusion.assembly.weighting import own_weights, weights_by_name
+from rmpfusion.envs.manipulator import Manipulator
+from rmpfusion.envs.manipulator.layout import ReachLayout
+from rmpfusion.envs.manipulator_tree import manipulator_tree_spec
+from rmpfusion.pipeline.collect import check_task
+from rmpfusion.pipeline.validate import resolve_and_validate
+from rmpfusion.scenes.crossing import summarize
 
 CONF = Path(__file__).resolve().parents[1] / "conf"
 ROBOTS = sorted(p.stem for p in (CONF / "robot").glob("*.yaml"))
 
 
-EXPERT = {"attractor": {"type": "constant", "value": 40.0}, "obstacle": {"type": "constant", "value": 200.0},
-          "ground": {"type": "constant", "value": 100.0}}
+EXPERT = {
+    "attractor": {"type": "constant", "value": 40.0},
+    "obstacle": {"type": "constant", "value": 200.0},
+    "ground": {"type": "constant", "value": 100.0},
+}
 
 
 def _validated(*overrides: str):
@@ -56,8 +61,14 @@ def test_an_expert_that_leaves_a_weighted_edge_out_is_refused_naming_it():
 @pytest.mark.parametrize("name", ROBOTS)
 def test_the_layout_puts_the_obstacle_in_the_way_of_most_reaches_on_every_robot(name):
     # the environment as experiment=reach sets it (conf/experiment/reach.yaml): every trajectory its own goal
-    env = Manipulator(robot=robot(name), scene=scene("reach_post"), reach_layout=ReachLayout(), start_spread=0.25,
-                      goal_clearance=0.05, goal_per_trajectory=True)
+    env = Manipulator(
+        robot=robot(name),
+        scene=scene("reach_post"),
+        reach_layout=ReachLayout(),
+        start_spread=0.25,
+        goal_clearance=0.05,
+        goal_per_trajectory=True,
+    )
     try:
         g = torch.Generator().manual_seed(0)
         q0, _, aux = env.sample_initial_states(env.sample_envs(3, g), 20, g)
@@ -96,11 +107,17 @@ class _Say:
 
 def test_the_run_warns_before_training_when_the_expert_fails_or_the_obstacle_is_not_in_the_way():
     env = Manipulator(robot=robot("panda"), scene=scene("franka_cylinder"))
-    crossing = lambda f: {"paths": 20, "crossing_fraction": f, "radius": 0.095,  # noqa: E731
-                          "clearance_quantiles": {"median": 0.01}}
+    crossing = lambda f: {
+        "paths": 20,
+        "crossing_fraction": f,
+        "radius": 0.095,
+        "clearance_quantiles": {"median": 0.01},
+    }
     try:
-        good = {"train": {"expert_success": 1.0, "expert_collision": 0.0, "crossing": crossing(0.9)},
-                "val": {"expert_success": 0.95, "expert_collision": 0.0, "crossing": crossing(1.0)}}
+        good = {
+            "train": {"expert_success": 1.0, "expert_collision": 0.0, "crossing": crossing(0.9)},
+            "val": {"expert_success": 0.95, "expert_collision": 0.0, "crossing": crossing(1.0)},
+        }
         say = _Say()
         exp = SimpleNamespace(env=env, say=say)
         assert check_task(exp, SimpleNamespace(info=good)) == []
@@ -120,15 +137,21 @@ def test_the_layout_of_a_mounted_arm_is_the_unmounted_layout_moved_with_its_base
     shift = torch.tensor([0.3, -0.2, 0.0], dtype=torch.float64)
     layouts = []
     for mount in (None, {"xyz": shift.tolist(), "rpy": [0.0, 0.0, 0.0]}):
-        env = Manipulator(robot={**robot("panda"), "mount": mount}, scene=scene("reach_post"),
-                          reach_layout=ReachLayout(), start_spread=0.25, goal_clearance=0.05)
+        env = Manipulator(
+            robot={**robot("panda"), "mount": mount},
+            scene=scene("reach_post"),
+            reach_layout=ReachLayout(),
+            start_spread=0.25,
+            goal_clearance=0.05,
+        )
         layouts.append(env.layout)
         env.close()
     plain, mounted = layouts
     torch.testing.assert_close(torch.tensor(mounted.start_point), torch.tensor(plain.start_point) + shift)
     torch.testing.assert_close(torch.tensor(mounted.goal_point), torch.tensor(plain.goal_point) + shift)
-    torch.testing.assert_close(torch.tensor(mounted.scene.obstacles[0].center),
-                               torch.tensor(plain.scene.obstacles[0].center) + shift)
+    torch.testing.assert_close(
+        torch.tensor(mounted.scene.obstacles[0].center), torch.tensor(plain.scene.obstacles[0].center) + shift
+    )
     assert mounted.scene.obstacles[0].radius == pytest.approx(plain.scene.obstacles[0].radius)
 
 
@@ -137,8 +160,13 @@ def test_an_upright_home_starts_leaning_out_and_an_upright_nominal_q_is_refused(
     around the nearest configuration that leans out and says so; the same centre given as env.nominal_q is the
     user's choice, never moved, so it is refused naming the fix."""
     upright = [0.0, 0.0, 0.0, -0.1, 0.0, 0.1, 0.0]  # joint 4 of the Panda must stay below 0
-    env = Manipulator(robot={**robot("panda"), "home": upright}, scene=scene("reach_post"), reach_layout=ReachLayout(),
-                      start_spread=0.25, goal_clearance=0.05)
+    env = Manipulator(
+        robot={**robot("panda"), "home": upright},
+        scene=scene("reach_post"),
+        reach_layout=ReachLayout(),
+        start_spread=0.25,
+        goal_clearance=0.05,
+    )
     try:
         d = env.layout
         assert d.start_centre is not None and env.params.nominal_q == d.start_centre
@@ -148,5 +176,11 @@ def test_an_upright_home_starts_leaning_out_and_an_upright_nominal_q_is_refused(
     finally:
         env.close()
     with pytest.raises(ValueError, match=r"env.nominal_q puts panda's end effector less than 0.35 of its reach"):
-        Manipulator(robot=robot("panda"), scene=scene("reach_post"), reach_layout=ReachLayout(), start_spread=0.25,
-                    goal_clearance=0.05, nominal_q=upright)
+        Manipulator(
+            robot=robot("panda"),
+            scene=scene("reach_post"),
+            reach_layout=ReachLayout(),
+            start_spread=0.25,
+            goal_clearance=0.05,
+            nominal_q=upright,
+        )

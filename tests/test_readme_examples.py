@@ -17,6 +17,7 @@
 Nothing is skipped silently: a command that must not run is listed in ``EXCLUDED`` with the reason, every block is
 accounted for (``test_every_block_is_accounted_for``), and an exclusion that no longer matches the README fails.
 """
+
 from __future__ import annotations
 
 import os
@@ -28,7 +29,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
-
 from conftest import PLUGIN_EXAMPLE, ROOT, compose_cfg
 from conftest import TINY as TINY_RUN  # and the plugin_site fixture: ``pip install tests/plugin_example``
 
@@ -62,7 +62,7 @@ def readme_blocks() -> list[Block]:
         j = i + 1
         while not lines[j].startswith("```"):
             j += 1
-        blocks.append(Block(m.group(1), "".join(lines[i + 1:j]), i + 1))
+        blocks.append(Block(m.group(1), "".join(lines[i + 1 : j]), i + 1))
         i = j + 1
     return blocks
 
@@ -72,30 +72,23 @@ BLOCKS = readme_blocks()
 #: Commands of bash blocks that are not run, and why (matched against the command without its comment).
 EXCLUDED = {
     "make demo": "the full paper-size experiment (minutes; make may also install into .venv); the command it runs, "
-                 "rmpfusion-run experiment=2d1level, is the first line of the next block, run here at tiny sizes",
+    "rmpfusion-run experiment=2d1level, is the first line of the next block, run here at tiny sizes",
     "make test": "runs the test suite this file is part of",
-    "rmpfusion-run -m experiment=2d2level sweep=seeds launcher=submitit_slurm hydra.launcher.partition=gpu":
-        "needs a SLURM cluster (the submitit_local lines run the same launcher plugin on this machine)",
-    "python tools/summarize_sweep.py outputs/multirun/<time>":
-        "<time> stands for a sweep's directory; tests/test_runs.py runs summarize_sweep.py on a real sweep",
-    "rmpfusion-view outputs/franka/<time>":
-        "<time> stands for a Franka run's directory; tests/test_viewer.py views a real run's directory",
-    "rmpfusion-export outputs/franka/<time>/checkpoints/rmp/final.pt --aoti":
-        "<time> stands for a Franka run's directory; tests/test_export.py runs rmpfusion-export (and --aoti) on a real "
-        "run's checkpoint",
+    "rmpfusion-run -m experiment=2d2level sweep=seeds launcher=submitit_slurm hydra.launcher.partition=gpu": "needs a SLURM cluster (the submitit_local lines run the same launcher plugin on this machine)",
+    "python tools/summarize_sweep.py outputs/multirun/<time>": "<time> stands for a sweep's directory; tests/test_runs.py runs summarize_sweep.py on a real sweep",
+    "rmpfusion-view outputs/franka/<time>": "<time> stands for a Franka run's directory; tests/test_viewer.py views a real run's directory",
+    "rmpfusion-export outputs/franka/<time>/checkpoints/rmp/final.pt --aoti": "<time> stands for a Franka run's directory; tests/test_export.py runs rmpfusion-export (and --aoti) on a real "
+    "run's checkpoint",
 }
 
 #: Blocks that are not commands: first line -> what it is.
 NOT_COMMANDS = {
-    "config.resolved.yaml   the validated config that ran (.hydra/ holds Hydra's unresolved copy and the overrides)":
-        "the files of a run directory (prose in a table)",
+    "config.resolved.yaml   the validated config that ran (.hydra/ holds Hydra's unresolved copy and the overrides)": "the files of a run directory (prose in a table)",
     "error: invalid configuration: 3 problem(s)": "the output of the failing rmpfusion-validate above it "
-                                                  "(compared with what that command prints)",
-    "rmpfusion/core/      RMP-algebra*: pushforward, pullback*, resolve; GDS, TaskMap, WeightFunction bases; RMPTree":
-        "the source layout",
-    "#include <torch/csrc/inductor/aoti_package/model_package_loader.h>":
-        "C++ for libtorch, which this machine does not build; the package it loads is checked from Python by "
-        "tests/test_export.py",
+    "(compared with what that command prints)",
+    "rmpfusion/core/      RMP-algebra*: pushforward, pullback*, resolve; GDS, TaskMap, WeightFunction bases; RMPTree": "the source layout",
+    "#include <torch/csrc/inductor/aoti_package/model_package_loader.h>": "C++ for libtorch, which this machine does not build; the package it loads is checked from Python by "
+    "tests/test_export.py",
 }
 
 #: Commands that fail on purpose, with their exit status.
@@ -106,11 +99,25 @@ FAILS = {"rmpfusion-validate expert.goal.type=rfb +tree.nodes.goal.rmp.gian=2 tr
 TINY = [*TINY_RUN, "eval.compile=false"]
 #: Appended to commands on recorded demonstrations (experiment=lasa): 3 training steps, 4 starts, rollouts as long
 #: as the longest demonstration, no figures (the data are the dataset's own: there is nothing to make tiny).
-TINY_RECORDED = ["logger=disabled", "train.iterations=3", "train.snapshots=[0,3]", "data.starts=4",
-                 "data.horizon_factor=1.0", "eval.figures=false"]
+TINY_RECORDED = [
+    "logger=disabled",
+    "train.iterations=3",
+    "train.snapshots=[0,3]",
+    "data.starts=4",
+    "data.horizon_factor=1.0",
+    "eval.figures=false",
+]
 #: The tools that compare training methods choose the method themselves: tiny splits and evaluation only.
-TINY_EVAL = ["data.test_envs=1", "data.test_trajectories=2", "data.val_envs=1", "data.val_trajectories=2",
-             "data.points=3", "data.interval=0.1", "eval=fast", "eval.compile=false"]
+TINY_EVAL = [
+    "data.test_envs=1",
+    "data.test_trajectories=2",
+    "data.val_envs=1",
+    "data.val_trajectories=2",
+    "data.points=3",
+    "data.interval=0.1",
+    "eval=fast",
+    "eval.compile=false",
+]
 
 
 def strip_comment(line: str) -> str:
@@ -150,10 +157,12 @@ class Unit:
         def one(c: str) -> bool:
             if self.needs_plugin:
                 return False
-            if c.startswith(("rmpfusion-validate", "rmpfusion-fit-spheres", "python tools/tracking_demo.py",
-                             "rmpfusion-view")):
+            if c.startswith(
+                ("rmpfusion-validate", "rmpfusion-fit-spheres", "python tools/tracking_demo.py", "rmpfusion-view")
+            ):
                 return True  # the tracking demo runs 0.1 s of its rollouts here (appended)
             return c.startswith("rmpfusion-run ") and " -m " not in c and "data=tiny train=tiny" in c  # the smoke run
+
         return all(one(c) for c in self.cmds)
 
 
@@ -177,8 +186,13 @@ PYTHON = [b for b in BLOCKS if b.lang == "python"]
 
 
 def _env(**extra) -> dict:
-    env = {**os.environ, "WANDB_MODE": "disabled", "MPLBACKEND": "Agg", "HYDRA_FULL_ERROR": "1",
-           "PATH": os.pathsep.join([str(Path(sys.executable).parent), os.environ.get("PATH", "")])}
+    env = {
+        **os.environ,
+        "WANDB_MODE": "disabled",
+        "MPLBACKEND": "Agg",
+        "HYDRA_FULL_ERROR": "1",
+        "PATH": os.pathsep.join([str(Path(sys.executable).parent), os.environ.get("PATH", "")]),
+    }
     env.update(extra)
     return env
 
@@ -198,13 +212,35 @@ def appended(cmd: str, out: Path) -> list[str]:
     if cmd.startswith("python tools/dagger_table.py"):  # 30 iterations, 2 demonstrations per environment
         return ["--scale", "0.0015", "--out", str(out), *TINY_EVAL, "train.compile=false"]
     if cmd.startswith("python tools/pg_franka.py"):
-        return ["--out", str(out), *TINY_EVAL, "data.train_trajectories=2", "train.iterations=2",
-                "train.snapshots=[0,2]", "train.horizon=0.1", "train.episodes=2", "train.log_every=1",
-                "train.checkpoint_every=1", "eval.horizon=0.1", "eval.figures=false"]
+        return [
+            "--out",
+            str(out),
+            *TINY_EVAL,
+            "data.train_trajectories=2",
+            "train.iterations=2",
+            "train.snapshots=[0,2]",
+            "train.horizon=0.1",
+            "train.episodes=2",
+            "train.log_every=1",
+            "train.checkpoint_every=1",
+            "eval.horizon=0.1",
+            "eval.figures=false",
+        ]
     if cmd.startswith("python tools/apg_table.py"):
-        return ["--out", str(out), "data=tiny", *TINY_EVAL, "train.compile=false", "train.iterations=2",
-                "train.snapshots=[0,2]", "train.horizon=0.5", "train.truncation=0.5", "train.batch_size=2",
-                "train.log_every=1", "train.checkpoint_every=1"]
+        return [
+            "--out",
+            str(out),
+            "data=tiny",
+            *TINY_EVAL,
+            "train.compile=false",
+            "train.iterations=2",
+            "train.snapshots=[0,2]",
+            "train.horizon=0.5",
+            "train.truncation=0.5",
+            "train.batch_size=2",
+            "train.log_every=1",
+            "train.checkpoint_every=1",
+        ]
     if cmd.startswith("python tools/lasa_table.py"):
         return ["--out", str(out), "--", *TINY_RECORDED]
     if cmd.startswith("rmpfusion-run"):
@@ -237,8 +273,9 @@ def _check_documented_output(out: str, block: Block) -> None:
 # ------------------------------------------------------------------------------------------------- python blocks
 @pytest.mark.parametrize("block", PYTHON, ids=[f"L{b.line}" for b in PYTHON])
 def test_python_block_runs_in_a_fresh_process(block):
-    r = subprocess.run([sys.executable, "-c", block.text], cwd=ROOT, capture_output=True, text=True, env=_env(),
-                       timeout=600)
+    r = subprocess.run(
+        [sys.executable, "-c", block.text], cwd=ROOT, capture_output=True, text=True, env=_env(), timeout=600
+    )
     assert r.returncode == 0, f"README.md line {block.line}:\n{r.stdout[-2000:]}\n{r.stderr[-4000:]}"
 
 
@@ -253,8 +290,10 @@ def _run_unit(unit: Unit, tmp_path: Path, request) -> None:
         line = " ".join([cmd, *(shlex.quote(a) for a in appended(cmd, out))])
         r = subprocess.run(["bash", "-c", line], cwd=ROOT, capture_output=True, text=True, env=env, timeout=1800)
         want = FAILS.get(cmd, 0)
-        assert r.returncode == want, (f"README.md line {unit.block.line}: `{line}` exited {r.returncode}, expected "
-                                      f"{want}\n{r.stdout[-2000:]}\n{r.stderr[-4000:]}")
+        assert r.returncode == want, (
+            f"README.md line {unit.block.line}: `{line}` exited {r.returncode}, expected "
+            f"{want}\n{r.stdout[-2000:]}\n{r.stderr[-4000:]}"
+        )
         if cmd in FAILS:
             assert "Traceback" not in r.stderr
             _check_documented_output(r.stderr, _following_text_block(unit.block))
@@ -295,9 +334,8 @@ def test_every_run_command_composes():
         multirun = "-m" in args
         if "--config-dir" in args:  # what Hydra's --config-dir does: the folder joins the search path
             k = args.index("--config-dir")
-            args = [*args[:k], *args[k + 2:], f"hydra.searchpath=[file://{ROOT / args[k + 1]}]"]
-        over = [one_point(a) if multirun else a for a in args
-                if a != "-m" and "spring" not in a and "glob(" not in a]
+            args = [*args[:k], *args[k + 2 :], f"hydra.searchpath=[file://{ROOT / args[k + 1]}]"]
+        over = [one_point(a) if multirun else a for a in args if a != "-m" and "spring" not in a and "glob(" not in a]
         compose_cfg(over, hydra_cfg=True)
 
 
@@ -326,8 +364,10 @@ def test_yaml_blocks_are_conf_files_or_used_by_a_python_block():
     for b in (b for b in BLOCKS if b.lang == "yaml"):
         files = [p for p, text in confs.items() if text == b.text]
         users = [p for p in PYTHON if b.text in p.text]
-        assert files or users, (f"README.md line {b.line}: a YAML block that is neither a file of conf/ nor used "
-                                "verbatim by a Python block (which runs it)")
+        assert files or users, (
+            f"README.md line {b.line}: a YAML block that is neither a file of conf/ nor used "
+            "verbatim by a Python block (which runs it)"
+        )
 
 
 def test_the_search_path_plugin_shown_is_the_example_plugins_file():
@@ -339,10 +379,14 @@ def test_the_search_path_plugin_shown_is_the_example_plugins_file():
 def test_every_block_is_accounted_for():
     """Every block is run, checked, or named here as not a command; every exclusion still matches the README."""
     for b in BLOCKS:
-        assert b.lang in ("python", "bash", "yaml", "toml", "text", "cpp", ""), f"line {b.line}: unknown block {b.lang!r}"
+        assert b.lang in ("python", "bash", "yaml", "toml", "text", "cpp", ""), (
+            f"line {b.line}: unknown block {b.lang!r}"
+        )
         if b.lang in ("text", "cpp", ""):
-            assert b.first in NOT_COMMANDS, (f"README.md line {b.line}: a {b.lang or 'plain'} block that is not "
-                                             f"listed in NOT_COMMANDS; if it is a command, make it a bash block")
+            assert b.first in NOT_COMMANDS, (
+                f"README.md line {b.line}: a {b.lang or 'plain'} block that is not "
+                f"listed in NOT_COMMANDS; if it is a command, make it a bash block"
+            )
     cmds = [c for b in BLOCKS if b.lang == "bash" for c in commands(b)]
     assert set(EXCLUDED) <= set(cmds), f"stale exclusions: {set(EXCLUDED) - set(cmds)}"
     assert set(FAILS) <= set(cmds)

@@ -6,6 +6,7 @@ dataset loss or training loss normalised by the wrong count, the time-out distan
 minibatches that never draw some sample. ``tools/mutants.py`` applies exactly those slips and checks that these
 tests fail on each.
 """
+
 from __future__ import annotations
 
 import math
@@ -26,6 +27,7 @@ F64 = torch.float64
 
 
 # ---------------------------------------------------------------- the Lyapunov monitor
+
 
 def test_lyapunov_monitor_fails_a_trajectory_that_rises_at_one_record_among_many():
     """Theorem 2 holds at every record: one rise among many decreasing steps fails the whole trajectory."""
@@ -58,15 +60,24 @@ def test_lyapunov_monitor_agrees_with_a_direct_comparison_on_random_series():
 
 # ---------------------------------------------------------------- the certificate
 
+
 def _tree_with_one_weight_exactly_zero():
     """A 2-D tree whose goal edge has an MLP weight pushed to exactly 0 (its floor removed, as a plugin's weight
     function might lack one, and softplus of −1e4 underflowing to 0.0), while a weightless identity leaf keeps M_r
     positive definite and the energy identity holds."""
-    spec = {"root": {"name": "q", "dim": 2}, "aux": {"goal": 2},
-            "nodes": {"goal": {"parent": "q", "map": {"type": "offset", "origin": "goal"},
-                               "weight": {"type": "mlp", "hidden": [4], "positivity": "softplus", "aux": ["goal"]},
-                               "rmp": {"type": "goal_attractor"}},
-                      "regulariser": {"parent": "q", "map": {"type": "identity"}, "rmp": {"type": "identity_metric"}}}}
+    spec = {
+        "root": {"name": "q", "dim": 2},
+        "aux": {"goal": 2},
+        "nodes": {
+            "goal": {
+                "parent": "q",
+                "map": {"type": "offset", "origin": "goal"},
+                "weight": {"type": "mlp", "hidden": [4], "positivity": "softplus", "aux": ["goal"]},
+                "rmp": {"type": "goal_attractor"},
+            },
+            "regulariser": {"parent": "q", "map": {"type": "identity"}, "rmp": {"type": "identity_metric"}},
+        },
+    }
     tree = rmpfusion.build_tree(spec).to(F64)
     (weight,) = [m for m in tree.modules() if isinstance(m, MLPWeight)]
     weight.floor = 0.0
@@ -93,6 +104,7 @@ def test_certificate_rejects_a_weight_that_is_exactly_zero():
 
 # ---------------------------------------------------------------- losses
 
+
 class _Fixed(nn.Module):
     """A model answering a fixed table of accelerations per sample index (read from q[:, 0]); one parameter that
     receives zero gradient, so training steps leave it, and its answers, unchanged."""
@@ -111,8 +123,15 @@ def _indexed_dataset(targets: torch.Tensor) -> Dataset:
     n, d = targets.shape
     q = torch.zeros(n, d, dtype=F64)
     q[:, 0] = torch.arange(n, dtype=F64)
-    return Dataset(q=q, qd=torch.zeros(n, d, dtype=F64), aux={}, qdd=targets, env_id=torch.zeros(n, dtype=torch.long),
-                   traj_id=torch.arange(n), t=torch.zeros(n, dtype=F64))
+    return Dataset(
+        q=q,
+        qd=torch.zeros(n, d, dtype=F64),
+        aux={},
+        qdd=targets,
+        env_id=torch.zeros(n, dtype=torch.long),
+        traj_id=torch.arange(n),
+        t=torch.zeros(n, dtype=F64),
+    )
 
 
 def test_dataset_loss_is_the_mean_squared_error_over_every_entry():
@@ -135,8 +154,15 @@ def test_training_loss_is_the_minibatch_mean_and_minibatches_reach_every_sample(
     n, d, steps = 5, 3, 400
     data = _indexed_dataset(torch.arange(n, dtype=F64)[:, None].repeat(1, d))
     model = _Fixed(torch.zeros(n, d, dtype=F64))
-    cfg = TrainConfig(optimizer="sgd", lr=1e-3, batch_size=1, iterations=steps, snapshots=[steps],
-                      checkpoint_every=steps, log_every=steps)
+    cfg = TrainConfig(
+        optimizer="sgd",
+        lr=1e-3,
+        batch_size=1,
+        iterations=steps,
+        snapshots=[steps],
+        checkpoint_every=steps,
+        log_every=steps,
+    )
     res = train(model, data, cfg, seed=0)
     losses = [v for _, v in res.curve]
     assert len(losses) == steps
@@ -153,8 +179,9 @@ def test_the_minibatch_loss_and_the_dataset_loss_are_the_same_quantity():
     rng = np.random.default_rng(1)
     targets, answers = rng.normal(size=(6, 4)), rng.normal(size=(6, 4))
     pred, target = torch.tensor(answers), torch.tensor(targets)
-    assert float(make_objective("mse")(pred, target)) == pytest.approx(float(np.mean((answers - targets) ** 2)),
-                                                                        rel=1e-12)
+    assert float(make_objective("mse")(pred, target)) == pytest.approx(
+        float(np.mean((answers - targets) ** 2)), rel=1e-12
+    )
     data, model = _indexed_dataset(target), _Fixed(pred)
     assert dataset_loss(model, data) == pytest.approx(float(make_objective("mse")(pred, target)), rel=1e-12)
 
@@ -182,9 +209,13 @@ def _learner0(env):
 
     torch.manual_seed(0)
     expert = yaml.safe_load((CONF / "expert" / "franka.yaml").read_text())
-    return RMPLearner(RMPLearner.Params(weights={"type": "mlp", "hidden": [32, 32], "aux": ["goal"],
-                                                 "positivity": "exp"}),
-                      franka_tree_spec(1), env.aux_dims(), 7, expert=expert).tree.to(F64)
+    return RMPLearner(
+        RMPLearner.Params(weights={"type": "mlp", "hidden": [32, 32], "aux": ["goal"], "positivity": "exp"}),
+        franka_tree_spec(1),
+        env.aux_dims(),
+        7,
+        expert=expert,
+    ).tree.to(F64)
 
 
 def test_learner_rollout_on_the_franka_never_raises_V_at_any_record_at_1khz(franka_1khz):

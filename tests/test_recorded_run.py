@@ -1,6 +1,7 @@
 """Experiments on recorded demonstrations (``data.source: recorded``): the LASA preset and a user's CSV run end to
 end without an expert, the measures are those of the demonstrations themselves, Theorem 2 holds for the trained
 tree, and every bad input is one error naming the key or file."""
+
 from __future__ import annotations
 
 import json
@@ -8,8 +9,8 @@ import json
 import numpy as np
 import pytest
 import torch
-
 from conftest import compose_cfg
+
 from rmpfusion.assembly.errors import ConfigError
 from rmpfusion.envs.rollout import Rollout
 from rmpfusion.evaluate.reproduction import dtw_distance
@@ -19,8 +20,14 @@ from rmpfusion.pipeline.validate import resolve_and_validate
 from rmpfusion.recordings.signals import States
 
 #: the smallest LASA run: 20 iterations, 4 starts, rollouts as long as the longest demonstration
-TINY_LASA = ["experiment=lasa", "logger=disabled", "train.iterations=20", "train.snapshots=[0,20]", "data.starts=4",
-             "data.horizon_factor=1.0"]
+TINY_LASA = [
+    "experiment=lasa",
+    "logger=disabled",
+    "train.iterations=20",
+    "train.snapshots=[0,20]",
+    "data.starts=4",
+    "data.horizon_factor=1.0",
+]
 
 
 def validated(overrides):
@@ -64,16 +71,26 @@ def via_point_demonstrations(n: int, seed: int) -> list[tuple[np.ndarray, np.nda
 
 
 def write_csv(path, demos) -> None:
-    lines = ["demo,t,x_mm,y_mm"] + [f"d{k},{ti:.6f},{1e3 * p[0]:.5f},{1e3 * p[1]:.5f}"
-                                     for k, (t, pos) in enumerate(demos) for ti, p in zip(t, pos)]
+    lines = ["demo,t,x_mm,y_mm"] + [
+        f"d{k},{ti:.6f},{1e3 * p[0]:.5f},{1e3 * p[1]:.5f}" for k, (t, pos) in enumerate(demos) for ti, p in zip(t, pos)
+    ]
     path.write_text("\n".join(lines) + "\n")
 
 
 def test_a_users_csv_of_noisy_irregular_recordings_runs(tmp_path):
     csv = tmp_path / "recorded.csv"
     write_csv(csv, via_point_demonstrations(5, seed=3))
-    run = validated(TINY_LASA + ["data.format=csv", f"data.files=[{csv}]", "data.demo_column=demo", "data.units=mm",
-                                 "data.goal=[0.0,0.0]", "name=csv_demo"])
+    run = validated(
+        TINY_LASA
+        + [
+            "data.format=csv",
+            f"data.files=[{csv}]",
+            "data.demo_column=demo",
+            "data.units=mm",
+            "data.goal=[0.0,0.0]",
+            "name=csv_demo",
+        ]
+    )
     m = run_experiment(run, tmp_path / "run", progress=False)
     assert m["data"]["test"]["demonstrations"][0].startswith(str(csv))
     assert m["learners"]["rmp"]["convergence"]["lyapunov_monotone_fraction"] == 1.0
@@ -91,8 +108,9 @@ def test_bad_recorded_configs_are_one_error_naming_the_key(tmp_path):
     ]
     three = tmp_path / "three.csv"
     three.write_text("t,x,y,z\n" + "".join(f"{0.01 * k},{k},{2 * k},{3 * k}\n" for k in range(60)))
-    cases.append((["data.format=csv", f"data.files=[{three}]", "data.split=all"], "data", "3 coordinates but the "
-                                                                                             "environment"))
+    cases.append(
+        (["data.format=csv", f"data.files=[{three}]", "data.split=all"], "data", "3 coordinates but the environment")
+    )
     for extra, path, words in cases:
         with pytest.raises(ConfigError) as err:
             validated(TINY_LASA + extra)
@@ -103,8 +121,15 @@ def test_bad_recorded_configs_are_one_error_naming_the_key(tmp_path):
 def demo_states(T: int = 50) -> States:
     t = 0.02 * np.arange(T)
     q = np.stack([np.cos(t) - 1.0, np.sin(2 * t)], -1)
-    return States(t=t, q=q, qd=np.gradient(q, axis=0) / 0.02, qdd=np.zeros_like(q), goal=np.array([0.0, 0.0]),
-                  source="demo", aux={})
+    return States(
+        t=t,
+        q=q,
+        qd=np.gradient(q, axis=0) / 0.02,
+        qdd=np.zeros_like(q),
+        goal=np.array([0.0, 0.0]),
+        source="demo",
+        aux={},
+    )
 
 
 def replay(states: States, extra: int, grid: np.ndarray) -> Rollout:
@@ -114,19 +139,33 @@ def replay(states: States, extra: int, grid: np.ndarray) -> Rollout:
     q = np.concatenate([path[:, None], np.repeat(grid[None], T, axis=0)], axis=1)
     qt = torch.as_tensor(q)
     goal = np.zeros(2)
-    return Rollout(times=torch.arange(T, dtype=torch.float64) * 0.02, q=qt, qd=torch.zeros_like(qt),
-                   qdd=torch.zeros_like(qt), collided=torch.zeros(q.shape[1], dtype=torch.bool),
-                   reached=torch.zeros(q.shape[1], dtype=torch.bool), success=torch.zeros(q.shape[1], dtype=torch.bool),
-                   min_clearance=torch.zeros(q.shape[1]), first_collision_time=torch.zeros(q.shape[1]),
-                   goal_distance=torch.as_tensor(np.linalg.norm(q - goal, axis=-1)))
+    return Rollout(
+        times=torch.arange(T, dtype=torch.float64) * 0.02,
+        q=qt,
+        qd=torch.zeros_like(qt),
+        qdd=torch.zeros_like(qt),
+        collided=torch.zeros(q.shape[1], dtype=torch.bool),
+        reached=torch.zeros(q.shape[1], dtype=torch.bool),
+        success=torch.zeros(q.shape[1], dtype=torch.bool),
+        min_clearance=torch.zeros(q.shape[1]),
+        first_collision_time=torch.zeros(q.shape[1]),
+        goal_distance=torch.as_tensor(np.linalg.norm(q - goal, axis=-1)),
+    )
 
 
 def test_reproduction_of_an_exact_replay_is_zero_and_stalled_starts_are_found():
     demo = demo_states()
     grid = np.array([[0.0, 0.0005], [0.3, 0.3]])  # one at the goal (within 1 mm), one stalled away from it
     ro = replay(demo, 20, grid)
-    batch = Batch(q0=ro.q[0], qd0=torch.zeros(3, 2), aux={"goal": torch.zeros(3, 2)}, demos={"test": [demo]},
-                  index={"test": slice(0, 1)}, grid=slice(1, 3), horizon=float(ro.times[-1]))
+    batch = Batch(
+        q0=ro.q[0],
+        qd0=torch.zeros(3, 2),
+        aux={"goal": torch.zeros(3, 2)},
+        demos={"test": [demo]},
+        index={"test": slice(0, 1)},
+        grid=slice(1, 3),
+        horizon=float(ro.times[-1]),
+    )
     rep = reproduction(batch, ro, "test", tolerance=1e-3)
     assert rep["dtw"] == 0.0 and rep["swept_error_area"] == 0.0
     assert rep["final_distance"] == pytest.approx(np.linalg.norm(demo.q[-1]))

@@ -1,5 +1,6 @@
 """Recorded demonstrations: each reader on good and bad files, resampling and the differentiator exact on
 polynomials, rest trimming, whole-demonstration splits, and the LASA files read without importing their package."""
+
 from __future__ import annotations
 
 import sys
@@ -7,8 +8,18 @@ import sys
 import numpy as np
 import pytest
 
-from rmpfusion.recordings import (RecordingError, holdout, leave_one_out, read_csv, read_hdf5, read_lasa, read_npz,
-                                  resample, savgol_derivatives, to_states)
+from rmpfusion.recordings import (
+    RecordingError,
+    holdout,
+    leave_one_out,
+    read_csv,
+    read_hdf5,
+    read_lasa,
+    read_npz,
+    resample,
+    savgol_derivatives,
+    to_states,
+)
 from rmpfusion.recordings.lasa import SINGLE_PATTERN_SHAPES
 
 RNG = np.random.default_rng(7)
@@ -81,23 +92,31 @@ def test_csv_with_many_demonstrations_aux_columns_and_millimetres(tmp_path):
     for d in ("b", "a"):
         for k in range(5):
             rows.append(f"{d},{0.1 * k},{1000 * k},{-500 * k},{7},{8}")
-    recs = read_csv(write(tmp_path / "many.csv", "\n".join(rows) + "\n"), columns=["x", "y"], demo_column="demo",
-                    aux_columns={"goal": ["gx", "gy"]}, units="mm")
+    recs = read_csv(
+        write(tmp_path / "many.csv", "\n".join(rows) + "\n"),
+        columns=["x", "y"],
+        demo_column="demo",
+        aux_columns={"goal": ["gx", "gy"]},
+        units="mm",
+    )
     assert [r.source.split("[")[1] for r in recs] == ["demo=b]", "demo=a]"]
     np.testing.assert_allclose(recs[1].pos[:, 0], [0, 1, 2, 3, 4])
     np.testing.assert_allclose(recs[0].aux["goal"], [7, 8])
     assert recs[0].columns == ("x", "y")
 
 
-@pytest.mark.parametrize("text,message", [
-    ("", r"empty\.csv: the file is empty"),
-    ("time,x\n0,1\n", r"no column 't'; it has time, x"),
-    ("t,x\n0,1\n0.1,2\n0.1,3\n", r"row 4, column 't': time 0\.1 does not increase"),
-    ("t,x\n0,1\n0.1,nan\n0.2,3\n", r"row 3, column 'x': nan is not a finite number"),
-    ("t,x\n0,1\n0.1,abc\n", r"row 3, column 'x': 'abc' is not a number"),
-    ("t,x,y\n0,1,2\n0.1,2\n", r"row 3: 2 values for the header's 3 columns"),
-    ("t,x\n0,1\n", r"1 sample\(s\); a demonstration needs at least two"),
-])
+@pytest.mark.parametrize(
+    "text,message",
+    [
+        ("", r"empty\.csv: the file is empty"),
+        ("time,x\n0,1\n", r"no column 't'; it has time, x"),
+        ("t,x\n0,1\n0.1,2\n0.1,3\n", r"row 4, column 't': time 0\.1 does not increase"),
+        ("t,x\n0,1\n0.1,nan\n0.2,3\n", r"row 3, column 'x': nan is not a finite number"),
+        ("t,x\n0,1\n0.1,abc\n", r"row 3, column 'x': 'abc' is not a number"),
+        ("t,x,y\n0,1,2\n0.1,2\n", r"row 3: 2 values for the header's 3 columns"),
+        ("t,x\n0,1\n", r"1 sample\(s\); a demonstration needs at least two"),
+    ],
+)
 def test_bad_csv_files_get_one_error_naming_file_row_and_column(tmp_path, text, message):
     name = "empty.csv" if not text else "bad.csv"
     with pytest.raises(RecordingError, match=message):
@@ -157,7 +176,7 @@ def test_lasa_derivatives_from_the_file_or_the_filter_agree_roughly():
     a, b = to_states(rec_file, dt=0.01), to_states(read_lasa("Sine")[0], dt=0.01, window=11)
     n = min(len(a.t), len(b.t))
     scale = np.abs(a.qd).max()
-    assert np.abs(a.qd[5:n - 5] - b.qd[5:n - 5]).max() < 0.1 * scale
+    assert np.abs(a.qd[5 : n - 5] - b.qd[5 : n - 5]).max() < 0.1 * scale
 
 
 # ------------------------------------------------------------------------------------------------ splits
@@ -174,9 +193,12 @@ def test_holdout_and_leave_one_out_split_whole_demonstrations():
 
 # ------------------------------------------------------------------------------------------------ joint space
 def panda():
-    import yaml
     from pathlib import Path
+
+    import yaml
+
     from rmpfusion.robots import RobotDescription
+
     path = Path(__file__).resolve().parents[1] / "conf" / "robot" / "panda.yaml"
     return RobotDescription.model_validate(yaml.safe_load(path.read_text()))
 
@@ -188,6 +210,7 @@ def joint_csv(tmp_path, header, rows):
 
 def test_joint_recordings_are_checked_against_the_robot_file(tmp_path):
     from rmpfusion.recordings import check_joint_recordings
+
     robot = panda()
     joints = list(robot.joints)
     home = list(robot.home)
@@ -200,6 +223,9 @@ def test_joint_recordings_are_checked_against_the_robot_file(tmp_path):
         check_joint_recordings(joint_csv(tmp_path, ["t", *swapped], [[0.0, *home], [0.1, *home]]), robot)
     past = home.copy()
     past[3] = 0.5  # panda_joint4 spans [-3.07, -0.07]
-    with pytest.raises(RecordingError, match=r"arm\.csv, row 3, column 'panda_joint4': 0\.5 lies outside "
-                                             r"panda_joint4's limits"):
+    with pytest.raises(
+        RecordingError,
+        match=r"arm\.csv, row 3, column 'panda_joint4': 0\.5 lies outside "
+        r"panda_joint4's limits",
+    ):
         check_joint_recordings(joint_csv(tmp_path, ["t", *joints], [[0.0, *home], [0.1, *past]]), robot)

@@ -17,6 +17,7 @@ What is checked, on every example:
 * weights: w > 0, ∇_x w against central differences of w, and against the autodiff default of
   ``WeightFunction``; a weight without a gradient term is constant.
 """
+
 from __future__ import annotations
 
 import importlib
@@ -26,8 +27,8 @@ from pathlib import Path
 
 import pytest
 import torch
-
 from conftest import fd_directional, fd_jacobian
+
 from rmpfusion.core.gds import GDS, quad
 from rmpfusion.core.taskmap import TaskMap
 from rmpfusion.core.weight import WeightFunction
@@ -79,8 +80,11 @@ def _plugin_example():
 
 def cases_of(entries: list[Entry]):
     """One test per (entry, example); an entry without examples still gets one, which fails."""
-    return [pytest.param(e.name, i, id=f"{e.name}-{i}" if e.examples else f"{e.name}-NO-EXAMPLE")
-            for e in entries for i in range(max(len(e.examples), 1))]
+    return [
+        pytest.param(e.name, i, id=f"{e.name}-{i}" if e.examples else f"{e.name}-NO-EXAMPLE")
+        for e in entries
+        for i in range(max(len(e.examples), 1))
+    ]
 
 
 def cases(kind: str):
@@ -90,14 +94,20 @@ def cases(kind: str):
 def missing_examples(entry: Entry, registry_name: str, kind: str) -> str:
     """What a developer reads when an entry declares no examples: which entry, who registered it, and the register
     call that adds them."""
-    fields = ", ".join(f"{k}=<required>" if f.is_required() else f"{k}={f.default!r}"
-                       for k, f in entry.params.model_fields.items()) or "no parameters"
+    fields = (
+        ", ".join(
+            f"{k}=<required>" if f.is_required() else f"{k}={f.default!r}" for k, f in entry.params.model_fields.items()
+        )
+        or "no parameters"
+    )
     dim = "the leaf's dimension" if kind == "leaf" else "the parent's dimension"
-    return (f"{KINDS[kind][0].kind} '{entry.name}' (registered by {entry.owner}) declares no examples for the "
-            f"finite-difference check: add them where it is registered, @{registry_name}.register(\"{entry.name}\", "
-            f"examples=[Example({{...its params...}}, dim=<{dim}>)]) with Example from rmpfusion.examples (its "
-            f"parameters: {fields}); pass state=... to pick states where it is differentiable"
-            + ("" if kind == "leaf" else ", aux={name: AuxInput.normal(dim)} for the aux state its params name"))
+    return (
+        f"{KINDS[kind][0].kind} '{entry.name}' (registered by {entry.owner}) declares no examples for the "
+        f'finite-difference check: add them where it is registered, @{registry_name}.register("{entry.name}", '
+        f"examples=[Example({{...its params...}}, dim=<{dim}>)]) with Example from rmpfusion.examples (its "
+        f"parameters: {fields}); pass state=... to pick states where it is differentiable"
+        + ("" if kind == "leaf" else ", aux={name: AuxInput.normal(dim)} for the aux state its params name")
+    )
 
 
 def example(kind: str, name: str, i: int) -> Example:
@@ -158,12 +168,12 @@ def test_map_jacobian_and_curvature_match_finite_differences(name, i, gen):
     aux = ex.sample_aux(gen, B)
     y, yd, J, c = m(x, xd, aux)
     assert y.shape == (B, m.out_dim) and J.shape == (B, m.out_dim, ex.dim) and c.shape == (B, m.out_dim)
-    psi = lambda z: m.psi(z, aux)  # noqa: E731
+    psi = lambda z: m.psi(z, aux)
     torch.testing.assert_close(y, psi(x))
     torch.testing.assert_close(J, fd_jacobian(psi, x), atol=1e-7, rtol=1e-6)
     torch.testing.assert_close(yd, (J @ xd[..., None])[..., 0])
     # J̇ẋ = d/dt [J(x + t ẋ) ẋ] at t = 0
-    Jxd = lambda z: (m(z, xd, aux)[2] @ xd[..., None])[..., 0]  # noqa: E731
+    Jxd = lambda z: (m(z, xd, aux)[2] @ xd[..., None])[..., 0]
     torch.testing.assert_close(c, fd_directional(Jxd, x, xd), atol=1e-6, rtol=1e-5)
     if overrides(m, TaskMap, "forward", "jacobian", "curvature"):  # analytic paths agree with the autodiff base
         J_ad = TaskMap.jacobian(m, x, aux)
@@ -198,8 +208,9 @@ def test_leaf_M_and_f_match_the_gds_definitions_by_finite_differences(name, i, g
     y, yd = ex.states(gen, B)
     out = leaf(y, yd)
     assert out.f.shape == y.shape and out.M.shape == (B, ex.dim, ex.dim)
-    M_fd, f_fd = gds_by_finite_differences(lambda a, b: leaf(a, b).G, lambda a, b: leaf(a, b).B,
-                                           lambda a, b: leaf(a, b).Phi, y, yd)
+    M_fd, f_fd = gds_by_finite_differences(
+        lambda a, b: leaf(a, b).G, lambda a, b: leaf(a, b).B, lambda a, b: leaf(a, b).Phi, y, yd
+    )
     torch.testing.assert_close(out.M, M_fd, rtol=1e-6, atol=1e-6)
     torch.testing.assert_close(out.f, f_fd, rtol=1e-6, atol=1e-6)
     K = 0.5 * quad(yd, out.G)

@@ -1,4 +1,5 @@
 """The reproduction measures against cases worked by hand and against a brute-force DTW."""
+
 from __future__ import annotations
 
 import itertools

@@ -1,6 +1,7 @@
 """The README's results tables are what the stored runs say: each table backed by results/ is regenerated from the
 metrics.json files there with the table tool that made it and must equal the README's text; every other results
 table is listed in results/tables.yaml as not yet backed, with the commands that would back it."""
+
 from __future__ import annotations
 
 import json
@@ -15,9 +16,9 @@ import yaml
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "results"
 sys.path.insert(0, str(ROOT / "tools"))
-import compare_metrics  # noqa: E402
-import lasa_table  # noqa: E402
-import reproduce_2d  # noqa: E402
+import compare_metrics
+import lasa_table
+import reproduce_2d
 
 MARKER = re.compile(r"^<!-- results table: (\S+) -->$")
 TABLES = yaml.safe_load((RESULTS / "tables.yaml").read_text(encoding="utf-8"))
@@ -90,8 +91,9 @@ def test_every_stored_run_says_how_it_was_made_and_is_used_by_a_table():
         assert re.fullmatch(r"[0-9a-f]{40}", info["commit"]), run
         known = subprocess.run(["git", "cat-file", "-e", f"{info['commit']}^{{commit}}"], cwd=ROOT, capture_output=True)
         if known.returncode != 0:  # a shallow clone may lack it; a full one must have it
-            shallow = subprocess.run(["git", "rev-parse", "--is-shallow-repository"], cwd=ROOT, capture_output=True,
-                                     text=True).stdout.strip()
+            shallow = subprocess.run(
+                ["git", "rev-parse", "--is-shallow-repository"], cwd=ROOT, capture_output=True, text=True
+            ).stdout.strip()
             assert shallow == "true", f"{run}: commit {info['commit']} is not in this repository"
         assert run in used, f"results/{run} is stored but no README table reads it"
 

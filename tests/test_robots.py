@@ -1,6 +1,7 @@
 """Robot descriptions (conf/robot/, rmpfusion/robots/): every robot's kinematics agrees with pybullet, builds the
 Fig. 1b tree and runs in pybullet; descriptions are checked against their URDF; rmpfusion-fit-spheres fits
 spheres that cover a URDF's collision geometry and writes a description that loads."""
+
 from __future__ import annotations
 
 import math
@@ -13,13 +14,14 @@ import yaml
 
 pybullet = pytest.importorskip("pybullet")
 
-import rmpfusion  # noqa: E402
-from rmpfusion.cli.fit_spheres import main as fit_spheres  # noqa: E402
-from rmpfusion.envs.manipulator import Manipulator  # noqa: E402
-from rmpfusion.envs.manipulator_tree import manipulator_tree_spec, with_weights  # noqa: E402
-from rmpfusion.maps.urdf import resolve_urdf_path  # noqa: E402
-from rmpfusion.robots import RobotDescription, build_robot  # noqa: E402
-from manipulators import CONF, robot  # noqa: E402
+from manipulators import CONF, robot
+
+import rmpfusion
+from rmpfusion.cli.fit_spheres import main as fit_spheres
+from rmpfusion.envs.manipulator import Manipulator
+from rmpfusion.envs.manipulator_tree import manipulator_tree_spec, with_weights
+from rmpfusion.maps.urdf import resolve_urdf_path
+from rmpfusion.robots import RobotDescription, build_robot
 
 F64 = torch.float64
 ROBOTS = sorted(p.stem for p in (CONF / "robot").glob("*.yaml"))
@@ -50,12 +52,13 @@ def test_kinematics_agree_with_pybullet(name):
             for link, idx in links.items():
                 state = pybullet.getLinkState(body, idx, computeForwardKinematics=True, physicsClientId=cid)
                 worst = max(worst, float((ours[link][1][b] - torch.tensor(state[4], dtype=F64)).abs().max()))
-            ee = pybullet.getLinkState(body, links.get(r.params.end_effector.link, arm[-1]), computeForwardKinematics=True,
-                                       physicsClientId=cid)
+            ee = pybullet.getLinkState(
+                body, links.get(r.params.end_effector.link, arm[-1]), computeForwardKinematics=True, physicsClientId=cid
+            )
             if r.params.end_effector.link in links:
                 R = torch.tensor(pybullet.getMatrixFromQuaternion(ee[5]), dtype=F64).reshape(3, 3)
                 expected = torch.tensor(ee[4], dtype=F64) + R @ r.ee_offset
-                worst = max(worst, float((r.ee_position(q[b:b + 1])[0] - expected).abs().max()))
+                worst = max(worst, float((r.ee_position(q[b : b + 1])[0] - expected).abs().max()))
         assert worst < 1e-6, worst
     finally:
         pybullet.disconnect(cid)
@@ -63,9 +66,15 @@ def test_kinematics_agree_with_pybullet(name):
 
 @pytest.mark.parametrize("name", ROBOTS)
 def test_every_robot_builds_the_tree_and_runs_in_pybullet(name):
-    env = Manipulator(robot=robot(name), scene=ONE_SPHERE, control_rate=100.0, goal_region=[[0.3, 0.4], [-0.3, -0.2],
-                                                                                           [0.3, 0.4]],
-                      goal_clearance=0.05, start_spread=0.05, start_clearance=0.0)
+    env = Manipulator(
+        robot=robot(name),
+        scene=ONE_SPHERE,
+        control_rate=100.0,
+        goal_region=[[0.3, 0.4], [-0.3, -0.2], [0.3, 0.4]],
+        goal_clearance=0.05,
+        start_spread=0.05,
+        start_clearance=0.0,
+    )
     spec = manipulator_tree_spec(robot(name), ONE_SPHERE)
     n_cp = len(robot(name)["control_points"])
     assert sum(n.endswith("_obstacle1") for n in spec["nodes"]) == n_cp and spec["root"]["dim"] == env.dim
@@ -81,8 +90,11 @@ def test_every_robot_builds_the_tree_and_runs_in_pybullet(name):
 
 def test_descriptions_are_checked_against_the_urdf():
     panda = robot("panda")
-    with pytest.raises(ValueError, match=r"joints\[6\] = 'panda_joint_7' is not a movable joint of "
-                                         r"pkg://pybullet_data/franka_panda/panda.urdf; did you mean 'panda_joint7'"):
+    with pytest.raises(
+        ValueError,
+        match=r"joints\[6\] = 'panda_joint_7' is not a movable joint of "
+        r"pkg://pybullet_data/franka_panda/panda.urdf; did you mean 'panda_joint7'",
+    ):
         RobotDescription.model_validate({**panda, "joints": panda["joints"][:6] + ["panda_joint_7"]})
     with pytest.raises(ValueError, match=r"home: panda_joint4 = 1.0 lies outside its limits \[-3.1416, 0.0\]"):
         RobotDescription.model_validate({**panda, "home": [1.0] * 7})
@@ -113,8 +125,26 @@ def test_fit_spheres_covers_the_collision_geometry_and_writes_a_description(tmp_
     urdf = tmp_path / "arm.urdf"
     urdf.write_text(ARM_URDF)
     out, fig = tmp_path / "arm.yaml", tmp_path / "coverage.png"
-    args = [str(urdf), "--name", "arm", "--joints", "shoulder", "elbow", "--ee-link", "fore", "--ee-offset", "0.3",
-            "0", "0", "--spheres", "3", "--out", str(out), "--figure", str(fig)]
+    args = [
+        str(urdf),
+        "--name",
+        "arm",
+        "--joints",
+        "shoulder",
+        "elbow",
+        "--ee-link",
+        "fore",
+        "--ee-offset",
+        "0.3",
+        "0",
+        "0",
+        "--spheres",
+        "3",
+        "--out",
+        str(out),
+        "--figure",
+        str(fig),
+    ]
     assert fit_spheres(args) == 0
     said = capsys.readouterr().out
     assert "upper: 3 spheres" in said and "fore: 3 spheres" in said and "base" not in said  # the base does not move
@@ -182,5 +212,12 @@ def test_every_environment_setting_is_listed_in_conf_env_manipulator():
     assert set(ManipulatorParams.model_fields) - {"robot", "scene"} <= listed - {"type"}
     from rmpfusion.cli.preflight import check_command_line
 
-    check_command_line(str(CONF), ["experiment=xarm6_reach", "env.start_clearance=0.03", "env.max_tries=50",
-                                   "env.robot.home=[0.8,0.3,-1.2,0.0,0.9,0.0]"])
+    check_command_line(
+        str(CONF),
+        [
+            "experiment=xarm6_reach",
+            "env.start_clearance=0.03",
+            "env.max_tries=50",
+            "env.robot.home=[0.8,0.3,-1.2,0.0,0.9,0.0]",
+        ],
+    )

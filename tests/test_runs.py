@@ -6,6 +6,7 @@ offline wandb run each, and tools/summarize_sweep.py must summarise it. Same see
 Every training process here runs the real ``rmpfusion-train`` app on tiny sizes; the uninterrupted reference
 runs in the background while the first kill test runs.
 """
+
 from __future__ import annotations
 
 import json
@@ -28,14 +29,29 @@ from rmpfusion.learn.train import latest_checkpoint
 
 REPO = Path(__file__).resolve().parents[1]
 ITERS = 60
-TRAIN = ["data=tiny", "train=tiny", "eval=fast", "logger=disabled", "weights@learners.rmp.weights=mlp_small",
-         f"train.iterations={ITERS}", "train.checkpoint_every=10", "train.log_every=20", f"train.snapshots=[0,{ITERS}]"]
+TRAIN = [
+    "data=tiny",
+    "train=tiny",
+    "eval=fast",
+    "logger=disabled",
+    "weights@learners.rmp.weights=mlp_small",
+    f"train.iterations={ITERS}",
+    "train.checkpoint_every=10",
+    "train.log_every=20",
+    f"train.snapshots=[0,{ITERS}]",
+]
 FINAL = f"ckpt-{ITERS:08d}.pt"
 
 
 def _env(**extra) -> dict:
-    env = {**os.environ, "WANDB_MODE": "disabled", "HYDRA_FULL_ERROR": "1", "PYTHONUNBUFFERED": "1",
-           "OMP_NUM_THREADS": "1", "MPLBACKEND": "Agg"}
+    env = {
+        **os.environ,
+        "WANDB_MODE": "disabled",
+        "HYDRA_FULL_ERROR": "1",
+        "PYTHONUNBUFFERED": "1",
+        "OMP_NUM_THREADS": "1",
+        "MPLBACKEND": "Agg",
+    }
     env.update(extra)
     return env
 
@@ -79,8 +95,10 @@ class Proc:
         end = time.monotonic() + timeout
         while not cond():
             if self.p.poll() is not None:
-                pytest.fail(f"process ended (status {self.p.returncode}) before {what}:\n{self.stdout[-2000:]}\n"
-                            f"{self.stderr[-3000:]}")
+                pytest.fail(
+                    f"process ended (status {self.p.returncode}) before {what}:\n{self.stdout[-2000:]}\n"
+                    f"{self.stderr[-3000:]}"
+                )
             if time.monotonic() > end:
                 self.p.kill()
                 pytest.fail(f"timed out waiting for {what}:\n{self.stdout[-2000:]}\n{self.stderr[-3000:]}")
@@ -116,8 +134,17 @@ def outdir(tmp_path_factory) -> Path:
     return tmp_path_factory.mktemp("runs")
 
 
-SWEEP = ["-m", "launcher=submitit_local", "seed=0,1", "data=tiny", "train=tiny", "eval=fast", "eval.figures=true",
-         "logger=offline", "hydra.launcher.timeout_min=10"]
+SWEEP = [
+    "-m",
+    "launcher=submitit_local",
+    "seed=0,1",
+    "data=tiny",
+    "train=tiny",
+    "eval=fast",
+    "eval.figures=true",
+    "logger=offline",
+    "hydra.launcher.timeout_min=10",
+]
 #: the sweep's job directories: <job number>_<name>_<the job's overrides> (conf/config.yaml hydra.sweep.subdir;
 #: no experiment= so the name is "default"; launcher, logger and hydra.* overrides are left out of the name; the
 #: sweeper writes each job's booleans as True/False)
@@ -130,11 +157,20 @@ def background(outdir) -> dict[str, Proc]:
     with the kill tests, which mostly wait on one process at a time): the uninterrupted reference training, and
     ``rmpfusion-run -m launcher=submitit_local seed=0,1`` with offline wandb and figures (two submitit jobs)."""
     home = outdir / "wandb-home"  # wandb's own settings and caches stay out of $HOME
-    wandb_env = _env(WANDB_MODE="offline", WANDB_CONFIG_DIR=str(home / "config"), WANDB_CACHE_DIR=str(home / "cache"),
-                     WANDB_DATA_DIR=str(home / "data"))
-    procs = {"reference": train_proc(outdir / "uninterrupted", outdir / "logs-uninterrupted"),
-             "sweep": Proc([sys.executable, "-m", "rmpfusion.cli.run", *SWEEP, f"hydra.sweep.dir={outdir / 'sweep'}"],
-                           outdir / "logs-sweep", env=wandb_env)}
+    wandb_env = _env(
+        WANDB_MODE="offline",
+        WANDB_CONFIG_DIR=str(home / "config"),
+        WANDB_CACHE_DIR=str(home / "cache"),
+        WANDB_DATA_DIR=str(home / "data"),
+    )
+    procs = {
+        "reference": train_proc(outdir / "uninterrupted", outdir / "logs-uninterrupted"),
+        "sweep": Proc(
+            [sys.executable, "-m", "rmpfusion.cli.run", *SWEEP, f"hydra.sweep.dir={outdir / 'sweep'}"],
+            outdir / "logs-sweep",
+            env=wandb_env,
+        ),
+    }
     yield procs
     for proc in procs.values():
         if proc.p.poll() is None:
@@ -213,24 +249,31 @@ def test_ctrl_c_writes_a_checkpoint_and_says_how_to_resume_without_a_traceback(t
     assert "Traceback" not in proc.stderr and "KeyboardInterrupt" not in proc.stderr, proc.stderr[-3000:]
     m = re.search(r"SIGINT received; checkpoint at iteration (\d+)/%d written to (\S+);" % ITERS, proc.stderr)
     assert m and Path(m.group(2)).is_file(), proc.stderr[-3000:]
-    assert (f"interrupted (Ctrl-C): what was finished is kept in {run_dir} (datasets, the last checkpoint); rerun "
-            f"the same command with hydra.run.dir={run_dir} to resume") in proc.stderr
+    assert (
+        f"interrupted (Ctrl-C): what was finished is kept in {run_dir} (datasets, the last checkpoint); rerun "
+        f"the same command with hydra.run.dir={run_dir} to resume"
+    ) in proc.stderr
 
 
 def test_signals_during_training_in_process_checkpoint_then_defer_to_the_installed_handler(tmp_path):
     """Under a job manager that handles SIGTERM itself (submitit keeps the job alive until its requeue), the
     signal still writes a checkpoint at once, the manager's handler runs, and training goes on; Ctrl-C with
     Python's default handler checkpoints, then raises KeyboardInterrupt. Handlers are restored afterwards."""
-    from rmpfusion.learn.config import TrainConfig
     from rmpfusion.assembly.tree import build_tree
-    from rmpfusion.envs import Particle2D
-    from rmpfusion.envs import collect
+    from rmpfusion.envs import Particle2D, collect
     from rmpfusion.learn import train
+    from rmpfusion.learn.config import TrainConfig
 
     env = Particle2D(n_obstacles=1, dt=0.05)
-    expert = build_tree({"root": {"name": "q", "dim": 2}, "nodes": {"goal": {
-        "parent": "q", "map": {"type": "offset", "origin": "goal"}, "rmp": {"type": "goal_attractor"}}}},
-        aux_dims=env.aux_dims())
+    expert = build_tree(
+        {
+            "root": {"name": "q", "dim": 2},
+            "nodes": {
+                "goal": {"parent": "q", "map": {"type": "offset", "origin": "goal"}, "rmp": {"type": "goal_attractor"}}
+            },
+        },
+        aux_dims=env.aux_dims(),
+    )
     data = collect(env, expert, 1, 2, 3, 0.25, torch.Generator().manual_seed(0))
 
     class Linear(torch.nn.Module):
@@ -308,10 +351,14 @@ def test_sigkill_during_a_checkpoint_write_leaves_no_half_written_checkpoint(out
     run_dir = tmp_path / "run"
     ck = run_dir / "checkpoints" / "rmp"
     marker = tmp_path / "stalled"
-    hooked = Proc([sys.executable, "-c", SLOW_WRITE] + TRAIN + [f"hydra.run.dir={run_dir}"], tmp_path / "logs1",
-                  env=_env(RMPFUSION_TEST_SLOW_NAME="ckpt-00000020.pt", RMPFUSION_TEST_MARKER=str(marker)))
-    hooked.wait_until(marker.exists, "the stalled write of ckpt-00000020.pt (does the atomic writer still use "
-                                     "Path.write_bytes?)")
+    hooked = Proc(
+        [sys.executable, "-c", SLOW_WRITE] + TRAIN + [f"hydra.run.dir={run_dir}"],
+        tmp_path / "logs1",
+        env=_env(RMPFUSION_TEST_SLOW_NAME="ckpt-00000020.pt", RMPFUSION_TEST_MARKER=str(marker)),
+    )
+    hooked.wait_until(
+        marker.exists, "the stalled write of ckpt-00000020.pt (does the atomic writer still use Path.write_bytes?)"
+    )
     time.sleep(0.05)  # the marker is written after the bytes: the file is as a crash would leave it
     os.kill(hooked.pid, signal.SIGKILL)
     assert hooked.wait() == -signal.SIGKILL
@@ -334,10 +381,22 @@ def test_sigkill_during_a_checkpoint_write_leaves_no_half_written_checkpoint(out
 
 
 DAGGER_ITERS = 300
-DAGGER = ["data=tiny", "train=dagger", "eval=fast", "logger=disabled", "weights@learners.rmp.weights=mlp_small",
-          f"train.iterations={DAGGER_ITERS}", "train.checkpoint_every=10", "train.log_every=50",
-          f"train.snapshots=[0,{DAGGER_ITERS}]", "train.compile=false", "train.batch_size=16", "train.rounds=2",
-          "train.initial_trajectories=2", "train.trajectories_per_round=3"]
+DAGGER = [
+    "data=tiny",
+    "train=dagger",
+    "eval=fast",
+    "logger=disabled",
+    "weights@learners.rmp.weights=mlp_small",
+    f"train.iterations={DAGGER_ITERS}",
+    "train.checkpoint_every=10",
+    "train.log_every=50",
+    f"train.snapshots=[0,{DAGGER_ITERS}]",
+    "train.compile=false",
+    "train.batch_size=16",
+    "train.rounds=2",
+    "train.initial_trajectories=2",
+    "train.trajectories_per_round=3",
+]
 
 
 @pytest.mark.slow
@@ -379,7 +438,11 @@ def test_dagger_killed_after_a_round_resumes_to_the_weights_and_data_of_an_unint
 def test_rerun_with_another_config_is_refused_and_changes_nothing(outdir, reference):
     run_dir = outdir / "uninterrupted"
     watched = [run_dir / ".hydra" / n for n in ("config.yaml", "overrides.yaml", "hydra.yaml")]
-    watched += [run_dir / "config.resolved.yaml", run_dir / "versions.json", *sorted((run_dir / "checkpoints").rglob("*.pt"))]
+    watched += [
+        run_dir / "config.resolved.yaml",
+        run_dir / "versions.json",
+        *sorted((run_dir / "checkpoints").rglob("*.pt")),
+    ]
     before = {p: p.read_bytes() for p in watched}
     proc = train_proc(run_dir, outdir / "logs-conflict", "train.lr=0.01")
     assert proc.wait() == 2, proc.stderr[-3000:]
@@ -396,12 +459,15 @@ def test_a_busy_run_directory_is_refused(tmp_path):
     (the SIGKILL tests above restart in the directory of a killed holder)."""
     from rmpfusion.cli.rundir import LOCK, RunDirError, exclusive
 
-    probe = ("import fcntl, os, sys\nfd = os.open(sys.argv[1], os.O_RDWR)\ntry:\n"
-             "    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB); print('acquired')\n"
-             "except BlockingIOError: print('busy:', os.pread(fd, 100, 0).decode().strip())")
+    probe = (
+        "import fcntl, os, sys\nfd = os.open(sys.argv[1], os.O_RDWR)\ntry:\n"
+        "    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB); print('acquired')\n"
+        "except BlockingIOError: print('busy:', os.pread(fd, 100, 0).decode().strip())"
+    )
     with exclusive(tmp_path):
-        r = subprocess.run([sys.executable, "-c", probe, str(tmp_path / LOCK)], capture_output=True, text=True,
-                           timeout=60)
+        r = subprocess.run(
+            [sys.executable, "-c", probe, str(tmp_path / LOCK)], capture_output=True, text=True, timeout=60
+        )
         assert r.stdout.strip().startswith(f"busy: pid {os.getpid()} on "), r.stdout + r.stderr
         with pytest.raises(RunDirError, match=rf"{re.escape(str(tmp_path))} is in use by pid {os.getpid()} on "):
             with exclusive(tmp_path):  # what a second job in the directory is told
@@ -432,7 +498,9 @@ def test_run_log_holds_the_jobs_lines_and_how_it_ended(tmp_path):
     assert r.returncode == 1 and "no fully trained checkpoints" in r.stderr
     lines = (run_dir / "run.log").read_text().splitlines()
     assert any("[WARNING] - error: no fully trained checkpoints" in ln for ln in lines)
-    assert lines[-1].endswith("[ERROR] - job stopped with exit status 1") and sum("job started" in ln for ln in lines) == 2
+    assert (
+        lines[-1].endswith("[ERROR] - job stopped with exit status 1") and sum("job started" in ln for ln in lines) == 2
+    )
 
 
 # ---------------------------------------------------------------------------------------------- sweeps
@@ -474,18 +542,26 @@ def test_submitit_local_multirun_two_complete_runs_and_two_offline_wandb_runs(sw
 
 @pytest.mark.slow
 def test_package_versions_are_recorded(sweep):
+    from importlib.metadata import version
+
     import hydra
     import numpy
     import omegaconf
     import pydantic
     import wandb
-    from importlib.metadata import version
 
     rec = json.loads((sweep / JOBS[0] / "versions.json").read_text())
     assert rec["python"] == platform.python_version()
-    want = {"torch": torch.__version__, "numpy": numpy.__version__, "hydra-core": hydra.__version__,
-            "omegaconf": omegaconf.__version__, "pydantic": pydantic.VERSION, "wandb": wandb.__version__,
-            "pybullet": version("pybullet"), "rmpfusion": version("rmpfusion")}
+    want = {
+        "torch": torch.__version__,
+        "numpy": numpy.__version__,
+        "hydra-core": hydra.__version__,
+        "omegaconf": omegaconf.__version__,
+        "pydantic": pydantic.VERSION,
+        "wandb": wandb.__version__,
+        "pybullet": version("pybullet"),
+        "rmpfusion": version("rmpfusion"),
+    }
     assert {k: rec["packages"][k] for k in want} == want
     assert rec["torch_threads"] == 1 and rec["cpu_count"] == os.cpu_count() and rec["platform"]
     import rmpfusion
@@ -503,8 +579,8 @@ def test_same_seed_same_dataset_and_losses_in_another_process_and_directory(swee
     from hydra import compose, initialize_config_dir
 
     from rmpfusion.cli import CONF_DIR
-    from rmpfusion.pipeline.validate import resolve_and_validate
     from rmpfusion.pipeline.run import run_experiment
+    from rmpfusion.pipeline.validate import resolve_and_validate
 
     job0, job1 = sweep / JOBS[0], sweep / JOBS[1]
     overrides = yaml.safe_load((job0 / ".hydra" / "overrides.yaml").read_text())
@@ -528,8 +604,13 @@ def test_same_seed_same_dataset_and_losses_in_another_process_and_directory(swee
 
 
 def _summarize(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, str(REPO / "tools" / "summarize_sweep.py"), *args], capture_output=True,
-                          text=True, timeout=120, env=_env())
+    return subprocess.run(
+        [sys.executable, str(REPO / "tools" / "summarize_sweep.py"), *args],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env=_env(),
+    )
 
 
 @pytest.mark.slow
@@ -541,8 +622,7 @@ def test_summarize_sweep_table_and_figure(sweep, tmp_path):
     rows = json.loads((out / "summary.json").read_text())["rows"]
     rmp = next(row for row in rows if row["learner"] == "rmp")
     assert rmp["setting"] == "(all jobs)" and sorted(rmp["seeds"]) == ["0", "1"]
-    losses = [json.loads((sweep / j / "metrics.json").read_text())["learners"]["rmp"]["batch_loss"]
-              for j in JOBS]
+    losses = [json.loads((sweep / j / "metrics.json").read_text())["learners"]["rmp"]["batch_loss"] for j in JOBS]
     assert rmp["batch_loss"]["n"] == 2
     assert rmp["batch_loss"]["mean"] == pytest.approx(statistics.fmean(losses), rel=1e-12)
     assert rmp["batch_loss"]["std"] == pytest.approx(statistics.stdev(losses), rel=1e-12)
@@ -570,9 +650,9 @@ def test_summarize_sweep_groups_by_setting_and_reports_unfinished_jobs(sweep, tm
     assert r.returncode == 0, r.stderr
     assert "4_2d1level" in r.stderr and "no metrics.json" in r.stderr
     rows = {(row["setting"], row["learner"]): row for row in json.loads((d / "summary.json").read_text())["rows"]}
-    assert rows[("train.lr=0.001", "rmp")]["batch_loss"] == {"n": 2, "mean": 2.0, "std": pytest.approx(2 ** 0.5)}
-    assert rows[("train.lr=0.01", "rmp")]["batch_loss"] == {"n": 2, "mean": 15.0, "std": pytest.approx(50 ** 0.5)}
-    assert rows[("train.lr=0.01", "rmp")]["val_loss"] == {"n": 2, "mean": 7.5, "std": pytest.approx(12.5 ** 0.5)}
+    assert rows[("train.lr=0.001", "rmp")]["batch_loss"] == {"n": 2, "mean": 2.0, "std": pytest.approx(2**0.5)}
+    assert rows[("train.lr=0.01", "rmp")]["batch_loss"] == {"n": 2, "mean": 15.0, "std": pytest.approx(50**0.5)}
+    assert rows[("train.lr=0.01", "rmp")]["val_loss"] == {"n": 2, "mean": 7.5, "std": pytest.approx(12.5**0.5)}
     assert "| train.lr=0.01 | rmp | 2 | 0, 1 | 7.5 ± 3.536 | 15 ± 7.071 |" in (d / "summary.md").read_text()
 
     shutil.rmtree(d)

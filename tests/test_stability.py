@@ -1,16 +1,17 @@
 """Theorem 2 on real rollouts: random trees of depth ≥ 2 with random positive neural weights and
 velocity-dependent collision metrics; V_r never increases and dV_r/dt = −q̇ᵀB_r q̇."""
+
 import pytest
 import torch
+from trees import setup
 
 import rmpfusion
-from trees import setup
 
 
 def rk4_rollout(tree, q, qd, aux, dt, steps):
     """Independent closed-loop integrator; records V_r and q̇ᵀB_r q̇ at every step."""
     Vs, Ps = [], []
-    f = lambda q_, qd_: tree(q_, qd_, aux)  # noqa: E731
+    f = lambda q_, qd_: tree(q_, qd_, aux)
     with torch.no_grad():
         for _ in range(steps + 1):
             o = f(q, qd)
@@ -65,12 +66,15 @@ def test_energy_identity_fails_without_h_terms():
         return original(xd, edge._replace(grad_w=None), child)
 
     import rmpfusion.core.passes as tree_mod
+
     tree_mod.edge_contribution = without_h
     try:
         with torch.no_grad():
             o = tree(q, qd, aux)
             eps = 1e-5
-            dVdt = (tree(q + eps * qd, qd + eps * o.qdd, aux).V - tree(q - eps * qd, qd - eps * o.qdd, aux).V) / (2 * eps)
+            dVdt = (tree(q + eps * qd, qd + eps * o.qdd, aux).V - tree(q - eps * qd, qd - eps * o.qdd, aux).V) / (
+                2 * eps
+            )
     finally:
         tree_mod.edge_contribution = original
     expect = -torch.einsum("bi,bij,bj->b", qd, o.B, qd)
@@ -79,11 +83,12 @@ def test_energy_identity_fails_without_h_terms():
 
 def test_energy_identity_on_the_franka_tree_even_with_penetrating_control_points():
     """The paper's Franka tree with the expert's weights, at states where control spheres overlap the obstacle."""
-    import yaml
     from pathlib import Path
 
-    from rmpfusion.envs.manipulator_tree import with_weights
+    import yaml
     from manipulators import franka_tree_spec
+
+    from rmpfusion.envs.manipulator_tree import with_weights
 
     expert = yaml.safe_load((Path(__file__).parents[1] / "conf" / "expert" / "franka.yaml").read_text())
     tree = rmpfusion.build_tree(with_weights(franka_tree_spec(), expert))
@@ -91,8 +96,11 @@ def test_energy_identity_on_the_franka_tree_even_with_penetrating_control_points
     B = 8
     q = torch.tensor([0.0, -0.3, 0.0, -2.2, 0.0, 2.0, 0.8]) + 0.3 * torch.randn(B, 7, generator=g)
     qd = 0.5 * torch.randn(B, 7, generator=g)
-    aux = {"goal": torch.tensor([[0.5, -0.3, 0.4]]).expand(B, 3), "obstacle1_center": torch.tensor([[0.5, 0.0, 0.25]]).expand(B, 3),
-           "obstacle1_radius": torch.tensor([[0.05]]).expand(B, 1)}
+    aux = {
+        "goal": torch.tensor([[0.5, -0.3, 0.4]]).expand(B, 3),
+        "obstacle1_center": torch.tensor([[0.5, 0.0, 0.25]]).expand(B, 3),
+        "obstacle1_radius": torch.tensor([[0.05]]).expand(B, 1),
+    }
     with torch.no_grad():
         o = tree(q, qd, aux, return_nodes=True)
         dists = torch.cat([o.nodes["state"][n][0] for n in o.nodes["state"] if n.endswith("_obstacle1")], dim=1)

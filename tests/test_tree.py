@@ -1,21 +1,29 @@
 """RMP-algebra* and RMPTree: eq. 6 against an independent per-sample computation, RMPflow equivalence,
 the test vector, batch consistency, trainability through h_i, and build-time checks."""
+
 import numpy as np
 import pytest
-import torch
-
 import rmpflow_reference as ref
-import rmpfusion
+import torch
 from trees import TWO_LEVEL, two_level_inputs
+
+import rmpfusion
 from rmpfusion.assembly import ConfigError
 from rmpfusion.core.algebra import Edge, NodeRMP, pullback_star, resolve
 
 TEST_VECTOR_SPEC = {
     "root": {"name": "q", "dim": 2},
     "nodes": {
-        "obstacle": {"parent": "q", "map": {"type": "sphere_distance", "center": [0, 0], "radius": 1.0, "normalized": True},
-                     "rmp": {"type": "rmpflow_collision_avoidance"}},
-        "goal": {"parent": "q", "map": {"type": "offset", "origin": [-3, 3]}, "rmp": {"type": "rmpflow_goal_attractor"}},
+        "obstacle": {
+            "parent": "q",
+            "map": {"type": "sphere_distance", "center": [0, 0], "radius": 1.0, "normalized": True},
+            "rmp": {"type": "rmpflow_collision_avoidance"},
+        },
+        "goal": {
+            "parent": "q",
+            "map": {"type": "offset", "origin": [-3, 3]},
+            "rmp": {"type": "rmpflow_goal_attractor"},
+        },
     },
 }
 
@@ -31,8 +39,10 @@ def test_issue_test_vector():
 
 def test_unit_weights_equal_rmpflow_reference(gen):
     tree = rmpfusion.build_tree(TEST_VECTOR_SPEC)
-    children = [(ref.sphere_map(np.zeros(2), 1.0), ref.collision_avoidance),
-                (ref.offset_map(np.array([-3.0, 3.0])), ref.goal_attractor)]
+    children = [
+        (ref.sphere_map(np.zeros(2), 1.0), ref.collision_avoidance),
+        (ref.offset_map(np.array([-3.0, 3.0])), ref.goal_attractor),
+    ]
     q = 4 * torch.rand(20, 2, generator=gen) - 2 + torch.tensor([2.0, -2.0])
     qd = torch.randn(20, 2, generator=gen)
     out = tree(q, qd)
@@ -42,15 +52,25 @@ def test_unit_weights_equal_rmpflow_reference(gen):
         np.testing.assert_allclose(out.M[b].numpy(), M, rtol=1e-11, atol=1e-12)
         np.testing.assert_allclose(out.qdd[b].numpy(), a, rtol=1e-9, atol=1e-10)
     # explicit constant weights of 1 are the same tree
-    spec = {**TEST_VECTOR_SPEC, "nodes": {k: {**v, "weight": {"type": "constant", "value": 1.0}} for k, v in TEST_VECTOR_SPEC["nodes"].items()}}
+    spec = {
+        **TEST_VECTOR_SPEC,
+        "nodes": {k: {**v, "weight": {"type": "constant", "value": 1.0}} for k, v in TEST_VECTOR_SPEC["nodes"].items()},
+    }
     torch.testing.assert_close(rmpfusion.build_tree(spec)(q, qd).qdd, out.qdd, rtol=0, atol=0)
 
 
 def _random_node(B, n, gen):
     A = torch.randn(B, n, n, generator=gen)
     S = A @ A.transpose(-1, -2) + torch.eye(n)
-    return NodeRMP(f=torch.randn(B, n, generator=gen), M=S + 0.1 * torch.randn(B, n, n, generator=gen), G=S,
-                   B=S.clone(), Phi=torch.rand(B, generator=gen), L=torch.randn(B, generator=gen), V=torch.rand(B, generator=gen))
+    return NodeRMP(
+        f=torch.randn(B, n, generator=gen),
+        M=S + 0.1 * torch.randn(B, n, n, generator=gen),
+        G=S,
+        B=S.clone(),
+        Phi=torch.rand(B, generator=gen),
+        L=torch.randn(B, generator=gen),
+        V=torch.rand(B, generator=gen),
+    )
 
 
 def test_pullback_star_is_eq6_per_sample(gen):
@@ -59,17 +79,31 @@ def test_pullback_star_is_eq6_per_sample(gen):
     B, m = 4, 3
     xd = torch.randn(B, m, generator=gen)
     kids = []
-    for n, weighted, identity in [(1, True, False), (2, False, False), (3, True, False), (1, False, False),
-                                  (3, True, True), (3, False, True)]:
+    for n, weighted, identity in [
+        (1, True, False),
+        (2, False, False),
+        (3, True, False),
+        (1, False, False),
+        (3, True, True),
+        (3, False, True),
+    ]:
         J = torch.eye(m).expand(B, m, m) if identity else torch.randn(B, n, m, generator=gen)
         w = torch.rand(B, generator=gen) + 0.1 if weighted else None
         gw = torch.randn(B, m, generator=gen) if weighted else None
         yd = (J @ xd[..., None])[..., 0]
-        kids.append((Edge(J=J, c=torch.randn(B, n, generator=gen), yd=yd, w=w, grad_w=gw, identity=identity),
-                     _random_node(B, n, gen)))
+        kids.append(
+            (
+                Edge(J=J, c=torch.randn(B, n, generator=gen), yd=yd, w=w, grad_w=gw, identity=identity),
+                _random_node(B, n, gen),
+            )
+        )
     out = pullback_star(xd, kids)
     for b in range(B):
-        f = np.zeros(m); M = np.zeros((m, m)); G = np.zeros((m, m)); Bm = np.zeros((m, m)); L = Phi = V = 0.0
+        f = np.zeros(m)
+        M = np.zeros((m, m))
+        G = np.zeros((m, m))
+        Bm = np.zeros((m, m))
+        L = Phi = V = 0.0
         for e, ch in kids:
             J, c, x_d = e.J[b].numpy(), e.c[b].numpy(), xd[b].numpy()
             w = 1.0 if e.w is None else float(e.w[b])
@@ -77,8 +111,12 @@ def test_pullback_star_is_eq6_per_sample(gen):
             Mi, Gi, fi = ch.M[b].numpy(), ch.G[b].numpy(), ch.f[b].numpy()
             h = float(ch.L[b]) * gw - (x_d @ gw) * J.T @ Gi @ J @ x_d
             f += w * J.T @ (fi - Mi @ c) + h
-            M += w * J.T @ Mi @ J; G += w * J.T @ Gi @ J; Bm += w * J.T @ ch.B[b].numpy() @ J
-            L += w * float(ch.L[b]); Phi += w * float(ch.Phi[b]); V += w * float(ch.V[b])
+            M += w * J.T @ Mi @ J
+            G += w * J.T @ Gi @ J
+            Bm += w * J.T @ ch.B[b].numpy() @ J
+            L += w * float(ch.L[b])
+            Phi += w * float(ch.Phi[b])
+            V += w * float(ch.V[b])
         for got, want in [(out.f, f), (out.M, M), (out.G, G), (out.B, Bm), (out.L, L), (out.Phi, Phi), (out.V, V)]:
             np.testing.assert_allclose(got[b].numpy(), want, rtol=1e-12, atol=1e-12)
 
@@ -96,16 +134,16 @@ def test_batch_equals_single_calls(gen):
     q, qd, aux = two_level_inputs(9, gen)
     out = tree(q, qd, aux)
     for b in range(9):
-        one = tree(q[b:b + 1], qd[b:b + 1], {k: v[b:b + 1] for k, v in aux.items()})
+        one = tree(q[b : b + 1], qd[b : b + 1], {k: v[b : b + 1] for k, v in aux.items()})
         for name in ("qdd", "f", "M", "G", "B", "Phi", "V", "L"):
-            torch.testing.assert_close(getattr(out, name)[b:b + 1], getattr(one, name), rtol=1e-12, atol=1e-12)
+            torch.testing.assert_close(getattr(out, name)[b : b + 1], getattr(one, name), rtol=1e-12, atol=1e-12)
 
 
 def test_gradients_reach_every_weight_parameter_and_match_finite_differences(gen):
     tree = rmpfusion.build_tree(TWO_LEVEL)
     q, qd, aux = two_level_inputs(16, gen)
     target = torch.randn(16, 2, generator=gen)
-    loss_fn = lambda: ((tree(q, qd, aux).qdd - target) ** 2).mean()  # noqa: E731
+    loss_fn = lambda: ((tree(q, qd, aux).qdd - target) ** 2).mean()
     params = dict(tree.named_parameters())
     grads = torch.autograd.grad(loss_fn(), list(params.values()))
     for (name, p), g in zip(params.items(), grads):
@@ -115,17 +153,27 @@ def test_gradients_reach_every_weight_parameter_and_match_finite_differences(gen
         idx = (0,) * p.dim()
         with torch.no_grad():
             old = p[idx].item()
-            p[idx] = old + 1e-6; lp = loss_fn().item()
-            p[idx] = old - 1e-6; lm = loss_fn().item()
+            p[idx] = old + 1e-6
+            lp = loss_fn().item()
+            p[idx] = old - 1e-6
+            lm = loss_fn().item()
             p[idx] = old
         assert abs((lp - lm) / 2e-6 - g[idx].item()) <= 1e-6 * max(1.0, abs(g[idx].item())), name
 
 
 def test_h_terms_carry_gradient():
     """With the weight a function of the configuration only through h_i, the loss still depends on it."""
-    spec = {"root": {"name": "q", "dim": 1}, "nodes": {
-        "a": {"parent": "q", "map": {"type": "identity"}, "weight": {"type": "mlp", "hidden": [4]}, "rmp": {"type": "goal_attractor"}},
-    }}
+    spec = {
+        "root": {"name": "q", "dim": 1},
+        "nodes": {
+            "a": {
+                "parent": "q",
+                "map": {"type": "identity"},
+                "weight": {"type": "mlp", "hidden": [4]},
+                "rmp": {"type": "goal_attractor"},
+            },
+        },
+    }
     tree = rmpfusion.build_tree(spec)
     q, qd = torch.tensor([[0.7]]), torch.tensor([[0.3]])
     w, gw = tree.weights["a"](q, None)
@@ -138,13 +186,22 @@ def test_h_terms_carry_gradient():
 
 def test_shared_weight_is_one_module_with_per_edge_bindings(gen):
     spec = {
-        "root": {"name": "q", "dim": 2}, "aux": {"ob1": 2, "ob2": 2, "ob": 2},
+        "root": {"name": "q", "dim": 2},
+        "aux": {"ob1": 2, "ob2": 2, "ob": 2},
         "shared_weights": {"obstacle": {"type": "mlp", "hidden": [8], "aux": ["ob"]}},
         "nodes": {
-            "d1": {"parent": "q", "map": {"type": "sphere_distance", "center": "ob1", "radius": 0.5},
-                   "weight": {"shared": "obstacle", "bind": {"ob": "ob1"}}, "rmp": {"type": "collision_avoidance"}},
-            "d2": {"parent": "q", "map": {"type": "sphere_distance", "center": "ob2", "radius": 0.5},
-                   "weight": {"shared": "obstacle", "bind": {"ob": "ob2"}}, "rmp": {"type": "collision_avoidance"}},
+            "d1": {
+                "parent": "q",
+                "map": {"type": "sphere_distance", "center": "ob1", "radius": 0.5},
+                "weight": {"shared": "obstacle", "bind": {"ob": "ob1"}},
+                "rmp": {"type": "collision_avoidance"},
+            },
+            "d2": {
+                "parent": "q",
+                "map": {"type": "sphere_distance", "center": "ob2", "radius": 0.5},
+                "weight": {"shared": "obstacle", "bind": {"ob": "ob2"}},
+                "rmp": {"type": "collision_avoidance"},
+            },
             "id": {"parent": "q", "map": {"type": "identity"}, "rmp": {"type": "identity_metric"}},
         },
     }
@@ -159,9 +216,15 @@ def test_shared_weight_is_one_module_with_per_edge_bindings(gen):
 
 
 def test_build_time_dimension_check_names_the_node():
-    spec = {"root": {"name": "q", "dim": 2}, "nodes": {
-        "o": {"parent": "q", "map": {"type": "offset", "origin": [0, 0]}, "rmp": {"type": "collision_avoidance"}}}}
-    with pytest.raises(ConfigError, match=r"tree.nodes.o.rmp: 'collision_avoidance' is 1-dimensional but the map gives dimension 2"):
+    spec = {
+        "root": {"name": "q", "dim": 2},
+        "nodes": {
+            "o": {"parent": "q", "map": {"type": "offset", "origin": [0, 0]}, "rmp": {"type": "collision_avoidance"}}
+        },
+    }
+    with pytest.raises(
+        ConfigError, match=r"tree.nodes.o.rmp: 'collision_avoidance' is 1-dimensional but the map gives dimension 2"
+    ):
         rmpfusion.build_tree(spec)
 
 
@@ -179,12 +242,15 @@ def test_describe_draws_the_tree():
 
 def test_non_finite_values_raise_an_error_naming_where():
     from rmpfusion.core.tree import NumericalError
+
     tree = rmpfusion.build_tree(TWO_LEVEL)
     q, qd, aux = two_level_inputs(3, torch.Generator().manual_seed(0))
-    bad_q = q.clone(); bad_q[1, 0] = float("nan")
+    bad_q = q.clone()
+    bad_q[1, 0] = float("nan")
     with pytest.raises(NumericalError, match=r"non-finite input q"):
         tree(bad_q, qd, aux)
-    bad_aux = dict(aux); bad_aux["obstacle2_radius"] = torch.full_like(aux["obstacle2_radius"], float("inf"))
+    bad_aux = dict(aux)
+    bad_aux["obstacle2_radius"] = torch.full_like(aux["obstacle2_radius"], float("inf"))
     with pytest.raises(NumericalError, match=r"non-finite input aux\['obstacle2_radius'\]"):
         tree(q, qd, bad_aux)
     with torch.no_grad():

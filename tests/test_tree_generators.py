@@ -1,6 +1,7 @@
 """Trees declared as a generator and its parameters (assembly/generated.py): conf/tree/franka.yaml (conf/tree/fig1b.yaml
 for the Panda of conf/robot/panda.yaml and the cylinder of conf/scene/franka_cylinder.yaml) expands to the paper's
 Panda tree, and bad declarations are refused with the path of the key at fault."""
+
 from __future__ import annotations
 
 import importlib.util
@@ -10,18 +11,26 @@ import pytest
 import yaml
 from pydantic import Field
 
-import rmpfusion  # noqa: F401  (registers the built-in generators)
+import rmpfusion
 from rmpfusion.assembly.errors import ConfigError
 from rmpfusion.assembly.generated import expand_tree
 from rmpfusion.registry import TREE_GENERATORS, Params
 
 CONF = Path(__file__).resolve().parents[1] / "conf"
-needs_panda = pytest.mark.skipif(importlib.util.find_spec("pybullet_data") is None,
-                                 reason="the Panda URDF comes from pybullet_data")
+needs_panda = pytest.mark.skipif(
+    importlib.util.find_spec("pybullet_data") is None, reason="the Panda URDF comes from pybullet_data"
+)
 
 # The Panda's joint limits in pybullet_data's panda.urdf, (lower, upper) per joint, rad.
-PANDA_LIMITS = [(-2.9671, 2.9671), (-1.8326, 1.8326), (-2.9671, 2.9671), (-3.1416, 0.0), (-2.9671, 2.9671),
-                (-0.0873, 3.8223), (-2.9671, 2.9671)]
+PANDA_LIMITS = [
+    (-2.9671, 2.9671),
+    (-1.8326, 1.8326),
+    (-2.9671, 2.9671),
+    (-3.1416, 0.0),
+    (-2.9671, 2.9671),
+    (-0.0873, 3.8223),
+    (-2.9671, 2.9671),
+]
 
 
 def declaration(scene: str = "franka_cylinder") -> dict:
@@ -52,33 +61,72 @@ def test_franka_declaration_expands_to_the_fig1b_tree():
     # ee + attractor, 2 limits x 7 joints, 14 control points with one obstacle each, damper, identity metric
     assert len(nodes) == 2 + 14 + 14 * 2 + 2
     assert tree["root"] == {"name": "q", "dim": 7}
-    assert tree["aux"] == {"goal": 3, "obstacle1_center": 3, "obstacle1_radius": 1, "obstacle1_axis": 3,
-                           "obstacle1_half_height": 1, "obstacle_center": 3, "obstacle_radius": 1}
+    assert tree["aux"] == {
+        "goal": 3,
+        "obstacle1_center": 3,
+        "obstacle1_radius": 1,
+        "obstacle1_axis": 3,
+        "obstacle1_half_height": 1,
+        "obstacle_center": 3,
+        "obstacle_radius": 1,
+    }
     assert set(tree["shared_weights"]) == {f"cp{i}_obstacle" for i in range(1, 15)}
-    assert tree["shared_weights"]["cp7_obstacle"] == {"type": "mlp", "hidden": [32, 32], "positivity": "exp",
-                                                      "aux": ["obstacle_center", "obstacle_radius"]}
+    assert tree["shared_weights"]["cp7_obstacle"] == {
+        "type": "mlp",
+        "hidden": [32, 32],
+        "positivity": "exp",
+        "aux": ["obstacle_center", "obstacle_radius"],
+    }
     for j, (lower, upper) in enumerate(PANDA_LIMITS, start=1):
         for side, limit in (("lower", lower), ("upper", upper)):
             jl = nodes[f"jl{j}_{side}"]
             assert jl["parent"] == "q" and "weight" not in jl
             assert jl["map"] == {"type": "joint_limit", "side": side, "limit": limit, "joints": j - 1}
-            assert jl["rmp"] == {"type": "joint_limit", "r_w": 0.25, "sigma": 0.5, "epsilon": 0.1, "alpha": 0.001,
-                                 "eta": 0.0}
-    assert nodes["ee"]["map"] == {"type": "forward_kinematics", "urdf": "pkg://pybullet_data/franka_panda/panda.urdf",
-                                  "joints": [f"panda_joint{i}" for i in range(1, 8)], "link": "panda_hand",
-                                  "offset": [0.0, 0.0, 0.1034]}
+            assert jl["rmp"] == {
+                "type": "joint_limit",
+                "r_w": 0.25,
+                "sigma": 0.5,
+                "epsilon": 0.1,
+                "alpha": 0.001,
+                "eta": 0.0,
+            }
+    assert nodes["ee"]["map"] == {
+        "type": "forward_kinematics",
+        "urdf": "pkg://pybullet_data/franka_panda/panda.urdf",
+        "joints": [f"panda_joint{i}" for i in range(1, 8)],
+        "link": "panda_hand",
+        "offset": [0.0, 0.0, 0.1034],
+    }
     assert nodes["attractor"]["parent"] == "ee" and nodes["attractor"]["map"] == {"type": "offset", "origin": "goal"}
-    assert nodes["attractor"]["rmp"] == {"type": "goal_attractor", "gain": 5.0, "alpha": 10.0, "eta": 5.0,
-                                         "w_u": 1.0, "w_l": 1.0, "sigma": 1.0}
+    assert nodes["attractor"]["rmp"] == {
+        "type": "goal_attractor",
+        "gain": 5.0,
+        "alpha": 10.0,
+        "eta": 5.0,
+        "w_u": 1.0,
+        "w_l": 1.0,
+        "sigma": 1.0,
+    }
     assert nodes["cp10"]["map"]["link"] == "panda_link6" and nodes["cp10"]["map"]["offset"] == [0.035, -0.011, 0.021]
     cp3 = nodes["cp3_obstacle1"]
     assert cp3["parent"] == "cp3"
-    assert cp3["map"]["maps"] == [{"type": "cylinder_distance", "center": "obstacle1_center",
-                                   "radius": "obstacle1_radius"}, {"type": "offset", "origin": [0.095]}]
-    assert cp3["weight"] == {"shared": "cp3_obstacle",
-                             "bind": {"obstacle_center": "obstacle1_center", "obstacle_radius": "obstacle1_radius"}}
-    assert cp3["rmp"] == {"type": "collision_avoidance", "r_w": 0.15, "sigma": 0.5, "epsilon": 0.2, "alpha": 0.01,
-                          "eta": 0.0, "min_distance": 0.005}
+    assert cp3["map"]["maps"] == [
+        {"type": "cylinder_distance", "center": "obstacle1_center", "radius": "obstacle1_radius"},
+        {"type": "offset", "origin": [0.095]},
+    ]
+    assert cp3["weight"] == {
+        "shared": "cp3_obstacle",
+        "bind": {"obstacle_center": "obstacle1_center", "obstacle_radius": "obstacle1_radius"},
+    }
+    assert cp3["rmp"] == {
+        "type": "collision_avoidance",
+        "r_w": 0.15,
+        "sigma": 0.5,
+        "epsilon": 0.2,
+        "alpha": 0.01,
+        "eta": 0.0,
+        "min_distance": 0.005,
+    }
     assert nodes["damper"]["rmp"] == {"type": "damper", "w": 1.0, "eta": 20.0}
     assert nodes["identity_metric"]["rmp"] == {"type": "identity_metric", "scale": 0.01}
     assert all("weight" not in nodes[n] for n in ("damper", "identity_metric"))
@@ -86,15 +134,29 @@ def test_franka_declaration_expands_to_the_fig1b_tree():
 
 @needs_panda
 def test_parameters_change_the_generated_tree():
-    two = {"obstacles": [{"type": "cylinder", "center": [0.5, 0.0, 0.3], "radius": 0.05, "height": 0.6},
-                         {"type": "sphere", "center": [0.3, 0.4, 0.3], "radius": 0.05}]}
+    two = {
+        "obstacles": [
+            {"type": "cylinder", "center": [0.5, 0.0, 0.3], "radius": 0.05, "height": 0.6},
+            {"type": "sphere", "center": [0.3, 0.4, 0.3], "radius": 0.05},
+        ]
+    }
     tree = expand_tree({**declaration(), "scene": two, "attractor_rmp": {"gain": 3.0}})
     assert sum(n.startswith("cp") and n.endswith("_obstacle2") for n in tree["nodes"]) == 14
-    assert tree["nodes"]["cp1_obstacle2"]["map"]["maps"][0] == {"type": "sphere_obstacle", "center": "obstacle2_center",
-                                                               "radius": "obstacle2_radius"}
+    assert tree["nodes"]["cp1_obstacle2"]["map"]["maps"][0] == {
+        "type": "sphere_obstacle",
+        "center": "obstacle2_center",
+        "radius": "obstacle2_radius",
+    }
     # a partial leaf block changes its own keys only; the rest stay the tuned ones
-    assert tree["nodes"]["attractor"]["rmp"] == {"type": "goal_attractor", "gain": 3.0, "alpha": 10.0, "eta": 5.0,
-                                                 "w_u": 1.0, "w_l": 1.0, "sigma": 1.0}
+    assert tree["nodes"]["attractor"]["rmp"] == {
+        "type": "goal_attractor",
+        "gain": 3.0,
+        "alpha": 10.0,
+        "eta": 5.0,
+        "w_u": 1.0,
+        "w_l": 1.0,
+        "sigma": 1.0,
+    }
 
 
 def test_a_written_tree_passes_through_unchanged():
@@ -123,11 +185,17 @@ def test_misspelt_parameter_names_its_key_and_the_allowed_ones():
 
 
 @needs_panda
-@pytest.mark.parametrize("key,value,path", [
-    ("scene", {"obstacles": [{"type": "sphere", "center": [0.5, 0.0, 0.3], "radius": -0.1}]},
-     "tree.scene.obstacles.0.sphere.radius"),
-    ("attractor_rmp", {"gain": -5.0}, "tree.attractor_rmp.gain"),
-])
+@pytest.mark.parametrize(
+    "key,value,path",
+    [
+        (
+            "scene",
+            {"obstacles": [{"type": "sphere", "center": [0.5, 0.0, 0.3], "radius": -0.1}]},
+            "tree.scene.obstacles.0.sphere.radius",
+        ),
+        ("attractor_rmp", {"gain": -5.0}, "tree.attractor_rmp.gain"),
+    ],
+)
 def test_out_of_range_values_are_refused_naming_the_key(key, value, path):
     issues = issues_of({**declaration(), key: value})
     assert list(issues) == [path] and "greater than" in issues[path]
@@ -145,8 +213,13 @@ def test_a_control_point_on_an_unknown_link_is_refused():
 @needs_panda
 def test_tree_keys_beside_the_parameters_adjust_the_generated_tree():
     tree = expand_tree({**declaration(), "shared_weights": {"cp2_obstacle": {"init_bias": 1.0}}})
-    assert tree["shared_weights"]["cp2_obstacle"] == {"type": "mlp", "hidden": [32, 32], "positivity": "exp",
-                                                      "aux": ["obstacle_center", "obstacle_radius"], "init_bias": 1.0}
+    assert tree["shared_weights"]["cp2_obstacle"] == {
+        "type": "mlp",
+        "hidden": [32, 32],
+        "positivity": "exp",
+        "aux": ["obstacle_center", "obstacle_radius"],
+        "init_bias": 1.0,
+    }
     assert "init_bias" not in tree["shared_weights"]["cp1_obstacle"]
     issues = issues_of({**declaration(), "shared_weights": {"cp2_obstacel": {"init_bias": 1.0}}})
     assert "did you mean 'cp2_obstacle'" in issues["tree.shared_weights.cp2_obstacel"]
@@ -176,6 +249,7 @@ def _panda_spec(**options):
 
     sys.path.insert(0, str(Path(__file__).parent))
     from manipulators import robot, scene
+
     from rmpfusion.envs.manipulator_tree import manipulator_tree_spec
 
     return manipulator_tree_spec(robot("panda"), scene("franka_three_obstacles"), **options)
@@ -186,8 +260,11 @@ def test_the_arm_leaves_are_options_of_the_manipulator_tree():
     added only when asked for, each with the settings given (the rest tuned)."""
     plain = _panda_spec()
     assert not any(n.startswith("self_") or n in ("tool_axis", "velocity_limit") for n in plain["nodes"])
-    spec = _panda_spec(self_collision={"min_separation": 3, "rmp": {"alpha": 0.2}},
-                       orientation={"target": "tool_direction", "axis": [0.0, 0.0, 1.0]}, velocity_limits={})
+    spec = _panda_spec(
+        self_collision={"min_separation": 3, "rmp": {"alpha": 0.2}},
+        orientation={"target": "tool_direction", "axis": [0.0, 0.0, 1.0]},
+        velocity_limits={},
+    )
     pairs = [n for n in spec["nodes"] if n.startswith("self_")]
     assert pairs and "20 self-collision barriers" in spec["description"]
     gap = spec["nodes"][pairs[0]]
@@ -201,13 +278,13 @@ def test_the_arm_leaves_are_options_of_the_manipulator_tree():
 
 
 def test_self_collision_pairs_leave_out_spheres_that_overlap_at_home():
+    import sys
+
     import torch
 
     from rmpfusion.envs.manipulator_tree import self_collision_pairs
     from rmpfusion.maps.kinematics import Chain
     from rmpfusion.robots.description import RobotDescription
-
-    import sys
 
     sys.path.insert(0, str(Path(__file__).parent))
     from manipulators import robot

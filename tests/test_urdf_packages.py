@@ -2,6 +2,7 @@
 continuous, a prismatic and a mimic joint, a fixed end-effector frame, a first link near the ground, a mounted base)
 through fit-spheres, the robot file, the kinematics (against pybullet and finite differences) and the environment's
 start sampling; and every way a published URDF used to fail, as one line naming the fix."""
+
 from __future__ import annotations
 
 import math
@@ -18,12 +19,12 @@ pytest.importorskip("pybullet")
 pytest.importorskip("trimesh")
 pytest.importorskip("collada")
 
-from rmpfusion.cli import fit_spheres  # noqa: E402
-from rmpfusion.maps.kinematics import ForwardKinematics  # noqa: E402
-from rmpfusion.robots import RobotDescription, build_robot  # noqa: E402
-from rmpfusion.robots.packages import mesh_path, package_dir, resolved_urdf  # noqa: E402
+from robot_package import JOINTS, MOUNT, PACKAGE, random_q, write_package
 
-from robot_package import JOINTS, MOUNT, PACKAGE, random_q, write_package  # noqa: E402
+from rmpfusion.cli import fit_spheres
+from rmpfusion.maps.kinematics import ForwardKinematics
+from rmpfusion.robots import RobotDescription, build_robot
+from rmpfusion.robots.packages import mesh_path, package_dir, resolved_urdf
 
 
 @pytest.fixture(scope="module")
@@ -41,8 +42,9 @@ def fitted(package, tmp_path_factory) -> tuple[dict, str]:
     out = tmp_path_factory.mktemp("conf") / "robot" / "testarm.yaml"
     printed = io.StringIO()
     with contextlib.redirect_stdout(printed):
-        rc = fit_spheres.main([str(package), "--name", "testarm", "--joints", *JOINTS, "--ee-link", "tool",
-                               "--out", str(out)])
+        rc = fit_spheres.main(
+            [str(package), "--name", "testarm", "--joints", *JOINTS, "--ee-link", "tool", "--out", str(out)]
+        )
     assert rc == 0, printed.getvalue()
     data = yaml.safe_load(out.read_text())
     data["mount"] = MOUNT
@@ -84,7 +86,9 @@ def test_package_search_order_and_resolved_copy(package, tmp_path, monkeypatch):
     shutil.copytree(copy, tmp_path / "prefix" / "share" / PACKAGE)
     assert Path(package_dir(PACKAGE, urdf)[0]) == tmp_path / "prefix" / "share" / PACKAGE
     monkeypatch.delenv("AMENT_PREFIX_PATH")
-    assert mesh_path("file://" + str(copy / "meshes" / "link1.stl"), "link1", urdf) == str(copy / "meshes" / "link1.stl")
+    assert mesh_path("file://" + str(copy / "meshes" / "link1.stl"), "link1", urdf) == str(
+        copy / "meshes" / "link1.stl"
+    )
     assert mesh_path("../meshes/link1.stl", "link1", urdf) == str(package.parent.parent / "meshes" / "link1.stl")
     # the copy simulators load: every mesh absolute, the same file for the same URDF
     monkeypatch.setenv("RMPFUSION_CACHE", str(tmp_path / "cache"))
@@ -104,8 +108,10 @@ def test_kinematics_with_a_mount_and_a_mimic_joint_agree_with_pybullet(fitted):
     robot = build_robot(RobotDescription.model_validate(fitted[0]))
     world = _Scene(robot)
     try:
-        names = {p.getJointInfo(world.robot, i, physicsClientId=world.cid)[12].decode(): i
-                 for i in range(p.getNumJoints(world.robot, physicsClientId=world.cid))}
+        names = {
+            p.getJointInfo(world.robot, i, physicsClientId=world.cid)[12].decode(): i
+            for i in range(p.getNumJoints(world.robot, physicsClientId=world.cid))
+        }
         worst = 0.0
         for q in random_q(8, seed=1):
             world.reset(q)
@@ -122,8 +128,12 @@ def test_kinematics_with_a_mount_and_a_mimic_joint_agree_with_pybullet(fitted):
 
 def test_mimic_jacobian_and_curvature_match_finite_differences(fitted):
     data = fitted[0]
-    fk = ForwardKinematics(ForwardKinematics.Params(urdf=data["urdf"], joints=JOINTS, link="link6",
-                                                    offset=[0.01, 0.02, 0.04], mount=MOUNT), in_dim=5)
+    fk = ForwardKinematics(
+        ForwardKinematics.Params(
+            urdf=data["urdf"], joints=JOINTS, link="link6", offset=[0.01, 0.02, 0.04], mount=MOUNT
+        ),
+        in_dim=5,
+    )
     gen = torch.Generator().manual_seed(0)
     q = torch.tensor(random_q(3, seed=2))
     qd = torch.randn(3, 5, generator=gen, dtype=torch.float64)
@@ -133,7 +143,7 @@ def test_mimic_jacobian_and_curvature_match_finite_differences(fitted):
     assert torch.allclose(J, J_fd, atol=1e-8)
     assert float(J[:, :, 4].norm()) > 0.01  # the thumb moves link6 through its own joint and the follower's
     h = 1e-4  # ÿ along q(t) = q + t q̇ (no acceleration) is J̇q̇
-    acc = (fk.psi(q + h * qd) - 2 * y + fk.psi(q - h * qd)) / h ** 2
+    acc = (fk.psi(q + h * qd) - 2 * y + fk.psi(q - h * qd)) / h**2
     assert torch.allclose(Jdqd, acc, atol=1e-5)
     frozen = ForwardKinematics(ForwardKinematics.Params(urdf=data["urdf"], joints=JOINTS[:4], link="link6"), in_dim=4)
     assert not torch.allclose(frozen.psi(q[:, :4]), fk.psi(q)[:, :], atol=1e-3)  # without the leader: frozen, offset
@@ -144,14 +154,21 @@ def test_start_sampling_ignores_a_link_that_no_joint_can_lower(fitted):
     that can move down is checked."""
     from rmpfusion.envs.manipulator import Manipulator
 
-    env = Manipulator(robot=fitted[0], scene={"ground": {"height": 0.0}}, mode="kinematic",
-                      goal_region=((0.3, 0.35), (-0.2, -0.15), (0.2, 0.25)), start_spread=0.2)
+    env = Manipulator(
+        robot=fitted[0],
+        scene={"ground": {"height": 0.0}},
+        mode="kinematic",
+        goal_region=((0.3, 0.35), (-0.2, -0.15), (0.2, 0.25)),
+        start_spread=0.2,
+    )
     try:
         world = env.checker()
         import pybullet as p
 
-        index = {p.getJointInfo(world.robot, i, physicsClientId=world.cid)[12].decode(): i
-                 for i in range(p.getNumJoints(world.robot, physicsClientId=world.cid))}
+        index = {
+            p.getJointInfo(world.robot, i, physicsClientId=world.cid)[12].decode(): i
+            for i in range(p.getNumJoints(world.robot, physicsClientId=world.cid))
+        }
         assert index["link1"] not in world.ground_reach and index["link2"] in world.ground_reach
         g = torch.Generator().manual_seed(0)
         q0, _, aux = env.sample_initial_states(env.sample_envs(2, g), 2, g)
@@ -163,12 +180,21 @@ def test_start_sampling_ignores_a_link_that_no_joint_can_lower(fitted):
 def test_start_sampling_failure_names_the_robot_files_home(fitted):
     from rmpfusion.envs.manipulator import Manipulator
 
-    env = Manipulator(robot=fitted[0], scene={"ground": {"height": 0.0}}, mode="kinematic", start_clearance=5.0,
-                      clearance_query=6.0, max_tries=2)
+    env = Manipulator(
+        robot=fitted[0],
+        scene={"ground": {"height": 0.0}},
+        mode="kinematic",
+        start_clearance=5.0,
+        clearance_query=6.0,
+        max_tries=2,
+    )
     try:
         g = torch.Generator().manual_seed(0)
-        with pytest.raises(RuntimeError, match=r"move the starts' centre \(home in the robot file of testarm, "
-                                             r"env.robot.home\), or change env.start_spread or env.start_clearance"):
+        with pytest.raises(
+            RuntimeError,
+            match=r"move the starts' centre \(home in the robot file of testarm, "
+            r"env.robot.home\), or change env.start_spread or env.start_clearance",
+        ):
             env.sample_initial_states(env.sample_envs(1, g), 1, g)
     finally:
         env.close()
@@ -181,8 +207,11 @@ def test_every_published_failure_is_one_line(package, tmp_path, capsys, monkeypa
     urdf = str(broken / PACKAGE / "urdf" / "testarm.urdf")
     (broken / PACKAGE / "meshes" / "link2.dae").unlink()
     err = _fit_error([urdf, *base], capsys)
-    assert ("link 'link2': mesh 'package://testarm_description/meshes/link2.dae' not found; looked in: " in err
-            and f"{broken / PACKAGE} (above the URDF)" in err and "--package-dir NAME=PATH" in err)
+    assert (
+        "link 'link2': mesh 'package://testarm_description/meshes/link2.dae' not found; looked in: " in err
+        and f"{broken / PACKAGE} (above the URDF)" in err
+        and "--package-dir NAME=PATH" in err
+    )
     # only the fitted links' meshes are read: without link2 among them, the missing file is never opened
     assert fit_spheres.main([urdf, *base, "--links", "link1", "link3", "--force"]) == 0
     capsys.readouterr()
@@ -193,20 +222,25 @@ def test_every_published_failure_is_one_line(package, tmp_path, capsys, monkeypa
         shutil.copytree(package.parent.parent, tmp_path / f"ws{k}" / PACKAGE)
     monkeypatch.setenv("ROS_PACKAGE_PATH", os.pathsep.join(str(tmp_path / f"ws{k}") for k in (1, 2)))
     err = _fit_error([str(package), *base, "--force"], capsys)
-    assert f"package 'testarm_description' is found twice by ROS_PACKAGE_PATH: {tmp_path / 'ws1' / PACKAGE} and " \
-           f"{tmp_path / 'ws2' / PACKAGE}" in err
+    assert (
+        f"package 'testarm_description' is found twice by ROS_PACKAGE_PATH: {tmp_path / 'ws1' / PACKAGE} and "
+        f"{tmp_path / 'ws2' / PACKAGE}" in err
+    )
     monkeypatch.delenv("ROS_PACKAGE_PATH")
     # xacro, a follower listed as actuated, a --package-dir without '='
     xacro = tmp_path / "arm.urdf.xacro"
-    xacro.write_text('<robot name="a" xmlns:xacro="http://www.ros.org/wiki/xacro"><xacro:property name="l" '
-                     'value="1"/><link name="b"/></robot>')
+    xacro.write_text(
+        '<robot name="a" xmlns:xacro="http://www.ros.org/wiki/xacro"><xacro:property name="l" '
+        'value="1"/><link name="b"/></robot>'
+    )
     assert "run xacro first" in _fit_error([str(xacro), *base, "--force"], capsys)
-    err = _fit_error([str(package), *base[:3], "spin", "finger", *base[3 + len(JOINTS):], "--force"], capsys)
+    err = _fit_error([str(package), *base[:3], "spin", "finger", *base[3 + len(JOINTS) :], "--force"], capsys)
     assert "'finger' follows 'thumb' (URDF <mimic>), so it cannot be actuated on its own; list 'thumb'" in err
     assert "write NAME=PATH" in _fit_error([str(package), *base, "--package-dir", "x", "--force"], capsys)
     bad_dir = str(tmp_path / "nowhere")
     assert f"packages.testarm_description = '{bad_dir}': no folder" in _fit_error(
-        [str(package), *base, "--package-dir", f"{PACKAGE}={bad_dir}", "--force"], capsys)
+        [str(package), *base, "--package-dir", f"{PACKAGE}={bad_dir}", "--force"], capsys
+    )
 
 
 def _rmpfusion(module: str, conf: Path, *overrides: str, timeout: int = 600):
@@ -214,10 +248,20 @@ def _rmpfusion(module: str, conf: Path, *overrides: str, timeout: int = 600):
     import sys
 
     root = Path(__file__).resolve().parents[1]
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(root), os.environ.get("PYTHONPATH", "")]),
-           "WANDB_MODE": "disabled", "MPLBACKEND": "Agg"}
-    return subprocess.run([sys.executable, "-m", f"rmpfusion.cli.{module}", "--config-dir", str(conf), *overrides],
-                          cwd=root, env=env, capture_output=True, text=True, timeout=timeout)
+    env = {
+        **os.environ,
+        "PYTHONPATH": os.pathsep.join([str(root), os.environ.get("PYTHONPATH", "")]),
+        "WANDB_MODE": "disabled",
+        "MPLBACKEND": "Agg",
+    }
+    return subprocess.run(
+        [sys.executable, "-m", f"rmpfusion.cli.{module}", "--config-dir", str(conf), *overrides],
+        cwd=root,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
 
 
 @pytest.fixture(scope="module")
@@ -230,21 +274,47 @@ def config_dir(fitted, tmp_path_factory) -> Path:
 
 
 def test_the_fitted_robot_validates_with_a_shipped_experiment(config_dir, tmp_path):
-    done = _rmpfusion("validate", config_dir, "experiment=xarm6_reach", "robot=testarm",
-                      f"env.robot.packages.{PACKAGE}={config_dir / 'nowhere'}", f"hydra.run.dir={tmp_path}")
-    assert done.returncode != 0 and f"packages.{PACKAGE} = '{config_dir / 'nowhere'}': no folder" in done.stderr \
-        and "Traceback" not in done.stderr, done.stderr
+    done = _rmpfusion(
+        "validate",
+        config_dir,
+        "experiment=xarm6_reach",
+        "robot=testarm",
+        f"env.robot.packages.{PACKAGE}={config_dir / 'nowhere'}",
+        f"hydra.run.dir={tmp_path}",
+    )
+    assert (
+        done.returncode != 0
+        and f"packages.{PACKAGE} = '{config_dir / 'nowhere'}': no folder" in done.stderr
+        and "Traceback" not in done.stderr
+    ), done.stderr
     package_root = Path(yaml.safe_load((config_dir / "robot" / "testarm.yaml").read_text())["urdf"]).parents[1]
-    done = _rmpfusion("validate", config_dir, "experiment=xarm6_reach", "robot=testarm", "env.start_clearance=0.04",
-                      f"env.robot.packages.{PACKAGE}={package_root}", f"hydra.run.dir={tmp_path}")
+    done = _rmpfusion(
+        "validate",
+        config_dir,
+        "experiment=xarm6_reach",
+        "robot=testarm",
+        "env.start_clearance=0.04",
+        f"env.robot.packages.{PACKAGE}={package_root}",
+        f"hydra.run.dir={tmp_path}",
+    )
     assert done.returncode == 0, done.stderr
     assert "OK: the configuration is valid and builds" in done.stdout
 
 
 @pytest.mark.slow
 def test_the_fitted_robot_runs_a_tiny_experiment(config_dir, tmp_path):
-    done = _rmpfusion("run", config_dir, "experiment=reach", "robot=testarm", "data=tiny", "train=tiny",
-                      "eval=fast", "logger=disabled", "eval.compile=false", f"hydra.run.dir={tmp_path}")
+    done = _rmpfusion(
+        "run",
+        config_dir,
+        "experiment=reach",
+        "robot=testarm",
+        "data=tiny",
+        "train=tiny",
+        "eval=fast",
+        "logger=disabled",
+        "eval.compile=false",
+        f"hydra.run.dir={tmp_path}",
+    )
     assert done.returncode == 0, done.stderr[-2000:]
     assert (tmp_path / "metrics.json").is_file()
 
@@ -252,9 +322,9 @@ def test_the_fitted_robot_runs_a_tiny_experiment(config_dir, tmp_path):
 def test_a_mimic_joint_follows_its_leader_under_computed_torque(fitted):
     """In pybullet's torque mode the follower is driven (its leader's acceleration fed forward, PD on the rest) to
     multiplier · q_leader + offset while the leader swings."""
+    from rmpfusion.envs.faults import IsolatingPolicy
     from rmpfusion.envs.manipulator import Manipulator
     from rmpfusion.envs.manipulator.torque import _Worlds
-    from rmpfusion.envs.faults import IsolatingPolicy
 
     env = Manipulator(robot=fitted[0], scene={}, mode="torque", control_rate=500.0)
     q0 = torch.tensor([[0.0, 0.3, 0.05, 0.2, -0.5]], dtype=torch.float64)
@@ -280,12 +350,13 @@ def test_an_srdf_exempts_link_pairs_from_self_collision(fitted, tmp_path):
     from rmpfusion.envs.manipulator_tree import self_collision_pairs
 
     srdf = tmp_path / "testarm.srdf"
-    srdf.write_text('<robot name="testarm"><disable_collisions link1="link2" link2="link5" reason="Never"/>'
-                    '</robot>')
+    srdf.write_text('<robot name="testarm"><disable_collisions link1="link2" link2="link5" reason="Never"/></robot>')
     plain = RobotDescription.model_validate(fitted[0])
     exempt = RobotDescription.model_validate({**fitted[0], "srdf": str(srdf)})
-    links = lambda pairs, d: {frozenset((d.control_points[i - 1].link, d.control_points[j - 1].link))  # noqa: E731
-                              for i, j in pairs}
+    links = lambda pairs, d: {
+        frozenset((d.control_points[i - 1].link, d.control_points[j - 1].link))
+        for i, j in pairs
+    }
     before, after = links(self_collision_pairs(plain, 2)[0], plain), links(self_collision_pairs(exempt, 2)[0], exempt)
     assert frozenset(("link2", "link5")) in before and before - after == {frozenset(("link2", "link5"))}
     srdf.write_text('<robot name="testarm"><disable_collisions link1="link2" link2="lnk5" reason="Never"/></robot>')

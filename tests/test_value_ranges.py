@@ -6,9 +6,11 @@ the leaf settings of the ``franka_fig1b`` generator) plus the run config's data/
 *physical* when its name has one of ``PHYSICAL`` as a ``_``-separated word; a new one added without a range fails
 here. Deliberate exceptions go in ``EXEMPT`` with the reason.
 """
+
 from __future__ import annotations
 
-from typing import Annotated, Any, Iterator, get_args, get_origin
+from collections.abc import Iterator
+from typing import Annotated, Any, get_args, get_origin
 
 import annotated_types
 import pytest
@@ -25,14 +27,74 @@ CONFIG_BLOCKS = {"data": DataConfig, "data (recorded)": RecordedDataConfig, "tra
 
 #: Words that make a numeric field a physical quantity, a size, a count or a range (a field name is split at
 #: ``_``). Positions and linear maps (center, offset, origin, matrix, bias) are left out: any value is a place.
-PHYSICAL = frozenset({
-    "radius", "radii", "dt", "gain", "scale", "sigma", "alpha", "eta", "epsilon", "r", "w", "u", "l", "tol", "rtol",
-    "atol", "tolerance", "distance", "clearance", "gap", "margin", "horizon", "interval", "duration", "times", "rate",
-    "fps", "speed", "spread", "jitter", "extents", "height", "lr", "fraction", "ratio", "floor", "steepness",
-    "hidden", "width", "size", "clip", "every", "iterations", "tries", "envs", "trajectories", "trajectory",
-    "points", "obstacles", "value", "low", "high", "workspace", "region", "along", "across", "axis", "camera", "q",
-    "indices", "joints", "limit", "snapshots", "gravity",
-})
+PHYSICAL = frozenset(
+    {
+        "radius",
+        "radii",
+        "dt",
+        "gain",
+        "scale",
+        "sigma",
+        "alpha",
+        "eta",
+        "epsilon",
+        "r",
+        "w",
+        "u",
+        "l",
+        "tol",
+        "rtol",
+        "atol",
+        "tolerance",
+        "distance",
+        "clearance",
+        "gap",
+        "margin",
+        "horizon",
+        "interval",
+        "duration",
+        "times",
+        "rate",
+        "fps",
+        "speed",
+        "spread",
+        "jitter",
+        "extents",
+        "height",
+        "lr",
+        "fraction",
+        "ratio",
+        "floor",
+        "steepness",
+        "hidden",
+        "width",
+        "size",
+        "clip",
+        "every",
+        "iterations",
+        "tries",
+        "envs",
+        "trajectories",
+        "trajectory",
+        "points",
+        "obstacles",
+        "value",
+        "low",
+        "high",
+        "workspace",
+        "region",
+        "along",
+        "across",
+        "axis",
+        "camera",
+        "q",
+        "indices",
+        "joints",
+        "limit",
+        "snapshots",
+        "gravity",
+    }
+)
 
 #: (model qualname, field) -> why it has no range of its own (a model's subclasses share its exemptions).
 EXEMPT = {
@@ -99,14 +161,17 @@ def models() -> dict[str, type[BaseModel]]:
 
 
 def physical_fields(model: type[BaseModel]) -> list[str]:
-    return [n for n, f in model.model_fields.items()
-            if _numeric(f.annotation) and PHYSICAL & set(n.split("_"))]
+    return [n for n, f in model.model_fields.items() if _numeric(f.annotation) and PHYSICAL & set(n.split("_"))]
 
 
 def unranged(model: type[BaseModel]) -> list[str]:
-    return [n for n in physical_fields(model) if not any((base.__qualname__, n) in EXEMPT for base in model.__mro__)
-            and not _bounded(model.model_fields[n].annotation, model.model_fields[n].metadata)
-            and not _validated(model, n)]
+    return [
+        n
+        for n in physical_fields(model)
+        if not any((base.__qualname__, n) in EXEMPT for base in model.__mro__)
+        and not _bounded(model.model_fields[n].annotation, model.model_fields[n].metadata)
+        and not _validated(model, n)
+    ]
 
 
 MODELS = models()
@@ -116,15 +181,25 @@ MODELS = models()
 def test_every_physical_parameter_has_a_range(where):
     model = MODELS[where]
     missing = unranged(model)
-    assert not missing, (f"{where} ({model.__qualname__}): {missing} carry no range; give each a Field(gt=/ge=/lt=/le=) "
-                         f"or a field_validator that says what is allowed, or exempt it in EXEMPT with the reason")
+    assert not missing, (
+        f"{where} ({model.__qualname__}): {missing} carry no range; give each a Field(gt=/ge=/lt=/le=) "
+        f"or a field_validator that says what is allowed, or exempt it in EXEMPT with the reason"
+    )
 
 
 def test_the_walk_reaches_what_it_should():
     kinds = {w.split(" '")[0] for w in MODELS}
     assert {r.kind for r in REGISTRIES} <= kinds and set(CONFIG_BLOCKS) <= set(MODELS)
     names = {m.__qualname__ for m in MODELS.values()}
-    assert {"Sphere", "Box", "Static", "Waypoints", "ControlPoint", "GoalAttractor.Params", "MLPWeight.Params"} <= names  # nested
+    assert {
+        "Sphere",
+        "Box",
+        "Static",
+        "Waypoints",
+        "ControlPoint",
+        "GoalAttractor.Params",
+        "MLPWeight.Params",
+    } <= names  # nested
     assert sum(len(physical_fields(m)) for m in MODELS.values()) > 80
 
 
@@ -155,4 +230,3 @@ def test_a_field_without_a_range_is_caught():
 
     assert unranged(Loose) == ["radius", "gain"]
     assert unranged(Tight) == []
-

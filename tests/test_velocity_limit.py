@@ -1,14 +1,15 @@
 """The joint-velocity cap: velocity_scaled_joints reads the URDF's limits, and the velocity_limit leaf keeps every
 joint below its limit on rollouts (Panda, KUKA iiwa) with Theorem 2 and the energy bound of docs/math.md §8.
 (M and f against the GDS definitions by finite differences: tests/test_registry_derivatives.py.)"""
+
 from pathlib import Path
 
 import pybullet_data
 import pytest
 import torch
+from conftest import assert_energy_identity, assert_lyapunov_non_increasing, rk4_rollout
 
 import rmpfusion
-from conftest import assert_energy_identity, assert_lyapunov_non_increasing, rk4_rollout
 from rmpfusion.maps import build_map
 from rmpfusion.rmps.velocity_limit import band_metric
 
@@ -36,9 +37,14 @@ def test_velocity_scaled_joints_divides_by_the_urdfs_limits_or_the_given_ones(ge
 
 def joint_goal_tree(gain: float, target, cap: dict | None):
     """A strong joint-space attractor (it alone drives joints past their limits), optionally with the cap."""
-    nodes = {"goal": {"parent": "q", "map": {"type": "offset", "origin": target},
-                      "rmp": {"type": "goal_attractor", "gain": gain, "alpha": 5.0, "eta": 1.0}},
-             "regulariser": {"parent": "q", "map": {"type": "identity"}, "rmp": {"type": "identity_metric"}}}
+    nodes = {
+        "goal": {
+            "parent": "q",
+            "map": {"type": "offset", "origin": target},
+            "rmp": {"type": "goal_attractor", "gain": gain, "alpha": 5.0, "eta": 1.0},
+        },
+        "regulariser": {"parent": "q", "map": {"type": "identity"}, "rmp": {"type": "identity_metric"}},
+    }
     if cap is not None:
         nodes["cap"] = {"parent": "q", "map": cap, "rmp": {"type": "velocity_limit"}}
     return rmpfusion.build_tree({"root": {"name": "q", "dim": 7}, "nodes": nodes})
@@ -49,7 +55,7 @@ def test_the_cap_keeps_every_panda_joint_below_its_urdf_limit():
     free = rk4_rollout(joint_goal_tree(12.0, target, None), HOME, torch.zeros(1, 7), {}, dt=0.01, steps=250)
     tree = joint_goal_tree(12.0, target, {"type": "velocity_scaled_joints", **PANDA})
     capped = rk4_rollout(tree, HOME, torch.zeros(1, 7), {}, dt=0.01, steps=250)
-    ratio = lambda rec: (rec["qd"][:, 0].abs() / PANDA_LIMITS).max()  # noqa: E731
+    ratio = lambda rec: (rec["qd"][:, 0].abs() / PANDA_LIMITS).max()
     assert float(ratio(free)) > 1.3  # the attractor alone exceeds the limits by 30 %
     assert float(ratio(capped)) < 1.0
     assert_lyapunov_non_increasing(capped)
@@ -69,8 +75,7 @@ def test_kuka_iiwa_from_beyond_its_limits_is_braked_back_and_stays_stable():
     """Given limits (overriding the URDF's 10 rad/s), a start at 1.5 times them: the metric is finite there, the
     joints slow down monotonically towards their limits, and V_r never increases."""
     limits = [1.0, 1.0, 1.2, 1.2, 1.5, 1.5, 2.0]
-    tree = joint_goal_tree(3.0, [1.0] * 7, {"type": "velocity_scaled_joints", "urdf": IIWA,
-                                            "velocity_limit": limits})
+    tree = joint_goal_tree(3.0, [1.0] * 7, {"type": "velocity_scaled_joints", "urdf": IIWA, "velocity_limit": limits})
     L = torch.tensor(limits)
     qd0 = 1.5 * L * torch.tensor([[1.0, -1.0, 1.0, -1.0, 1.0, -1.0, 1.0]])
     rec = rk4_rollout(tree, torch.zeros(1, 7), qd0, {}, dt=0.01, steps=150)

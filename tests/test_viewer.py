@@ -1,6 +1,7 @@
 """The 3D viewer (``plots/viewer.py``, ``rmpfusion-view``): the spheres where pybullet puts the links, the obstacle
 meshes where their shapes are, moving obstacles where the scene moves them, the command's refusals, and the page
 drawn by a real browser (headless Chromium), its screenshot's pixels checked."""
+
 from __future__ import annotations
 
 import os
@@ -12,16 +13,24 @@ import numpy as np
 import pybullet
 import pytest
 import torch
-
-from manipulators import PANDA_HOME, robot
 from conftest import ROOT
-from rmpfusion.plots.viewer import (EXPERT_COLOR, PolicyTrack, ViewerInput, control_sphere_centers, frame_indices,
-                                    obstacle_mesh, viewer_figure, write_viewer)
+from manipulators import PANDA_HOME, robot
+
+from rmpfusion.plots.viewer import (
+    EXPERT_COLOR,
+    PolicyTrack,
+    ViewerInput,
+    control_sphere_centers,
+    frame_indices,
+    obstacle_mesh,
+    viewer_figure,
+    write_viewer,
+)
 from rmpfusion.robots import RobotDescription
 from rmpfusion.scenes import Scene, scene_aux
 
 sys.path.insert(0, str(ROOT / "tools"))
-from viewer_screenshot import browser_missing, screenshot  # noqa: E402
+from viewer_screenshot import browser_missing, screenshot
 
 F64 = torch.float64
 
@@ -42,10 +51,13 @@ def test_control_spheres_sit_where_pybullet_puts_their_links(mount):
     cid = pybullet.connect(pybullet.DIRECT)
     try:
         xyz, rpy = (mount["xyz"], mount["rpy"]) if mount else ([0, 0, 0], [0, 0, 0])
-        body = pybullet.loadURDF(_urdf_file(desc), xyz,
-                                 pybullet.getQuaternionFromEuler(rpy), useFixedBase=True, physicsClientId=cid)
-        info = [pybullet.getJointInfo(body, i, physicsClientId=cid)
-                for i in range(pybullet.getNumJoints(body, physicsClientId=cid))]
+        body = pybullet.loadURDF(
+            _urdf_file(desc), xyz, pybullet.getQuaternionFromEuler(rpy), useFixedBase=True, physicsClientId=cid
+        )
+        info = [
+            pybullet.getJointInfo(body, i, physicsClientId=cid)
+            for i in range(pybullet.getNumJoints(body, physicsClientId=cid))
+        ]
         joint, link = {j[1].decode(): j[0] for j in info}, {j[12].decode(): j[0] for j in info}
         for b, q in enumerate(qs):
             for name, v in zip(desc.joints, q.tolist()):
@@ -72,11 +84,16 @@ def _segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray
 
 
 def test_obstacle_meshes_have_their_shapes_size_and_pose():
-    scene = Scene.model_validate({"obstacles": [
-        {"type": "box", "center": [0.4, 0.1, 0.3], "half_extents": [0.1, 0.2, 0.05], "rpy": [0.3, 0.0, 0.5]},
-        {"type": "cylinder", "center": [0.5, 0.0, 0.2], "radius": 0.07, "height": 0.4, "axis": [1, 1, 0]},
-        {"type": "capsule", "center": [0.0, 0.5, 0.2], "radius": 0.05, "length": 0.3, "axis": [0, 1, 1]},
-        {"type": "sphere", "center": [0.3, 0.3, 0.3], "radius": 0.12}]})
+    scene = Scene.model_validate(
+        {
+            "obstacles": [
+                {"type": "box", "center": [0.4, 0.1, 0.3], "half_extents": [0.1, 0.2, 0.05], "rpy": [0.3, 0.0, 0.5]},
+                {"type": "cylinder", "center": [0.5, 0.0, 0.2], "radius": 0.07, "height": 0.4, "axis": [1, 1, 0]},
+                {"type": "capsule", "center": [0.0, 0.5, 0.2], "radius": 0.05, "length": 0.3, "axis": [0, 1, 1]},
+                {"type": "sphere", "center": [0.3, 0.3, 0.3], "radius": 0.12},
+            ]
+        }
+    )
     box, cyl, cap, sph = scene.obstacles
     from rmpfusion.maps.kinematics import rpy_matrix
 
@@ -106,17 +123,32 @@ def test_frames_are_a_bounded_even_subset_with_both_ends():
 
 # ----------------------------------------------------------------------------------------------- the figure
 def _moving_input(n_times: int = 21) -> ViewerInput:
-    scene = Scene.model_validate({"obstacles": [
-        {"type": "sphere", "center": [0.5, 0.0, 0.4], "radius": 0.1,
-         "motion": {"type": "linear", "velocity": [0, 0.2, 0]}},
-        {"type": "cylinder", "center": [0.4, -0.3, 0.3], "radius": 0.05, "height": 0.6}], "ground": {"height": 0.0}})
+    scene = Scene.model_validate(
+        {
+            "obstacles": [
+                {
+                    "type": "sphere",
+                    "center": [0.5, 0.0, 0.4],
+                    "radius": 0.1,
+                    "motion": {"type": "linear", "velocity": [0, 0.2, 0]},
+                },
+                {"type": "cylinder", "center": [0.4, -0.3, 0.3], "radius": 0.05, "height": 0.6},
+            ],
+            "ground": {"height": 0.0},
+        }
+    )
     aux = scene_aux(scene, torch.tensor([[[0.5, 0.0, 0.4], [0.4, -0.3, 0.3]]], dtype=F64), F64)
     aux["goal"] = torch.tensor([[0.4, -0.3, 0.5]], dtype=F64)
     times = torch.linspace(0, 2.0, n_times, dtype=F64)
     q = PANDA_HOME.to(F64) + torch.linspace(0, 1, n_times, dtype=F64)[:, None] * 0.3
     q[-3:] = float("nan")  # a sample that ended early: the robot stays where it stopped
-    return ViewerInput(robot=_panda(), scene=scene, aux=aux, times=times,
-                       tracks=[PolicyTrack("expert", q), PolicyTrack("learner @ 0", q.flip(0))])
+    return ViewerInput(
+        robot=_panda(),
+        scene=scene,
+        aux=aux,
+        times=times,
+        tracks=[PolicyTrack("expert", q), PolicyTrack("learner @ 0", q.flip(0))],
+    )
 
 
 def test_figure_moves_the_spheres_and_the_moving_obstacle_over_the_recorded_times():
@@ -163,7 +195,7 @@ def test_page_is_self_contained_and_small(tmp_path):
 def _strong(img: np.ndarray, hex_color: str) -> np.ndarray:
     """Pixels whose colour is the hue of ``hex_color`` (a red here): its channel well above the others, under any
     shading."""
-    rgb = np.array([int(hex_color[k:k + 2], 16) for k in (1, 3, 5)])
+    rgb = np.array([int(hex_color[k : k + 2], 16) for k in (1, 3, 5)])
     main = int(rgb.argmax())
     others = [c for c in range(3) if c != main]
     return (img[..., main].astype(int) - img[..., others].max(-1).astype(int)) > 60
@@ -187,8 +219,14 @@ def test_a_browser_draws_the_scene_without_javascript_errors(tmp_path):
 
 # ------------------------------------------------------------------------------------------------ the command
 def _view(*args: str, cwd: Path = ROOT) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "rmpfusion.cli.view", *args], cwd=cwd, capture_output=True,
-                          text=True, env={**os.environ, "PYTHONPATH": str(ROOT)}, timeout=600)
+    return subprocess.run(
+        [sys.executable, "-m", "rmpfusion.cli.view", *args],
+        cwd=cwd,
+        capture_output=True,
+        text=True,
+        env={**os.environ, "PYTHONPATH": str(ROOT)},
+        timeout=600,
+    )
 
 
 def test_command_refuses_what_it_cannot_draw_in_one_line(tmp_path):
@@ -214,7 +252,7 @@ def test_command_draws_a_config_expert_and_unit_weights(tmp_path):
     r = _view("experiment=xarm6_reach", "--horizon", "0.2", "--out", str(out))
     assert r.returncode == 0, r.stderr
     html = out.read_text()
-    for label in ("\"expert\"", "\"unit weights\"", "obstacle 1 (cylinder)", "\"goal\"", "xarm6"):
+    for label in ('"expert"', '"unit weights"', "obstacle 1 (cylinder)", '"goal"', "xarm6"):
         assert label in html, label
 
 
@@ -224,18 +262,32 @@ def test_command_draws_every_snapshot_of_a_trained_run(tmp_path):
     and trained (3, from final.pt), each rolled out from the run's checkpoints; a second call refuses to replace
     the page, and a learner without checkpoints is one line."""
     from conftest import compose_cfg
+
     from rmpfusion.pipeline.run import run_experiment
     from rmpfusion.pipeline.validate import resolve_and_validate
 
-    overrides = ["experiment=franka", "logger=disabled", "env.control_rate=60", "data.train_trajectories=3",
-                 "data.test_trajectories=2", "data.val_trajectories=2", "data.points=6", "env.demo_min_duration=0.2",
-                 "train.iterations=3", "train.batch_size=8", "train.snapshots=[0,2]", "train.checkpoint_every=3",
-                 "eval.horizon=0.5", "eval.compile=false", "eval.figures=false"]
+    overrides = [
+        "experiment=franka",
+        "logger=disabled",
+        "env.control_rate=60",
+        "data.train_trajectories=3",
+        "data.test_trajectories=2",
+        "data.val_trajectories=2",
+        "data.points=6",
+        "env.demo_min_duration=0.2",
+        "train.iterations=3",
+        "train.batch_size=8",
+        "train.snapshots=[0,2]",
+        "train.checkpoint_every=3",
+        "eval.horizon=0.5",
+        "eval.compile=false",
+        "eval.figures=false",
+    ]
     run_experiment(resolve_and_validate(compose_cfg(overrides)), tmp_path, progress=False)
     r = _view(str(tmp_path), "--frames", "4")
     assert r.returncode == 0, r.stderr
     html = (tmp_path / "viewer.html").read_text()
-    for label in ("\"expert\"", "\"learner @ 0\"", "\"learner @ 2\"", "\"learner @ 3\"", "obstacle 1 (cylinder)"):
+    for label in ('"expert"', '"learner @ 0"', '"learner @ 2"', '"learner @ 3"', "obstacle 1 (cylinder)"):
         assert label in html, label
     again = _view(str(tmp_path))
     assert again.returncode == 2 and "exists; nothing was written" in again.stderr
@@ -248,6 +300,7 @@ def test_unit_weights_put_one_on_every_edge_the_tree_weights():
     """The tree the viewer calls "unit weights" (RMPflow) has w = 1 on every edge, also where the run's tree spec
     carries weights of its own (the generated Franka tree starts an MLP on every edge)."""
     from conftest import compose_cfg
+
     from rmpfusion.evaluate.weights import edge_weights
     from rmpfusion.pipeline.construct import build_unit_weights, make_env
     from rmpfusion.pipeline.validate import resolve_and_validate

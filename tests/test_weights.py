@@ -1,5 +1,6 @@
 """Weight functions: constants, positivity at extremes, initial values, gradients that reach the parameters. w > 0
 and ∇_x w of every registered weight against finite differences are checked in test_registry_derivatives.py."""
+
 import pytest
 import torch
 
@@ -14,8 +15,11 @@ def make(name, in_dim=2, **params):
 
 
 def aux(B, gen):
-    return {"goal": torch.randn(B, 2, generator=gen), "obstacle_center": torch.randn(B, 2, generator=gen),
-            "obstacle_radius": 0.5 + torch.rand(B, 1, generator=gen)}
+    return {
+        "goal": torch.randn(B, 2, generator=gen),
+        "obstacle_center": torch.randn(B, 2, generator=gen),
+        "obstacle_radius": 0.5 + torch.rand(B, 1, generator=gen),
+    }
 
 
 def test_constant_weight_has_no_gradient_term():
@@ -26,6 +30,7 @@ def test_constant_weight_has_no_gradient_term():
 
 def test_non_positive_constant_rejected():
     from pydantic import ValidationError
+
     with pytest.raises(ValidationError, match="constant weight must be > 0"):
         make("constant", value=0.0)
 
@@ -51,7 +56,7 @@ def test_input_gradient_is_differentiable_in_the_parameters(gen):
     _, grad = w(x, a)
     g1 = torch.autograd.grad(grad.pow(2).sum(), list(w.parameters()))
     xx = x.clone().requires_grad_()
-    gx, = torch.autograd.grad(w.value(xx, a).sum(), xx, create_graph=True)
+    (gx,) = torch.autograd.grad(w.value(xx, a).sum(), xx, create_graph=True)
     g2 = torch.autograd.grad(gx.pow(2).sum(), list(w.parameters()))
     for a_, b_ in zip(g1, g2):
         torch.testing.assert_close(a_, b_)

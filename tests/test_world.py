@@ -2,6 +2,7 @@
 once with sets of spheres and boxes, with the world's obstacles added, moved, resized and removed between calls,
 equals at every call the tree generated for a scene holding exactly the obstacles present (values and parameter
 gradients), and every change the world cannot make is one error naming what is allowed."""
+
 from __future__ import annotations
 
 import math
@@ -40,8 +41,9 @@ def scene_of(world: World) -> dict:
         else:
             R = torch.tensor(t["rotation"]).reshape(3, 3)
             yaw = math.atan2(float(R[1, 0]), float(R[0, 0]))
-            obstacles.append({"type": "box", "center": t["center"], "half_extents": t["half_extents"],
-                              "rpy": [0.0, 0.0, yaw]})
+            obstacles.append(
+                {"type": "box", "center": t["center"], "half_extents": t["half_extents"], "rpy": [0.0, 0.0, yaw]}
+            )
     return {"obstacles": obstacles, "ground": None}
 
 
@@ -89,7 +91,8 @@ def changes():
 def test_the_world_equals_the_tree_of_its_present_obstacles_at_every_change(tree_with_sets):
     gen = torch.Generator().manual_seed(1)
     q = torch.tensor([[0.0, -0.3, 0.0, -2.2, 0.0, 2.0, 0.8]], dtype=torch.float64) + 0.2 * torch.randn(
-        2, 7, generator=gen, dtype=torch.float64)
+        2, 7, generator=gen, dtype=torch.float64
+    )
     qd = torch.randn(2, 7, generator=gen, dtype=torch.float64)
     for step, world in enumerate(changes()):
         world_b = World(SETS, batch=2)  # the same world for a batch of two states
@@ -100,9 +103,13 @@ def test_the_world_equals_the_tree_of_its_present_obstacles_at_every_change(tree
         fixed.weights["attractor"].load_state_dict(tree_with_sets.weights["attractor"].state_dict())
         a, b = tree_with_sets(q, qd, world_b.aux()), fixed(q, qd, scene_aux(world_b))
         for k in ("f", "M", "qdd", "V"):
-            torch.testing.assert_close(getattr(a, k), getattr(b, k), rtol=1e-12, atol=1e-12, msg=f"{k} at change {step}")
+            torch.testing.assert_close(
+                getattr(a, k), getattr(b, k), rtol=1e-12, atol=1e-12, msg=f"{k} at change {step}"
+            )
         for module in ("shared", "attractor"):  # gradients of f with respect to every weight parameter
-            pa = list((tree_with_sets.shared if module == "shared" else tree_with_sets.weights["attractor"]).parameters())
+            pa = list(
+                (tree_with_sets.shared if module == "shared" else tree_with_sets.weights["attractor"]).parameters()
+            )
             pb = list((fixed.shared if module == "shared" else fixed.weights["attractor"]).parameters())
             ga = torch.autograd.grad(a.f.sum(), pa, retain_graph=True, allow_unused=True)
             gb = torch.autograd.grad(b.f.sum(), pb, retain_graph=True, allow_unused=True)
@@ -117,8 +124,10 @@ def test_the_tree_declares_the_sets_and_their_weights_by_role(tree_with_sets):
     spec = expand_tree(declaration({"obstacles": [], "ground": None}, SETS))
     assert {"spheres1_present", "boxes2_rotation", "obstacle_center"} <= set(spec["aux"])
     assert spec["roles"]["obstacle"] == [f"cp{i}_obstacle" for i in range(1, 15)]
-    assert spec["nodes"]["cp3_boxes2"]["weight"] == {"shared": "cp3_obstacle", "bind": {
-        "obstacle_center": "boxes2_center", "obstacle_radius": "boxes2_radius"}}
+    assert spec["nodes"]["cp3_boxes2"]["weight"] == {
+        "shared": "cp3_obstacle",
+        "bind": {"obstacle_center": "boxes2_center", "obstacle_radius": "boxes2_radius"},
+    }
 
 
 def test_changes_the_world_cannot_make_are_clear_errors():

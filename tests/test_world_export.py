@@ -1,6 +1,7 @@
 """A tree holding obstacle sets exported once (learn/export.py::export_with_sets) serves any obstacles present: the
 loaded program, called with the set tensors and masks a World holds, equals the eager tree for every mask, and a
 saved file does the same with rmpfusion's code out of the loop."""
+
 from __future__ import annotations
 
 import torch
@@ -25,9 +26,13 @@ def test_one_export_serves_every_mask(tmp_path):
     path = tmp_path / "policy.pt2"
     torch.export.save(exported, path)
     loaded = torch.export.load(path).module()
-    for change in (lambda: None, lambda: world.add("sphere", center=[-0.4, 0.1, 0.2], radius=0.15),
-                   lambda: world.remove("spheres1"), lambda: world.remove("spheres2"),
-                   lambda: [world.add("sphere", center=[0.1 * k, -0.3, 0.0], radius=0.1) for k in range(3)]):
+    for change in (
+        lambda: None,
+        lambda: world.add("sphere", center=[-0.4, 0.1, 0.2], radius=0.15),
+        lambda: world.remove("spheres1"),
+        lambda: world.remove("spheres2"),
+        lambda: [world.add("sphere", center=[0.1 * k, -0.3, 0.0], radius=0.1) for k in range(3)],
+    ):
         change()
         aux = world.set_aux()
         args = [aux[n] for n in inputs]

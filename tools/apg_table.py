@@ -11,6 +11,7 @@ curve, figures/progression_rmp.png the snapshots' trajectories).
     python tools/apg_table.py --table-only        # the table of the run already in --out
     python tools/apg_table.py train.iterations=20 train.snapshots=[0,20]   # any overrides
 """
+
 from __future__ import annotations
 
 import argparse
@@ -41,21 +42,29 @@ def config(extra: list[str], experiment: str = "2d2level_apg"):
     from rmpfusion.pipeline.validate import resolve_and_validate
 
     with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
-        return resolve_and_validate(compose("config", overrides=[f"experiment={experiment}", "logger=disabled",
-                                                                  *extra]))
+        return resolve_and_validate(
+            compose("config", overrides=[f"experiment={experiment}", "logger=disabled", *extra])
+        )
 
 
 def unit_weights(exp):
     """learner-rmp's tree with every learned edge at weight 1: RMPflow's combination of the same leaves."""
     block = {"type": "rmp", "weights": {"type": "constant", "value": 1.0}}
-    return build_learner(block, exp.run.tree.model_dump(), exp.env.aux_dims(), exp.env.dim,
-                         expert={k: {} for k in exp.run.expert})
+    return build_learner(
+        block, exp.run.tree.model_dump(), exp.env.aux_dims(), exp.env.dim, expert={k: {} for k in exp.run.expert}
+    )
 
 
 def _row(label: str, task: dict, rates: dict, cost: float, fine: float) -> dict:
-    return {"policy": label, "success": rates.get("success"), "collision": rates.get("collision"),
-            "lyapunov": rates.get("lyapunov_monotone_fraction"), "lyapunov_fine": fine, "cost": cost,
-            **{k: task[k]["mean"] for k in TASK if k in task}}
+    return {
+        "policy": label,
+        "success": rates.get("success"),
+        "collision": rates.get("collision"),
+        "lyapunov": rates.get("lyapunov_monotone_fraction"),
+        "lyapunov_fine": fine,
+        "cost": cost,
+        **{k: task[k]["mean"] for k in TASK if k in task},
+    }
 
 
 def monotone_on_a_finer_step(exp, policy, starts, dt: float) -> float:
@@ -81,13 +90,27 @@ def rows(run_dir: Path, cfg, fine_dt: float) -> list[dict]:
         with torch.no_grad():
             return cost(policy, *starts, backward=False)["total"]
 
-    fine = lambda policy: monotone_on_a_finer_step(exp, policy, starts, fine_dt)  # noqa: E731
-    out = [_row("expert", metrics["expert"]["task"], metrics["expert"],
-                task_cost(lambda q, qd, a: exp.expert(q, qd, a).qdd), fine(exp.expert))]
+    fine = lambda policy: monotone_on_a_finer_step(exp, policy, starts, fine_dt)
+    out = [
+        _row(
+            "expert",
+            metrics["expert"]["task"],
+            metrics["expert"],
+            task_cost(lambda q, qd, a: exp.expert(q, qd, a).qdd),
+            fine(exp.expert),
+        )
+    ]
     unit = unit_weights(exp)
     met, onl = evaluate_model(exp, unit, splits, "unit weights")
-    out.append(_row("unit weights (RMPflow)", summarize(exp.env.task_metrics(onl.rollout)), met, task_cost(unit),
-                    fine(unit.policy)))
+    out.append(
+        _row(
+            "unit weights (RMPflow)",
+            summarize(exp.env.task_metrics(onl.rollout)),
+            met,
+            task_cost(unit),
+            fine(unit.policy),
+        )
+    )
     for it, state in sorted(fitted.result.snapshots.items()):
         s = metrics["learners"]["rmp"]["snapshots"][str(it)]
         snap = load_snapshot(model, state)
@@ -103,35 +126,51 @@ def _f(x, pct: bool = False) -> str:
 
 
 def table(rs: list[dict], dt: float, fine_dt: float) -> str:
-    head = ("| policy | task cost (APG's, test starts) | success | collisions | time to 0.1 (s) | path length "
-            f"| final distance | closest approach to an obstacle | V_r monotone (RK4 at {dt} s) "
-            f"| V_r monotone (RK4 at {fine_dt} s) |")
+    head = (
+        "| policy | task cost (APG's, test starts) | success | collisions | time to 0.1 (s) | path length "
+        f"| final distance | closest approach to an obstacle | V_r monotone (RK4 at {dt} s) "
+        f"| V_r monotone (RK4 at {fine_dt} s) |"
+    )
     lines = [head, "|---" * (head.count("|") - 1) + "|"]
     for r in rs:
-        lines.append(f"| {r['policy']} | {_f(r['cost'])} | {_f(r['success'], True)} | {_f(r['collision'], True)} "
-                     f"| {_f(r.get('time'))} | {_f(r.get('path_length'))} | {_f(r.get('final_distance'))} "
-                     f"| {_f(r.get('min_clearance'))} | {_f(r['lyapunov'], True)} | {_f(r['lyapunov_fine'], True)} |")
-    leaves = [f"- {r['policy']}: " + ", ".join(f"{k} = {v:.3g}" for k, v in r["leaves"].items())
-              for r in rs if r.get("leaves")]
+        lines.append(
+            f"| {r['policy']} | {_f(r['cost'])} | {_f(r['success'], True)} | {_f(r['collision'], True)} "
+            f"| {_f(r.get('time'))} | {_f(r.get('path_length'))} | {_f(r.get('final_distance'))} "
+            f"| {_f(r.get('min_clearance'))} | {_f(r['lyapunov'], True)} | {_f(r['lyapunov_fine'], True)} |"
+        )
+    leaves = [
+        f"- {r['policy']}: " + ", ".join(f"{k} = {v:.3g}" for k, v in r["leaves"].items())
+        for r in rs
+        if r.get("leaves")
+    ]
     return "\n".join(lines) + "\n" + ("\nLearned leaf numbers:\n" + "\n".join(leaves) + "\n" if leaves else "")
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", type=Path, default=Path("outputs/apg_table"))
-    ap.add_argument("--experiment", default="2d2level_apg", help="2d2level_apg, 2d2level_apg_leaves, or another "
-                                                                  "experiment trained by apg")
+    ap.add_argument(
+        "--experiment",
+        default="2d2level_apg",
+        help="2d2level_apg, 2d2level_apg_leaves, or another experiment trained by apg",
+    )
     ap.add_argument("--table-only", action="store_true", help="run nothing new: the table of <out>/run")
-    ap.add_argument("--fine-dt", type=float, default=0.002,
-                    help="the finer RK4 step on which every policy's V_r is checked again (s)")
+    ap.add_argument(
+        "--fine-dt",
+        type=float,
+        default=0.002,
+        help="the finer RK4 step on which every policy's V_r is checked again (s)",
+    )
     ap.add_argument("overrides", nargs="*", help="Hydra overrides of experiment=2d2level_apg")
     a = ap.parse_args(argv)
     t0 = time.time()
     cfg = config(a.overrides, a.experiment)
     if not a.table_only:
         run_experiment(cfg, a.out / "run")
-    md = (f"# {cfg.name}: the tree optimised through the simulator vs the expert and unit weights "
-          f"({time.time() - t0:.0f} s)\n\n" + table(rows(a.out / "run", cfg, a.fine_dt), cfg.env.dt, a.fine_dt))
+    md = (
+        f"# {cfg.name}: the tree optimised through the simulator vs the expert and unit weights "
+        f"({time.time() - t0:.0f} s)\n\n" + table(rows(a.out / "run", cfg, a.fine_dt), cfg.env.dt, a.fine_dt)
+    )
     (a.out / "table.md").write_text(md)
     print(md)
     return 0

@@ -13,21 +13,32 @@ differences say nothing: they are compared by absolute difference, ``--residual-
 certificate's own tolerance. Prints the count compared, the largest relative difference, every number that
 differs beyond its tolerance and every key only one side has; exits 1 when any number differs.
 """
+
 from __future__ import annotations
 
 import argparse
 import json
 import math
 import sys
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 #: keys of residuals that are zero in exact arithmetic: compared by absolute difference
 RESIDUALS = {"max_energy_identity_error"}
 
 #: keys about how the run went (time, places, resumption), not about what it found
-IGNORED = {"timing", "train_seconds", "eval_seconds", "seconds", "path", "figures", "config_hash", "reused",
-           "resumed_from"}
+IGNORED = {
+    "timing",
+    "train_seconds",
+    "eval_seconds",
+    "seconds",
+    "path",
+    "figures",
+    "config_hash",
+    "reused",
+    "resumed_from",
+}
 
 
 def leaves(x: Any, prefix: str = "") -> Iterator[tuple[str, Any]]:
@@ -74,8 +85,9 @@ def compare(a: dict, b: dict, rtol: float, residual_atol: float = 1e-7) -> tuple
         worst = max(worst, d)
         if d > rtol:
             differ.append(f"  {k}: {la[k]!r} vs {lb[k]!r} (relative {d:.3g})")
-    one_sided = [f"  only in the first: {k}" for k in la if k not in lb] + \
-                [f"  only in the second: {k}" for k in lb if k not in la]
+    one_sided = [f"  only in the first: {k}" for k in la if k not in lb] + [
+        f"  only in the second: {k}" for k in lb if k not in la
+    ]
     return len(shared), worst, differ, one_sided
 
 
@@ -92,8 +104,10 @@ def read_metrics(path: Path) -> dict:
     except FileNotFoundError:
         raise ValueError(f"{path} does not exist; give the metrics.json of a finished run") from None
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
-        raise ValueError(f"{path} is not readable JSON ({e}): a run killed while writing it, or a damaged copy; "
-                         "rerun that run (it resumes and writes metrics.json again)") from None
+        raise ValueError(
+            f"{path} is not readable JSON ({e}): a run killed while writing it, or a damaged copy; "
+            "rerun that run (it resumes and writes metrics.json again)"
+        ) from None
     if not isinstance(data, dict):
         raise ValueError(f"{path} holds {type(data).__name__}, not the mapping a metrics.json holds")
     return data
@@ -104,8 +118,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("first", type=Path, help="a metrics.json, or the directory holding one (e.g. results/2d1level)")
     ap.add_argument("second", type=Path, help="the same")
     ap.add_argument("--rtol", type=float, default=1e-12, help="largest relative difference counted as equal")
-    ap.add_argument("--residual-atol", type=float, default=1e-7,
-                    help="largest absolute difference of two residuals counted as equal")
+    ap.add_argument(
+        "--residual-atol",
+        type=float,
+        default=1e-7,
+        help="largest absolute difference of two residuals counted as equal",
+    )
     args = ap.parse_args(argv)
     try:
         a, b = (read_metrics(metrics_path(p)) for p in (args.first, args.second))
@@ -113,8 +131,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {e}", file=sys.stderr)
         return 2
     n, worst, differ, one_sided = compare(a, b, args.rtol, args.residual_atol)
-    print(f"{n} values compared, largest relative difference {worst:.3g}; {len(differ)} differ beyond "
-          f"rtol={args.rtol:g}; {len(one_sided)} keys on one side only")
+    print(
+        f"{n} values compared, largest relative difference {worst:.3g}; {len(differ)} differ beyond "
+        f"rtol={args.rtol:g}; {len(one_sided)} keys on one side only"
+    )
     for line in differ + one_sided:
         print(line)
     return 1 if differ else 0

@@ -11,6 +11,7 @@ A reach crosses when its segment comes within the end effector's control-sphere 
 Prints per split: paths, crossing fraction, and quantiles of each path's clearance (m, negative: through the
 obstacle). Sampling starts checks them in pybullet, so this takes a few seconds per split.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -33,8 +34,11 @@ SPLITS = ("train", "val", "test")
 def split_summaries(run, env) -> dict[str, dict]:
     """Per split: the crossing summary of its starts and goals, drawn as the collect stage draws them."""
     d, out = run.data, {}
-    sizes = {"train": (d.train_envs, d.train_trajectories), "val": (d.val_envs, d.val_trajectories),
-             "test": (d.test_envs, d.test_trajectories)}
+    sizes = {
+        "train": (d.train_envs, d.train_trajectories),
+        "val": (d.val_envs, d.val_trajectories),
+        "test": (d.test_envs, d.test_trajectories),
+    }
     for split in SPLITS:
         n_envs, n_traj = sizes[split]
         if n_envs == 0:
@@ -62,13 +66,16 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     torch.set_num_threads(1)
     with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
-        run = resolve_and_validate(compose("config", overrides=[f"experiment={a.experiment}", "logger=disabled",
-                                                                  *a.overrides]))
+        run = resolve_and_validate(
+            compose("config", overrides=[f"experiment={a.experiment}", "logger=disabled", *a.overrides])
+        )
     env = make_env(run)
     summaries = split_summaries(run, env)
     env.close()
-    print(f"{run.name}, seed {run.seed}: a reach crosses when its straight end-effector path passes within "
-          f"{env.ee_radius:.3f} m (the end effector's control sphere) of an obstacle; clearance quantiles in m")
+    print(
+        f"{run.name}, seed {run.seed}: a reach crosses when its straight end-effector path passes within "
+        f"{env.ee_radius:.3f} m (the end effector's control sphere) of an obstacle; clearance quantiles in m"
+    )
     print(table(summaries))
     if a.json:
         a.json.write_text(json.dumps({"experiment": run.name, "seed": run.seed, "splits": summaries}, indent=2))

@@ -13,6 +13,7 @@ themselves (metrics.json "training").
 
 Writes <out>/table.md and <out>/{bc,dagger}/ (each a run directory: metrics.json, figures, checkpoints).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -36,9 +37,17 @@ def config(method: str, scale: float, seed: int, extra: list[str]) -> RunConfig:
     from rmpfusion.pipeline.validate import resolve_and_validate
 
     it = max(30, round(20000 * scale))
-    over = ["experiment=2d2level_unstructured", "~learners.un_large", f"train={METHODS[method]}", f"seed={seed}",
-            "logger=disabled", f"train.iterations={it}", f"train.snapshots=[0,{it // 20},{it // 4},{it}]",
-            f"train.checkpoint_every={max(1, it // 10)}", f"train.log_every={max(1, it // 100)}"]
+    over = [
+        "experiment=2d2level_unstructured",
+        "~learners.un_large",
+        f"train={METHODS[method]}",
+        f"seed={seed}",
+        "logger=disabled",
+        f"train.iterations={it}",
+        f"train.snapshots=[0,{it // 20},{it // 4},{it}]",
+        f"train.checkpoint_every={max(1, it // 10)}",
+        f"train.log_every={max(1, it // 100)}",
+    ]
     if scale < 1:  # the same share of demonstrations for both methods: 1000·scale of them, half of them DAgger's
         n = max(2, round(50 * scale))
         over.append(f"data.train_trajectories={n}")
@@ -62,28 +71,36 @@ def _lyapunov(r: dict) -> str:
 
 
 def table(results: dict) -> str:
-    rows = ["| learner | method | expert labels | expert calls while acting | validation loss | batch-loss "
-            "| online-loss | online-loss, median | online-loss before first collision | success | collisions "
-            "| V_r monotone | train s |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    rows = [
+        "| learner | method | expert labels | expert calls while acting | validation loss | batch-loss "
+        "| online-loss | online-loss, median | online-loss before first collision | success | collisions "
+        "| V_r monotone | train s |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
     for key, name in LEARNERS.items():
         for method, m in results.items():
             r = m["learners"].get(key)
             if r is None:
                 continue
             t = r.get("training", {})
-            rows.append(f"| {name} | {method} | {t.get('expert_queries', '–')} | {t.get('expert_calls_in_rollouts', 0)} "
-                        f"| {_f(r.get('val_loss'))} | {_f(r['batch_loss'])} | {_f(r['online_loss'])} "
-                        f"| {_f(r.get('online_loss_median'))} | {_f(r.get('online_loss_before_collision'))} "
-                        f"| {_f(r['success'], True)} | {_f(r['collision'], True)} | {_lyapunov(r)} "
-                        f"| {r['train_seconds']:.0f} |")
+            rows.append(
+                f"| {name} | {method} | {t.get('expert_queries', '–')} | {t.get('expert_calls_in_rollouts', 0)} "
+                f"| {_f(r.get('val_loss'))} | {_f(r['batch_loss'])} | {_f(r['online_loss'])} "
+                f"| {_f(r.get('online_loss_median'))} | {_f(r.get('online_loss_before_collision'))} "
+                f"| {_f(r['success'], True)} | {_f(r['collision'], True)} | {_lyapunov(r)} "
+                f"| {r['train_seconds']:.0f} |"
+            )
     rounds = []
     for key, name in LEARNERS.items():
         r = results.get("dagger", {}).get("learners", {}).get(key)
         if r is not None:
             per = r["training"]["rounds"][1:]
-            rounds.append(f"- {name}, DAgger's own rollouts in rounds 1..{len(per)}: collided "
-                          + ", ".join(f"{100 * x['learner_collision_rate']:.0f} %" for x in per)
-                          + "; reached the goal " + ", ".join(f"{100 * x['learner_success_rate']:.0f} %" for x in per))
+            rounds.append(
+                f"- {name}, DAgger's own rollouts in rounds 1..{len(per)}: collided "
+                + ", ".join(f"{100 * x['learner_collision_rate']:.0f} %" for x in per)
+                + "; reached the goal "
+                + ", ".join(f"{100 * x['learner_success_rate']:.0f} %" for x in per)
+            )
     return "\n".join(rows) + ("\n\n" + "\n".join(rounds) + "\n" if rounds else "\n")
 
 
@@ -106,8 +123,10 @@ def main(argv=None) -> int:
                 results[method] = json.loads(path.read_text())
             continue
         results[method] = run_experiment(config(method, a.scale, a.seed, a.overrides), a.out / method)
-    md = (f"# 2d2level: behavior cloning vs DAgger at equal expert labels (scale {a.scale}, seed {a.seed}, "
-          f"{time.time() - t0:.0f} s)\n\n" + table(results))
+    md = (
+        f"# 2d2level: behavior cloning vs DAgger at equal expert labels (scale {a.scale}, seed {a.seed}, "
+        f"{time.time() - t0:.0f} s)\n\n" + table(results)
+    )
     a.out.mkdir(parents=True, exist_ok=True)
     (a.out / "table.md").write_text(md)
     print(md)

@@ -14,6 +14,7 @@ An expert whose weights are what make it
 succeed reaches the goal where the unit-weight tree does not; obstacle weights that matter keep the arm
 further from the obstacles than unit ones do.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -23,20 +24,22 @@ import time
 import torch
 from hydra import compose, initialize_config_dir
 
+from rmpfusion.assembly.tree import build_tree
 from rmpfusion.cli import CONF_DIR
+from rmpfusion.pipeline.collect import SPLIT_SEED_OFFSET
 from rmpfusion.pipeline.construct import build_all, build_learners, expert_spec
 from rmpfusion.pipeline.experiment import learner_seed
 from rmpfusion.pipeline.validate import resolve_and_validate
-from rmpfusion.assembly.tree import build_tree
-from rmpfusion.pipeline.collect import SPLIT_SEED_OFFSET
 
 
 def variants(expert: dict) -> dict[str, dict]:
     """Expert weight sets: as designed, all 1 (RMPflow), and the designed attractor with unit obstacle weights."""
     unit = {"type": "constant", "value": 1.0}
-    return {"expert": expert,
-            "unit weights (RMPflow)": {k: unit for k in expert},
-            "unit obstacle weights": {k: (v if k == "attractor" else unit) for k, v in expert.items()}}
+    return {
+        "expert": expert,
+        "unit weights (RMPflow)": {k: unit for k in expert},
+        "unit obstacle weights": {k: (v if k == "attractor" else unit) for k, v in expert.items()},
+    }
 
 
 def policies(run, env, keep: set[str]):
@@ -48,8 +51,9 @@ def policies(run, env, keep: set[str]):
     if "learner-0" in keep and "rmp" in run.learners:
         with torch.random.fork_rng():
             torch.manual_seed(learner_seed(run.seed, "rmp"))
-            learner = build_learners(run.model_copy(update={"learners": {"rmp": run.learners["rmp"]}}),
-                                     env.aux_dims())["rmp"]
+            learner = build_learners(run.model_copy(update={"learners": {"rmp": run.learners["rmp"]}}), env.aux_dims())[
+                "rmp"
+            ]
         yield "learner-0", learner.policy
 
 
@@ -59,31 +63,51 @@ def main(argv=None) -> int:
     ap.add_argument("--rate", type=float, default=250.0, help="control rate (Hz); the experiment evaluates at 1000")
     ap.add_argument("--mode", choices=["kinematic", "torque"], default="kinematic")
     ap.add_argument("--trajectories", type=int, default=20)
-    ap.add_argument("--only", nargs="+", choices=["expert", "unit", "unit-obstacle", "learner-0"], default=None,
-                    help="run only these policies (default: all four)")
+    ap.add_argument(
+        "--only",
+        nargs="+",
+        choices=["expert", "unit", "unit-obstacle", "learner-0"],
+        default=None,
+        help="run only these policies (default: all four)",
+    )
     ap.add_argument("overrides", nargs="*", help="further Hydra overrides, e.g. expert.attractor.low=20")
     a = ap.parse_args(argv)
     torch.set_num_threads(1)
-    over = [f"experiment={a.experiment}", "logger=disabled", f"env.mode={a.mode}", f"env.control_rate={a.rate}", *a.overrides]
+    over = [
+        f"experiment={a.experiment}",
+        "logger=disabled",
+        f"env.mode={a.mode}",
+        f"env.control_rate={a.rate}",
+        *a.overrides,
+    ]
     with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
         run = resolve_and_validate(compose("config", overrides=over))
     env, _, _ = build_all(run)
     gen = torch.Generator().manual_seed(run.seed + SPLIT_SEED_OFFSET["val"])
     q0, qd0, aux = env.sample_initial_states(env.sample_envs(1, gen, split="val"), a.trajectories, gen)
-    print(f"{'policy':24s} {'time (s)':>11s} {'reached':>8s} {'c-space':>8s} {'e-e (m)':>8s} "
-          f"{'dist@10s':>9s} {'collisions':>10s} {'close':>6s} {'clearance least/median':>23s}")
-    chosen = {"expert": "expert", "unit": "unit weights (RMPflow)", "unit-obstacle": "unit obstacle weights",
-              "learner-0": "learner-0"}
+    print(
+        f"{'policy':24s} {'time (s)':>11s} {'reached':>8s} {'c-space':>8s} {'e-e (m)':>8s} "
+        f"{'dist@10s':>9s} {'collisions':>10s} {'close':>6s} {'clearance least/median':>23s}"
+    )
+    chosen = {
+        "expert": "expert",
+        "unit": "unit weights (RMPflow)",
+        "unit-obstacle": "unit obstacle weights",
+        "learner-0": "learner-0",
+    }
     keep = set(chosen.values()) if a.only is None else {chosen[k] for k in a.only}
     for label, policy in policies(run, env, keep):
         t0 = time.time()
         ro = env.rollout(policy, q0, qd0, aux, horizon=10.0, record_every=0.1)
         m = env.task_metrics(ro)
-        print(f"{label:24s} {m['time'].mean():5.2f}±{m['time'].std():4.2f} {m['reached'].mean():8.2f} "
-              f"{m['cspace_length'].mean():8.2f} {m['ee_length'].mean():8.2f} {m['timeout_goal_distance'].mean():9.3f} "
-              f"{int(m['collided'].sum()):10d} {int(m['close_pass'].sum()):6d} "
-              f"{float(m['min_clearance'].min()):11.4f}/{float(m['min_clearance'].median()):.4f}   "
-              f"({time.time() - t0:.0f} s)", flush=True)
+        print(
+            f"{label:24s} {m['time'].mean():5.2f}±{m['time'].std():4.2f} {m['reached'].mean():8.2f} "
+            f"{m['cspace_length'].mean():8.2f} {m['ee_length'].mean():8.2f} {m['timeout_goal_distance'].mean():9.3f} "
+            f"{int(m['collided'].sum()):10d} {int(m['close_pass'].sum()):6d} "
+            f"{float(m['min_clearance'].min()):11.4f}/{float(m['min_clearance'].median()):.4f}   "
+            f"({time.time() - t0:.0f} s)",
+            flush=True,
+        )
     env.close()
     return 0
 

@@ -23,6 +23,7 @@ the grid of starts at rest, V_r monotone, the certificate, training time; the me
 ``<out>/lasa_table.json`` (every number) and ``<out>/lasa_grid.png`` (the rollouts figure of each shape for the
 last variant listed). A shape whose run failed or is still running is listed, not silently left out.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -35,21 +36,37 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from rmpfusion.recordings import SINGLE_PATTERN_SHAPES  # noqa: E402
+from rmpfusion.recordings import SINGLE_PATTERN_SHAPES
 
-VARIANTS = {"weights": ["tree=lasa"], "map": ["learners.rmp.edges=[]"], "both": [],
-            "first_order": ["~learners.rmp", "+learner@learners.first_order=first_order"]}
-COLUMNS = (("test DTW (mm)", lambda r: 1e3 * r["reproduction_test"]["dtw"]),
-           ("swept area (mm²)", lambda r: 1e6 * r["reproduction_test"]["swept_error_area"]),
-           ("final distance (mm)", lambda r: 1e3 * r["reproduction_test"]["final_distance"]),
-           ("converged", lambda r: r["convergence"]["converged"]),
-           ("V_r monotone", lambda r: r["convergence"].get("lyapunov_monotone_fraction", float("nan"))))
+VARIANTS = {
+    "weights": ["tree=lasa"],
+    "map": ["learners.rmp.edges=[]"],
+    "both": [],
+    "first_order": ["~learners.rmp", "+learner@learners.first_order=first_order"],
+}
+COLUMNS = (
+    ("test DTW (mm)", lambda r: 1e3 * r["reproduction_test"]["dtw"]),
+    ("swept area (mm²)", lambda r: 1e6 * r["reproduction_test"]["swept_error_area"]),
+    ("final distance (mm)", lambda r: 1e3 * r["reproduction_test"]["final_distance"]),
+    ("converged", lambda r: r["convergence"]["converged"]),
+    ("V_r monotone", lambda r: r["convergence"].get("lyapunov_monotone_fraction", float("nan"))),
+)
 
 
 def run_variant(variant: str, shapes: list[str], out: Path, extra: list[str]) -> int:
     """One multirun over the shapes; returns its exit status (failed jobs are listed by rmpfusion-run)."""
-    cmd = [sys.executable, "-m", "rmpfusion.cli.run", "-m", "experiment=lasa", f"data.shape={','.join(shapes)}",
-           *VARIANTS[variant], f"hydra.sweep.dir={out / variant}", "hydra.sweep.subdir=${data.shape}", *extra]
+    cmd = [
+        sys.executable,
+        "-m",
+        "rmpfusion.cli.run",
+        "-m",
+        "experiment=lasa",
+        f"data.shape={','.join(shapes)}",
+        *VARIANTS[variant],
+        f"hydra.sweep.dir={out / variant}",
+        "hydra.sweep.subdir=${data.shape}",
+        *extra,
+    ]
     print("$", " ".join(cmd), flush=True)
     return subprocess.call(cmd, cwd=ROOT)
 
@@ -165,7 +182,9 @@ def main(argv=None) -> int:
         print("no finished run to tabulate", file=sys.stderr)
         return 1
     order = {s: k for k, s in enumerate(args.shapes)}
-    runs = dict(sorted(runs.items(), key=lambda kv: (order[kv[0].split("/", 1)[1]], args.variants.index(kv[0].split("/")[0]))))
+    runs = dict(
+        sorted(runs.items(), key=lambda kv: (order[kv[0].split("/", 1)[1]], args.variants.index(kv[0].split("/")[0])))
+    )
     text = table_of(runs).rstrip("\n")
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "lasa_table.md").write_text(text + "\n")

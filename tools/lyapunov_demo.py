@@ -4,6 +4,7 @@ Samples environments, rolls the closed loop q̈ = π(q, q̇) out for the whole b
 every rollout (V_r non-increasing, dV_r/dt = −q̇ᵀB_r q̇), and writes figures and metrics.json to a new
 run directory under outputs/.
 """
+
 from __future__ import annotations
 
 import json
@@ -15,23 +16,36 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import torch  # noqa: E402
+import matplotlib.pyplot as plt
+import torch
 
-import rmpfusion  # noqa: E402
-from rmpfusion.envs.particle2d import Particle2D  # noqa: E402
-from rmpfusion.evaluate.lyapunov import energy_rate_residual, lyapunov_monotone  # noqa: E402
+import rmpfusion
+from rmpfusion.envs.particle2d import Particle2D
+from rmpfusion.evaluate.lyapunov import energy_rate_residual, lyapunov_monotone
 
 TREE = {
     "root": {"name": "q", "dim": 2},
     "nodes": {
-        "obstacle": {"parent": "q", "map": {"type": "sphere_distance", "center": "obstacle1_center", "radius": "obstacle1_radius"},
-                     "weight": {"type": "logistic", "low": 0.5, "high": 4.0, "center": "obstacle1_center",
-                                "radius": "obstacle1_radius", "steepness": -4.0, "switch_distance": 0.5},
-                     "rmp": {"type": "collision_avoidance", "r_w": 1.0, "alpha": 1e-3, "eta": 0.5}},
-        "goal": {"parent": "q", "map": {"type": "offset", "origin": "goal"},
-                 "weight": {"type": "rbf", "low": 1.0, "high": 3.0, "center": "goal", "sigma": 1.0},
-                 "rmp": {"type": "goal_attractor", "gain": 2.0, "eta": 2.0}},
+        "obstacle": {
+            "parent": "q",
+            "map": {"type": "sphere_distance", "center": "obstacle1_center", "radius": "obstacle1_radius"},
+            "weight": {
+                "type": "logistic",
+                "low": 0.5,
+                "high": 4.0,
+                "center": "obstacle1_center",
+                "radius": "obstacle1_radius",
+                "steepness": -4.0,
+                "switch_distance": 0.5,
+            },
+            "rmp": {"type": "collision_avoidance", "r_w": 1.0, "alpha": 1e-3, "eta": 0.5},
+        },
+        "goal": {
+            "parent": "q",
+            "map": {"type": "offset", "origin": "goal"},
+            "weight": {"type": "rbf", "low": 1.0, "high": 3.0, "center": "goal", "sigma": 1.0},
+            "rmp": {"type": "goal_attractor", "gain": 2.0, "eta": 2.0},
+        },
     },
 }
 
@@ -79,10 +93,14 @@ def main() -> int:
         ax.plot(ro.q[:, b, 0], ro.q[:, b, 1], "-", lw=1.5)
         ax.plot(*ro.q[0, b].tolist(), "ko", ms=4)
         ax.arrow(*ro.q[0, b].tolist(), *(0.5 * ro.qd[0, b]).tolist(), head_width=0.1, color="k")
-    ax.set_aspect("equal"); ax.set_title("trajectories in one environment"); ax.legend()
+    ax.set_aspect("equal")
+    ax.set_title("trajectories in one environment")
+    ax.legend()
     for b in range(sl.start, sl.stop):
         axv.plot(ro.times, ro.V[:, b])
-    axv.set_xlabel("t [s]"); axv.set_ylabel("V_r"); axv.set_title("Lyapunov function (non-increasing)")
+    axv.set_xlabel("t [s]")
+    axv.set_ylabel("V_r")
+    axv.set_title("Lyapunov function (non-increasing)")
     fig.tight_layout()
     fig.savefig(run_dir / "figures" / "trajectories_lyapunov.png", dpi=120)
     print(json.dumps(metrics, indent=2))

@@ -17,6 +17,7 @@ its file is reported STALE: the code moved, and the list below needs updating.
 The exit status is 0 when every mutant run was killed, 1 otherwise. ``tests/test_mutants.py`` (slow) runs
 ``--fast`` and asserts that.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -48,50 +49,92 @@ class Mutant:
 RECOMPUTED = "tests/test_recomputed_numbers.py"
 
 MUTANTS: tuple[Mutant, ...] = (
-    Mutant("lyapunov_any", "rmpfusion/evaluate/lyapunov.py",
-           "    return ok.all(0)\n", "    return ok.any(0)\n",
-           "the Lyapunov monitor accepts a trajectory when any record (not every record) is non-increasing",
-           (f"{RECOMPUTED}::test_lyapunov_monitor_fails_a_trajectory_that_rises_at_one_record_among_many",
-            f"{RECOMPUTED}::test_lyapunov_monitor_agrees_with_a_direct_comparison_on_random_series"),
-           ("tests/test_particle2d.py::test_lyapunov_monotone_rule",
+    Mutant(
+        "lyapunov_any",
+        "rmpfusion/evaluate/lyapunov.py",
+        "    return ok.all(0)\n",
+        "    return ok.any(0)\n",
+        "the Lyapunov monitor accepts a trajectory when any record (not every record) is non-increasing",
+        (
+            f"{RECOMPUTED}::test_lyapunov_monitor_fails_a_trajectory_that_rises_at_one_record_among_many",
+            f"{RECOMPUTED}::test_lyapunov_monitor_agrees_with_a_direct_comparison_on_random_series",
+        ),
+        (
+            "tests/test_particle2d.py::test_lyapunov_monotone_rule",
             "tests/test_particle2d.py::test_tree_rollout_is_safe_stable_and_reaches",
-            "tests/test_franka.py::test_tiny_franka_experiment_end_to_end")),
-    Mutant("certificate_zero_weight", "rmpfusion/evaluate/certificate.py",
-           "(w_all > 0).all(1)", "(w_all >= 0).all(1)",
-           "the certificate accepts w >= 0 instead of w > 0",
-           (f"{RECOMPUTED}::test_certificate_rejects_a_weight_that_is_exactly_zero",),
-           ("tests/test_certificate.py",)),
-    Mutant("dataset_loss_per_sample", "rmpfusion/learn/objectives.py",
-           "    return total / (n * data.qdd.shape[1])\n", "    return total / n\n",
-           "dataset_loss divides the summed squared error by the number of samples n instead of n·d",
-           (f"{RECOMPUTED}::test_dataset_loss_is_the_mean_squared_error_over_every_entry",
-            f"{RECOMPUTED}::test_the_minibatch_loss_and_the_dataset_loss_are_the_same_quantity"),
-           ("tests/test_learning.py",)),
-    Mutant("training_loss_summed", "rmpfusion/learn/objectives.py",
-           "        return F.mse_loss(pred, target)\n", "        return F.mse_loss(pred, target, reduction=\"sum\")\n",
-           "the training loss is summed over the minibatch instead of averaged",
-           (f"{RECOMPUTED}::test_training_loss_is_the_minibatch_mean_and_minibatches_reach_every_sample",
-            f"{RECOMPUTED}::test_the_minibatch_loss_and_the_dataset_loss_are_the_same_quantity"),
-           ("tests/test_learning.py",)),
-    Mutant("timeout_distance_second_to_last", "rmpfusion/envs/manipulator/metrics.py",
-           '"timeout_goal_distance": ro.goal_distance[-1]', '"timeout_goal_distance": ro.goal_distance[-2]',
-           "the time-out goal distance is read from the second-to-last record",
-           (f"{RECOMPUTED}::test_time_out_goal_distance_is_the_last_record_recomputed_from_the_kinematics",),
-           ("tests/test_franka.py::test_ratios_to_the_expert_are_per_trajectory",
-            "tests/test_franka.py::test_tiny_franka_experiment_end_to_end")),
-    Mutant("minibatch_skips_last_sample", "rmpfusion/learn/methods/bc.py",
-           "idx = torch.randint(N, ", "idx = torch.randint(N - 1, ",
-           "behavior cloning's minibatches never draw the last training sample",
-           (f"{RECOMPUTED}::test_training_loss_is_the_minibatch_mean_and_minibatches_reach_every_sample",),
-           ("tests/test_learning.py",)),
+            "tests/test_franka.py::test_tiny_franka_experiment_end_to_end",
+        ),
+    ),
+    Mutant(
+        "certificate_zero_weight",
+        "rmpfusion/evaluate/certificate.py",
+        "(w_all > 0).all(1)",
+        "(w_all >= 0).all(1)",
+        "the certificate accepts w >= 0 instead of w > 0",
+        (f"{RECOMPUTED}::test_certificate_rejects_a_weight_that_is_exactly_zero",),
+        ("tests/test_certificate.py",),
+    ),
+    Mutant(
+        "dataset_loss_per_sample",
+        "rmpfusion/learn/objectives.py",
+        "    return total / (n * data.qdd.shape[1])\n",
+        "    return total / n\n",
+        "dataset_loss divides the summed squared error by the number of samples n instead of n·d",
+        (
+            f"{RECOMPUTED}::test_dataset_loss_is_the_mean_squared_error_over_every_entry",
+            f"{RECOMPUTED}::test_the_minibatch_loss_and_the_dataset_loss_are_the_same_quantity",
+        ),
+        ("tests/test_learning.py",),
+    ),
+    Mutant(
+        "training_loss_summed",
+        "rmpfusion/learn/objectives.py",
+        "        return F.mse_loss(pred, target)\n",
+        '        return F.mse_loss(pred, target, reduction="sum")\n',
+        "the training loss is summed over the minibatch instead of averaged",
+        (
+            f"{RECOMPUTED}::test_training_loss_is_the_minibatch_mean_and_minibatches_reach_every_sample",
+            f"{RECOMPUTED}::test_the_minibatch_loss_and_the_dataset_loss_are_the_same_quantity",
+        ),
+        ("tests/test_learning.py",),
+    ),
+    Mutant(
+        "timeout_distance_second_to_last",
+        "rmpfusion/envs/manipulator/metrics.py",
+        '"timeout_goal_distance": ro.goal_distance[-1]',
+        '"timeout_goal_distance": ro.goal_distance[-2]',
+        "the time-out goal distance is read from the second-to-last record",
+        (f"{RECOMPUTED}::test_time_out_goal_distance_is_the_last_record_recomputed_from_the_kinematics",),
+        (
+            "tests/test_franka.py::test_ratios_to_the_expert_are_per_trajectory",
+            "tests/test_franka.py::test_tiny_franka_experiment_end_to_end",
+        ),
+    ),
+    Mutant(
+        "minibatch_skips_last_sample",
+        "rmpfusion/learn/methods/bc.py",
+        "idx = torch.randint(N, ",
+        "idx = torch.randint(N - 1, ",
+        "behavior cloning's minibatches never draw the last training sample",
+        (f"{RECOMPUTED}::test_training_loss_is_the_minibatch_mean_and_minibatches_reach_every_sample",),
+        ("tests/test_learning.py",),
+    ),
 )
 
 
 def scratch_copy(dest: Path, tests_from: str | None) -> None:
     """The repository's tracked and untracked-but-not-ignored files under ``dest``; with ``tests_from``, tests/ as
     that commit has it."""
-    files = subprocess.run(["git", "ls-files", "-z", "--cached", "--others", "--exclude-standard"], cwd=ROOT,
-                           check=True, capture_output=True).stdout.decode().split("\0")
+    files = (
+        subprocess.run(
+            ["git", "ls-files", "-z", "--cached", "--others", "--exclude-standard"],
+            cwd=ROOT,
+            check=True,
+            capture_output=True,
+        )
+        .stdout.decode()
+        .split("\0")
+    )
     for rel in filter(None, files):
         src = ROOT / rel
         if src.is_file():
@@ -143,8 +186,12 @@ def check(root: Path, m: Mutant, fast: bool, timeout: float) -> dict:
             return {"verdict": "NO TESTS", "tests": [], "detail": "none of its tests exist in this copy"}
         t0 = time.perf_counter()
         passed, tail = run_tests(root, selections, timeout)
-        return {"verdict": "SURVIVED" if passed else "KILLED", "tests": selections, "detail": tail,
-                "seconds": time.perf_counter() - t0}
+        return {
+            "verdict": "SURVIVED" if passed else "KILLED",
+            "tests": selections,
+            "detail": tail,
+            "seconds": time.perf_counter() - t0,
+        }
     finally:
         (root / m.path).write_text(original, encoding="utf-8")
 
@@ -175,10 +222,16 @@ def main(argv: list[str] | None = None) -> int:
         for m in chosen:
             r = results[m.name] = check(root, m, args.fast, args.timeout)
             took = f" ({r['seconds']:.0f} s)" if "seconds" in r else ""
-            print(f"{r['verdict']:9s} {m.name}{took}: {m.what}\n          tests: {' '.join(r['tests']) or '-'}\n"
-                  f"          {r['detail'].replace(chr(10), chr(10) + ' ' * 10)}", flush=True)
+            print(
+                f"{r['verdict']:9s} {m.name}{took}: {m.what}\n          tests: {' '.join(r['tests']) or '-'}\n"
+                f"          {r['detail'].replace(chr(10), chr(10) + ' ' * 10)}",
+                flush=True,
+            )
     killed = sum(r["verdict"] == "KILLED" for r in results.values())
-    print(f"{killed} of {len(results)} mutants killed" + (f" by the tests of {args.tests_from}" if args.tests_from else ""))
+    print(
+        f"{killed} of {len(results)} mutants killed"
+        + (f" by the tests of {args.tests_from}" if args.tests_from else "")
+    )
     return 0 if killed == len(results) else 1
 
 

@@ -8,6 +8,7 @@ tools/task_table.py (expert and every snapshot on the test starts, 10 s each) an
     python tools/pg_franka.py                      # conf/train/pg.yaml as it is
     python tools/pg_franka.py --table-only         # the table of the run already in --out
 """
+
 from __future__ import annotations
 
 import argparse
@@ -21,7 +22,7 @@ import torch
 from rmpfusion.learn.checkpoints import load_checkpoint
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from task_table import HEADER, rows  # noqa: E402
+from task_table import HEADER, rows
 
 
 def config(extra: list[str]):
@@ -38,8 +39,10 @@ def curve(run_dir: Path) -> str:
     """The validation cost of the mean policy and the training episodes' cost, from the last checkpoint."""
     ck = load_checkpoint(sorted((run_dir / "checkpoints" / "rmp").glob("ckpt-*.pt"))[-1])
     train = dict(ck["curve"])
-    lines = ["| iteration | task cost, validation starts (mean policy) | task cost, training episodes (Gaussian) |",
-             "|---|---|---|"]
+    lines = [
+        "| iteration | task cost, validation starts (mean policy) | task cost, training episodes (Gaussian) |",
+        "|---|---|---|",
+    ]
     for it, v in ck["val_curve"]:
         lines.append(f"| {it} | {v:.3f} | {train[it]:.3f} |" if it in train else f"| {it} | {v:.3f} | – |")
     return "\n".join(lines)
@@ -58,9 +61,18 @@ def main(argv=None) -> int:
         torch.set_num_threads(1)
         run_experiment(config(a.overrides), a.out / "run")
     metrics = json.loads((a.out / "run" / "metrics.json").read_text())
-    md = "\n".join([f"# franka_pg: REINFORCE on the Franka from random weights ({time.time() - t0:.0f} s)", "",
-                    HEADER, "|" + "---|" * (HEADER.count("|") - 1), *rows(metrics, with_expert=True), "",
-                    curve(a.out / "run"), ""])
+    md = "\n".join(
+        [
+            f"# franka_pg: REINFORCE on the Franka from random weights ({time.time() - t0:.0f} s)",
+            "",
+            HEADER,
+            "|" + "---|" * (HEADER.count("|") - 1),
+            *rows(metrics, with_expert=True),
+            "",
+            curve(a.out / "run"),
+            "",
+        ]
+    )
     (a.out / "table.md").write_text(md)
     print(md)
     return 0

@@ -15,6 +15,7 @@ harder to get right (conf/experiment/2d1level_hard_test.yaml says how, and how i
 The validation loss (5 × 10 trajectories in environments drawn like the training ones) is the one settings are
 chosen on; the test losses are only reported.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -37,13 +38,20 @@ PAPER = {  # (experiment, learner): batch, online, success, collision   (None = 
 
 LEARNER_NAMES = {"rmp": "learner-rmp", "un": "learner-un", "un_large": "learner-un-large"}
 # table row -> conf/experiment
-EXPERIMENTS = {"2d1level": "2d1level", "2d2level": "2d2level_unstructured", "2d2level_per_edge": "2d2level_per_edge",
-               "2d1level_hard_test": "2d1level_hard_test", "2d2level_hard_test": "2d2level_hard_test"}
+EXPERIMENTS = {
+    "2d1level": "2d1level",
+    "2d2level": "2d2level_unstructured",
+    "2d2level_per_edge": "2d2level_per_edge",
+    "2d1level_hard_test": "2d1level_hard_test",
+    "2d2level_hard_test": "2d2level_hard_test",
+}
 #: the paper's table; the harder test splits (ours) are run with --only
 PAPER_EXPERIMENTS = ("2d1level", "2d2level", "2d2level_per_edge")
-HEADER = ("| experiment | policy | parameters | validation loss | batch-loss (ours / paper) | online-loss (ours / paper) "
-          "| online-loss, median over trajectories | online-loss before first collision | success (ours / paper) "
-          "| collisions (ours / paper) | time to 0.1 (s) | closest approach to an obstacle | V_r monotone |")
+HEADER = (
+    "| experiment | policy | parameters | validation loss | batch-loss (ours / paper) | online-loss (ours / paper) "
+    "| online-loss, median over trajectories | online-loss before first collision | success (ours / paper) "
+    "| collisions (ours / paper) | time to 0.1 (s) | closest approach to an obstacle | V_r monotone |"
+)
 
 
 def config(exp: str, scale: float, seed: int, lr: float | None, cache: str | None, extra: list[str]) -> RunConfig:
@@ -55,10 +63,16 @@ def config(exp: str, scale: float, seed: int, lr: float | None, cache: str | Non
 
     it = max(10, round(20000 * scale))
     snaps = sorted({0, it // 20, it // 4, it})
-    over = [f"experiment={EXPERIMENTS[exp]}", f"seed={seed}", "logger=disabled",
-            f"data.train_trajectories={max(1, round(50 * scale))}", f"train.iterations={it}",
-            f"train.snapshots=[{','.join(map(str, snaps))}]", f"train.checkpoint_every={max(1, it // 10)}",
-            f"train.log_every={max(1, it // 100)}"]
+    over = [
+        f"experiment={EXPERIMENTS[exp]}",
+        f"seed={seed}",
+        "logger=disabled",
+        f"data.train_trajectories={max(1, round(50 * scale))}",
+        f"train.iterations={it}",
+        f"train.snapshots=[{','.join(map(str, snaps))}]",
+        f"train.checkpoint_every={max(1, it // 10)}",
+        f"train.log_every={max(1, it // 100)}",
+    ]
     if lr is not None:
         over.append(f"train.lr={lr}")
     if cache:
@@ -106,15 +120,25 @@ def _monotone(fractions: list) -> str:
     return percent(min(fractions)) + (f" (every one of {len(fractions)} snapshots)" if len(fractions) > 1 else "")
 
 
-def _policy_row(exp: str, policy: str, m: dict, parameters="–", val=None, batch=None, paper=(None,) * 4,
-                monotone: str | None = None) -> str:
+def _policy_row(
+    exp: str, policy: str, m: dict, parameters="–", val=None, batch=None, paper=(None,) * 4, monotone: str | None = None
+) -> str:
     given = [None if p is None else (percent(p) if i >= 2 else paper_number(p)) for i, p in enumerate(paper)]
-    cells = [exp, policy, str(parameters), number(val), _ours_paper(number(batch), given[0]),
-             _ours_paper(number(m.get("online_loss")), given[1]), number(m.get("online_loss_median")),
-             number(m.get("online_loss_before_collision")), _ours_paper(percent(m.get("success")), given[2]),
-             _ours_paper(percent(m.get("collision")), given[3]), _task(m, "time", "mean", digits=3),
-             _task(m, "min_clearance", "min"),
-             monotone if monotone is not None else _monotone([m.get("lyapunov_monotone_fraction")])]
+    cells = [
+        exp,
+        policy,
+        str(parameters),
+        number(val),
+        _ours_paper(number(batch), given[0]),
+        _ours_paper(number(m.get("online_loss")), given[1]),
+        number(m.get("online_loss_median")),
+        number(m.get("online_loss_before_collision")),
+        _ours_paper(percent(m.get("success")), given[2]),
+        _ours_paper(percent(m.get("collision")), given[3]),
+        _task(m, "time", "mean", digits=3),
+        _task(m, "min_clearance", "min"),
+        monotone if monotone is not None else _monotone([m.get("lyapunov_monotone_fraction")]),
+    ]
     return "| " + " | ".join(cells) + " |"
 
 
@@ -128,13 +152,17 @@ def rows(exp: str, metrics: dict) -> list[str]:
     rmp = learners.get("learner-rmp")
     if rmp is not None and "0" in rmp["snapshots"]:
         s0 = rmp["snapshots"]["0"]
-        out.append(_policy_row(exp, "learner-rmp @ 0 (learner-0)", s0, rmp["num_parameters"], s0.get("val_loss"),
-                               s0.get("batch_loss")))
+        out.append(
+            _policy_row(
+                exp, "learner-rmp @ 0 (learner-0)", s0, rmp["num_parameters"], s0.get("val_loss"), s0.get("batch_loss")
+            )
+        )
     for name, r in learners.items():
         paper = PAPER.get((exp, name), (None,) * 4)
         monotone = _monotone([s.get("lyapunov_monotone_fraction") for s in r["snapshots"].values()])
-        out.append(_policy_row(exp, name, r, r["num_parameters"], r.get("val_loss"), r.get("batch_loss"), paper,
-                               monotone))
+        out.append(
+            _policy_row(exp, name, r, r["num_parameters"], r.get("val_loss"), r.get("batch_loss"), paper, monotone)
+        )
     return out
 
 
@@ -151,13 +179,21 @@ def main(argv=None) -> int:
     ap.add_argument("--scale", type=float, default=1.0, help="fraction of trajectories per env and of iterations")
     ap.add_argument("--out", type=Path, default=Path("outputs/reproduce_2d"))
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--only", choices=list(EXPERIMENTS), nargs="*", default=list(PAPER_EXPERIMENTS),
-                    help="these experiments (default: the paper's three; *_hard_test are ours)")
+    ap.add_argument(
+        "--only",
+        choices=list(EXPERIMENTS),
+        nargs="*",
+        default=list(PAPER_EXPERIMENTS),
+        help="these experiments (default: the paper's three; *_hard_test are ours)",
+    )
     ap.add_argument("--lr", type=float, default=None, help="override train.lr (default: conf/train/bc_rmsprop.yaml)")
     ap.add_argument("overrides", nargs="*", help="further Hydra overrides, e.g. weights@learners.rmp.weights=mlp_small")
     ap.add_argument("--cache", default=None, help="shared dataset cache directory")
-    ap.add_argument("--table-only", action="store_true",
-                    help="run nothing: write the table from the metrics.json already in <out>/<experiment>/")
+    ap.add_argument(
+        "--table-only",
+        action="store_true",
+        help="run nothing: write the table from the metrics.json already in <out>/<experiment>/",
+    )
     a = ap.parse_args(argv)
     if not 0 < a.scale <= 1:
         ap.error("--scale must be in (0, 1]")
@@ -169,7 +205,7 @@ def main(argv=None) -> int:
                 results[exp] = json.loads((a.out / exp / "metrics.json").read_text())
             continue
         results[exp] = run_experiment(config(exp, a.scale, a.seed, a.lr, a.cache, a.overrides), a.out / exp)
-    md = (f"# 2D experiments (scale {a.scale}, seed {a.seed}, {time.time() - t0:.0f} s)\n\n" + table(results))
+    md = f"# 2D experiments (scale {a.scale}, seed {a.seed}, {time.time() - t0:.0f} s)\n\n" + table(results)
     a.out.mkdir(parents=True, exist_ok=True)
     (a.out / "table.md").write_text(md)
     (a.out / "results.json").write_text(json.dumps(results, indent=1, default=str))

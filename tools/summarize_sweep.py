@@ -15,6 +15,7 @@ error bars = std) into ``--out`` (default: the sweep directory), and prints the 
 ``metrics.json`` (still running, killed, failed) are listed and left out; if no job has finished, the command
 exits with status 1 naming them.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -26,8 +27,14 @@ from pathlib import Path
 from typing import Any
 
 #: (metrics.json key, column title); the expert has no losses
-METRICS = (("val_loss", "validation loss"), ("batch_loss", "batch-loss"), ("online_loss", "online-loss"),
-           ("success", "success"), ("collision", "collision"), ("lyapunov_monotone_fraction", "V_r monotone"))
+METRICS = (
+    ("val_loss", "validation loss"),
+    ("batch_loss", "batch-loss"),
+    ("online_loss", "online-loss"),
+    ("success", "success"),
+    ("collision", "collision"),
+    ("lyapunov_monotone_fraction", "V_r monotone"),
+)
 SEED_KEYS = ("seed", "+seed", "++seed")
 
 
@@ -57,11 +64,19 @@ def find_jobs(sweep_dir: Path) -> tuple[list[dict], list[dict]]:
     """(finished jobs, unfinished jobs), each ``{"dir", "overrides", "metrics"?, "reason"?}``, in job order."""
     if not sweep_dir.is_dir():
         raise SweepError(f"{sweep_dir} is not a directory")
-    dirs = sorted({p.parent.parent for p in sweep_dir.rglob(".hydra/overrides.yaml")
-                   if ".submitit" not in p.parts and "accepted" not in p.parts}, key=_job_order)
+    dirs = sorted(
+        {
+            p.parent.parent
+            for p in sweep_dir.rglob(".hydra/overrides.yaml")
+            if ".submitit" not in p.parts and "accepted" not in p.parts
+        },
+        key=_job_order,
+    )
     if not dirs:
-        raise SweepError(f"{sweep_dir} holds no Hydra jobs (no */.hydra/overrides.yaml): is it a sweep directory "
-                         "(outputs/multirun/<time>)?")
+        raise SweepError(
+            f"{sweep_dir} holds no Hydra jobs (no */.hydra/overrides.yaml): is it a sweep directory "
+            "(outputs/multirun/<time>)?"
+        )
     done, pending = [], []
     for d in dirs:
         try:
@@ -129,14 +144,22 @@ def summarize(jobs: list[dict]) -> list[dict]:
         for j in members:
             learners += [n for n in (j["metrics"].get("learners") or {}) if n not in learners]
         for name in [*learners, "expert"]:
-            per = [(j["metrics"].get("learners") or {}).get(name) if name != "expert" else j["metrics"].get("expert")
-                   for j in members]
+            per = [
+                (j["metrics"].get("learners") or {}).get(name) if name != "expert" else j["metrics"].get("expert")
+                for j in members
+            ]
             have = [(j, p) for j, p in zip(members, per) if isinstance(p, dict)]
             if not have:
                 continue
-            rows.append({"setting": label, "learner": name, "seeds": [_seed(j) for j, _ in have],
-                         "jobs": [j["dir"].name for j, _ in have],
-                         **{key: _stats([p.get(key) for _, p in have]) for key, _ in METRICS}})
+            rows.append(
+                {
+                    "setting": label,
+                    "learner": name,
+                    "seeds": [_seed(j) for j, _ in have],
+                    "jobs": [j["dir"].name for j, _ in have],
+                    **{key: _stats([p.get(key) for _, p in have]) for key, _ in METRICS},
+                }
+            )
     return rows
 
 
@@ -152,15 +175,24 @@ def markdown(rows: list[dict], common: list[str], sweep_dir: Path, pending: list
     lines = [f"# Sweep {sweep_dir}", ""]
     if common:
         lines += [f"Shared overrides: `{' '.join(common)}`", ""]
-    lines += ["Mean ± sample std over seeds (n = number of seeds).", "",
-              "| setting | learner | n | seeds | " + " | ".join(t for _, t in METRICS) + " |",
-              "|---|---|---|---|" + "---|" * len(METRICS)]
+    lines += [
+        "Mean ± sample std over seeds (n = number of seeds).",
+        "",
+        "| setting | learner | n | seeds | " + " | ".join(t for _, t in METRICS) + " |",
+        "|---|---|---|---|" + "---|" * len(METRICS),
+    ]
     for r in rows:
-        lines.append(f"| {r['setting']} | {r['learner']} | {len(r['seeds'])} | {', '.join(map(str, r['seeds']))} | "
-                     + " | ".join(_fmt(r[k], k in pct) for k, _ in METRICS) + " |")
+        lines.append(
+            f"| {r['setting']} | {r['learner']} | {len(r['seeds'])} | {', '.join(map(str, r['seeds']))} | "
+            + " | ".join(_fmt(r[k], k in pct) for k, _ in METRICS)
+            + " |"
+        )
     if pending:
-        lines += ["", f"Not finished ({len(pending)}, left out): "
-                  + ", ".join(f"{j['dir'].name} ({j['reason']})" for j in pending)]
+        lines += [
+            "",
+            f"Not finished ({len(pending)}, left out): "
+            + ", ".join(f"{j['dir'].name} ({j['reason']})" for j in pending),
+        ]
     return "\n".join(lines) + "\n"
 
 
@@ -208,8 +240,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         done, pending = find_jobs(args.sweep_dir)
         if not done:
-            raise SweepError(f"no finished job in {args.sweep_dir}: "
-                             + "; ".join(f"{j['dir'].name}: {j['reason']}" for j in pending))
+            raise SweepError(
+                f"no finished job in {args.sweep_dir}: " + "; ".join(f"{j['dir'].name}: {j['reason']}" for j in pending)
+            )
     except SweepError as e:
         print(f"error: {e}", file=sys.stderr)
         return 1
@@ -221,10 +254,19 @@ def main(argv: list[str] | None = None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     md = markdown(rows, common, args.sweep_dir, pending)
     (out / "summary.md").write_text(md)
-    (out / "summary.json").write_text(json.dumps({
-        "sweep_dir": str(args.sweep_dir), "shared_overrides": common,
-        "unfinished": [{"job": j["dir"].name, "reason": j["reason"]} for j in pending],
-        "rows": rows}, indent=2, default=str) + "\n")
+    (out / "summary.json").write_text(
+        json.dumps(
+            {
+                "sweep_dir": str(args.sweep_dir),
+                "shared_overrides": common,
+                "unfinished": [{"job": j["dir"].name, "reason": j["reason"]} for j in pending],
+                "rows": rows,
+            },
+            indent=2,
+            default=str,
+        )
+        + "\n"
+    )
     figure(rows, out / "summary.png", f"{args.sweep_dir.name}: mean ± std over seeds")
     print(md)
     print(f"wrote {out / 'summary.md'}, {out / 'summary.json'}, {out / 'summary.png'}")

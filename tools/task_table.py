@@ -10,6 +10,7 @@ of each rollout's minimum clearance. Rows of a second run are labelled with its 
 left out when it is the first run's. In a scene with a moving obstacle Theorem 2 does not apply: the V_r column says
 so and gives what was observed in brackets.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -18,16 +19,22 @@ import sys
 from pathlib import Path
 
 RATIOS = ("time", "cspace_length", "ee_length")
-HEADER = ("| run | policy | time to 0.05 m (s) | reached | ratio time | ratio c-space length | ratio e-e length "
-          "| goal distance at time-out (mm) | ratio goal distance at time-out | collisions | close passes (< 10 mm) "
-          "| min clearance (mm), least / median | V_r monotone |")
+HEADER = (
+    "| run | policy | time to 0.05 m (s) | reached | ratio time | ratio c-space length | ratio e-e length "
+    "| goal distance at time-out (mm) | ratio goal distance at time-out | collisions | close passes (< 10 mm) "
+    "| min clearance (mm), least / median | V_r monotone |"
+)
 
 
 def _pm(d: dict | None, scale: float = 1.0, digits: int = 2) -> str:
     if not d or d.get("mean") is None:
         return "–"
     std = d.get("std")
-    return f"{scale * d['mean']:.{digits}f} ± {scale * std:.{digits}f}" if std is not None else f"{scale * d['mean']:.{digits}f}"
+    return (
+        f"{scale * d['mean']:.{digits}f} ± {scale * std:.{digits}f}"
+        if std is not None
+        else f"{scale * d['mean']:.{digits}f}"
+    )
 
 
 def _count(k: int | None, n: int) -> str:
@@ -53,13 +60,24 @@ def rows(metrics: dict, with_expert: bool) -> list[str]:
         count = f"{round(mono * n) if mono is not None else '–'} / {n}"
         if lyap.get("theorem2_applies") is False:
             count = f"n/a, obstacle moving ({count})"
-        out.append(" | ".join([
-            f"| {metrics['name']}", r["policy"], _pm(r.get("time")), f"{round(r['reached']['mean'] * n)} / {n}",
-            *("1" if expert else _pm(ratio.get(k)) for k in RATIOS),
-            _pm(r.get("timeout_goal_distance"), 1000.0, 1),
-            "1" if expert else _pm(ratio.get("timeout_goal_distance"), digits=2),
-            f"{r['collisions']} / {n}", _count(r.get("close_passes"), n), _clearance(r.get("clearance")),
-            count]) + " |")
+        out.append(
+            " | ".join(
+                [
+                    f"| {metrics['name']}",
+                    r["policy"],
+                    _pm(r.get("time")),
+                    f"{round(r['reached']['mean'] * n)} / {n}",
+                    *("1" if expert else _pm(ratio.get(k)) for k in RATIOS),
+                    _pm(r.get("timeout_goal_distance"), 1000.0, 1),
+                    "1" if expert else _pm(ratio.get("timeout_goal_distance"), digits=2),
+                    f"{r['collisions']} / {n}",
+                    _count(r.get("close_passes"), n),
+                    _clearance(r.get("clearance")),
+                    count,
+                ]
+            )
+            + " |"
+        )
     return out
 
 

@@ -9,6 +9,7 @@ theorem bounds this error on a robot; this measures it, for the Panda and the KU
     python tools/tracking_demo.py                  # the README's table
     python tools/tracking_demo.py --speed 2.0
 """
+
 from __future__ import annotations
 
 import argparse
@@ -24,9 +25,20 @@ import rmpfusion
 IIWA = str(Path(pybullet_data.getDataPath()) / "kuka_iiwa" / "model.urdf")
 #: robot -> (how the maps name it, end-effector link, point in it, start configuration, circle centre)
 ROBOTS = {
-    "Panda": ({"urdf": "pkg://pybullet_data/franka_panda/panda.urdf", "joints": [f"panda_joint{i}" for i in range(1, 8)]}, "panda_hand", [0.0, 0.0, 0.1034], [0.0, -0.3, 0.0, -2.2, 0.0, 2.0, 0.8], [0.45, 0.0, 0.45]),
-    "KUKA iiwa": ({"urdf": IIWA}, "lbr_iiwa_link_7", [0.0, 0.0, 0.05], [0.0, 0.6, 0.0, -1.4, 0.0, 0.8, 0.0],
-                  [0.5, 0.0, 0.5]),
+    "Panda": (
+        {"urdf": "pkg://pybullet_data/franka_panda/panda.urdf", "joints": [f"panda_joint{i}" for i in range(1, 8)]},
+        "panda_hand",
+        [0.0, 0.0, 0.1034],
+        [0.0, -0.3, 0.0, -2.2, 0.0, 2.0, 0.8],
+        [0.45, 0.0, 0.45],
+    ),
+    "KUKA iiwa": (
+        {"urdf": IIWA},
+        "lbr_iiwa_link_7",
+        [0.0, 0.0, 0.05],
+        [0.0, 0.6, 0.0, -1.4, 0.0, 0.8, 0.0],
+        [0.5, 0.0, 0.5],
+    ),
 }
 LEAVES = ("goal_attractor", "moving_goal_attractor")
 GAINS = {"gain": 5.0, "alpha": 10.0, "eta": 5.0}
@@ -38,11 +50,18 @@ def tracking_tree(robot: str, leaf: str) -> rmpfusion.RMPTree:
         attractor = {"map": {"type": "moving_offset", "origin": "goal", "velocity": "goal_velocity"}}
     else:
         attractor = {"map": {"type": "offset", "origin": "goal"}}
-    return rmpfusion.build_tree({"root": {"name": "q", "dim": 7}, "aux": {"goal": 3, "goal_velocity": 3}, "nodes": {
-        "ee": {"parent": "q", "map": {"type": "forward_kinematics", **source, "link": link, "offset": offset}},
-        "attractor": {"parent": "ee", **attractor, "rmp": {"type": leaf, **GAINS}},
-        "damper": {"parent": "q", "map": {"type": "identity"}, "rmp": {"type": "damper", "w": 0.1, "eta": 2.0}},
-        "regulariser": {"parent": "q", "map": {"type": "identity"}, "rmp": {"type": "identity_metric"}}}})
+    return rmpfusion.build_tree(
+        {
+            "root": {"name": "q", "dim": 7},
+            "aux": {"goal": 3, "goal_velocity": 3},
+            "nodes": {
+                "ee": {"parent": "q", "map": {"type": "forward_kinematics", **source, "link": link, "offset": offset}},
+                "attractor": {"parent": "ee", **attractor, "rmp": {"type": leaf, **GAINS}},
+                "damper": {"parent": "q", "map": {"type": "identity"}, "rmp": {"type": "damper", "w": 0.1, "eta": 2.0}},
+                "regulariser": {"parent": "q", "map": {"type": "identity"}, "rmp": {"type": "identity_metric"}},
+            },
+        }
+    )
 
 
 def circle(centre: list[float], radius: float, speed: float):
@@ -51,15 +70,18 @@ def circle(centre: list[float], radius: float, speed: float):
 
     def at(t: float) -> dict[str, torch.Tensor]:
         cos, sin = math.cos(speed * t), math.sin(speed * t)
-        return {"goal": (c + radius * torch.tensor([cos, sin, 0.0], dtype=torch.float64))[None],
-                "goal_velocity": (radius * speed * torch.tensor([-sin, cos, 0.0], dtype=torch.float64))[None]}
+        return {
+            "goal": (c + radius * torch.tensor([cos, sin, 0.0], dtype=torch.float64))[None],
+            "goal_velocity": (radius * speed * torch.tensor([-sin, cos, 0.0], dtype=torch.float64))[None],
+        }
+
     return at
 
 
 def end_effector_errors(tree, q, at, dt: float, steps: int) -> torch.Tensor:
     """RK4 of q̈ = tree(q, q̇, aux(t)), aux evaluated at each stage's time; the end effector's distance to the goal
     at every step."""
-    acc = lambda t, q_, qd_: tree(q_, qd_, at(t)).qdd  # noqa: E731
+    acc = lambda t, q_, qd_: tree(q_, qd_, at(t)).qdd
     qd, errors = torch.zeros_like(q), []
     with torch.no_grad():
         for k in range(steps):
@@ -82,16 +104,25 @@ def main() -> None:
     torch.set_num_threads(1)
     dt = 0.01
     steps = int(round(args.seconds / dt))
-    print(f"goal on a circle of radius {args.radius} m at {args.speed} rad/s ({args.radius * args.speed:.3f} m/s); "
-          f"end-effector distance to the goal over the last {args.seconds / 2:g} s of {args.seconds:g} s\n")
+    print(
+        f"goal on a circle of radius {args.radius} m at {args.speed} rad/s ({args.radius * args.speed:.3f} m/s); "
+        f"end-effector distance to the goal over the last {args.seconds / 2:g} s of {args.seconds:g} s\n"
+    )
     print("| robot | leaf | mean error (m) | max error (m) | wall time (s) |\n| --- | --- | --- | --- | --- |")
     for robot, (_, _, _, start, centre) in ROBOTS.items():
         for leaf in LEAVES:
             t0 = time.perf_counter()
-            err = end_effector_errors(tracking_tree(robot, leaf), torch.tensor([start], dtype=torch.float64),
-                                      circle(centre, args.radius, args.speed), dt, steps)[steps // 2:]
-            print(f"| {robot} | `{leaf}` | {float(err.mean()):.4f} | {float(err.max()):.4f} | "
-                  f"{time.perf_counter() - t0:.1f} |")
+            err = end_effector_errors(
+                tracking_tree(robot, leaf),
+                torch.tensor([start], dtype=torch.float64),
+                circle(centre, args.radius, args.speed),
+                dt,
+                steps,
+            )[steps // 2 :]
+            print(
+                f"| {robot} | `{leaf}` | {float(err.mean()):.4f} | {float(err.max()):.4f} | "
+                f"{time.perf_counter() - t0:.1f} |"
+            )
 
 
 if __name__ == "__main__":

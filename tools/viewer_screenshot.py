@@ -6,6 +6,7 @@ Needs Debian's ``chromium`` and ``chromium-driver`` (``apt-get install chromium 
 (the dev extra). WebGL runs on SwiftShader, Chromium's software renderer, so no GPU is needed. The tests use the
 same function (tests/test_viewer.py), so what they check is what this tool shows.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -28,8 +29,9 @@ def browser_missing() -> str | None:
     return None
 
 
-def screenshot(html: str | Path, png: str | Path, size: tuple[int, int] = (1200, 900),
-               wait_s: float = 60.0, at_end: bool = False) -> list[dict]:
+def screenshot(
+    html: str | Path, png: str | Path, size: tuple[int, int] = (1200, 900), wait_s: float = 60.0, at_end: bool = False
+) -> list[dict]:
     """Open ``html`` in headless Chromium, wait until plotly drew its WebGL scene (moved to the last frame of the
     time slider with ``at_end``), save a screenshot to ``png`` and return the browser log's entries of level
     SEVERE (JavaScript errors)."""
@@ -37,8 +39,14 @@ def screenshot(html: str | Path, png: str | Path, size: tuple[int, int] = (1200,
     from selenium.webdriver.chrome.service import Service
 
     opts = webdriver.ChromeOptions()
-    for a in ("--headless=new", "--no-sandbox", "--disable-dev-shm-usage", "--enable-unsafe-swiftshader",
-              "--use-angle=swiftshader", f"--window-size={size[0]},{size[1]}"):
+    for a in (
+        "--headless=new",
+        "--no-sandbox",
+        "--disable-dev-shm-usage",
+        "--enable-unsafe-swiftshader",
+        "--use-angle=swiftshader",
+        f"--window-size={size[0]},{size[1]}",
+    ):
         opts.add_argument(a)
     opts.set_capability("goog:loggingPrefs", {"browser": "ALL"})
     driver = webdriver.Chrome(service=Service(CHROMEDRIVER), options=opts)
@@ -53,7 +61,8 @@ def screenshot(html: str | Path, png: str | Path, size: tuple[int, int] = (1200,
                 "const gd = document.querySelector('.plotly-graph-div'); const f = gd._transitionData._frames;"
                 "Plotly.animate(gd, [f[f.length - 1].name], {frame: {duration: 0, redraw: true}, mode: 'immediate'});"
                 "const s = gd.layout.sliders;"
-                "if (s && s.length) Plotly.relayout(gd, {'sliders[0].active': f.length - 1});")
+                "if (s && s.length) Plotly.relayout(gd, {'sliders[0].active': f.length - 1});"
+            )
         time.sleep(2.0)  # the first WebGL frame after the canvas appears
         driver.save_screenshot(str(png))
         return [e for e in driver.get_log("browser") if e.get("level") == "SEVERE"]

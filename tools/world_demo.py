@@ -12,6 +12,7 @@ torch's dynamo after the first call (0 means no change of the world compiled any
 obstacles present, the end effector's final distance to the goal, and V_r between changes of the world (Theorem 2
 holds while the aux state is constant; at a change V_r may jump).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -25,17 +26,16 @@ import torch
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from hydra import compose, initialize_config_dir  # noqa: E402
+from hydra import compose, initialize_config_dir
+from omegaconf import OmegaConf
 
-from omegaconf import OmegaConf  # noqa: E402
-
-from rmpfusion import build_tree  # noqa: E402
-from rmpfusion.assembly.generated import expand_tree  # noqa: E402
-from rmpfusion.assembly.weighting import plain_data, tree_with_weights, weights_by_name  # noqa: E402
-from rmpfusion.pipeline.construct import make_env  # noqa: E402
-from rmpfusion.pipeline.validate import resolve_and_validate  # noqa: E402
-from rmpfusion.robots.robot import build_robot  # noqa: E402
-from rmpfusion.scenes import ObstacleSet, World, set_dims  # noqa: E402
+from rmpfusion import build_tree
+from rmpfusion.assembly.generated import expand_tree
+from rmpfusion.assembly.weighting import plain_data, tree_with_weights, weights_by_name
+from rmpfusion.pipeline.construct import make_env
+from rmpfusion.pipeline.validate import resolve_and_validate
+from rmpfusion.robots.robot import build_robot
+from rmpfusion.scenes import ObstacleSet, World, set_dims
 
 SETS = [ObstacleSet(shape="sphere", n_max=4), ObstacleSet(shape="box", n_max=2)]
 GOAL, GOAL_B = [0.45, 0.35, 0.35], [0.45, -0.35, 0.35]
@@ -70,8 +70,7 @@ def controller():
     decl["obstacle_sets"] = [s.model_dump(exclude_none=True) for s in SETS]
     spec = expand_tree(decl)
     expert = weights_by_name(spec, {k: plain_data(v) for k, v in run.expert.items()})
-    tree = build_tree(tree_with_weights(spec, expert, where="expert"),
-                      aux_dims={"goal": 3, **set_dims(SETS)}).double()
+    tree = build_tree(tree_with_weights(spec, expert, where="expert"), aux_dims={"goal": 3, **set_dims(SETS)}).double()
     return tree, build_robot(run.env.robot), run
 
 
@@ -147,8 +146,9 @@ def run_demo(compiled: bool = True, seconds: float = 6.0, dt: float = 0.002) -> 
         if i % int(round(0.25 / dt)) == 0:
             trace.append((round(t, 3), cw, float((tip_of(robot, run, q) - world.goal[0]).norm()), V))
     compiles = counters["stats"]["unique_graphs"] - graphs0 if compiled else None
-    return Report(compiles, clear_w, float((tip_of(robot, run, q) - world.goal[0]).norm()), rises, k,
-                  time.time() - t0, trace)
+    return Report(
+        compiles, clear_w, float((tip_of(robot, run, q) - world.goal[0]).norm()), rises, k, time.time() - t0, trace
+    )
 
 
 def tip_of(robot, run, q: torch.Tensor) -> torch.Tensor:
@@ -166,10 +166,14 @@ def main(argv=None) -> int:
     ap.add_argument("--trace", action="store_true", help="print the state every 0.25 s")
     args = ap.parse_args(argv)
     r = run_demo(not args.eager, args.seconds, args.dt)
-    print(f"changes of the world: {r.changes}; compiles after the first call: "
-          f"{'n/a (eager)' if r.compiles_after_first_call is None else r.compiles_after_first_call}")
-    print(f"least clearance to the obstacles present: {r.min_clearance * 100:.1f} cm; end effector to goal at "
-          f"{args.seconds:g} s: {r.final_goal_distance * 1000:.1f} mm")
+    print(
+        f"changes of the world: {r.changes}; compiles after the first call: "
+        f"{'n/a (eager)' if r.compiles_after_first_call is None else r.compiles_after_first_call}"
+    )
+    print(
+        f"least clearance to the obstacles present: {r.min_clearance * 100:.1f} cm; end effector to goal at "
+        f"{args.seconds:g} s: {r.final_goal_distance * 1000:.1f} mm"
+    )
     print(f"V_r rises between changes: {r.vr_rises_between_changes}; wall time {r.seconds:.1f} s")
     if args.trace:
         for t, cw, g, V in r.trace:

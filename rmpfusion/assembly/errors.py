@@ -1,10 +1,12 @@
 """Collected configuration errors: every problem at once, each with its path, what was given and the fix."""
+
 from __future__ import annotations
 
-from dataclasses import dataclass
 import difflib
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
 from types import UnionType
-from typing import Annotated, Any, Iterable, Literal, Mapping, Sequence, Union, get_args, get_origin
+from typing import Annotated, Any, Literal, Union, get_args, get_origin
 
 from pydantic import BaseModel, Tag, ValidationError
 
@@ -79,8 +81,11 @@ def model_at(model: type | None, loc: Sequence[Any]) -> type[BaseModel] | None:
     while True:  # a location can end on a tagged member or an Optional: unwrap to the model
         ann, _ = _strip_annotated(ann)
         if get_origin(ann) in (Union, UnionType):
-            models = [m for m in get_args(ann) if isinstance(_strip_annotated(m)[0], type)
-                      and issubclass(_strip_annotated(m)[0], BaseModel)]
+            models = [
+                m
+                for m in get_args(ann)
+                if isinstance(_strip_annotated(m)[0], type) and issubclass(_strip_annotated(m)[0], BaseModel)
+            ]
             if len(models) != 1:
                 return None
             ann = models[0]
@@ -97,9 +102,19 @@ def _is_tag(key: str, field: Any) -> bool:
 
 #: What users write for a key or value out of habit (other libraries' names), and what rmpfusion calls it: offered
 #: before the names that are merely spelt alike.
-HABITS = {"learning_rate": "lr", "learningrate": "lr", "step_size": "lr", "epochs": "iterations",
-          "steps": "iterations", "num_iterations": "iterations", "n_iterations": "iterations", "batch": "batch_size",
-          "batchsize": "batch_size", "gpu": "cuda", "optim": "optimizer"}
+HABITS = {
+    "learning_rate": "lr",
+    "learningrate": "lr",
+    "step_size": "lr",
+    "epochs": "iterations",
+    "steps": "iterations",
+    "num_iterations": "iterations",
+    "n_iterations": "iterations",
+    "batch": "batch_size",
+    "batchsize": "batch_size",
+    "gpu": "cuda",
+    "optim": "optimizer",
+}
 
 
 def closest(name: str, options: Sequence[str], n: int = 3) -> list[str]:
@@ -107,7 +122,7 @@ def closest(name: str, options: Sequence[str], n: int = 3) -> list[str]:
     then those spelt alike."""
     usual = HABITS.get(name.lower())
     alike = difflib.get_close_matches(name, list(dict.fromkeys(options)), n=n, cutoff=0.5)
-    return ([usual] if usual in options else []) + [o for o in alike if o != usual][:n - (usual in options)]
+    return ([usual] if usual in options else []) + [o for o in alike if o != usual][: n - (usual in options)]
 
 
 def _unknown_key(e: Mapping[str, Any], model: type | None) -> str:
@@ -144,7 +159,7 @@ def _message(e: Mapping[str, Any], model: type | None) -> tuple[str, str]:
         return _unknown_type(e)
     msg = e["msg"]
     if kind == "value_error" and msg.startswith("Value error, "):
-        msg = msg[len("Value error, "):]
+        msg = msg[len("Value error, ") :]
     if "given" in msg or "input" not in e or (isinstance(e["input"], str) and f"'{e['input']}'" in msg):
         return "", msg  # the message already says what was given
     return "", f"{msg} (given: {_show(e['input'])})"
@@ -166,5 +181,9 @@ def issues_from_pydantic(err: ValidationError, prefix: str, model: type | None =
 def allowed_keys_hint(model: type, path: str, issues: list[Issue]) -> list[Issue]:
     """Append the model's allowed keys to its 'unknown key' issues that do not list them yet."""
     allowed = ", ".join(model.model_fields)
-    return [Issue(i.path, f"{i.message} (allowed: {allowed or 'none'})")
-            if "unknown key" in i.message and "(allowed:" not in i.message else i for i in issues]
+    return [
+        Issue(i.path, f"{i.message} (allowed: {allowed or 'none'})")
+        if "unknown key" in i.message and "(allowed:" not in i.message
+        else i
+        for i in issues
+    ]

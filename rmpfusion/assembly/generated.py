@@ -19,11 +19,13 @@ weight starting at 1). Only entries the generator made can be adjusted: a name u
 ``shared_weights`` that it did not make is refused with the closest names, since a misspelt name would
 otherwise add a half-specified node; a different tree shape is a generator parameter or a written tree.
 """
+
 from __future__ import annotations
 
 import copy
 import difflib
-from typing import Any, Mapping
+from collections.abc import Mapping
+from typing import Any
 
 from pydantic import ValidationError
 
@@ -63,9 +65,13 @@ def _adjust(spec: dict[str, Any], adjustments: Mapping[str, Any], name: str, whe
             if n not in made:
                 close = difflib.get_close_matches(str(n), list(made), n=3, cutoff=0.5)
                 hint = f"did you mean {', '.join(map(repr, close))}? " if close else ""
-                issues.append(Issue(f"{where}.{block}.{n}",
-                                    f"generator '{name}' made no such entry, and a generated tree can only be "
-                                    f"adjusted, not extended; {hint}{block}: {_listing(list(made))}"))
+                issues.append(
+                    Issue(
+                        f"{where}.{block}.{n}",
+                        f"generator '{name}' made no such entry, and a generated tree can only be "
+                        f"adjusted, not extended; {hint}{block}: {_listing(list(made))}",
+                    )
+                )
     if issues:
         raise ConfigError(issues)
     return _merge(spec, {k: v for k, v in adjustments.items() if v is not None})
@@ -101,12 +107,15 @@ def expand_tree(spec: Mapping[str, Any], where: str = "tree") -> dict[str, Any]:
 
 def _with_spec_keys(issue: Issue, where: str, fields: Mapping[str, Any]) -> Issue:
     """An unknown top-level key may be a misspelt parameter or a misspelt tree-spec key: offer both."""
-    key = issue.path[len(where) + 1:]
+    key = issue.path[len(where) + 1 :]
     if "unknown key" not in issue.message or "." in key:
         return issue
     spec_keys = [k for k in SPEC_KEYS if k not in fields]
     close = difflib.get_close_matches(key, [*fields, *spec_keys], n=3, cutoff=0.5)
     hint = f"; did you mean {', '.join(map(repr, close))}?" if close else ""
-    return Issue(issue.path, f"unknown key (misspelt?); remove it or use one of the allowed keys (allowed: "
-                             f"{', '.join(fields)}; tree-spec keys adjusting the generated tree: "
-                             f"{', '.join(spec_keys)}){hint}")
+    return Issue(
+        issue.path,
+        f"unknown key (misspelt?); remove it or use one of the allowed keys (allowed: "
+        f"{', '.join(fields)}; tree-spec keys adjusting the generated tree: "
+        f"{', '.join(spec_keys)}){hint}",
+    )

@@ -7,6 +7,7 @@ need not be symmetric: M = G + Ξ_G, and Ξ_G is not symmetric when G depends on
 the root's M_r positive semi-definite and V_r non-increasing (Theorem 2). States where the leaf's answer is not
 finite are left out (a barrier at its boundary): a NaN or inf is diagnosed by the tree when it is called.
 """
+
 from __future__ import annotations
 
 import torch
@@ -19,13 +20,22 @@ TOLERANCE = 1e-8
 
 
 def _shape_problem(out, batch: int, dim: int) -> str | None:
-    want = {"f": (batch, dim), "M": (batch, dim, dim), "G": (batch, dim, dim), "B": (batch, dim, dim),
-            "Phi": (batch,), "L": (batch,), "V": (batch,)}
+    want = {
+        "f": (batch, dim),
+        "M": (batch, dim, dim),
+        "G": (batch, dim, dim),
+        "B": (batch, dim, dim),
+        "Phi": (batch,),
+        "L": (batch,),
+        "V": (batch,),
+    }
     for name, shape in want.items():
         t = getattr(out, name, None)
         if t is not None and tuple(t.shape) != shape:
-            return (f"it returns {name} of shape {tuple(t.shape)} on a {dim}-dimensional node, where it must be "
-                    f"{shape} for a batch of {batch}")
+            return (
+                f"it returns {name} of shape {tuple(t.shape)} on a {dim}-dimensional node, where it must be "
+                f"{shape} for a batch of {batch}"
+            )
     return None
 
 
@@ -59,6 +69,8 @@ def leaf_problem(leaf: nn.Module, dim: int) -> str | None:
 
 
 def leaf_contract_message(leaf_type: str, why: str) -> str:
-    return (f"the leaf '{leaf_type}' fails the leaf contract at sample states: {why}; a leaf must give symmetric positive semi-definite G and "
-            "B and an M whose symmetric part is positive semi-definite, with f (B, d), M, G, B (B, d, d), Φ, L, V "
-            "(B,) (docs/math.md §3), or the tree's q̈ = M⁺f and Theorem 2 do not hold; fix the leaf")
+    return (
+        f"the leaf '{leaf_type}' fails the leaf contract at sample states: {why}; a leaf must give symmetric positive semi-definite G and "
+        "B and an M whose symmetric part is positive semi-definite, with f (B, d), M, G, B (B, d, d), Φ, L, V "
+        "(B,) (docs/math.md §3), or the tree's q̈ = M⁺f and Theorem 2 do not hold; fix the leaf"
+    )

@@ -7,13 +7,14 @@ holds each block as its entry's parameter model, ready for the builder. Graph ch
 ``root``, leaves carrying rmps) follow the schema; dimension checks need the built maps and happen in
 ``build_tree``. Everything reports through ConfigError, every problem at once.
 """
+
 from __future__ import annotations
 
 import difflib
-from typing import Annotated, Any, Literal, Mapping, Union
+from collections.abc import Mapping
+from typing import Annotated, Any, Literal, Union
 
-from pydantic import (BaseModel, BeforeValidator, ConfigDict, Discriminator, Field, Tag, ValidationError,
-                      create_model)
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Discriminator, Field, Tag, ValidationError, create_model
 from pydantic_core import PydanticCustomError
 
 from ..registry import LEAF_RMPS, TASK_MAPS, WEIGHTS, Params, Registry
@@ -46,8 +47,11 @@ def spec_model(registry: Registry, name: str, key: str = "type") -> type[Params]
     entry = registry.get(name)
     cache = (id(entry.params), name, key)
     if cache not in _SPEC_MODELS:
-        _SPEC_MODELS[cache] = create_model(f"{entry.params.__name__}Spec", __base__=entry.params,
-                                           **{key: (Literal[name], Field(name, json_schema_extra=TAG_FIELD_MARK))})
+        _SPEC_MODELS[cache] = create_model(
+            f"{entry.params.__name__}Spec",
+            __base__=entry.params,
+            **{key: (Literal[name], Field(name, json_schema_extra=TAG_FIELD_MARK))},
+        )
     return _SPEC_MODELS[cache]
 
 
@@ -80,15 +84,25 @@ def typed_union(registry: Registry, key: str = "type", default: str | None = Non
         members = tuple(Annotated[spec_model(registry, n, key), Tag(registry_tag(registry, n))] for n in names)
 
         def tag_of(value: Any) -> str | None:
-            t = value.get(key, default) if isinstance(value, Mapping) else getattr(value, key, None) \
-                if isinstance(value, BaseModel) else None
+            t = (
+                value.get(key, default)
+                if isinstance(value, Mapping)
+                else getattr(value, key, None)
+                if isinstance(value, BaseModel)
+                else None
+            )
             return registry_tag(registry, t) if isinstance(t, str) and t in names else None
 
         union = Union[members] if members else Literal["<nothing registered>"]  # type: ignore[valid-type]
-        _UNIONS[cache] = Annotated[union, _RegistryDiscriminator(tag_of, custom_error_type="registry_type",
-                                                                 custom_error_message=f"unknown {registry.kind}",
-                                                                 custom_error_context={"registry": registry,
-                                                                                       "key": key})]
+        _UNIONS[cache] = Annotated[
+            union,
+            _RegistryDiscriminator(
+                tag_of,
+                custom_error_type="registry_type",
+                custom_error_message=f"unknown {registry.kind}",
+                custom_error_context={"registry": registry, "key": key},
+            ),
+        ]
     return _UNIONS[cache]
 
 
@@ -98,8 +112,11 @@ def check_typed(spec: Any, registry: Registry, path: str) -> tuple[Any, list[Iss
     try:
         return model.model_validate({"block": spec}).block, []
     except ValidationError as e:
-        return None, [Issue(path + i.path[len("block"):], i.message) for i in issues_from_pydantic(e, "", model)
-                      if i.path.startswith("block")]
+        return None, [
+            Issue(path + i.path[len("block") :], i.message)
+            for i in issues_from_pydantic(e, "", model)
+            if i.path.startswith("block")
+        ]
 
 
 # ------------------------------------------------------------------ the tree's static parts
@@ -108,9 +125,12 @@ def _constant_shorthand(value: Any) -> Any:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         return value
     if not value > 0:
-        raise PydanticCustomError("positive_weight", "constant weight must be > 0 (positive weights are what keep "
-                                                     "the policy Lyapunov-stable, Theorem 2); given {value}",
-                                  {"value": value})
+        raise PydanticCustomError(
+            "positive_weight",
+            "constant weight must be > 0 (positive weights are what keep "
+            "the policy Lyapunov-stable, Theorem 2); given {value}",
+            {"value": value},
+        )
     return {"type": "constant", "value": float(value)}
 
 
@@ -153,10 +173,11 @@ def weight_field() -> Any:
             return shared
         return typed
 
-    return Annotated[Union[Annotated[typed_union(WEIGHTS), Tag(typed)],
-                           Annotated[SharedWeightRef, Tag(shared)],
-                           Annotated[str, Tag(name)]],
-                     Discriminator(kind), BeforeValidator(_constant_shorthand)]
+    return Annotated[
+        Annotated[typed_union(WEIGHTS), Tag(typed)] | Annotated[SharedWeightRef, Tag(shared)] | Annotated[str, Tag(name)],
+        Discriminator(kind),
+        BeforeValidator(_constant_shorthand),
+    ]
 
 
 class NodeSpec(_Strict):
@@ -175,9 +196,11 @@ class TreeSpec(_Strict):
     nodes: dict[str, NodeSpec] = Field(min_length=1)
     description: str = ""
     roles: dict[str, list[str]] = Field(
-        default_factory=dict, description="role -> the nodes and shared weights that play it (a generator declares "
-                                          "them, e.g. fig1b's attractor, ground and obstacle), so an expert can weight "
-                                          "them by role whatever their number")
+        default_factory=dict,
+        description="role -> the nodes and shared weights that play it (a generator declares "
+        "them, e.g. fig1b's attractor, ground and obstacle), so an expert can weight "
+        "them by role whatever their number",
+    )
 
 
 _TREE_MODELS: dict[tuple, type[TreeSpec]] = {}
@@ -190,14 +213,19 @@ def tree_spec_model() -> type[TreeSpec]:
     key = tuple((id(r), r.version) for r in (TASK_MAPS, WEIGHTS, LEAF_RMPS))
     if key not in _TREE_MODELS:
         weight = weight_field()
-        node = create_model("TypedNodeSpec", __base__=NodeSpec,
-                            map=(typed_union(TASK_MAPS), Field(default_factory=lambda: {"type": "identity"},
-                                                               validate_default=True)),
-                            weight=(Union[weight, None], None),
-                            rmp=(Union[typed_union(LEAF_RMPS), None], None))
-        _TREE_MODELS[key] = create_model("TypedTreeSpec", __base__=TreeSpec,
-                                         shared_weights=(dict[str, typed_union(WEIGHTS)], Field(default_factory=dict)),
-                                         nodes=(dict[str, node], Field(min_length=1)))
+        node = create_model(
+            "TypedNodeSpec",
+            __base__=NodeSpec,
+            map=(typed_union(TASK_MAPS), Field(default_factory=lambda: {"type": "identity"}, validate_default=True)),
+            weight=(Union[weight, None], None),
+            rmp=(Union[typed_union(LEAF_RMPS), None], None),
+        )
+        _TREE_MODELS[key] = create_model(
+            "TypedTreeSpec",
+            __base__=TreeSpec,
+            shared_weights=(dict[str, typed_union(WEIGHTS)], Field(default_factory=dict)),
+            nodes=(dict[str, node], Field(min_length=1)),
+        )
     return _TREE_MODELS[key]
 
 
@@ -251,9 +279,13 @@ def _unreachable(ts: TreeSpec, children: Mapping[str, list[str]], where: str) ->
             path.append(cur)
             cur = ts.nodes[cur].parent
         if cur in path:
-            cyc = path[path.index(cur):] + [cur]
-            issues.append(Issue(f"{where}.nodes.{name}.parent", f"cycle: {' -> '.join(cyc)}; a tree needs every "
-                                                                 f"node to lead back to '{root}'"))
+            cyc = path[path.index(cur) :] + [cur]
+            issues.append(
+                Issue(
+                    f"{where}.nodes.{name}.parent",
+                    f"cycle: {' -> '.join(cyc)}; a tree needs every node to lead back to '{root}'",
+                )
+            )
         else:
             issues.append(Issue(f"{where}.nodes.{name}", f"orphan: not connected to the root '{root}'"))
     if not children[root]:
@@ -274,8 +306,12 @@ def _node_issues(ts: TreeSpec, children: Mapping[str, list[str]], where: str) ->
         ref = shared_ref(node.weight)
         if ref is not None and ref.shared not in ts.shared_weights:
             known = ", ".join(ts.shared_weights) or "none declared"
-            issues.append(Issue(f"{p}.weight", f"shared weight '{ref.shared}' is not declared under shared_weights "
-                                               f"(declared: {known})"))
+            issues.append(
+                Issue(
+                    f"{p}.weight",
+                    f"shared weight '{ref.shared}' is not declared under shared_weights (declared: {known})",
+                )
+            )
     return issues
 
 
@@ -285,8 +321,9 @@ def _role_issues(ts: TreeSpec, where: str) -> list[Issue]:
     for role, members in ts.roles.items():
         stray = [m for m in members if m not in ts.nodes and m not in ts.shared_weights]
         if stray:
-            issues.append(Issue(f"{where}.roles.{role}", f"{', '.join(map(repr, stray))} not a node or shared weight "
-                                                         f"of the tree"))
+            issues.append(
+                Issue(f"{where}.roles.{role}", f"{', '.join(map(repr, stray))} not a node or shared weight of the tree")
+            )
     return issues
 
 

@@ -1,7 +1,9 @@
 """Build a tree: a validated spec (docs/architecture.md) made into an ``RMPTree`` through the registries."""
+
 from __future__ import annotations
 
-from typing import Any, Mapping
+from collections.abc import Mapping
+from typing import Any
 
 import torch
 from torch import nn
@@ -21,8 +23,10 @@ def _build(registry, block, *args) -> nn.Module:
 def _coordinates_mismatch(leaf: str, reads: str | None, given: str | None) -> str:
     """Why a leaf cannot read its node's map (TaskMap.coordinates / LeafRMP.coordinates), and the fix."""
     if reads is None:
-        return (f"'{leaf}' reads plain coordinates but the map gives the output of a '{given}' map; put a leaf that "
-                f"reads it here, or change the map")
+        return (
+            f"'{leaf}' reads plain coordinates but the map gives the output of a '{given}' map; put a leaf that "
+            f"reads it here, or change the map"
+        )
     gives = "plain coordinates" if given is None else f"the output of a '{given}' map"
     return f"'{leaf}' reads the output of a '{reads}' map, but the map here gives {gives}; put it under a {reads} map"
 
@@ -46,7 +50,9 @@ class _Builder:
         used = {ref.shared for nd in self.ts.nodes.values() if (ref := shared_ref(nd.weight)) is not None}
         for name in self.ts.shared_weights:
             if name not in used:
-                self.issues.append(Issue(f"{self.where}.shared_weights.{name}", "declared but used by no edge; remove it"))
+                self.issues.append(
+                    Issue(f"{self.where}.shared_weights.{name}", "declared but used by no edge; remove it")
+                )
 
     def node(self, n: str) -> None:
         nd, p = self.ts.nodes[n], f"{self.where}.nodes.{n}"
@@ -89,8 +95,13 @@ class _Builder:
         leaf = LEAF_RMPS.get(spec.type).obj
         fixed = leaf.dim
         if fixed is not None and fixed != self.dims[n]:
-            self.issues.append(Issue(f"{p}.rmp", f"'{spec.type}' is {fixed}-dimensional but the map gives dimension "
-                                                 f"{self.dims[n]}; change the map or the rmp"))
+            self.issues.append(
+                Issue(
+                    f"{p}.rmp",
+                    f"'{spec.type}' is {fixed}-dimensional but the map gives dimension "
+                    f"{self.dims[n]}; change the map or the rmp",
+                )
+            )
             return
         given = self.maps[n].coordinates
         if leaf.coordinates != given:
@@ -116,8 +127,10 @@ class _Builder:
 
     def layout(self) -> TreeLayout:
         ts = self.ts
-        labels = {n: NodeLabel(nd.map.type, weight_label(nd.weight), None if nd.rmp is None else nd.rmp.type)
-                  for n, nd in ts.nodes.items()}
+        labels = {
+            n: NodeLabel(nd.map.type, weight_label(nd.weight), None if nd.rmp is None else nd.rmp.type)
+            for n, nd in ts.nodes.items()
+        }
         return TreeLayout(ts.root.name, ts.root.dim, dict(ts.aux), {n: nd.parent for n, nd in ts.nodes.items()}, labels)
 
 

@@ -1,9 +1,11 @@
 """Put weight functions on the edges of a tree spec: the expert and learner-rmp are the same tree with
 different weights, so both are derived from one weightless spec rather than written twice."""
+
 from __future__ import annotations
 
 import copy
-from typing import Any, Mapping
+from collections.abc import Mapping
+from typing import Any
 
 from pydantic import BaseModel
 
@@ -34,7 +36,11 @@ def tree_with_weights(tree_spec: Mapping[str, Any], weights: Mapping[str, Any], 
         root = (spec.get("root") or {}).get("name", "q")
         issues = []
         for n in unknown:
-            why = "is the root, which has no incoming edge to weight" if n == root else "is not a node or shared weight of the tree"
+            why = (
+                "is the root, which has no incoming edge to weight"
+                if n == root
+                else "is not a node or shared weight of the tree"
+            )
             issues.append(Issue(f"{where}.{n}", f"'{n}' {why}; nodes: {', '.join(nodes)}"))
         raise ConfigError(issues)
     for n, w in weights.items():
@@ -72,8 +78,11 @@ def own_weights(tree_spec: Mapping[str, Any]) -> list[str]:
     """The nodes and shared weights that carry a weight in the tree spec itself (a generator's learnable ones): an
     expert must replace every one, else its tree would keep a randomly initialised network there."""
     spec = plain_data(tree_spec)
-    nodes = [n for n, nd in (spec.get("nodes") or {}).items()
-             if nd.get("weight") is not None and not _is_shared_ref(nd.get("weight"))]
+    nodes = [
+        n
+        for n, nd in (spec.get("nodes") or {}).items()
+        if nd.get("weight") is not None and not _is_shared_ref(nd.get("weight"))
+    ]
     return [*nodes, *(spec.get("shared_weights") or {})]
 
 

@@ -4,6 +4,7 @@
 Python: ``$RMPFUSION_CONF`` if set, else the conf/ of the source checkout rmpfusion is imported from (a clone or an
 editable install; see ``_common.conf_dir``). It is looked up when read, so importing a submodule never needs it.
 """
+
 from ._common import conf_dir
 
 

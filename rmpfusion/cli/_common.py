@@ -4,6 +4,7 @@ conf/ lives at the repository root (docs/architecture.md §1), outside the packa
 file's location: that works for a source checkout and an editable install from any working directory.
 ``RMPFUSION_CONF`` points the apps at another conf/ (a wheel install, or a project's own copy).
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -11,11 +12,13 @@ import functools
 import os
 import sys
 import traceback
-from pathlib import Path
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
-from typing import Any, Callable, Iterator
+from pathlib import Path
+from typing import Any
 
 import hydra
+
 from ..assembly.errors import ConfigError
 from ..core.diagnosis import NumericalError
 from ..envs.common import SamplingError
@@ -25,14 +28,13 @@ from ..learn.checkpoints import CheckpointError
 from ..learn.loop import TrainingDivergedError
 from ..pipeline.collect import ExpertDivergedError
 from ..pipeline.fit import NotTrainedError
+from ..pipeline.validate import resolve_and_validate
 from ..recordings.recording import RecordingError
 from ..registry import PluginError, RegistryError
-from .rundir import RESOLVED
-from ..pipeline.validate import resolve_and_validate
 from . import logger as wandb_logger
 from . import sweeps
 from .preflight import CommandLineError, check_command_line, check_output_dir
-from .rundir import HydraFiles, RunDirError, check_same_config, console_log, exclusive, record_environment
+from .rundir import RESOLVED, HydraFiles, RunDirError, check_same_config, console_log, exclusive, record_environment
 
 #: Exit code of a command whose configuration is invalid (nothing was run).
 CONFIG_ERROR_EXIT = 2
@@ -46,8 +48,10 @@ def conf_dir() -> str:
         if (Path(env) / "config.yaml").is_file():
             return env
         what = "does not exist" if not Path(env).exists() else "holds no config.yaml"
-        raise FileNotFoundError(f"RMPFUSION_CONF={env} {what}; point it at a conf/ directory (one with config.yaml, "
-                                "like the checkout's conf/) or unset it to use the checkout's")
+        raise FileNotFoundError(
+            f"RMPFUSION_CONF={env} {what}; point it at a conf/ directory (one with config.yaml, "
+            "like the checkout's conf/) or unset it to use the checkout's"
+        )
     candidates = []
     here = Path(__file__).resolve()
     candidates += [here.parents[2] / "conf", here.parents[1] / "conf"]
@@ -55,7 +59,9 @@ def conf_dir() -> str:
         if (c / "config.yaml").is_file():
             return str(c)
     tried = ", ".join(str(c) for c in candidates)
-    raise FileNotFoundError(f"rmpfusion: no conf/config.yaml found (tried {tried}); set RMPFUSION_CONF to your conf/ directory")
+    raise FileNotFoundError(
+        f"rmpfusion: no conf/config.yaml found (tried {tried}); set RMPFUSION_CONF to your conf/ directory"
+    )
 
 
 #: Exit code of a run stopped by Ctrl-C (128 + SIGINT, what a shell reports for it).
@@ -83,8 +89,10 @@ def one_line(e: BaseException) -> str:
     from pydantic import ValidationError
 
     if isinstance(e, ValidationError):
-        return "; ".join((f"{'.'.join(map(str, err['loc']))}: " if err["loc"] else "")
-                         + err["msg"].removeprefix("Value error, ") for err in e.errors())
+        return "; ".join(
+            (f"{'.'.join(map(str, err['loc']))}: " if err["loc"] else "") + err["msg"].removeprefix("Value error, ")
+            for err in e.errors()
+        )
     if isinstance(e, KeyError) and e.args:
         return " ".join(str(e.args[0]).split())
     return " ".join(str(e).split())
@@ -130,13 +138,14 @@ def hydra_app(task: Callable[[Any], Any]) -> Callable[[], Any]:
     return entry
 
 
-def plugin_report(e: "PluginError") -> str:
+def plugin_report(e: PluginError) -> str:
     """The plugin's own error and its own frames (where the plugin author must look), not rmpfusion's."""
     cause = e.__cause__
     ours = (str(Path(__file__).resolve().parents[1]), "<frozen importlib", os.sep + "importlib" + os.sep)
     frames = [f for f in traceback.extract_tb(cause.__traceback__) if not any(o in f.filename for o in ours)]
-    shown = "\n".join(f'  File "{f.filename}", line {f.lineno}, in {f.name}' + (f"\n    {f.line}" if f.line else "")
-                      for f in frames)
+    shown = "\n".join(
+        f'  File "{f.filename}", line {f.lineno}, in {f.name}' + (f"\n    {f.line}" if f.line else "") for f in frames
+    )
     return f"{e}" + (f"\n{shown}" if shown else "") + "\n(RMPFUSION_DEBUG=1 shows the whole traceback)"
 
 
@@ -144,10 +153,19 @@ def plugin_report(e: "PluginError") -> str:
 #: status each ends a command with: 2 when nothing ran (a config, a file given on the command line), 1 when a run
 #: stopped. Anything else is a bug in rmpfusion or a plugin and keeps its traceback.
 USER_ERRORS: tuple[tuple[type[BaseException], int], ...] = (
-    (ConfigError, CONFIG_ERROR_EXIT), (RegistryError, CONFIG_ERROR_EXIT), (RunDirError, CONFIG_ERROR_EXIT),
-    (CheckpointError, CONFIG_ERROR_EXIT), (DatasetError, CONFIG_ERROR_EXIT), (SamplingError, CONFIG_ERROR_EXIT),
+    (ConfigError, CONFIG_ERROR_EXIT),
+    (RegistryError, CONFIG_ERROR_EXIT),
+    (RunDirError, CONFIG_ERROR_EXIT),
+    (CheckpointError, CONFIG_ERROR_EXIT),
+    (DatasetError, CONFIG_ERROR_EXIT),
+    (SamplingError, CONFIG_ERROR_EXIT),
     (RecordingError, CONFIG_ERROR_EXIT),
-    (ExpertDivergedError, 1), (NotTrainedError, 1), (DiskFullError, 1), (TrainingDivergedError, 1), (NumericalError, 1))
+    (ExpertDivergedError, 1),
+    (NotTrainedError, 1),
+    (DiskFullError, 1),
+    (TrainingDivergedError, 1),
+    (NumericalError, 1),
+)
 
 
 def user_error_code(e: BaseException) -> int | None:
@@ -164,7 +182,7 @@ def user_errors_exit() -> Iterator[None]:
         yield
     except PluginError as e:
         fail(plugin_report(e))
-    except Exception as e:  # noqa: BLE001 - only USER_ERRORS are answered here; the rest propagate
+    except Exception as e:
         code = user_error_code(e)
         if code is None:
             raise
@@ -200,7 +218,6 @@ def save_resolved(run, run_dir: Path) -> Path:
     the same directory must match, see rundir.check_same_config)."""
     import yaml
 
-
     path = run_dir / RESOLVED
     atomic_write_bytes(path, yaml.safe_dump(run.model_dump(mode="json"), sort_keys=False).encode())
     return path
@@ -227,7 +244,6 @@ def job(cfg, threads: int = 1, log: bool = True) -> Iterator[Job]:
     ``threads`` intra-op threads; then yield, and finish the wandb run with the job's exit status.
     """
     import torch
-
 
     run_dir = hydra_run_dir()
     hydra_files = HydraFiles(run_dir)
@@ -262,8 +278,11 @@ def job(cfg, threads: int = 1, log: bool = True) -> Iterator[Job]:
             code = INTERRUPTED_EXIT
             if debug_enabled():
                 raise
-            print(f"interrupted (Ctrl-C): what was finished is kept in {run_dir} (datasets, the last checkpoint); "
-                  f"rerun the same command with hydra.run.dir={run_dir} to resume", file=sys.stderr)
+            print(
+                f"interrupted (Ctrl-C): what was finished is kept in {run_dir} (datasets, the last checkpoint); "
+                f"rerun the same command with hydra.run.dir={run_dir} to resume",
+                file=sys.stderr,
+            )
             sys.exit(INTERRUPTED_EXIT)
         except SystemExit as e:
             code = 0 if e.code is None else e.code if isinstance(e.code, int) else 1

@@ -10,6 +10,7 @@ control loop in Python or C++; README "Deploying a policy").
     rmpfusion-export outputs/franka/<time>/checkpoints/rmp/final.pt            # -> rmp-final.pt2 beside it
     python -c "import torch; p = torch.export.load('rmp-final.pt2').module(); print(p(q, qd, *aux))"
 """
+
 from __future__ import annotations
 
 import argparse
@@ -55,8 +56,9 @@ def _check(run_file, learner, q, qd, aux, names, with_rmp: bool) -> float:
     return max(float((a - b).abs().max()) for a, b in zip(got, expect))
 
 
-def export_checkpoint(path: Path, out: Path | None = None, with_rmp: bool = False, aoti: bool = False,
-                      force: bool = False) -> list[Path]:
+def export_checkpoint(
+    path: Path, out: Path | None = None, with_rmp: bool = False, aoti: bool = False, force: bool = False
+) -> list[Path]:
     """Write the exported program (and the AOTInductor package) of the learner in checkpoint ``path``."""
     if (what := _not_a_checkpoint(path)) is not None:
         raise CheckpointError(what)
@@ -75,37 +77,60 @@ def export_checkpoint(path: Path, out: Path | None = None, with_rmp: bool = Fals
     learner.to(torch.float64)
     q, qd, aux = _example(exp)
     names = sorted(exp.env.aux_dims())
-    meta = metadata(exp.env.aux_dims(), names, exp.env.dim, torch.float64, with_rmp, learner=name,
-                    iteration=int(state.get("iteration", -1)), checkpoint=str(path), experiment=run.name)
+    meta = metadata(
+        exp.env.aux_dims(),
+        names,
+        exp.env.dim,
+        torch.float64,
+        with_rmp,
+        learner=name,
+        iteration=int(state.get("iteration", -1)),
+        checkpoint=str(path),
+        experiment=run.name,
+    )
     program = export_learner(learner, q, qd, aux, names, with_rmp=with_rmp)
     with atomic_path(out, suffix=".pt2") as tmp:  # torch.export wants its files to end in .pt2
         torch.export.save(program, tmp, extra_files={METADATA: metadata_text(meta)})
         _verify("exported program", torch.export.load(tmp).module(), learner, q, qd, aux, names, with_rmp)
     if aoti:
         with atomic_path(targets[1], suffix=".pt2") as tmp:
-            torch._inductor.aoti_compile_and_package(program, package_path=str(tmp), inductor_configs={
-                "aot_inductor.metadata": {METADATA: metadata_text(meta)}})
-            _verify("AOTInductor package", torch._inductor.aoti_load_package(str(tmp)), learner, q, qd, aux, names,
-                    with_rmp)
+            torch._inductor.aoti_compile_and_package(
+                program,
+                package_path=str(tmp),
+                inductor_configs={"aot_inductor.metadata": {METADATA: metadata_text(meta)}},
+            )
+            _verify(
+                "AOTInductor package", torch._inductor.aoti_load_package(str(tmp)), learner, q, qd, aux, names, with_rmp
+            )
     return targets
 
 
 def _verify(what: str, program, learner, q, qd, aux, names, with_rmp) -> None:
     err = _check(program, learner, q, qd, aux, names, with_rmp)
     if not err <= TOLERANCE:
-        raise ExportError(f"the {what} differs from the learner by {err:.3g} (more than {TOLERANCE:g}) on the example "
-                          "states; nothing was written")
+        raise ExportError(
+            f"the {what} differs from the learner by {err:.3g} (more than {TOLERANCE:g}) on the example "
+            "states; nothing was written"
+        )
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="rmpfusion-export", description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        prog="rmpfusion-export", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("checkpoint", type=Path, help="checkpoints/<learner>/final.pt or ckpt-*.pt of a run")
-    ap.add_argument("--out", type=Path, default=None, help="the file to write (default <learner>-<checkpoint>.pt2 "
-                                                           "beside the checkpoint)")
+    ap.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="the file to write (default <learner>-<checkpoint>.pt2 beside the checkpoint)",
+    )
     ap.add_argument("--with-rmp", action="store_true", help="also return the root's M and f (tree learners)")
-    ap.add_argument("--aoti", action="store_true", help="also write an AOTInductor package (<out>-aoti.pt2); needs "
-                                                        "a C++ compiler, takes minutes")
+    ap.add_argument(
+        "--aoti",
+        action="store_true",
+        help="also write an AOTInductor package (<out>-aoti.pt2); needs a C++ compiler, takes minutes",
+    )
     ap.add_argument("--force", action="store_true", help="replace files that exist")
     a = ap.parse_args(argv)
     try:

@@ -14,6 +14,7 @@ existing file unless ``--force``) and the coverage figure. Only the meshes of th
 ``--home`` a home is proposed: the middle of every joint's range, or the configuration nearest to it whose spheres
 clear the ground. The second form measures the spheres an existing robot YAML already has.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -25,7 +26,6 @@ from pathlib import Path
 import yaml
 
 from ..files import atomic_write_bytes
-from ._common import one_line
 from ..maps.urdf import parse_urdf
 from ..plots.spheres import plot_coverage
 from ..robots import RobotDescription, build_robot
@@ -33,13 +33,15 @@ from ..robots.geometry import collision_meshes, link_geometry, links_with_geomet
 from ..robots.home import mid_range, propose_home
 from ..robots.packages import package_names
 from ..robots.spheres import LinkFit, fit_link, measure, summary
+from ._common import one_line
 
 TARGET = 0.99
 
 
 def _parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="rmpfusion-fit-spheres", description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        prog="rmpfusion-fit-spheres", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("urdf", nargs="?", help="a URDF path, or pkg://<package>/<path> inside an installed package")
     ap.add_argument("--check", metavar="ROBOT_YAML", help="measure the spheres of an existing robot description")
     ap.add_argument("--joints", nargs="+", help="the actuated joints, in configuration order")
@@ -49,10 +51,19 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--spheres", type=int, default=2, help="spheres per link (default 2)")
     ap.add_argument("--links", nargs="+", help="links to cover (default: every moved link with collision geometry)")
     ap.add_argument("--margin", type=float, default=0.002, help="added to every radius (m, default 0.002)")
-    ap.add_argument("--home", nargs="+", type=float, help="home configuration (default: proposed, the middle of "
-                                                          "every joint's range clear of the ground)")
-    ap.add_argument("--package-dir", action="append", default=[], metavar="NAME=PATH",
-                    help="the folder of ROS package NAME, for package://NAME/ meshes (repeatable; searched first)")
+    ap.add_argument(
+        "--home",
+        nargs="+",
+        type=float,
+        help="home configuration (default: proposed, the middle of every joint's range clear of the ground)",
+    )
+    ap.add_argument(
+        "--package-dir",
+        action="append",
+        default=[],
+        metavar="NAME=PATH",
+        help="the folder of ROS package NAME, for package://NAME/ meshes (repeatable; searched first)",
+    )
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", help="the robot YAML to write")
     ap.add_argument("--force", action="store_true", help="replace --out if it exists")
@@ -73,23 +84,37 @@ def _packages(given: list[str]) -> dict[str, str]:
 def _fit(args) -> tuple[dict, list[LinkFit], list[str]]:
     packages = _packages(args.package_dir)
     # a first description without spheres: checks the joints and links against the URDF, says which links move
-    base = RobotDescription(name=args.name, urdf=args.urdf, packages=packages, joints=args.joints,
-                            end_effector={"link": args.ee_link, "offset": args.ee_offset},
-                            home=args.home if args.home is not None else _draft_home(args, packages))
+    base = RobotDescription(
+        name=args.name,
+        urdf=args.urdf,
+        packages=packages,
+        joints=args.joints,
+        end_effector={"link": args.ee_link, "offset": args.ee_offset},
+        home=args.home if args.home is not None else _draft_home(args, packages),
+    )
     robot = build_robot(base)
     available = links_with_geometry(args.urdf)
-    links = args.links or [link for link in parse_urdf(args.urdf).link_names() if link in available and robot.moves(link)]
+    links = args.links or [
+        link for link in parse_urdf(args.urdf).link_names() if link in available and robot.moves(link)
+    ]
     missing = [link for link in links if link not in available]
     if missing:
-        raise ValueError(f"--links {missing} have no collision or visual geometry; links with some: "
-                         f"{', '.join(available)}")
+        raise ValueError(
+            f"--links {missing} have no collision or visual geometry; links with some: {', '.join(available)}"
+        )
     geometry = link_geometry(args.urdf, links, packages)
     fits = [fit_link(link, geometry.meshes[link], args.spheres, args.margin, seed=args.seed) for link in links]
-    spheres = [{"link": f.link, "offset": [round(float(v), 4) for v in c], "radius": round(float(r) + 5e-5, 4)}
-               for f in fits for c, r in zip(f.centers, f.radii)]
+    spheres = [
+        {"link": f.link, "offset": [round(float(v), 4) for v in c], "radius": round(float(r) + 5e-5, 4)}
+        for f in fits
+        for c, r in zip(f.centers, f.radii)
+    ]
     fitted = RobotDescription.model_validate({**base.model_dump(), "control_points": spheres})
-    notes = [f"links covered by their visual geometry (they have no collision geometry): {', '.join(geometry.from_visual)}"
-             ] if geometry.from_visual else []
+    notes = (
+        [f"links covered by their visual geometry (they have no collision geometry): {', '.join(geometry.from_visual)}"]
+        if geometry.from_visual
+        else []
+    )
     if args.home is None:
         home, how = propose_home(fitted)
         fitted = RobotDescription.model_validate({**fitted.model_dump(), "home": home})
@@ -122,19 +147,27 @@ def _check(path: str) -> tuple[dict, list[LinkFit]]:
     by_link: dict[str, list] = {}
     for cp in desc.control_points:
         by_link.setdefault(cp.link, []).append(cp)
-    fits = [measure(link, meshes[link], [c.offset for c in cps], [c.radius for c in cps])
-            for link, cps in by_link.items() if link in meshes]
+    fits = [
+        measure(link, meshes[link], [c.offset for c in cps], [c.radius for c in cps])
+        for link, cps in by_link.items()
+        if link in meshes
+    ]
     return data, fits
 
 
 def _report(fits: list[LinkFit]) -> str:
-    lines = [f"  {f.link}: {len(f.radii)} spheres, coverage {100 * f.coverage:.2f} %, overshoot max "
-             f"{1000 * f.overshoot.max():.1f} mm" for f in fits]
+    lines = [
+        f"  {f.link}: {len(f.radii)} spheres, coverage {100 * f.coverage:.2f} %, overshoot max "
+        f"{1000 * f.overshoot.max():.1f} mm"
+        for f in fits
+    ]
     s = summary(fits)
     verdict = "meets" if s["coverage"] >= TARGET else "misses"
-    lines.append(f"all: {s['spheres']} spheres, coverage {100 * s['coverage']:.2f} % ({verdict} the "
-                 f"{100 * TARGET:.0f} % target), overshoot mean {1000 * s['overshoot_mean']:.1f} mm, max "
-                 f"{1000 * s['overshoot_max']:.1f} mm")
+    lines.append(
+        f"all: {s['spheres']} spheres, coverage {100 * s['coverage']:.2f} % ({verdict} the "
+        f"{100 * TARGET:.0f} % target), overshoot mean {1000 * s['overshoot_mean']:.1f} mm, max "
+        f"{1000 * s['overshoot_max']:.1f} mm"
+    )
     return "\n".join(lines)
 
 
@@ -149,8 +182,10 @@ def main(argv: list[str] | None = None) -> int:
             if Path(args.out).exists() and not args.force:
                 raise FileExistsError(f"{args.out} exists; choose another --out or add --force to replace it")
             description, fits, notes = _fit(args)
-            header = (f"# @package env.robot\n# {args.name}: written by rmpfusion-fit-spheres ({args.spheres} spheres "
-                      f"per link, margin {args.margin} m); edit home, limits and the spheres as needed.\n")
+            header = (
+                f"# @package env.robot\n# {args.name}: written by rmpfusion-fit-spheres ({args.spheres} spheres "
+                f"per link, margin {args.margin} m); edit home, limits and the spheres as needed.\n"
+            )
             atomic_write_bytes(args.out, (header + yaml.safe_dump(description, sort_keys=False)).encode())
     except (ValueError, OSError, KeyError, ET.ParseError) as e:
         print(f"error: {one_line(e)}", file=sys.stderr)

@@ -8,6 +8,7 @@ render) into ``--out`` (default: ``eval-<iteration>/`` beside the checkpoint).
 
     rmpfusion-evaluate-checkpoint outputs/2d1level/<time>/checkpoints/rmp/ckpt-00020000.pt
 """
+
 from __future__ import annotations
 
 import argparse
@@ -32,9 +33,16 @@ from ..plots import plot_lyapunov, plot_trajectories
 from ..plots.figures import save_figure, subplots
 from ._common import user_errors_exit
 
-
-_KINDS = {".json": "a JSON file", ".yaml": "a YAML file", ".yml": "a YAML file", ".png": "an image",
-          ".gif": "an animation", ".log": "a log file", ".md": "a text file", ".txt": "a text file"}
+_KINDS = {
+    ".json": "a JSON file",
+    ".yaml": "a YAML file",
+    ".yml": "a YAML file",
+    ".png": "an image",
+    ".gif": "an animation",
+    ".log": "a log file",
+    ".md": "a text file",
+    ".txt": "a text file",
+}
 
 
 def _checkpoints_below(directory: Path) -> list[Path]:
@@ -49,39 +57,51 @@ def _not_a_checkpoint(path: Path) -> str | None:
     for damaged checkpoints only); None for a checkpoint, damaged or not."""
     if path.is_dir():
         found = _checkpoints_below(path)
-        hint = f"; its checkpoints: {', '.join(str(p) for p in found)}" if found else \
-            "; a checkpoint is checkpoints/<learner>/ckpt-<iteration>.pt in a run directory"
+        hint = (
+            f"; its checkpoints: {', '.join(str(p) for p in found)}"
+            if found
+            else "; a checkpoint is checkpoints/<learner>/ckpt-<iteration>.pt in a run directory"
+        )
         return f"{path} is a directory, not a checkpoint file{hint}"
     if not path.exists() or CHECKPOINT_NAME.match(path.name) or path.name == "final.pt":
         return None  # a missing or damaged checkpoint gets the checkpoint's own message
     if path.suffix in _KINDS:
-        return (f"{path} is {_KINDS[path.suffix]}, not a checkpoint; a checkpoint is "
-                "checkpoints/<learner>/ckpt-<iteration>.pt in a run directory")
+        return (
+            f"{path} is {_KINDS[path.suffix]}, not a checkpoint; a checkpoint is "
+            "checkpoints/<learner>/ckpt-<iteration>.pt in a run directory"
+        )
     tag = torch_file_format(path)
     if tag == CHECKPOINT_FORMAT:
         return None
     if tag == DATASET_FORMAT:
         return f"{path} is a dataset (demonstrations of a run's data/), not a checkpoint; nothing was changed"
-    return (f"{path} is not a checkpoint written by rmpfusion ({tag or 'not a torch file it can read'}); nothing "
-            "was changed")
+    return (
+        f"{path} is not a checkpoint written by rmpfusion ({tag or 'not a torch file it can read'}); nothing "
+        "was changed"
+    )
 
 
 def _load(path: Path) -> tuple[dict, RunConfig, str]:
     """The checkpoint's state, its run's validated config and the learner it belongs to."""
     state = load_checkpoint(path)  # missing, damaged or tampered files raise, naming the file and the fix
     if not state.get("config"):
-        raise CheckpointError(f"checkpoint file {path} carries no run config (it was written outside an experiment); "
-                              "evaluate it with rmpfusion-evaluate and the run's overrides instead")
+        raise CheckpointError(
+            f"checkpoint file {path} carries no run config (it was written outside an experiment); "
+            "evaluate it with rmpfusion-evaluate and the run's overrides instead"
+        )
     run = parse_run_config(upgrade_run_config(state["config"]))  # renamed keys of older checkpoints
     name = path.parent.name
     if name not in run.learners:
-        raise CheckpointError(f"checkpoint file {path} lies in checkpoints/{name}/ but its config has learners "
-                              f"{sorted(run.learners)}; keep checkpoints in the directory training wrote them to")
+        raise CheckpointError(
+            f"checkpoint file {path} lies in checkpoints/{name}/ but its config has learners "
+            f"{sorted(run.learners)}; keep checkpoints in the directory training wrote them to"
+        )
     return state, run, name
 
 
-def evaluate_checkpoint(path: str | Path, out: str | Path | None = None, figures: bool = True,
-                        progress: bool = True) -> dict:
+def evaluate_checkpoint(
+    path: str | Path, out: str | Path | None = None, figures: bool = True, progress: bool = True
+) -> dict:
     """Metrics of the learner in checkpoint ``path`` on its run's test set (see the module docstring)."""
     path = Path(path)
     if (what := _not_a_checkpoint(path)) is not None:
@@ -92,8 +112,11 @@ def evaluate_checkpoint(path: str | Path, out: str | Path | None = None, figures
     out.mkdir(parents=True, exist_ok=True)
     torch.set_num_threads(1)
     if (missing := device_problem(run.device)) is not None:
-        print(f"rmpfusion: the run computed on {run.device}, which is not available here; evaluating on the CPU "
-              f"({missing})", file=sys.stderr)
+        print(
+            f"rmpfusion: the run computed on {run.device}, which is not available here; evaluating on the CPU "
+            f"({missing})",
+            file=sys.stderr,
+        )
         run = run.model_copy(update={"device": "cpu"})
     exp = prepare(run, run_dir, Progress(progress))
     model = learners(exp)[name]
@@ -103,13 +126,21 @@ def evaluate_checkpoint(path: str | Path, out: str | Path | None = None, figures
     splits = collect(exp, ("test",))
     exp.say.say(f"eval: {name} at iteration {int(state['iteration'])} from {path}")
     metrics, online = evaluate_model(exp, model, splits, f"eval {name}")
-    result = {"checkpoint": str(path), "learner": name, "iteration": int(state["iteration"]),
-              "test_data": splits.info["test"], "metrics": clean(metrics), "figures": []}
+    result = {
+        "checkpoint": str(path),
+        "learner": name,
+        "iteration": int(state["iteration"]),
+        "test_data": splits.info["test"],
+        "metrics": clean(metrics),
+        "figures": [],
+    }
     if figures:
         result["figures"] = [str(p) for p in _figures(exp, splits.test, online.rollout, out, name)]
     atomic_write_json(out / "metrics.json", result)
-    exp.say.say(f"wrote {out / 'metrics.json'}: " + ", ".join(f"{k}={v:.4g}" for k, v in metrics.items()
-                                                               if isinstance(v, float)))
+    exp.say.say(
+        f"wrote {out / 'metrics.json'}: "
+        + ", ".join(f"{k}={v:.4g}" for k, v in metrics.items() if isinstance(v, float))
+    )
     return result
 
 
@@ -122,8 +153,17 @@ def _figures(exp, test_ds, ro, out: Path, name: str) -> list[Path]:
         paths.append(plot_lyapunov(out / f"lyapunov_{name}.png", ro.times, ro.V, title=f"{name}: $V_r(t)$"))
     if isinstance(exp.env, PlanarWorkspace):
         idx, q0_env, qd0_env, aux_plot = exp.environment_0(test_ds)
-        paths.append(plot_trajectories(out / f"trajectories_{name}.png", aux_plot, None, {name: ro.q[:, idx]},
-                                       q0_env, qd0_env, title=f"{name} from its checkpoint, test environment 0"))
+        paths.append(
+            plot_trajectories(
+                out / f"trajectories_{name}.png",
+                aux_plot,
+                None,
+                {name: ro.q[:, idx]},
+                q0_env,
+                qd0_env,
+                title=f"{name} from its checkpoint, test environment 0",
+            )
+        )
     elif isinstance(exp.env, Renders):
         aux1 = {k: v[:1] for k, v in aux0.items()}
         w, h = 320, 240  # a small two-frame summary, not the run's figure size
@@ -138,10 +178,15 @@ def _figures(exp, test_ds, ro, out: Path, name: str) -> list[Path]:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="rmpfusion-evaluate-checkpoint", description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("checkpoint", type=Path, help="a checkpoint written by training: checkpoints/<learner>/ckpt-*.pt "
-                                                  "or the trained learner's checkpoints/<learner>/final.pt")
+    ap = argparse.ArgumentParser(
+        prog="rmpfusion-evaluate-checkpoint", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    ap.add_argument(
+        "checkpoint",
+        type=Path,
+        help="a checkpoint written by training: checkpoints/<learner>/ckpt-*.pt "
+        "or the trained learner's checkpoints/<learner>/final.pt",
+    )
     ap.add_argument("--out", type=Path, default=None, help="where metrics.json and figures go")
     ap.add_argument("--no-figures", action="store_true")
     a = ap.parse_args(argv)

@@ -7,13 +7,16 @@ you are not logged in), ``disabled`` logs nothing. Without wandb installed the r
 A rerun of the same directory continues the same wandb run id (kept in ``wandb/run_id``), so a resumed job is
 still one run on wandb.ai.
 """
+
 from __future__ import annotations
 
 import math
 import secrets
 import sys
+from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Any, Callable, Mapping
+from typing import Any
+
 from ..files import atomic_write_bytes
 
 
@@ -37,8 +40,11 @@ class JobLogger:
             return
         import wandb
 
-        images = {f"figures/{Path(p).stem}": wandb.Image(str(p)) for p in metrics.get("figures") or []
-                  if str(p).endswith(".png") and Path(p).is_file()}
+        images = {
+            f"figures/{Path(p).stem}": wandb.Image(str(p))
+            for p in metrics.get("figures") or []
+            if str(p).endswith(".png") and Path(p).is_file()
+        }
         if images:
             self.run.log(images)
         self.run.summary.update(flat_scalars({k: v for k, v in metrics.items() if k != "figures"}))
@@ -51,9 +57,7 @@ def flat_scalars(tree: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
         key = f"{prefix}{k}"
         if isinstance(v, Mapping):
             out.update(flat_scalars(v, key + "/"))
-        elif isinstance(v, bool) or isinstance(v, str):
-            out[key] = v
-        elif isinstance(v, (int, float)) and math.isfinite(v):
+        elif isinstance(v, bool) or isinstance(v, str) or isinstance(v, (int, float)) and math.isfinite(v):
             out[key] = v
     return out
 
@@ -85,23 +89,39 @@ def start(run, run_dir: Path, environment: Mapping[str, Any] | None = None) -> J
     try:
         import wandb
     except ImportError:
-        print("warning: logger.mode is not disabled but wandb is not installed; logging locally only "
-              "(pip install wandb, or logger=disabled to silence this)", file=sys.stderr)
+        print(
+            "warning: logger.mode is not disabled but wandb is not installed; logging locally only "
+            "(pip install wandb, or logger=disabled to silence this)",
+            file=sys.stderr,
+        )
         return JobLogger(None)
     config = {**run.model_dump(mode="json"), "versions": dict(environment or {})}
     # the source commit is in config.versions.git (read from .git); wandb's own git probing is off so no job
     # ever runs git (clusters without it, and no index lock taken in a checkout someone is working in)
-    kwargs = dict(project=lg.project, entity=lg.entity, tags=list(lg.tags), group=lg.group or run.name,
-                  name=f"{run.name}-seed{run.seed}", dir=str(run_dir), config=config, id=_run_id(run_dir),
-                  resume="allow", reinit=_finish_previous(wandb), settings=wandb.Settings(disable_git=True))
+    kwargs = dict(
+        project=lg.project,
+        entity=lg.entity,
+        tags=list(lg.tags),
+        group=lg.group or run.name,
+        name=f"{run.name}-seed{run.seed}",
+        dir=str(run_dir),
+        config=config,
+        id=_run_id(run_dir),
+        resume="allow",
+        reinit=_finish_previous(wandb),
+        settings=wandb.Settings(disable_git=True),
+    )
     try:
         return JobLogger(wandb.init(mode=lg.mode, **kwargs))
     except Exception as e:  # noqa: BLE001 - wandb raises many types for login / network problems
         if lg.mode != "online":
             print(f"warning: wandb could not start ({type(e).__name__}: {e}); logging locally only", file=sys.stderr)
             return JobLogger(None)
-        print(f"warning: wandb online failed ({type(e).__name__}: {e}); logging offline instead, upload later with "
-              f"`wandb sync {run_dir / 'wandb'}/offline-run-*`", file=sys.stderr)
+        print(
+            f"warning: wandb online failed ({type(e).__name__}: {e}); logging offline instead, upload later with "
+            f"`wandb sync {run_dir / 'wandb'}/offline-run-*`",
+            file=sys.stderr,
+        )
         try:
             return JobLogger(wandb.init(mode="offline", **kwargs))
         except Exception as e2:  # noqa: BLE001

@@ -6,14 +6,16 @@ config first, through Hydra's public compose API, and turns those failures into 
 key or path and the fix, with the closest names where one was misspelt. A sweep (``-m a=1,2``) is checked on
 its first job. Only then does the app start, so nothing is created for a command that cannot run.
 """
+
 from __future__ import annotations
 
 import difflib
 import functools
 import re
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import yaml
 from hydra import compose, initialize_config_dir
@@ -70,8 +72,10 @@ def _flag_message(flag: str) -> str:
     """``--experiment 2d1level`` -> write ``experiment=2d1level``: settings are overrides, not options."""
     name, _, value = flag.lstrip("-").replace("=", " ", 1).partition(" ")
     key = name.replace("-", "_")
-    return (f"'{flag}' is not an option of rmpfusion's commands: settings are written key=value (Hydra's overrides); "
-            f"write {key}={value or '...'}")
+    return (
+        f"'{flag}' is not an option of rmpfusion's commands: settings are written key=value (Hydra's overrides); "
+        f"write {key}={value or '...'}"
+    )
 
 
 def _first_job(overrides: list[str], dirs: list[Path]) -> list[str]:
@@ -81,8 +85,10 @@ def _first_job(overrides: list[str], dirs: list[Path]) -> list[str]:
         parsed = OverridesParser.create().parse_overrides(overrides)
     except OverrideParseException as e:
         first = str(e).strip().splitlines()[0]
-        raise CommandLineError(f"cannot read the command line {' '.join(overrides)!r}: {first}; see "
-                               "https://hydra.cc/docs/advanced/override_grammar/basic/") from None
+        raise CommandLineError(
+            f"cannot read the command line {' '.join(overrides)!r}: {first}; see "
+            "https://hydra.cc/docs/advanced/override_grammar/basic/"
+        ) from None
     out = []
     for o in parsed:
         if o.key_or_group.split("/")[0].split(".")[0] == "hydra" and o.key_or_group != "hydra.searchpath":
@@ -98,8 +104,10 @@ def _first_job(overrides: list[str], dirs: list[Path]) -> list[str]:
         if o.is_sweep_override():
             values = list(o.sweep_string_iterator())
             if not values:
-                raise CommandLineError(f"'{o.input_line}' sweeps over no value, so the sweep would launch no job; give "
-                                       "it at least one (range(0,3) is 0, 1, 2: the end is left out)")
+                raise CommandLineError(
+                    f"'{o.input_line}' sweeps over no value, so the sweep would launch no job; give "
+                    "it at least one (range(0,3) is 0, 1, 2: the end is left out)"
+                )
             out.append(f"{o.get_key_element()}={values[0]}")
         else:
             out.append(o.input_line)
@@ -107,7 +115,9 @@ def _first_job(overrides: list[str], dirs: list[Path]) -> list[str]:
 
 
 def _groups(dirs: list[Path]) -> list[str]:
-    return sorted({p.name for d in dirs if d.is_dir() for p in d.iterdir() if p.is_dir() and not p.name.startswith(".")})
+    return sorted(
+        {p.name for d in dirs if d.is_dir() for p in d.iterdir() if p.is_dir() and not p.name.startswith(".")}
+    )
 
 
 def _close(name: str, options: list[str]) -> str:
@@ -117,6 +127,7 @@ def _close(name: str, options: list[str]) -> str:
 
 def _yaml_message(e: yaml.MarkedYAMLError) -> str:
     """Where the YAML went wrong: the construct it was reading (context) and what broke it (problem)."""
+
     def at(mark) -> str:
         return f"line {mark.line + 1}, column {mark.column + 1}"
 
@@ -130,8 +141,9 @@ def _yaml_message(e: yaml.MarkedYAMLError) -> str:
     return f"YAML syntax error in {where}: {', '.join(parts)}; fix the file (every config file must be valid YAML)"
 
 
-def _override_message(e: ConfigCompositionException, groups: list[str], keys: Callable[[], list[str]],
-                      base: Callable[[], Any]) -> str | None:
+def _override_message(
+    e: ConfigCompositionException, groups: list[str], keys: Callable[[], list[str]], base: Callable[[], Any]
+) -> str | None:
     m = re.search(r"Could not override '([^']+)'", str(e))
     if not m:
         return None
@@ -140,8 +152,10 @@ def _override_message(e: ConfigCompositionException, groups: list[str], keys: Ca
     if head in keys() and "." in key:
         return _inner_key_message(key, base())
     hint = _close(head, groups + keys())
-    return (f"'{key}' is neither a config group nor a key of the config; {hint}config groups: {', '.join(groups)}; "
-            f"top-level keys: {', '.join(keys())} (to add a new key on purpose write +{key}=...)")
+    return (
+        f"'{key}' is neither a config group nor a key of the config; {hint}config groups: {', '.join(groups)}; "
+        f"top-level keys: {', '.join(keys())} (to add a new key on purpose write +{key}=...)"
+    )
 
 
 def _inner_key_message(key: str, config: Any) -> str:
@@ -155,8 +169,10 @@ def _inner_key_message(key: str, config: Any) -> str:
     options = [str(k) for k in node.keys()] if hasattr(node, "keys") else []
     close = closest(missing, options)
     hint = f"did you mean {', '.join(repr(f'{block}.{c}') for c in close)}? " if close else ""
-    return (f"'{key}': {block} has no key '{missing}'; {hint}keys of {block}: {', '.join(options) or 'none'} (to add "
-            f"a new key on purpose write +{key}=...)")
+    return (
+        f"'{key}': {block} has no key '{missing}'; {hint}keys of {block}: {', '.join(options) or 'none'} (to add "
+        f"a new key on purpose write +{key}=...)"
+    )
 
 
 def _missing_message(e: MissingConfigException, dirs: list[Path]) -> str:
@@ -166,8 +182,10 @@ def _missing_message(e: MissingConfigException, dirs: list[Path]) -> str:
     options = sorted({p.stem for d in dirs for p in (d / group).glob("*.yaml")}) if group else []
     if not options:
         return f"no config '{target}' (looked in {', '.join(str(d) for d in dirs)})"
-    return (f"no config '{option}' in the group '{group}' ({group}/{option}.yaml); {_close(option, options)}"
-            f"options: {', '.join(options)}")
+    return (
+        f"no config '{option}' in the group '{group}' ({group}/{option}.yaml); {_close(option, options)}"
+        f"options: {', '.join(options)}"
+    )
 
 
 def _added_group(overrides: list[str], groups: list[str], keys: Callable[[], list[str]]) -> str | None:
@@ -180,8 +198,10 @@ def _added_group(overrides: list[str], groups: list[str], keys: Callable[[], lis
             continue
         close = difflib.get_close_matches(head, groups, n=1, cutoff=0.6)
         if close:
-            return (f"'{o}' adds a new key '{head}', which the config does not have; did you mean the config group "
-                    f"'{close[0]}' ({close[0]}={o.split('=', 1)[1] if '=' in o else '...'})?")
+            return (
+                f"'{o}' adds a new key '{head}', which the config does not have; did you mean the config group "
+                f"'{close[0]}' ({close[0]}={o.split('=', 1)[1] if '=' in o else '...'})?"
+            )
     return None
 
 
@@ -202,8 +222,9 @@ def check_command_line(conf_dir: str, argv: list[str]) -> None:
         _compose(overrides, groups, dirs, lambda: list(base().keys()), base)
 
 
-def _compose(overrides: list[str], groups: list[str], dirs: list[Path], keys: Callable[[], list[str]],
-             base: Callable[[], Any]) -> None:
+def _compose(
+    overrides: list[str], groups: list[str], dirs: list[Path], keys: Callable[[], list[str]], base: Callable[[], Any]
+) -> None:
     """Compose as the app will, inside an initialised Hydra; every failure as a CommandLineError."""
     try:
         if (msg := _added_group(overrides, groups, keys)) is not None:
@@ -238,5 +259,7 @@ def check_output_dir(argv: list[str]) -> None:
         try:
             Path(value).expanduser().mkdir(parents=True, exist_ok=True)
         except OSError as e:
-            raise CommandLineError(f"{key}={value} cannot be created ({e.strerror or type(e).__name__}); choose a "
-                                   "directory you can write to") from None
+            raise CommandLineError(
+                f"{key}={value} cannot be created ({e.strerror or type(e).__name__}); choose a "
+                "directory you can write to"
+            ) from None

@@ -7,6 +7,7 @@ checkpoints; point a later stage at an earlier run with ``hydra.run.dir=outputs/
 
 ``rmpfusion-run`` returns the run's objective (lower is better) so the Optuna sweeper can minimise it.
 """
+
 from __future__ import annotations
 
 from omegaconf import DictConfig
@@ -36,8 +37,9 @@ def _objective(result) -> float | None:
 
 def _experiment(j: Job, require_trained: bool = False) -> dict:
     with user_errors_exit():
-        result = run_experiment(j.run, j.dir, progress=True, log=j.logger.log, threads=THREADS,
-                                require_trained=require_trained)
+        result = run_experiment(
+            j.run, j.dir, progress=True, log=j.logger.log, threads=THREADS, require_trained=require_trained
+        )
     for name, res in (result.get("learners") or {}).items():
         if res.get("resumed_from") is not None:
             print(f"learner {name}: resumed from the checkpoint at iteration {res['resumed_from']}")
@@ -49,11 +51,16 @@ def result_line(run_dir, result: dict) -> str:
     """The run's outcome in one line, printed after everything else (the logger's summary included)."""
     parts = []
     for name, res in (result.get("learners") or {}).items():
-        found = {**res, "test_dtw": (res.get("reproduction_test") or {}).get("dtw"),
-                 "converged": (res.get("convergence") or {}).get("converged")}
-        shown = ", ".join(f"{k}={found[k]:.4g}" for k in ("online_loss", "batch_loss", "success", "collision",
-                                                          "test_dtw", "converged")
-                          if isinstance(found.get(k), (int, float)))
+        found = {
+            **res,
+            "test_dtw": (res.get("reproduction_test") or {}).get("dtw"),
+            "converged": (res.get("convergence") or {}).get("converged"),
+        }
+        shown = ", ".join(
+            f"{k}={found[k]:.4g}"
+            for k in ("online_loss", "batch_loss", "success", "collision", "test_dtw", "converged")
+            if isinstance(found.get(k), (int, float))
+        )
         flag = " DIVERGED" if res.get("diverged") else ""
         parts.append(f"learner {name}{flag}: {shown or 'no metrics'}")
     return f"result: {'; '.join(parts) or 'no learners'} ({run_dir / 'metrics.json'})"
@@ -81,8 +88,10 @@ def collect(cfg: DictConfig) -> None:
     with job(cfg, THREADS, log=False) as j, user_errors_exit():
         splits = collect_stage(start(j.run, j.dir))
         for split, i in splits.info.items():
-            print(f"{split}: {i['points']} points in {i['path']}{' (reused)' if i.get('reused') else ''} "
-                  f"sha256 {i['sha256']}")
+            print(
+                f"{split}: {i['points']} points in {i['path']}{' (reused)' if i.get('reused') else ''} "
+                f"sha256 {i['sha256']}"
+            )
 
 
 @hydra_app
@@ -96,10 +105,14 @@ def train(cfg: DictConfig) -> None:
         summary: dict = {}
         for name, f in fitted.items():
             if f.result.resumed_from is not None:
-                print(f"learner {name}: resumed from iteration {f.result.resumed_from} ({j.dir / 'checkpoints' / name})")
+                print(
+                    f"learner {name}: resumed from iteration {f.result.resumed_from} ({j.dir / 'checkpoints' / name})"
+                )
             last = f.result.curve[-1][1] if f.result.curve else float("nan")
-            print(f"learner {name}: {j.run.train.iterations} iterations ({j.run.train.method}), final train "
-                  f"{f.result.measure} {last:.4g}")
+            print(
+                f"learner {name}: {j.run.train.iterations} iterations ({j.run.train.method}), final train "
+                f"{f.result.measure} {last:.4g}"
+            )
             summary[name] = {"final_train_loss": last, "resumed_from": f.result.resumed_from}
         j.logger.finish({"learners": summary})
 

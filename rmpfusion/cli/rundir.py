@@ -6,6 +6,7 @@ fixed ``hydra.sweep.dir``) resumes it: the datasets are reused and training cont
 checkpoint. A rerun whose configuration differs from the one saved there is refused before anything is
 written, so no run ever overwrites another run's files.
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -18,11 +19,13 @@ import re
 import shutil
 import socket
 import sys
+from collections.abc import Iterator, Mapping
 from importlib import metadata
 from pathlib import Path
-from typing import Any, Iterator, Mapping
-from ..pipeline.config import upgrade_run_config
+from typing import Any
+
 from ..files import atomic_write_json
+from ..pipeline.config import upgrade_run_config
 
 #: the resolved, validated configuration of the run that owns a directory (written by save_resolved)
 RESOLVED = "config.resolved.yaml"
@@ -32,8 +35,21 @@ LOCK = ".lock"
 #: keys a rerun may change without changing results: where and whether the logger writes
 MAY_DIFFER = ("logger",)
 #: distributions whose versions decide a run's numbers or its files
-DISTRIBUTIONS = ("rmpfusion", "torch", "numpy", "hydra-core", "omegaconf", "pydantic", "wandb", "pybullet",
-                 "matplotlib", "submitit", "hydra-submitit-launcher", "hydra-joblib-launcher", "joblib")
+DISTRIBUTIONS = (
+    "rmpfusion",
+    "torch",
+    "numpy",
+    "hydra-core",
+    "omegaconf",
+    "pydantic",
+    "wandb",
+    "pybullet",
+    "matplotlib",
+    "submitit",
+    "hydra-submitit-launcher",
+    "hydra-joblib-launcher",
+    "joblib",
+)
 
 
 class RunDirError(RuntimeError):
@@ -65,24 +81,30 @@ def check_same_config(resolved: Mapping[str, Any], run_dir: Path) -> None:
     saved = run_dir / RESOLVED
     if not saved.is_file():
         return
-    fix = (f"Rerun with the configuration saved in {saved} to resume that run, or give this run its own "
-           f"directory (a new hydra.run.dir=..., or no hydra.run.dir for a fresh timestamped one).")
+    fix = (
+        f"Rerun with the configuration saved in {saved} to resume that run, or give this run its own "
+        f"directory (a new hydra.run.dir=..., or no hydra.run.dir for a fresh timestamped one)."
+    )
     try:
         old = yaml.safe_load(saved.read_text())
         if not isinstance(old, Mapping):
             raise ValueError("not a mapping")
-    except Exception as e:  # noqa: BLE001 - any unreadable file gets the same advice
-        raise RunDirError(f"{run_dir} holds a run whose saved configuration {saved} is unreadable "
-                          f"({type(e).__name__}: {e}); nothing was changed. {fix}") from e
+    except Exception as e:
+        raise RunDirError(
+            f"{run_dir} holds a run whose saved configuration {saved} is unreadable "
+            f"({type(e).__name__}: {e}); nothing was changed. {fix}"
+        ) from e
 
     old = upgrade_run_config(old)  # a run saved before a key was renamed (train.lr_final) still resumes
-    strip = lambda c: {k: v for k, v in c.items() if k not in MAY_DIFFER}  # noqa: E731
+    strip = lambda c: {k: v for k, v in c.items() if k not in MAY_DIFFER}
     diffs = config_diff(strip(old), strip(dict(resolved)))
     if diffs:
         shown = "\n".join(f"  - {p}: {o!r} (saved) vs {n!r} (now)" for p, o, n in diffs[:12])
         more = f"\n  - ... and {len(diffs) - 12} more" if len(diffs) > 12 else ""
-        raise RunDirError(f"{run_dir} already holds a run with a different configuration (saved in {saved}):\n"
-                          f"{shown}{more}\nNothing was changed. {fix}")
+        raise RunDirError(
+            f"{run_dir} already holds a run with a different configuration (saved in {saved}):\n"
+            f"{shown}{more}\nNothing was changed. {fix}"
+        )
 
 
 class HydraFiles:
@@ -139,8 +161,10 @@ def exclusive(run_dir: Path) -> Iterator[None]:
         except OSError as e:
             if e.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
                 holder = os.pread(fd, 200, 0).decode(errors="replace").strip() or "another process"
-                raise RunDirError(f"{run_dir} is in use by {holder} ({path}); wait for it to finish, or give this "
-                                  "run its own directory (hydra.run.dir=...)") from None
+                raise RunDirError(
+                    f"{run_dir} is in use by {holder} ({path}); wait for it to finish, or give this "
+                    "run its own directory (hydra.run.dir=...)"
+                ) from None
             yield  # locking unsupported here (some network filesystems): run without it
             return
         os.ftruncate(fd, 0)
@@ -171,8 +195,11 @@ def git_commit(start: Path | None = None) -> dict[str, Any] | None:
             ref = head.split(":", 1)[1].strip()
             for base in (dot, common):
                 if (base / ref).is_file():
-                    return {"commit": (base / ref).read_text().strip(), "branch": ref.rsplit("/", 1)[-1],
-                            "repo": str(root)}
+                    return {
+                        "commit": (base / ref).read_text().strip(),
+                        "branch": ref.rsplit("/", 1)[-1],
+                        "repo": str(root),
+                    }
             packed = common / "packed-refs"
             if packed.is_file():
                 for line in packed.read_text().splitlines():
@@ -195,8 +222,15 @@ def environment(threads: int | None = None) -> dict[str, Any]:
             packages[name] = metadata.version(name)
         except metadata.PackageNotFoundError:
             packages[name] = None
-    env_keys = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "CUDA_VISIBLE_DEVICES", "SLURM_JOB_ID", "SLURM_ARRAY_JOB_ID",
-                "SLURM_ARRAY_TASK_ID", "SUBMITIT_EXECUTOR")
+    env_keys = (
+        "OMP_NUM_THREADS",
+        "MKL_NUM_THREADS",
+        "CUDA_VISIBLE_DEVICES",
+        "SLURM_JOB_ID",
+        "SLURM_ARRAY_JOB_ID",
+        "SLURM_ARRAY_TASK_ID",
+        "SUBMITIT_EXECUTOR",
+    )
     return {
         "python": platform.python_version(),
         "implementation": platform.python_implementation(),
@@ -220,7 +254,6 @@ def record_environment(run_dir: Path, threads: int | None = None) -> dict[str, A
     warns when the packages changed in between (the numbers may then differ from an uninterrupted run)."""
     import json
 
-
     rec = environment(threads)
     path = run_dir / VERSIONS
     history: list = []
@@ -228,12 +261,18 @@ def record_environment(run_dir: Path, threads: int | None = None) -> dict[str, A
         try:
             old = json.loads(path.read_text())
             history = list(old.pop("history", [])) + [old]
-            changed = {k: (old.get("packages", {}).get(k), v) for k, v in rec["packages"].items()
-                       if old.get("packages", {}).get(k) != v}
+            changed = {
+                k: (old.get("packages", {}).get(k), v)
+                for k, v in rec["packages"].items()
+                if old.get("packages", {}).get(k) != v
+            }
             if changed:
-                print("warning: this run was started with other package versions ("
-                      + ", ".join(f"{k} {a} -> {b}" for k, (a, b) in changed.items())
-                      + f"); see {path}", file=sys.stderr)
+                print(
+                    "warning: this run was started with other package versions ("
+                    + ", ".join(f"{k} {a} -> {b}" for k, (a, b) in changed.items())
+                    + f"); see {path}",
+                    file=sys.stderr,
+                )
         except (OSError, ValueError):
             history = []
     atomic_write_json(path, {**rec, "history": history} if history else rec)
@@ -354,8 +393,10 @@ def console_log(run_dir: Path) -> Iterator[None]:
     run_dir.mkdir(parents=True, exist_ok=True)
     log = JobLog(run_dir)
     with contextlib.closing(_Quiet(open(run_dir / CONSOLE, "a", encoding="utf-8", errors="replace"))) as fh:
-        fh.write(f"==== {_dt.datetime.now().astimezone().isoformat(timespec='seconds')} pid {os.getpid()}: "
-                 f"{' '.join(sys.argv)}\n")
+        fh.write(
+            f"==== {_dt.datetime.now().astimezone().isoformat(timespec='seconds')} pid {os.getpid()}: "
+            f"{' '.join(sys.argv)}\n"
+        )
         log.record(logging.INFO, f"job started in {run_dir} (pid {os.getpid()}): {' '.join(sys.argv)}")
         old_out, old_err = sys.stdout, sys.stderr
         out, err = _Tee(old_out, fh, log.sink(logging.INFO)), _Tee(old_err, fh, log.sink(logging.WARNING))

@@ -6,6 +6,7 @@ overrides and returns, so the launcher goes on with the others; the sweep then e
 exits with status 1. Jobs leave their failures in a directory the sweep's process names in
 ``RMPFUSION_SWEEP_FAILURES`` (the launchers that run jobs in other processes on this machine, joblib's, inherit it).
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -13,8 +14,8 @@ import json
 import os
 import sys
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Iterator
 
 from ..files import atomic_write_json
 
@@ -44,8 +45,10 @@ def describe(num: int, overrides: list[str]) -> str:
 def record_failure(code: int | str | None) -> None:
     """Say that this job failed (its message was printed just before) and leave its record for the sweep's end."""
     num, overrides = _job()
-    print(f"{describe(num, overrides)} failed with exit status {code}; the sweep goes on with its other jobs",
-          file=sys.stderr)
+    print(
+        f"{describe(num, overrides)} failed with exit status {code}; the sweep goes on with its other jobs",
+        file=sys.stderr,
+    )
     folder = os.environ.get(FAILURES)
     if folder:
         atomic_write_json(Path(folder) / f"job-{num}.json", {"num": num, "overrides": overrides, "code": code})
@@ -71,6 +74,9 @@ def failures_reported() -> Iterator[None]:
                 os.environ[FAILURES] = old
     if failed:
         listed = "; ".join(f"{describe(f['num'], f['overrides'])}: exit status {f['code']}" for f in failed)
-        print(f"error: {len(failed)} job{'s' if len(failed) > 1 else ''} of the sweep failed ({listed}); each said why "
-              "above. The others ran; fix the failed jobs' overrides and run them again", file=sys.stderr)
+        print(
+            f"error: {len(failed)} job{'s' if len(failed) > 1 else ''} of the sweep failed ({listed}); each said why "
+            "above. The others ran; fix the failed jobs' overrides and run them again",
+            file=sys.stderr,
+        )
         sys.exit(1)

@@ -3,15 +3,16 @@
 Usage: ``rmpfusion-validate experiment=2d2level`` (any overrides; ``-m`` checks a whole sweep).
 Exits 0 and prints a summary with the tree drawn as text, or exits 2 listing every problem.
 """
+
 from __future__ import annotations
 
 from omegaconf import DictConfig
 
 from ..assembly.spec import weight_label
 from ..evaluate.weights import learned_edges
-from ._common import discard_unclaimed, hydra_app, hydra_run_dir, user_errors_exit
 from ..pipeline.construct import build_all
 from ..pipeline.validate import resolve_and_validate
+from ._common import discard_unclaimed, hydra_app, hydra_run_dir, user_errors_exit
 
 
 def summary(run, env, expert, learners) -> str:
@@ -30,13 +31,17 @@ def summary(run, env, expert, learners) -> str:
     d, t = run.data, run.train
     if d.source == "recorded":
         what = f"LASA shape {d.shape}" if d.format == "lasa" else ", ".join(d.files)
-        data_line = (f"data: recorded demonstrations ({d.format}: {what}), split {d.split}, derivatives "
-                     f"{d.derivatives}" + (f" (Savitzky-Golay window {d.window}, order {d.polyorder})"
-                                           if d.derivatives == "filter" else ""))
+        data_line = (
+            f"data: recorded demonstrations ({d.format}: {what}), split {d.split}, derivatives "
+            f"{d.derivatives}"
+            + (f" (Savitzky-Golay window {d.window}, order {d.polyorder})" if d.derivatives == "filter" else "")
+        )
     else:
-        data_line = (f"data: {d.train_envs} envs x {d.train_trajectories} trajectories x {d.points} points (test "
-                     f"{d.test_envs} x {d.test_trajectories}, validation {d.val_envs} x {d.val_trajectories}), every "
-                     f"{d.interval}s")
+        data_line = (
+            f"data: {d.train_envs} envs x {d.train_trajectories} trajectories x {d.points} points (test "
+            f"{d.test_envs} x {d.test_trajectories}, validation {d.val_envs} x {d.val_trajectories}), every "
+            f"{d.interval}s"
+        )
     lines += [
         data_line,
         f"train: {t.method}, {t.describe()}",
@@ -54,8 +59,10 @@ def main(cfg: DictConfig) -> None:
             run = resolve_and_validate(cfg)
             env, expert, learners = build_all(run)
         print(summary(run, env, expert, learners))
-        print(f"run directory: {hydra_run_dir()} (where rmpfusion-run with these overrides writes; nothing is kept "
-              "by rmpfusion-validate)")
+        print(
+            f"run directory: {hydra_run_dir()} (where rmpfusion-run with these overrides writes; nothing is kept "
+            "by rmpfusion-validate)"
+        )
     finally:
         discard_unclaimed(hydra_run_dir())
 

@@ -9,6 +9,7 @@ one start of the test split's distribution (drawn from the test split's seed). F
 weightless tree (every weight 1: RMPflow) are rolled out the same way. The page (``plots/viewer.py``) opens with
 no network; an existing file is never replaced unless ``--force`` says so.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -42,14 +43,18 @@ class ViewError(Exception):
 def _run_config_of_directory(run_dir: Path) -> tuple[RunConfig, dict[str, Path]]:
     """The config a run's checkpoints carry, and each learner's newest checkpoint (the one holding its snapshots)."""
     if not run_dir.is_dir():
-        raise ViewError(f"{run_dir} is not a directory; give a run directory (outputs/<experiment>/<time>) or config "
-                        "overrides such as experiment=franka")
+        raise ViewError(
+            f"{run_dir} is not a directory; give a run directory (outputs/<experiment>/<time>) or config "
+            "overrides such as experiment=franka"
+        )
     ckroot = run_dir / "checkpoints"
     if not ckroot.is_dir():
         what = "a run directory that has not trained yet" if (run_dir / RESOLVED).is_file() else "not a run directory"
-        raise ViewError(f"{run_dir} is {what}: it has no checkpoints/ (a run directory holds checkpoints/<learner>/"
-                        "ckpt-*.pt after rmpfusion-run or rmpfusion-train); to see the expert alone, give the "
-                        "run's overrides instead (e.g. experiment=franka)")
+        raise ViewError(
+            f"{run_dir} is {what}: it has no checkpoints/ (a run directory holds checkpoints/<learner>/"
+            "ckpt-*.pt after rmpfusion-run or rmpfusion-train); to see the expert alone, give the "
+            "run's overrides instead (e.g. experiment=franka)"
+        )
     newest = {d.name: ck for d in sorted(ckroot.iterdir()) if (ck := latest_checkpoint(d)) is not None}
     if not newest:
         raise ViewError(f"{ckroot} holds no checkpoint (ckpt-<iteration>.pt); train the run first")
@@ -59,8 +64,10 @@ def _run_config_of_directory(run_dir: Path) -> tuple[RunConfig, dict[str, Path]]
     run = parse_run_config(upgrade_run_config(state["config"]))
     missing = [n for n in run.learners if n not in newest]
     if missing:
-        raise ViewError(f"{ckroot} has no checkpoints for learners {missing} of the run's config; train them first "
-                        f"(rmpfusion-train with the run's overrides and hydra.run.dir={run_dir})")
+        raise ViewError(
+            f"{ckroot} has no checkpoints for learners {missing} of the run's config; train them first "
+            f"(rmpfusion-train with the run's overrides and hydra.run.dir={run_dir})"
+        )
     return run, newest
 
 
@@ -80,8 +87,10 @@ def _run_config_of_overrides(overrides: list[str]) -> RunConfig:
 
 def _check_manipulator(run: RunConfig) -> None:
     if run.env.type != "manipulator":
-        raise ViewError(f"the viewer draws robots: experiment '{run.name}' runs the '{run.env.type}' environment; "
-                        "its figures are the run's figures/ (trajectories over the obstacles)")
+        raise ViewError(
+            f"the viewer draws robots: experiment '{run.name}' runs the '{run.env.type}' environment; "
+            "its figures are the run's figures/ (trajectories over the obstacles)"
+        )
 
 
 # ------------------------------------------------------------------------------------------------ the rollouts
@@ -112,8 +121,9 @@ def _learner_policies(exp: Experiment, checkpoints: dict[str, Path]) -> list[tup
         done = {int(i) for i in state.get("snapshots", {})}
         if final.is_file() and int(exp.run.train.iterations) not in done:
             model.load_state_dict(load_checkpoint(final, model)["model"])  # checked to fit the learner first
-            out.append((f"{name} @ {exp.run.train.iterations}" if many else f"learner @ {exp.run.train.iterations}",
-                        model))
+            out.append(
+                (f"{name} @ {exp.run.train.iterations}" if many else f"learner @ {exp.run.train.iterations}", model)
+            )
     return [(label, m.to(torch.float64).eval()) for label, m in out]
 
 
@@ -129,8 +139,7 @@ def _viewing(run: RunConfig, horizon: float | None) -> RunConfig:
     return run.model_copy(update={"device": "cpu", "eval": run.eval.model_copy(update=ev)})
 
 
-def view_input(run: RunConfig, run_dir: Path | None, checkpoints: dict[str, Path] | None,
-               say: Progress) -> ViewerInput:
+def view_input(run: RunConfig, run_dir: Path | None, checkpoints: dict[str, Path] | None, say: Progress) -> ViewerInput:
     """What the page draws: the environment rebuilt from ``run``, its policies rolled out from one test start."""
     _check_manipulator(run)
     exp = prepare(run, run_dir or Path("."), say)
@@ -147,21 +156,36 @@ def view_input(run: RunConfig, run_dir: Path | None, checkpoints: dict[str, Path
     scene = run.env.test_scene or run.env.scene
     aux0 = {k: v[0] for k, v in start[2].items()}
     source = run_dir if run_dir is not None else "config"
-    return ViewerInput(robot=run.env.robot, scene=scene, aux=aux0, times=times, tracks=tracks,
-                       title=f"{run.name} ({source}): {run.env.robot.name}, one test start")
+    return ViewerInput(
+        robot=run.env.robot,
+        scene=scene,
+        aux=aux0,
+        times=times,
+        tracks=tracks,
+        title=f"{run.name} ({source}): {run.env.robot.name}, one test start",
+    )
 
 
 # ------------------------------------------------------------------------------------------------ the command
 def _parse(argv) -> argparse.Namespace:
-    ap = argparse.ArgumentParser(prog="rmpfusion-view", description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        prog="rmpfusion-view", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("target", nargs="+", help="a run directory, or Hydra overrides (key=value ...)")
-    ap.add_argument("--out", type=Path, default=None,
-                    help="the HTML file (default: <run directory>/viewer.html, or viewer-<experiment>.html here)")
+    ap.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="the HTML file (default: <run directory>/viewer.html, or viewer-<experiment>.html here)",
+    )
     ap.add_argument("--force", action="store_true", help="replace the output file if it exists")
     ap.add_argument("--frames", type=int, default=40, help="at most this many time-slider frames (default 40)")
-    ap.add_argument("--horizon", type=float, default=None,
-                    help="seconds each rollout lasts (default: the run's evaluation horizon, eval.horizon)")
+    ap.add_argument(
+        "--horizon",
+        type=float,
+        default=None,
+        help="seconds each rollout lasts (default: the run's evaluation horizon, eval.horizon)",
+    )
     return ap.parse_args(argv)
 
 
@@ -170,8 +194,14 @@ def _refuse_existing(out: Path | None, force: bool) -> None:
         raise ViewError(f"{out} exists; nothing was written (pass --force to replace it, or --out another file)")
 
 
-def view(target: list[str], out: Path | None = None, force: bool = False, frames: int = 40,
-         horizon: float | None = None, progress: bool = True) -> Path:
+def view(
+    target: list[str],
+    out: Path | None = None,
+    force: bool = False,
+    frames: int = 40,
+    horizon: float | None = None,
+    progress: bool = True,
+) -> Path:
     """Write the page for ``target`` (a run directory, or overrides); returns its path."""
     say = Progress(progress)
     _refuse_existing(out, force)

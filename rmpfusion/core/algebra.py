@@ -3,11 +3,13 @@
 Shapes: a node's coordinate is (B, m); matrices are (B, m, m); an edge Jacobian is (B, n, m);
 the curvature term c = J̇ẋ is (B, n). Scalars (Phi, L, V, weights) are (B,).
 """
+
 from __future__ import annotations
 
 import warnings
+from collections.abc import Iterable, MutableMapping
 from dataclasses import dataclass, fields
-from typing import Iterable, MutableMapping, NamedTuple
+from typing import NamedTuple
 
 import torch
 from torch import Tensor
@@ -30,7 +32,7 @@ class NodeRMP:
     V: Tensor | None
 
     @classmethod
-    def lean(cls, f: Tensor, M: Tensor) -> "NodeRMP":
+    def lean(cls, f: Tensor, M: Tensor) -> NodeRMP:
         """Only the natural form (f, M): all resolve needs, when no varying weight asks for L and G and nobody
         monitors V (``RMPTree.policy``)."""
         return cls(f, M, None, None, None, None, None)
@@ -121,8 +123,15 @@ def edge_contribution(xd: Tensor, edge: Edge, child: NodeRMP) -> NodeRMP:
         Gyd = matvec(child.G, yd)
         JtGyd = Gyd if identity else _jt(J, Gyd)
         f = f + child.L[..., None] * gw - (xd * gw).sum(-1, keepdim=True) * JtGyd
-    return NodeRMP(f=f, M=M, G=pull.matrix(child.G), B=pull.matrix(child.B), Phi=pull.scalar(child.Phi),
-                   L=pull.scalar(child.L), V=pull.scalar(child.V))
+    return NodeRMP(
+        f=f,
+        M=M,
+        G=pull.matrix(child.G),
+        B=pull.matrix(child.B),
+        Phi=pull.scalar(child.Phi),
+        L=pull.scalar(child.L),
+        V=pull.scalar(child.V),
+    )
 
 
 def add_rmps(a: NodeRMP | None, b: NodeRMP) -> NodeRMP:
@@ -194,9 +203,13 @@ def resolve(f: Tensor, M: Tensor, method: str = "solve", events: MutableMapping[
         if n_fix:
             a[fix] = (torch.linalg.pinv(M[fix]) @ f[fix].unsqueeze(-1)).squeeze(-1)
             idx = fix.nonzero().flatten().tolist()
-            warnings.warn(SingularInertiaWarning(
-                f"resolve: the root inertia M is singular in {n_fix} of {M.shape[0]} samples "
-                f"(samples {idx[:10]}{' …' if n_fix > 10 else ''}); used the Moore–Penrose pseudo-inverse there "
-                "(q̈ = M⁺f has no component along M's null space). Add an identity_metric leaf on the root "
-                "to keep M invertible."), stacklevel=2)
+            warnings.warn(
+                SingularInertiaWarning(
+                    f"resolve: the root inertia M is singular in {n_fix} of {M.shape[0]} samples "
+                    f"(samples {idx[:10]}{' …' if n_fix > 10 else ''}); used the Moore–Penrose pseudo-inverse there "
+                    "(q̈ = M⁺f has no component along M's null space). Add an identity_metric leaf on the root "
+                    "to keep M invertible."
+                ),
+                stacklevel=2,
+            )
     return a

@@ -4,9 +4,10 @@ Every function here takes a *batched* callable whose b-th output depends only on
 lets one jvp with a batched tangent or one vjp with a cotangent of ones give per-sample derivatives.
 They compose with ordinary autograd, so parameters inside the callable still receive gradients.
 """
+
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import torch
 from torch import Tensor

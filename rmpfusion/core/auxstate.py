@@ -7,9 +7,11 @@ Constants are built in float64 (``constant``), the precision of the Python numbe
 torch's default dtype is; ``build_tree`` then casts the whole tree to its dtype (float64 unless asked), so a
 YAML number is rounded at most once, to the dtype the tree computes in.
 """
+
 from __future__ import annotations
 
-from typing import Mapping, Sequence, Union
+from collections.abc import Mapping, Sequence
+from typing import Union
 
 import torch
 from torch import Tensor, nn
@@ -53,7 +55,7 @@ class AuxParam(nn.Module):
             raise KeyError(f"aux state '{self.name}' is required by this tree but was not passed")
         return aux[self.name]
 
-    def renamed(self, name: str) -> "AuxParam":
+    def renamed(self, name: str) -> AuxParam:
         """The same parameter reading the aux entry ``name`` (a shared weight bound to one edge's entries)."""
         if self.name is None:
             return self

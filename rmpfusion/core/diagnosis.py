@@ -4,9 +4,11 @@ A tree checks only its answer (one check at the root, so an evaluation pays no p
 that answer is not finite it evaluates once more node by node and walks down to the first input, map, weight,
 leaf or pullback* that produced a NaN or inf, naming it and the samples affected.
 """
+
 from __future__ import annotations
 
-from typing import Any, Mapping, Sequence
+from collections.abc import Mapping, Sequence
+from typing import Any
 
 import torch
 from torch import Tensor
@@ -35,7 +37,7 @@ class Diagnosis(str):
     samples: list[int] | None = None
 
     @classmethod
-    def make(cls, text: str, where: str | None = None, samples: list[int] | None = None) -> "Diagnosis":
+    def make(cls, text: str, where: str | None = None, samples: list[int] | None = None) -> Diagnosis:
         d = cls(text)
         d.where, d.samples = where, samples
         return d
@@ -70,8 +72,12 @@ def bad_input(q: Tensor, qd: Tensor, aux: Mapping[str, Tensor] | None, declared:
     if bad is None:
         return None
     samples = nonfinite_samples(dict(inputs)[bad])
-    return Diagnosis.make(f"non-finite input {bad}{_samples_text(samples)}; check the state or aux state passed to "
-                          "the tree (a NaN here must not become a command)", bad, samples)
+    return Diagnosis.make(
+        f"non-finite input {bad}{_samples_text(samples)}; check the state or aux state passed to "
+        "the tree (a NaN here must not become a command)",
+        bad,
+        samples,
+    )
 
 
 def _scale(q: Tensor, qd: Tensor) -> str:
@@ -80,21 +86,31 @@ def _scale(q: Tensor, qd: Tensor) -> str:
     return "; inputs were finite (" + ", ".join(big) + ")"
 
 
-def bad_node(layout: TreeLayout, order: Sequence[str], nodes: Mapping[str, Any], qdd: Tensor, q: Tensor,
-             qd: Tensor) -> Diagnosis:
+def bad_node(
+    layout: TreeLayout, order: Sequence[str], nodes: Mapping[str, Any], qdd: Tensor, q: Tensor, qd: Tensor
+) -> Diagnosis:
     """The first node in pushforward order with a non-finite state, Jacobian, curvature or weight; else the first
     RMP in pullback* order; else the root; else resolve (a singular root inertia)."""
     for name in order:
         e = nodes["edge"][name]
-        named = [("y", nodes["state"][name][0]), ("ydot", nodes["state"][name][1]), ("J", e.J), ("Jdot_xdot", e.c),
-                 ("weight", e.w), ("weight gradient", e.grad_w)]
+        named = [
+            ("y", nodes["state"][name][0]),
+            ("ydot", nodes["state"][name][1]),
+            ("J", e.J),
+            ("Jdot_xdot", e.c),
+            ("weight", e.w),
+            ("weight gradient", e.grad_w),
+        ]
         where = _first_nonfinite(named)
         if where:
             samples = nonfinite_samples(dict(named)[where])
             label = layout.labels[name]
             origin = f"weight {label.weight}" if where.startswith("weight") else f"map {label.map}"
-            return Diagnosis.make(f"non-finite {where} at node '{name}' ({origin}){_samples_text(samples)}"
-                                  f"{_scale(q, qd)}", f"{where} at node '{name}'", samples)
+            return Diagnosis.make(
+                f"non-finite {where} at node '{name}' ({origin}){_samples_text(samples)}{_scale(q, qd)}",
+                f"{where} at node '{name}'",
+                samples,
+            )
     for name in reversed(order):
         items = list(nodes["rmp"][name].items())
         where = _first_nonfinite(items)
@@ -102,15 +118,22 @@ def bad_node(layout: TreeLayout, order: Sequence[str], nodes: Mapping[str, Any],
             samples = nonfinite_samples(dict(items)[where])
             rmp = layout.labels[name].rmp
             kind = f"leaf {rmp}" if rmp else "pullback* of its children"
-            return Diagnosis.make(f"non-finite {where} in the RMP of node '{name}' ({kind}){_samples_text(samples)}"
-                                  f"{_scale(q, qd)}", f"{where} in the RMP of node '{name}'", samples)
+            return Diagnosis.make(
+                f"non-finite {where} in the RMP of node '{name}' ({kind}){_samples_text(samples)}{_scale(q, qd)}",
+                f"{where} in the RMP of node '{name}'",
+                samples,
+            )
     items = list(nodes["rmp"][layout.root].items())
     where = _first_nonfinite(items)
     if where:
         samples = nonfinite_samples(dict(items)[where])
-        return Diagnosis.make(f"non-finite root {where} after pullback*{_samples_text(samples)}{_scale(q, qd)}",
-                              f"root {where}", samples)
+        return Diagnosis.make(
+            f"non-finite root {where} after pullback*{_samples_text(samples)}{_scale(q, qd)}", f"root {where}", samples
+        )
     samples = nonfinite_samples(qdd)
     return Diagnosis.make(
         f"non-finite acceleration from resolve{_samples_text(samples)}: the root inertia M is singular or badly "
-        "conditioned there; add an identity_metric leaf on the root", "resolve", samples)
+        "conditioned there; add an identity_metric leaf on the root",
+        "resolve",
+        samples,
+    )

@@ -8,9 +8,10 @@ pays for the solve alone. ``export_tree`` makes the ``ExportedProgram``; ``torch
 ``torch.export.load(path).module()`` runs it, with no rmpfusion installed. An AOTInductor package of it
 (``torch._inductor.aoti_compile_and_package``) runs from Python or C++ (``docs/architecture.md §8``).
 """
+
 from __future__ import annotations
 
-from typing import Mapping, Sequence
+from collections.abc import Mapping, Sequence
 
 import torch
 from torch import Tensor, nn
@@ -44,8 +45,9 @@ class TreeProgram(nn.Module):
         return (qdd, root.M, root.f) if self.with_rmp else qdd
 
 
-def export_policy(program: nn.Module, q: Tensor, qd: Tensor, aux: Mapping[str, Tensor],
-                  aux_names: Sequence[str]) -> torch.export.ExportedProgram:
+def export_policy(
+    program: nn.Module, q: Tensor, qd: Tensor, aux: Mapping[str, Tensor], aux_names: Sequence[str]
+) -> torch.export.ExportedProgram:
     """``program(q, q̇, *aux)`` exported for any batch size, traced at the example state (the batch dimension of
     every input is one dynamic size)."""
     batch = torch.export.Dim("batch", min=1)
@@ -55,8 +57,9 @@ def export_policy(program: nn.Module, q: Tensor, qd: Tensor, aux: Mapping[str, T
         return torch.export.export(program, (q, qd, *entries), dynamic_shapes=shapes)
 
 
-def export_tree(tree: nn.Module, q: Tensor, qd: Tensor, aux: Mapping[str, Tensor], aux_names: Sequence[str],
-                with_rmp: bool = False) -> torch.export.ExportedProgram:
+def export_tree(
+    tree: nn.Module, q: Tensor, qd: Tensor, aux: Mapping[str, Tensor], aux_names: Sequence[str], with_rmp: bool = False
+) -> torch.export.ExportedProgram:
     """The tree's policy exported for any batch size, traced at the example state (q, q̇, aux) (B ≥ 2, so the batch
     dimension is not specialised to 1). ``aux_names``: the aux entries the program takes, in order."""
     if q.shape[0] < 2:

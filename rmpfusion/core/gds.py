@@ -1,12 +1,12 @@
 """Leaf RMPs as geometric dynamical systems (G, B, Φ) with M, f, L, V derived per docs/math.md §3.
 
-    Ξ_G = ½ Σ_i ẏ_i ∂_ẏ g_i          (the ½ is part of the definition)
-    ξ_G = Ġ_y ẏ − ½ ∇_y(ẏᵀ G ẏ),   Ġ_y = [∂_y g_i ẏ]_i
-    M = G + Ξ_G,   f = −∇Φ − B ẏ − ξ_G,   L = ½ ẏᵀGẏ − Φ,   V = ½ ẏᵀGẏ + Φ
+Ξ_G = ½ Σ_i ẏ_i ∂_ẏ g_i          (the ½ is part of the definition)
+ξ_G = Ġ_y ẏ − ½ ∇_y(ẏᵀ G ẏ),   Ġ_y = [∂_y g_i ẏ]_i
+M = G + Ξ_G,   f = −∇Φ − B ẏ − ξ_G,   L = ½ ẏᵀGẏ − Φ,   V = ½ ẏᵀGẏ + Φ
 """
+
 from __future__ import annotations
 
-import torch
 from torch import Tensor, nn
 
 from . import autodiff

@@ -12,10 +12,12 @@
 
 Where a group's inputs come from is a ``Rows``: rows of one earlier group, or of several concatenated.
 """
+
 from __future__ import annotations
 
+from collections.abc import Callable, Hashable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, Callable, Hashable, Mapping, Sequence
+from typing import Any
 
 import torch
 from torch import Tensor, nn
@@ -77,7 +79,7 @@ class Rows:
     span: tuple[int, int] | None = None
 
     @classmethod
-    def of(cls, places: Sequence[tuple[int, int]], sizes: Mapping[int, int], device) -> "Rows":
+    def of(cls, places: Sequence[tuple[int, int]], sizes: Mapping[int, int], device) -> Rows:
         """``places``: each member's (source, row); ``sizes``: each source's number of rows."""
         sources = list(dict.fromkeys(s for s, _ in places))
         start, offset = {}, 0
@@ -97,9 +99,9 @@ class Rows:
         if self.index is None:
             return t
         if isinstance(self.index, int):
-            return t[self.index:self.index + 1]
+            return t[self.index : self.index + 1]
         if self.span is not None and self.span[1] - self.span[0] == self.index.shape[0]:
-            return t[self.span[0]:self.span[1]]
+            return t[self.span[0] : self.span[1]]
         return t.index_select(0, self.index)
 
     def scatter_sum(self, t: Tensor) -> tuple[int, Tensor]:
@@ -189,8 +191,13 @@ def _key(module: Any, node: str) -> Hashable:
     return ("alone", node) if key is None else key
 
 
-def plan(layout: TreeLayout, maps: Mapping[str, nn.Module], weights: Mapping[str, nn.Module],
-         rmps: Mapping[str, nn.Module], like: Tensor) -> Plan:
+def plan(
+    layout: TreeLayout,
+    maps: Mapping[str, nn.Module],
+    weights: Mapping[str, nn.Module],
+    rmps: Mapping[str, nn.Module],
+    like: Tensor,
+) -> Plan:
     """The tree's node groups, depth by depth, and its weight groups; ``like``: a tensor of the tree's dtype and
     device, which stacked values and index tensors take."""
     device = like.device
@@ -216,12 +223,17 @@ def plan(layout: TreeLayout, maps: Mapping[str, nn.Module], weights: Mapping[str
     for run in runs:
         parent = Rows.of([where[layout.parents[n]] for n in run], sizes, device)
         weighted = run[0] in weights
-        groups.append(Group(
-            nodes=run, parent=parent, map=stacked([maps[n] for n in run], like),
-            leaf=None if children[run[0]] else stacked([rmps[n] for n in run], like),
-            identity=bool(maps[run[0]].identity_jacobian),
-            weights=Rows.of([at[n] for n in run], wsizes, device) if weighted else None,
-            constant_weights=weighted and bool(weights[run[0]].is_constant)))
+        groups.append(
+            Group(
+                nodes=run,
+                parent=parent,
+                map=stacked([maps[n] for n in run], like),
+                leaf=None if children[run[0]] else stacked([rmps[n] for n in run], like),
+                identity=bool(maps[run[0]].identity_jacobian),
+                weights=Rows.of([at[n] for n in run], wsizes, device) if weighted else None,
+                constant_weights=weighted and bool(weights[run[0]].is_constant),
+            )
+        )
     return Plan(groups, wgroups)
 
 

@@ -12,10 +12,11 @@ written out once here (with ẍ = 0):
 
 The autodiff of ``core/autodiff.py`` is the reference the tests hold every map built this way to.
 """
+
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import torch
 from torch import Tensor
@@ -31,42 +32,50 @@ class Jet:
     curv: Tensor
 
     @staticmethod
-    def seed(x: Tensor, xd: Tensor) -> "Jet":
+    def seed(x: Tensor, xd: Tensor) -> Jet:
         """The root coordinates themselves: P = I, ṗ = ẋ, c = 0."""
         n = x.shape[-1]
         eye = torch.eye(n, dtype=x.dtype, device=x.device).expand(*x.shape[:-1], n, n)
         return Jet(x, eye, xd, torch.zeros_like(x))
 
-    def take(self, index: Tensor) -> "Jet":
+    def take(self, index: Tensor) -> Jet:
         """The coordinates ``index`` of the quantity."""
         return Jet(self.value[..., index], self.jac[..., index, :], self.vel[..., index], self.curv[..., index])
 
-    def affine(self, weight: Tensor, bias: Tensor | None = None) -> "Jet":
+    def affine(self, weight: Tensor, bias: Tensor | None = None) -> Jet:
         """W p + b for W (k', k)."""
         value = self.value @ weight.T + (bias if bias is not None else 0)
         return Jet(value, weight @ self.jac, self.vel @ weight.T, self.curv @ weight.T)
 
-    def pointwise(self, f: Callable[[Tensor], tuple[Tensor, Tensor, Tensor]]) -> "Jet":
+    def pointwise(self, f: Callable[[Tensor], tuple[Tensor, Tensor, Tensor]]) -> Jet:
         """σ(p) elementwise, ``f(p) = (σ, σ', σ'')``."""
         s, ds, dds = f(self.value)
         return Jet(s, ds[..., None] * self.jac, ds * self.vel, dds * self.vel * self.vel + ds * self.curv)
 
-    def __mul__(self, other: "Jet") -> "Jet":
+    def __mul__(self, other: Jet) -> Jet:
         u, w = self, other
-        return Jet(u.value * w.value, u.jac * w.value[..., None] + u.value[..., None] * w.jac,
-                   u.vel * w.value + u.value * w.vel, u.curv * w.value + 2 * u.vel * w.vel + u.value * w.curv)
+        return Jet(
+            u.value * w.value,
+            u.jac * w.value[..., None] + u.value[..., None] * w.jac,
+            u.vel * w.value + u.value * w.vel,
+            u.curv * w.value + 2 * u.vel * w.vel + u.value * w.curv,
+        )
 
-    def __add__(self, other: "Jet") -> "Jet":
+    def __add__(self, other: Jet) -> Jet:
         return Jet(self.value + other.value, self.jac + other.jac, self.vel + other.vel, self.curv + other.curv)
 
-    def __sub__(self, other: "Jet") -> "Jet":
+    def __sub__(self, other: Jet) -> Jet:
         return Jet(self.value - other.value, self.jac - other.jac, self.vel - other.vel, self.curv - other.curv)
 
     @staticmethod
-    def cat(parts: "list[Jet]", index: Tensor | None = None) -> "Jet":
+    def cat(parts: list[Jet], index: Tensor | None = None) -> Jet:
         """The parts' coordinates side by side, then reordered by ``index`` (None: as they come)."""
-        out = Jet(torch.cat([p.value for p in parts], -1), torch.cat([p.jac for p in parts], -2),
-                  torch.cat([p.vel for p in parts], -1), torch.cat([p.curv for p in parts], -1))
+        out = Jet(
+            torch.cat([p.value for p in parts], -1),
+            torch.cat([p.jac for p in parts], -2),
+            torch.cat([p.vel for p in parts], -1),
+            torch.cat([p.curv for p in parts], -1),
+        )
         return out if index is None else out.take(index)
 
 

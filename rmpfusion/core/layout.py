@@ -1,8 +1,9 @@
 """The shape of a tree, apart from its modules: root, aux state, each node's parent, what each node is made of."""
+
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Mapping
 
 
 @dataclass(frozen=True)

@@ -15,6 +15,7 @@ parameters' ranges, so a tree keeps Theorem 2 while it learns them. The module's
 reads a constant; a group of such modules restacks the members' raw parameters at every call
 (``core/stacking.py::LiveStack``), so every member computes its own number and gets its own gradient.
 """
+
 from __future__ import annotations
 
 import math
@@ -33,8 +34,9 @@ class LearnedFloat(float):
     upper: float | None
     written: dict
 
-    def __new__(cls, init: float, lower: float | None = None, upper: float | None = None,
-                written: dict | None = None) -> "LearnedFloat":
+    def __new__(
+        cls, init: float, lower: float | None = None, upper: float | None = None, written: dict | None = None
+    ) -> LearnedFloat:
         out = super().__new__(cls, init)
         out.lower, out.upper, out.written = lower, upper, dict(written or {"learn": True, "init": float(init)})
         return out

@@ -4,10 +4,11 @@ Every group's quantities carry a leading member dimension, ``(G, B, ...)``: stat
 weights, and RMPs. The math is the one of ``core/algebra.py``; a group only evaluates it for all its members at
 once and sums each member's term of pullback* into its parent's row.
 """
+
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Mapping
 
 from torch import Tensor
 

@@ -26,10 +26,12 @@ such modules stacks the members' parameters again at every call (``LiveStack``),
 every member from its own parameters and gradients reach each of them; constants are stacked once, when the tree
 plans its groups.
 """
+
 from __future__ import annotations
 
 import copy
-from typing import Any, ClassVar, Hashable, Sequence
+from collections.abc import Hashable, Sequence
+from typing import Any, ClassVar
 
 import torch
 from torch import Tensor, nn
@@ -102,7 +104,7 @@ class Stackable:
         return tuple(sorted(learned_ranges(self).items()))
 
     @classmethod
-    def stacked(cls, members: Sequence["Stackable"], like: Tensor) -> nn.Module:
+    def stacked(cls, members: Sequence[Stackable], like: Tensor) -> nn.Module:
         """One module evaluating every member on ``(G, B, ...)`` inputs (member g with member g's numbers), its
         stacked values in ``like``'s dtype and device (the tree's). Members must share ``stack_key``. Learned
         numbers are stacked at each call (``LiveStack``)."""

@@ -1,7 +1,8 @@
 """Task maps: the edges of an RMP-tree* (y = ψ(x), ẏ = J ẋ, c = J̇ ẋ)."""
+
 from __future__ import annotations
 
-from typing import Mapping
+from collections.abc import Mapping
 
 from torch import Tensor, nn
 

@@ -8,6 +8,7 @@ Evaluation is level-batched (docs/math.md §9): the tree plans once which nodes 
 and pullback* from the leaves to the root group by group (``core/passes.py``), then resolve. Gradients reach every
 weight-function parameter, including through the h_i terms.
 """
+
 from __future__ import annotations
 
 import logging
@@ -23,7 +24,8 @@ from torch import Tensor, nn
 from .algebra import Edge, NodeRMP, lu_solve, resolve
 from .auxstate import AuxDict
 from .diagnosis import NumericalError, bad_input, bad_node
-from .groups import Plan, plan as plan_tree
+from .groups import Plan
+from .groups import plan as plan_tree
 from .layout import NodeLabel, TreeLayout, breadth_first  # noqa: F401  (re-exported: assembly/ and tests use them here)
 from .passes import Passes, evaluate
 from .weight import BoundWeight  # noqa: F401  (re-exported)
@@ -43,7 +45,7 @@ class TreeOutput:
     L: Tensor
     nodes: dict[str, Any] | None = None  # per-node states and RMPs when asked for
 
-    def to(self, device: torch.device | str) -> "TreeOutput":
+    def to(self, device: torch.device | str) -> TreeOutput:
         """The root's quantities on ``device`` (per-node ones are left where they are)."""
         moved = {k: getattr(self, k).to(device) for k in ("qdd", "f", "M", "G", "B", "Phi", "V", "L")}
         return TreeOutput(**moved, nodes=self.nodes)
@@ -53,7 +55,7 @@ class CompileFallbackWarning(RuntimeWarning):
     """A compiled tree met a construct torch.compile cannot trace and fell back (static shapes, then eager)."""
 
 
-def _forget_groups(module: "RMPTree", incompatible_keys) -> None:
+def _forget_groups(module: RMPTree, incompatible_keys) -> None:
     """After a state dict is loaded: constants stacked into the groups may have changed, plan them again."""
     module._plan = None
 
@@ -61,8 +63,9 @@ def _forget_groups(module: "RMPTree", incompatible_keys) -> None:
 class RMPTree(nn.Module):
     """An RMP-tree*: ``tree(q, qd, aux)`` returns the root's qdd, f, M, G, B, Phi, V (and L)."""
 
-    def __init__(self, layout: TreeLayout, maps, weights, rmps, shared, resolve_method: str = "solve",
-                 check_finite: bool = True):
+    def __init__(
+        self, layout: TreeLayout, maps, weights, rmps, shared, resolve_method: str = "solve", check_finite: bool = True
+    ):
         super().__init__()
         self.layout = layout
         self.root_name = layout.root
@@ -93,7 +96,9 @@ class RMPTree(nn.Module):
             self._plan = plan_tree(self.layout, self.maps, self.weights, self.rmps, like)
         return self._plan
 
-    def _normalise_aux(self, aux: AuxDict | None, batch: int, dtype: torch.dtype | None = None) -> dict[str, Tensor] | None:
+    def _normalise_aux(
+        self, aux: AuxDict | None, batch: int, dtype: torch.dtype | None = None
+    ) -> dict[str, Tensor] | None:
         """Declared aux as (batch, dim) tensors; Python numbers become tensors of ``dtype`` (the state's; default
         the tree's), never of torch's default dtype, so a float64 tree gets its aux in float64."""
         if aux is None:
@@ -114,8 +119,10 @@ class RMPTree(nn.Module):
             if t.shape[-1] != d:
                 raise ValueError(f"aux '{name}' has trailing dimension {t.shape[-1]}, the tree declares {d}")
             if t.dim() != 2 or t.shape[0] not in (1, batch):
-                raise ValueError(f"aux '{name}' has shape {tuple(t.shape)} but q holds {batch} states; give it one row "
-                                 f"per state, ({batch}, {d}), or one row for them all, (1, {d})")
+                raise ValueError(
+                    f"aux '{name}' has shape {tuple(t.shape)} but q holds {batch} states; give it one row "
+                    f"per state, ({batch}, {d}), or one row for them all, (1, {d})"
+                )
             out[name] = t.expand(batch, d) if t.shape[0] == 1 else t
         return out
 
@@ -125,8 +132,10 @@ class RMPTree(nn.Module):
             raise ValueError(f"q and qd must both be (B, {self.dim}); got {tuple(q.shape)} and {tuple(qd.shape)}")
         dtype = self._dtype()
         if dtype is not None and (q.dtype != dtype or qd.dtype != dtype):
-            raise TypeError(f"q and qd are {q.dtype} and {qd.dtype} but the tree computes in {dtype}; convert the "
-                            f"state (q.to({dtype})) or the tree (tree.to({q.dtype}))")
+            raise TypeError(
+                f"q and qd are {q.dtype} and {qd.dtype} but the tree computes in {dtype}; convert the "
+                f"state (q.to({dtype})) or the tree (tree.to({q.dtype}))"
+            )
         self.plan  # planned before any compiled code runs
         return self._normalise_aux(aux, q.shape[0], q.dtype)
 
@@ -177,8 +186,14 @@ class RMPTree(nn.Module):
         for g, (y, yd), e, r in zip(self.plan.groups, passes.states, passes.edges, passes.rmps):
             for n, s in g.slots.items():
                 state[n] = (y[s], yd[s])
-                edges[n] = Edge(J=e.J[s], c=e.c[s], yd=e.yd[s], w=None if e.w is None else e.w[s],
-                                grad_w=None if e.grad_w is None else e.grad_w[s], identity=e.identity)
+                edges[n] = Edge(
+                    J=e.J[s],
+                    c=e.c[s],
+                    yd=e.yd[s],
+                    w=None if e.w is None else e.w[s],
+                    grad_w=None if e.grad_w is None else e.grad_w[s],
+                    identity=e.identity,
+                )
                 rmp[n] = NodeRMP(*(v[s] for _, v in r.items()))
         rmp[self.root_name] = passes.root
         return {"state": state, "edge": edges, "rmp": rmp}
@@ -190,8 +205,13 @@ class RMPTree(nn.Module):
         a, good = lu_solve(r.M, r.f)
         return r.f, r.M, r.G, r.B, r.Phi, r.L, r.V, a, good.all()
 
-    def compile(self, dynamic: bool | None = None, options: dict[str, Any] | None = None,
-                fixed_structure: bool = False, vectorize: bool = True) -> "RMPTree":
+    def compile(
+        self,
+        dynamic: bool | None = None,
+        options: dict[str, Any] | None = None,
+        fixed_structure: bool = False,
+        vectorize: bool = True,
+    ) -> RMPTree:
         """Evaluate through ``torch.compile`` (same code, fused kernels): pays off for small batches in a
         control loop and for training. The first call per input shape compiles (seconds to minutes);
         inductor caches the result on disk for later processes. ``return_nodes`` and the checks stay eager.
@@ -231,8 +251,9 @@ class RMPTree(nn.Module):
             self._compiled = torch.compile(types.MethodType(fn, self), dynamic=dynamic, options=options)
         return self._compiled
 
-    def _root_rmp_maybe_compiled(self, q: Tensor, qd: Tensor, aux: dict[str, Tensor] | None,
-                                 lean: bool) -> tuple[Tensor, ...]:
+    def _root_rmp_maybe_compiled(
+        self, q: Tensor, qd: Tensor, aux: dict[str, Tensor] | None, lean: bool
+    ) -> tuple[Tensor, ...]:
         """``_root_rmp`` through the compiled code when the tree is compiled. A construct torch.compile cannot
         trace never crashes the tree: with a symbolic batch size (forward-mode autodiff, e.g. a leaf whose
         curvature is derived by ``torch.func.jvp``) the tree compiles again per batch size; if that fails too it
@@ -249,17 +270,24 @@ class RMPTree(nn.Module):
         reason = _compile_failure(error)
         if dynamic is not False:
             self._compile_args, self._compiled = (False, options), None
-            warnings.warn(CompileFallbackWarning(
-                "torch.compile cannot trace this tree with a symbolic batch size, typically because of forward-mode "
-                f"autodiff (a map's or leaf's derivatives left to the defaults) ({reason}); it now compiles once per "
-                "batch size (static shapes), with the same numbers"), stacklevel=6)
+            warnings.warn(
+                CompileFallbackWarning(
+                    "torch.compile cannot trace this tree with a symbolic batch size, typically because of forward-mode "
+                    f"autodiff (a map's or leaf's derivatives left to the defaults) ({reason}); it now compiles once per "
+                    "batch size (static shapes), with the same numbers"
+                ),
+                stacklevel=6,
+            )
         else:
             self.uncompile()
-            warnings.warn(CompileFallbackWarning(
-                f"torch.compile cannot compile this tree ({reason}); it now runs eagerly, with the same numbers"),
-                stacklevel=6)
+            warnings.warn(
+                CompileFallbackWarning(
+                    f"torch.compile cannot compile this tree ({reason}); it now runs eagerly, with the same numbers"
+                ),
+                stacklevel=6,
+            )
 
-    def uncompile(self) -> "RMPTree":
+    def uncompile(self) -> RMPTree:
         self._compiled = self._compile_args = None
         return self
 

@@ -1,7 +1,8 @@
 """Weight functions on edges: w(x, aux) > 0 and its gradient w.r.t. the parent configuration x only."""
+
 from __future__ import annotations
 
-from typing import Mapping, Sequence
+from collections.abc import Mapping, Sequence
 
 import torch
 from torch import Tensor, nn
@@ -32,7 +33,7 @@ class WeightFunction(Stackable, nn.Module):
     def forward(self, x: Tensor, aux: AuxDict | None = None) -> tuple[Tensor, Tensor | None]:
         return self.value(x, aux), autodiff.gradient(lambda z: self.value(z, aux), x)
 
-    def with_bind(self, bind: Mapping[str, str]) -> "WeightFunction":
+    def with_bind(self, bind: Mapping[str, str]) -> WeightFunction:
         """This function reading its aux inputs under other names (``bind``: its name -> the aux entry read), sharing
         its parameters: how a stacked group sees one shared weight bound differently on each edge. The default
         renames the aux entries of its ``AuxParam`` fields; a weight reading aux otherwise overrides it."""
@@ -68,7 +69,7 @@ class BoundWeight(Stackable, nn.Module):
         return self.fn.stack_key()
 
     @classmethod
-    def stacked(cls, members: Sequence["BoundWeight"], like: Tensor) -> nn.Module:
+    def stacked(cls, members: Sequence[BoundWeight], like: Tensor) -> nn.Module:
         """The members' functions, each reading its own edge's aux, stacked by their own class."""
         fns = [m.fn.with_bind(m.bind) for m in members]
         return type(fns[0]).stacked(fns, like)

@@ -1,8 +1,10 @@
 """What every environment shares: closed-loop integrators, the record grid, policy evaluation with its
 monitoring quantities, sampling by seed, rejection sampling."""
+
 from __future__ import annotations
 
-from typing import Any, Callable, Mapping
+from collections.abc import Callable, Mapping
+from typing import Any
 
 import torch
 from torch import Tensor
@@ -80,8 +82,9 @@ def on_device(policy: Callable[..., Any], device: torch.device | str | None) -> 
     return OnDevice(policy, device)
 
 
-def evaluate_policy(policy: Callable[..., Any], q: Tensor, qd: Tensor,
-                    aux: Mapping[str, Tensor]) -> tuple[Tensor, Tensor | None, Tensor | None]:
+def evaluate_policy(
+    policy: Callable[..., Any], q: Tensor, qd: Tensor, aux: Mapping[str, Tensor]
+) -> tuple[Tensor, Tensor | None, Tensor | None]:
     """(q̈, V, q̇ᵀBq̇) of one policy evaluation: a tree's V and dissipation come from the same evaluation that gives
     the recorded q̈, so monitoring them costs nothing; a plain callable's tensor has neither (None, None)."""
     out = policy(q, qd, aux)
@@ -129,8 +132,7 @@ def rk4(accel, q, qd, dt, a=None):
     k3v = accel(q + 0.5 * dt * k2x, k3x)
     k4x = qd + dt * k3v
     k4v = accel(q + dt * k3x, k4x)
-    return (q + dt / 6 * (k1x + 2 * k2x + 2 * k3x + k4x),
-            qd + dt / 6 * (k1v + 2 * k2v + 2 * k3v + k4v))
+    return (q + dt / 6 * (k1x + 2 * k2x + 2 * k3x + k4x), qd + dt / 6 * (k1v + 2 * k2v + 2 * k3v + k4v))
 
 
 class SamplingError(RuntimeError):
@@ -138,8 +140,13 @@ class SamplingError(RuntimeError):
     obstacles, goals apart from starts): a setting to change, so the command line prints the message alone."""
 
 
-def redraw_until_ok(draw: Callable[[], tuple[Tensor, ...]], ok: Callable[[tuple[Tensor, ...], Mapping[str, Tensor]], Tensor],
-                    aux: Mapping[str, Tensor], max_tries: int, failure: Callable[[int], str]) -> tuple[Tensor, ...]:
+def redraw_until_ok(
+    draw: Callable[[], tuple[Tensor, ...]],
+    ok: Callable[[tuple[Tensor, ...], Mapping[str, Tensor]], Tensor],
+    aux: Mapping[str, Tensor],
+    max_tries: int,
+    failure: Callable[[int], str],
+) -> tuple[Tensor, ...]:
     """Rejection sampling of a batch: redraw every rejected sample until ``ok`` accepts it.
 
     Every round draws the whole batch, so the random stream (and with it every sample) does not depend on how
@@ -167,8 +174,9 @@ def redraw_until_ok(draw: Callable[[], tuple[Tensor, ...]], ok: Callable[[tuple[
 class SeededSampling:
     """Mixin: environments and initial states in one call, from a seed or a generator."""
 
-    def sample(self, n_envs: int, n_per_env: int, seed: int | None = None,
-               generator: torch.Generator | None = None) -> tuple[Tensor, Tensor, dict[str, Tensor]]:
+    def sample(
+        self, n_envs: int, n_per_env: int, seed: int | None = None, generator: torch.Generator | None = None
+    ) -> tuple[Tensor, Tensor, dict[str, Tensor]]:
         if generator is None and seed is not None:
             generator = torch.Generator().manual_seed(seed)
         return self.sample_initial_states(self.sample_envs(n_envs, generator), n_per_env, generator)

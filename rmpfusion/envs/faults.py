@@ -7,10 +7,12 @@ at fault (from the error's ``samples``, else by evaluating the samples one by on
 rollout then ends them and records why) and evaluates the others normally. A faulted sample stays faulted:
 its rows are replaced by a healthy sample's inputs before every later call and answered with NaN.
 """
+
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Callable, Mapping
+from collections.abc import Callable, Mapping
+from typing import Any
 
 import torch
 from torch import Tensor
@@ -42,7 +44,11 @@ class IsolatingPolicy:
             try:
                 out = self.policy(qq, qqd, aa)
             except FloatingPointError as e:
-                new = [int(s) for s in (getattr(e, "samples", None) or []) if int(s) not in self.reasons and 0 <= int(s) < B]
+                new = [
+                    int(s)
+                    for s in (getattr(e, "samples", None) or [])
+                    if int(s) not in self.reasons and 0 <= int(s) < B
+                ]
                 if not new:
                     new = self._find_faulty(q, qd, aux, bad)
                 if not new:
@@ -60,7 +66,7 @@ class IsolatingPolicy:
             if b in self.reasons:
                 continue
             try:
-                self.policy(q[b:b + 1], qd[b:b + 1], _rows(aux, q.shape[0], slice(b, b + 1)))
+                self.policy(q[b : b + 1], qd[b : b + 1], _rows(aux, q.shape[0], slice(b, b + 1)))
             except FloatingPointError:
                 found.append(b)
         return found
@@ -101,6 +107,12 @@ def _nan_rows(out: Any, bad: list[int], B: int):
     if torch.is_tensor(out):
         return nanned(out)
     if dataclasses.is_dataclass(out):
-        return dataclasses.replace(out, **{f.name: nanned(getattr(out, f.name)) for f in dataclasses.fields(out)
-                                           if torch.is_tensor(getattr(out, f.name))})
+        return dataclasses.replace(
+            out,
+            **{
+                f.name: nanned(getattr(out, f.name))
+                for f in dataclasses.fields(out)
+                if torch.is_tensor(getattr(out, f.name))
+            },
+        )
     return out

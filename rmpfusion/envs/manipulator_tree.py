@@ -9,10 +9,12 @@ one entry of ``shared_weights`` used by all of that point's obstacle edges, each
 ``conf/tree/fig1b.yaml`` declares it and its parameters (``build.generated.expand_tree``); its robot and scene are
 the environment's (``${env.robot}``, ``${env.scene}``), so the two cannot disagree.
 """
+
 from __future__ import annotations
 
 import copy
-from typing import Any, Literal, Mapping
+from collections.abc import Mapping
+from typing import Any, Literal
 
 import torch
 from pydantic import Field, field_validator
@@ -28,8 +30,8 @@ from ..rmps.gds_leaves import CollisionAvoidance, Damper, GoalAttractor, Identit
 from ..rmps.orientation import OrientationAttractor
 from ..rmps.velocity_limit import VelocityLimit
 from ..robots import RobotField
-from ..robots.robot import build_robot
 from ..robots.home import spheres_at_fixed_height
+from ..robots.robot import build_robot
 from ..scenes import ObstacleSet, Scene, obstacle_map, scene_aux_dims, set_dims
 from ..weights.neural import MLPWeight
 
@@ -38,14 +40,28 @@ from ..weights.neural import MLPWeight
 # sphere touching an obstacle, so no weighting that keeps obstacle weights near 1 can press the arm into it
 # (with 1e-4 untrained learners pushed through cylinders in pybullet; 1e-2 keeps ≥ 4 cm in the same scenes).
 ATTRACTOR_RMP = {"type": "goal_attractor", "gain": 5.0, "alpha": 10.0, "eta": 5.0, "w_u": 1.0, "w_l": 1.0, "sigma": 1.0}
-OBSTACLE_RMP = {"type": "collision_avoidance", "r_w": 0.15, "sigma": 0.5, "epsilon": 0.2, "alpha": 1e-2, "eta": 0.0,
-                "min_distance": 0.005}
+OBSTACLE_RMP = {
+    "type": "collision_avoidance",
+    "r_w": 0.15,
+    "sigma": 0.5,
+    "epsilon": 0.2,
+    "alpha": 1e-2,
+    "eta": 0.0,
+    "min_distance": 0.005,
+}
 JOINT_LIMIT_RMP = {"type": "joint_limit", "r_w": 0.25, "sigma": 0.5, "epsilon": 0.1, "alpha": 1e-3, "eta": 0.0}
 DAMPER_RMP = {"type": "damper", "w": 1.0, "eta": 20.0}
 IDENTITY_RMP = {"type": "identity_metric", "scale": 0.01}
 # The optional leaves' settings (conf/rmp/ presets of the same names): all ours, the paper's tree has none of them.
-SELF_COLLISION_RMP = {"type": "collision_avoidance", "r_w": 0.2, "sigma": 0.5, "epsilon": 0.2, "alpha": 0.1, "eta": 0.0,
-                      "min_distance": 0.005}
+SELF_COLLISION_RMP = {
+    "type": "collision_avoidance",
+    "r_w": 0.2,
+    "sigma": 0.5,
+    "epsilon": 0.2,
+    "alpha": 0.1,
+    "eta": 0.0,
+    "min_distance": 0.005,
+}
 ORIENTATION_RMP = {"type": "orientation_attractor", "gain": 1.0, "eta": 2.0, "w_u": 1.0, "w_l": 1.0, "sigma": 0.5}
 VELOCITY_LIMIT_RMP = {"type": "velocity_limit", "limit": 1.0, "onset": 0.8, "w": 1.0, "eta": 1.0, "linear_from": 0.99}
 
@@ -54,15 +70,26 @@ VELOCITY_LIMIT_RMP = {"type": "velocity_limit", "limit": 1.0, "onset": 0.8, "w":
 # which an exponential reaches in a few hundred ADAM steps where softplus needs its output to grow linearly
 # (validation loss after 1500 iterations 0.12 with exp vs 1.69 with softplus, 20 held-out demonstrations).
 ATTRACTOR_WEIGHT = {"type": "mlp", "hidden": [32, 32], "aux": ["goal"], "positivity": "exp"}
-OBSTACLE_WEIGHT = {"type": "mlp", "hidden": [32, 32], "aux": ["obstacle_center", "obstacle_radius"], "positivity": "exp"}
+OBSTACLE_WEIGHT = {
+    "type": "mlp",
+    "hidden": [32, 32],
+    "aux": ["obstacle_center", "obstacle_radius"],
+    "positivity": "exp",
+}
 GROUND_WEIGHT = {"type": "mlp", "hidden": [32, 32], "aux": [], "positivity": "exp"}
 
 
 _LEAVES: dict[str, Mapping[str, Any]] = {
-    "attractor_rmp": ATTRACTOR_RMP, "obstacle_rmp": OBSTACLE_RMP, "joint_limit_rmp": JOINT_LIMIT_RMP,
-    "damper_rmp": DAMPER_RMP, "identity_rmp": IDENTITY_RMP,
-    "attractor_weight": ATTRACTOR_WEIGHT, "obstacle_weight": OBSTACLE_WEIGHT, "ground_weight": GROUND_WEIGHT,
-    "self_collision_rmp": SELF_COLLISION_RMP, "orientation_rmp": ORIENTATION_RMP,
+    "attractor_rmp": ATTRACTOR_RMP,
+    "obstacle_rmp": OBSTACLE_RMP,
+    "joint_limit_rmp": JOINT_LIMIT_RMP,
+    "damper_rmp": DAMPER_RMP,
+    "identity_rmp": IDENTITY_RMP,
+    "attractor_weight": ATTRACTOR_WEIGHT,
+    "obstacle_weight": OBSTACLE_WEIGHT,
+    "ground_weight": GROUND_WEIGHT,
+    "self_collision_rmp": SELF_COLLISION_RMP,
+    "orientation_rmp": ORIENTATION_RMP,
     "velocity_limit_rmp": VELOCITY_LIMIT_RMP,
 }
 
@@ -84,17 +111,21 @@ def _rmp_onto_tuned(field: str) -> Any:
 
 def _tuned_field(model: type[Params], field: str, what: str) -> Any:
     """A leaf's (or weight's) settings, checked by that entry's own parameter model, defaulting to the tuned ones."""
-    return Field(default_factory=lambda: model(**_tuned(field)),
-                 description=f"{what} ({_LEAVES[field]['type']}); keys given replace the tuned values one by one")
+    return Field(
+        default_factory=lambda: model(**_tuned(field)),
+        description=f"{what} ({_LEAVES[field]['type']}); keys given replace the tuned values one by one",
+    )
 
 
 class SelfCollision(Params):
     """Barriers between the robot's control spheres on links at least ``min_separation`` actuated joints apart."""
 
-    min_separation: int = Field(2, ge=1, description="actuated joints between two links for their spheres to be "
-                                                     "paired (2: not neighbours)")
-    rmp: CollisionAvoidance.Params = _tuned_field(CollisionAvoidance.Params, "self_collision_rmp",
-                                                  "barrier on each pair's gap")
+    min_separation: int = Field(
+        2, ge=1, description="actuated joints between two links for their spheres to be paired (2: not neighbours)"
+    )
+    rmp: CollisionAvoidance.Params = _tuned_field(
+        CollisionAvoidance.Params, "self_collision_rmp", "barrier on each pair's gap"
+    )
 
     _rmp_tuned = _rmp_onto_tuned("self_collision_rmp")
 
@@ -105,8 +136,9 @@ class Orientation(Params):
     link: str | None = Field(None, description="the link (default: the end effector's)")
     axis: Vector3 = Field(default_factory=lambda: [0.0, 0.0, 1.0], description="the direction in the link frame")
     target: AuxOrValue = Field(description="the target direction (3 numbers, normalised) or an aux name")
-    rmp: OrientationAttractor.Params = _tuned_field(OrientationAttractor.Params, "orientation_rmp",
-                                                    "attractor on the axis's error")
+    rmp: OrientationAttractor.Params = _tuned_field(
+        OrientationAttractor.Params, "orientation_rmp", "attractor on the axis's error"
+    )
 
     @field_validator("axis")
     @classmethod
@@ -120,8 +152,9 @@ class Orientation(Params):
 class VelocityLimits(Params):
     """A cap keeping every actuated joint below its velocity limit (the robot's, from its URDF or description)."""
 
-    rmp: VelocityLimit.Params = _tuned_field(VelocityLimit.Params, "velocity_limit_rmp",
-                                             "cap on the velocity-scaled joints (limit 1: the joint's own)")
+    rmp: VelocityLimit.Params = _tuned_field(
+        VelocityLimit.Params, "velocity_limit_rmp", "cap on the velocity-scaled joints (limit 1: the joint's own)"
+    )
 
     _rmp_tuned = _rmp_onto_tuned("velocity_limit_rmp")
 
@@ -134,36 +167,50 @@ class ManipulatorTreeParams(Params):
     """
 
     robot: RobotField = Field(description="the robot description (conf/robot/), usually ${env.robot}")
-    scene: Scene = Field(default_factory=Scene, description="the scene (conf/scene/), usually ${env.scene}: one "
-                                                            "distance node per control point and obstacle")
+    scene: Scene = Field(
+        default_factory=Scene,
+        description="the scene (conf/scene/), usually ${env.scene}: one distance node per control point and obstacle",
+    )
     obstacle_maps: dict[Literal["sphere", "box", "cylinder", "capsule"], str] = Field(
-        default_factory=dict, description="per shape, the map measuring it instead of the default "
-                                          "(cylinder: cylinder_distance, a vertical infinite cylinder)")
+        default_factory=dict,
+        description="per shape, the map measuring it instead of the default "
+        "(cylinder: cylinder_distance, a vertical infinite cylinder)",
+    )
     attractor_rmp: GoalAttractor.Params = _tuned_field(GoalAttractor.Params, "attractor_rmp", "end-effector attractor")
-    obstacle_rmp: CollisionAvoidance.Params = _tuned_field(CollisionAvoidance.Params, "obstacle_rmp",
-                                                           "barrier on every control point's obstacle distance")
-    joint_limit_rmp: JointLimitBarrier.Params = _tuned_field(JointLimitBarrier.Params, "joint_limit_rmp",
-                                                             "barrier on each finite joint limit")
+    obstacle_rmp: CollisionAvoidance.Params = _tuned_field(
+        CollisionAvoidance.Params, "obstacle_rmp", "barrier on every control point's obstacle distance"
+    )
+    joint_limit_rmp: JointLimitBarrier.Params = _tuned_field(
+        JointLimitBarrier.Params, "joint_limit_rmp", "barrier on each finite joint limit"
+    )
     damper_rmp: Damper.Params = _tuned_field(Damper.Params, "damper_rmp", "damper on the root")
-    identity_rmp: IdentityMetric.Params = _tuned_field(IdentityMetric.Params, "identity_rmp",
-                                                       "identity metric on the root")
-    attractor_weight: MLPWeight.Params = _tuned_field(MLPWeight.Params, "attractor_weight",
-                                                      "learnable weight of the ee -> attractor edge")
-    obstacle_weight: MLPWeight.Params = _tuned_field(MLPWeight.Params, "obstacle_weight",
-                                                     "learnable weight shared by one control point's obstacle edges")
-    ground_weight: MLPWeight.Params = _tuned_field(MLPWeight.Params, "ground_weight",
-                                                   "learnable weight shared by every control point's ground edge")
+    identity_rmp: IdentityMetric.Params = _tuned_field(
+        IdentityMetric.Params, "identity_rmp", "identity metric on the root"
+    )
+    attractor_weight: MLPWeight.Params = _tuned_field(
+        MLPWeight.Params, "attractor_weight", "learnable weight of the ee -> attractor edge"
+    )
+    obstacle_weight: MLPWeight.Params = _tuned_field(
+        MLPWeight.Params, "obstacle_weight", "learnable weight shared by one control point's obstacle edges"
+    )
+    ground_weight: MLPWeight.Params = _tuned_field(
+        MLPWeight.Params, "ground_weight", "learnable weight shared by every control point's ground edge"
+    )
     obstacle_sets: list[ObstacleSet] = Field(
-        default_factory=list, description="obstacles that come and go at run time: per set of one shape, n_max members "
-                                          "present or absent call by call (scenes/sets.py; a World fills them), beside "
-                                          "the scene's fixed obstacles, under the same shared obstacle weights")
-    self_collision: SelfCollision | None = Field(None, description="barriers between control spheres on links far "
-                                                                   "enough apart (none: no self-collision leaves)")
+        default_factory=list,
+        description="obstacles that come and go at run time: per set of one shape, n_max members "
+        "present or absent call by call (scenes/sets.py; a World fills them), beside "
+        "the scene's fixed obstacles, under the same shared obstacle weights",
+    )
+    self_collision: SelfCollision | None = Field(
+        None, description="barriers between control spheres on links far enough apart (none: no self-collision leaves)"
+    )
     orientation: Orientation | None = Field(None, description="a tool-axis attractor (none: position only)")
     velocity_limits: VelocityLimits | None = Field(None, description="a joint velocity cap (none: uncapped)")
 
-    @field_validator(*(f for f in _LEAVES if f not in ("self_collision_rmp", "orientation_rmp", "velocity_limit_rmp")),
-                     mode="before")
+    @field_validator(
+        *(f for f in _LEAVES if f not in ("self_collision_rmp", "orientation_rmp", "velocity_limit_rmp")), mode="before"
+    )
     @classmethod
     def _leaf_onto_tuned(cls, v: Any, info: Any) -> Any:
         return _onto_tuned(info.field_name, v)
@@ -202,21 +249,31 @@ def _control_point_nodes(p: ManipulatorTreeParams, i: int, cp, ground: bool) -> 
     shared = {f"{name}_obstacle": _entry(p, "obstacle_weight")} if has_obstacles(p) else {}
     for s in p.obstacle_sets:  # one slot per member: masked, so an absent member contributes exactly nothing
         for j in range(1, s.n_max + 1):
-            nodes[f"{name}_{s.prefix}{j}"] = {"parent": name, "map": _surface(s.slot_map(j), cp.radius),
-                                              "weight": {"shared": f"{name}_obstacle", "bind": s.weight_bind(j)},
-                                              "rmp": _entry(p, "obstacle_rmp")}
+            nodes[f"{name}_{s.prefix}{j}"] = {
+                "parent": name,
+                "map": _surface(s.slot_map(j), cp.radius),
+                "weight": {"shared": f"{name}_obstacle", "bind": s.weight_bind(j)},
+                "rmp": _entry(p, "obstacle_rmp"),
+            }
     for k, o in enumerate(scene.obstacles, start=1):
         dist = obstacle_map(k, o.type, o.moving, p.obstacle_maps.get(o.type))
         nodes[f"{name}_obstacle{k}"] = {
-            "parent": name, "map": _surface(dist, cp.radius),
-            "weight": {"shared": f"{name}_obstacle",
-                       "bind": {"obstacle_center": f"obstacle{k}_center", "obstacle_radius": f"obstacle{k}_radius"}},
+            "parent": name,
+            "map": _surface(dist, cp.radius),
+            "weight": {
+                "shared": f"{name}_obstacle",
+                "bind": {"obstacle_center": f"obstacle{k}_center", "obstacle_radius": f"obstacle{k}_radius"},
+            },
             "rmp": _entry(p, "obstacle_rmp"),
         }
     if scene.ground is not None and ground:
         plane = {"type": "plane_distance", "normal": [0.0, 0.0, 1.0], "height": float(scene.ground.height)}
-        nodes[f"{name}_ground"] = {"parent": name, "map": _surface(plane, cp.radius), "weight": {"shared": "ground"},
-                                   "rmp": _entry(p, "obstacle_rmp")}
+        nodes[f"{name}_ground"] = {
+            "parent": name,
+            "map": _surface(plane, cp.radius),
+            "weight": {"shared": "ground"},
+            "rmp": _entry(p, "obstacle_rmp"),
+        }
     if len(nodes) == 1:  # a control point without obstacles would be a leaf without an RMP
         nodes = {}
     return nodes, shared
@@ -237,12 +294,19 @@ def fig1b(p: ManipulatorTreeParams) -> dict[str, Any]:
         aux["obstacle_radius"] = 1
     nodes: dict[str, Any] = {
         "ee": {"parent": "q", "map": _point(p, r.end_effector.link, r.end_effector.offset)},
-        "attractor": {"parent": "ee", "map": {"type": "offset", "origin": "goal"},
-                      "weight": _entry(p, "attractor_weight"), "rmp": _entry(p, "attractor_rmp")},
+        "attractor": {
+            "parent": "ee",
+            "map": {"type": "offset", "origin": "goal"},
+            "weight": _entry(p, "attractor_weight"),
+            "rmp": _entry(p, "attractor_rmp"),
+        },
     }
     for j, side, lim in r.finite_limits():
-        nodes[f"jl{j + 1}_{side}"] = {"parent": "q", "map": {"type": "joint_limit", "side": side, "limit": float(lim),
-                                                             "joints": j}, "rmp": _entry(p, "joint_limit_rmp")}
+        nodes[f"jl{j + 1}_{side}"] = {
+            "parent": "q",
+            "map": {"type": "joint_limit", "side": side, "limit": float(lim), "joints": j},
+            "rmp": _entry(p, "joint_limit_rmp"),
+        }
     shared: dict[str, Any] = {"ground": _entry(p, "ground_weight")} if p.scene.ground is not None else {}
     still = set(spheres_at_fixed_height(r)) if p.scene.ground is not None else set()  # no joint lowers them
     for i, cp in enumerate(r.control_points, start=1):
@@ -257,9 +321,11 @@ def fig1b(p: ManipulatorTreeParams) -> dict[str, Any]:
     if p.obstacle_sets:
         ground += " and run-time obstacle sets (" + ", ".join(f"{s.prefix}: {s.n_max}" for s in p.obstacle_sets) + ")"
     return {
-        "description": (f"{r.name} (paper Fig. 1b): end-effector attractor, {n_limits} joint-limit barriers, "
-                        f"{len(r.control_points)} control points x {n_obs} obstacle(s){ground} with weights shared "
-                        f"across obstacles, damper and identity metric on the root{extras}"),
+        "description": (
+            f"{r.name} (paper Fig. 1b): end-effector attractor, {n_limits} joint-limit barriers, "
+            f"{len(r.control_points)} control points x {n_obs} obstacle(s){ground} with weights shared "
+            f"across obstacles, damper and identity metric on the root{extras}"
+        ),
         "root": {"name": "q", "dim": len(r.joints)},
         "aux": aux,
         "shared_weights": shared,
@@ -279,8 +345,7 @@ def weight_roles(robot, scene: Scene, obstacles: bool) -> dict[str, list[str]]:
     the scene has a ground) and ``obstacle`` (each control point's shared obstacle weight, when the tree has
     ``obstacles``: the scene's or run-time sets)."""
     obstacle = [f"cp{i}_obstacle" for i in range(1, len(robot.control_points) + 1)] if obstacles else []
-    return {"attractor": ["attractor"], "ground": ["ground"] if scene.ground is not None else [],
-            "obstacle": obstacle}
+    return {"attractor": ["attractor"], "ground": ["ground"] if scene.ground is not None else [], "obstacle": obstacle}
 
 
 def _robot_map(p: ManipulatorTreeParams, kind: str, **keys: Any) -> dict[str, Any]:
@@ -298,25 +363,34 @@ def _optional_leaves(p: ManipulatorTreeParams, nodes: dict[str, Any], aux: dict[
         pairs, overlapping = self_collision_pairs(p.robot, p.self_collision.min_separation)
         for i, j in pairs:
             a, b = (p.robot.control_points[k - 1] for k in (i, j))
-            sphere = lambda cp: {"link": cp.link, "offset": [float(v) for v in cp.offset], "radius": float(cp.radius)}  # noqa: E731
-            nodes[f"self_cp{i}_cp{j}"] = {"parent": "q", "map": _robot_map(p, "link_sphere_distance", a=sphere(a),
-                                                                            b=sphere(b)),
-                                          "rmp": {"type": "collision_avoidance",
-                                                  **p.self_collision.rmp.model_dump(exclude_unset=True)}}
-        said.append(f"{len(pairs)} self-collision barriers" + (f" ({overlapping} sphere pairs overlapping at home "
-                                                                 f"left out)" if overlapping else ""))
+            sphere = lambda cp: {"link": cp.link, "offset": [float(v) for v in cp.offset], "radius": float(cp.radius)}
+            nodes[f"self_cp{i}_cp{j}"] = {
+                "parent": "q",
+                "map": _robot_map(p, "link_sphere_distance", a=sphere(a), b=sphere(b)),
+                "rmp": {"type": "collision_avoidance", **p.self_collision.rmp.model_dump(exclude_unset=True)},
+            }
+        said.append(
+            f"{len(pairs)} self-collision barriers"
+            + (f" ({overlapping} sphere pairs overlapping at home left out)" if overlapping else "")
+        )
     if p.orientation is not None:
         o = p.orientation
         if isinstance(o.target, str):
             aux.setdefault(o.target, 3)
-        nodes["tool_axis"] = {"parent": "q", "map": _robot_map(p, "link_axis", link=o.link or p.robot.end_effector.link,
-                                                               axis=list(o.axis), target=o.target),
-                              "rmp": {"type": "orientation_attractor", **o.rmp.model_dump(exclude_unset=True)}}
+        nodes["tool_axis"] = {
+            "parent": "q",
+            "map": _robot_map(
+                p, "link_axis", link=o.link or p.robot.end_effector.link, axis=list(o.axis), target=o.target
+            ),
+            "rmp": {"type": "orientation_attractor", **o.rmp.model_dump(exclude_unset=True)},
+        }
         said.append("a tool-axis attractor")
     if p.velocity_limits is not None:
-        nodes["velocity_limit"] = {"parent": "q", "map": _robot_map(p, "velocity_scaled_joints"),
-                                   "rmp": {"type": "velocity_limit",
-                                           **p.velocity_limits.rmp.model_dump(exclude_unset=True)}}
+        nodes["velocity_limit"] = {
+            "parent": "q",
+            "map": _robot_map(p, "velocity_scaled_joints"),
+            "rmp": {"type": "velocity_limit", **p.velocity_limits.rmp.model_dump(exclude_unset=True)},
+        }
         said.append("a joint velocity cap")
     return "; " + ", ".join(said) if said else ""
 
@@ -342,8 +416,9 @@ def self_collision_pairs(robot, min_separation: int) -> tuple[list[tuple[int, in
     return pairs, overlapping
 
 
-def manipulator_tree_spec(robot: Mapping[str, Any], scene: Mapping[str, Any] | Scene | None = None,
-                          **settings: Any) -> dict[str, Any]:
+def manipulator_tree_spec(
+    robot: Mapping[str, Any], scene: Mapping[str, Any] | Scene | None = None, **settings: Any
+) -> dict[str, Any]:
     """The tree spec for a robot description and a scene (Python callers' entry; ``settings`` are the other
     :class:`ManipulatorTreeParams` keys). Checked by the same model as ``generator: fig1b`` in YAML, so a bad
     value raises pydantic's ValidationError (a ValueError) naming the key."""
@@ -370,4 +445,3 @@ def copy_weights(src: torch.nn.Module, dst: torch.nn.Module) -> list[str]:
             dst.weights[name].fn.load_state_dict(bw.fn.state_dict())
             copied.append(name)
     return copied
-

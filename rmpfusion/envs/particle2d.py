@@ -5,23 +5,46 @@ auxiliary state (goal, obstacle centres and radii); many initial states share ea
 whole flat batch is integrated at once. Layout: goals on the right, starts on the left, obstacles around
 the segment joining them, so a policy has to deal with the obstacle to reach the goal.
 """
+
 from __future__ import annotations
 
-from typing import Any, Callable, Literal, Mapping
+from collections.abc import Callable, Mapping
+from typing import Any, Literal
 
 import torch
 from pydantic import Field, ValidationError, ValidationInfo, field_validator, model_validator
 from torch import Tensor
 
 from ..registry import ENVS, Params
-from .common import (DTYPES, ComputesOnDevice, SeededSampling, check_initial_states, evaluate_policy, obstacle_aux,
-                     obstacle_aux_dims, qdd_of, redraw_until_ok, rk4, semi_implicit_euler, stack_obstacles, time_grid)
+from .common import (
+    DTYPES,
+    ComputesOnDevice,
+    SeededSampling,
+    check_initial_states,
+    evaluate_policy,
+    obstacle_aux,
+    obstacle_aux_dims,
+    qdd_of,
+    redraw_until_ok,
+    rk4,
+    semi_implicit_euler,
+    stack_obstacles,
+    time_grid,
+)
 from .demonstrations import Dataset, collect
 from .rollout import Rollout
 
 #: The settings that say where environments and starts are drawn: the ones ``test_sampling`` may change.
-SAMPLER_SETTINGS = ("goal_region", "start_region", "start_speed", "obstacle_along", "obstacle_across",
-                    "obstacle_radius", "clearance", "obstacle_gap")
+SAMPLER_SETTINGS = (
+    "goal_region",
+    "start_region",
+    "start_speed",
+    "obstacle_along",
+    "obstacle_across",
+    "obstacle_radius",
+    "clearance",
+    "obstacle_gap",
+)
 
 Range = tuple[float, float]
 Box = tuple[tuple[float, float], tuple[float, float]]  # ((x_low, x_high), (y_low, y_high))
@@ -30,8 +53,10 @@ Box = tuple[tuple[float, float], tuple[float, float]]  # ((x_low, x_high), (y_lo
 def _check_range(name: str, r: Range, strict: bool = False) -> None:
     """A (low, high) sampling range: low ≤ high (low < high with ``strict``), NaN refused."""
     if not (r[0] < r[1] if strict else r[0] <= r[1]):
-        raise ValueError(f"{name} must be (low, high) with low {'<' if strict else '≤'} high (values are drawn "
-                         f"uniformly between them); given {tuple(r)}")
+        raise ValueError(
+            f"{name} must be (low, high) with low {'<' if strict else '≤'} high (values are drawn "
+            f"uniformly between them); given {tuple(r)}"
+        )
 
 
 @ENVS.register("particle2d")
@@ -51,7 +76,8 @@ class Particle2D(ComputesOnDevice, SeededSampling):
         start_region: Box = Field(((-3.5, -2.0), (-2.0, 2.0)), description="initial positions ~ uniform in this box")
         start_speed: Range = Field((0.0, 1.0), description="initial speed ~ uniform, direction ~ uniform")
         obstacle_along: Range = Field(
-            (0.3, 0.7), description="obstacle centre at this fraction of the way from the start-region centre to the goal"
+            (0.3, 0.7),
+            description="obstacle centre at this fraction of the way from the start-region centre to the goal",
         )
         obstacle_across: Range = Field((-1.0, 1.0), description="and this far perpendicular to that segment")
         obstacle_radius: Range = Field((0.5, 1.5))
@@ -67,8 +93,9 @@ class Particle2D(ComputesOnDevice, SeededSampling):
         test_sampling: dict[str, Any] = Field(
             default_factory=dict,
             description="the test split's own sampler settings, over the ones above (any of goal_region, start_region, "
-                        "start_speed, obstacle_along, obstacle_across, obstacle_radius, clearance, obstacle_gap): a "
-                        "test distribution unlike training's; the training and validation splits draw from the above")
+            "start_speed, obstacle_along, obstacle_across, obstacle_radius, clearance, obstacle_gap): a "
+            "test distribution unlike training's; the training and validation splits draw from the above",
+        )
 
         @field_validator("workspace")
         @classmethod
@@ -87,8 +114,10 @@ class Particle2D(ComputesOnDevice, SeededSampling):
         def _speed(cls, v: Range) -> Range:
             _check_range("start_speed", v)
             if not v[0] >= 0:
-                raise ValueError(f"start_speed must have low ≥ 0 (it is a speed; the direction is drawn separately); "
-                                 f"given {tuple(v)}")
+                raise ValueError(
+                    f"start_speed must have low ≥ 0 (it is a speed; the direction is drawn separately); "
+                    f"given {tuple(v)}"
+                )
             return v
 
         @field_validator("obstacle_along")
@@ -96,8 +125,10 @@ class Particle2D(ComputesOnDevice, SeededSampling):
         def _fraction(cls, v: Range) -> Range:
             _check_range("obstacle_along", v)
             if not (0 <= v[0] and v[1] <= 1):
-                raise ValueError(f"obstacle_along must lie in [0, 1] (a fraction of the way from the starts to the "
-                                 f"goal: outside it the obstacle is not between them); given {tuple(v)}")
+                raise ValueError(
+                    f"obstacle_along must lie in [0, 1] (a fraction of the way from the starts to the "
+                    f"goal: outside it the obstacle is not between them); given {tuple(v)}"
+                )
             return v
 
         @field_validator("obstacle_radius")
@@ -105,8 +136,9 @@ class Particle2D(ComputesOnDevice, SeededSampling):
         def _radius(cls, v: Range) -> Range:
             _check_range("obstacle_radius", v)
             if not v[0] > 0:
-                raise ValueError(f"obstacle_radius must have low > 0 (an obstacle of radius ≤ 0 is no obstacle); "
-                                 f"given {tuple(v)}")
+                raise ValueError(
+                    f"obstacle_radius must have low > 0 (an obstacle of radius ≤ 0 is no obstacle); given {tuple(v)}"
+                )
             return v
 
         @field_validator("goal_region", "start_region")
@@ -116,16 +148,20 @@ class Particle2D(ComputesOnDevice, SeededSampling):
             for axis, r in zip("xy", v):
                 _check_range(f"{info.field_name}.{axis}", r)
                 if ws is not None and (r[0] < ws[0] or r[1] > ws[1]):
-                    raise ValueError(f"{info.field_name}.{axis} must lie inside the workspace {tuple(ws)} (every "
-                                     f"sample lies in the workspace); given {tuple(r)}")
+                    raise ValueError(
+                        f"{info.field_name}.{axis} must lie inside the workspace {tuple(ws)} (every "
+                        f"sample lies in the workspace); given {tuple(r)}"
+                    )
             return v
 
         @model_validator(mode="after")
         def _test_sampling(self):
             unknown = sorted(set(self.test_sampling) - set(SAMPLER_SETTINGS))
             if unknown:
-                raise ValueError(f"test_sampling may set only the sampler's settings ({', '.join(SAMPLER_SETTINGS)}); "
-                                 f"given {unknown}")
+                raise ValueError(
+                    f"test_sampling may set only the sampler's settings ({', '.join(SAMPLER_SETTINGS)}); "
+                    f"given {unknown}"
+                )
             if self.test_sampling:
                 try:
                     self.for_test()
@@ -133,7 +169,7 @@ class Particle2D(ComputesOnDevice, SeededSampling):
                     raise ValueError(f"test_sampling: {e.errors()[0]['loc'][0]}: {e.errors()[0]['msg']}") from None
             return self
 
-        def for_test(self) -> "Particle2D.Params":
+        def for_test(self) -> Particle2D.Params:
             """These settings with ``test_sampling`` laid over them: what the test split is drawn from."""
             settings = self.model_dump(include=set(type(self).model_fields))
             return type(self).model_validate({**settings, **self.test_sampling, "test_sampling": {}})
@@ -178,14 +214,14 @@ class Particle2D(ComputesOnDevice, SeededSampling):
             return q.new_full(q.shape[:-1], float("inf"))
         return ((q[..., None, :] - c).norm(dim=-1) - r).min(dim=-1).values
 
-    def for_split(self, split: str) -> "Particle2D":
+    def for_split(self, split: str) -> Particle2D:
         """The particle whose sampler draws ``split``: for ``test``, ``test_sampling`` laid over the sampler's
         settings (a harder test distribution than training's); itself for the other splits."""
         if split != "test" or not self.params.test_sampling:
             return self
         return Particle2D(self.params.for_test())
 
-    def with_step(self, dt: float) -> "Particle2D":
+    def with_step(self, dt: float) -> Particle2D:
         """The same particle and sampling, integrated on the step ``dt``."""
         settings = self.params.model_dump(include=set(self.Params.model_fields))  # not a config block's `type`
         return Particle2D(self.Params.model_validate({**settings, "dt": dt}))
@@ -209,12 +245,17 @@ class Particle2D(ComputesOnDevice, SeededSampling):
         an obstacle), ``collided`` and ``success`` (at the goal at the end, never inside an obstacle)."""
         d = rollout.goal_distance
         near = d <= self.params.goal_tolerance
-        first = torch.where(near.any(0), near.double().argmax(0), torch.full_like(near[0], len(rollout.times) - 1,
-                                                                                  dtype=torch.long))
-        return {"time": rollout.times[first].to(d.dtype),
-                "path_length": (rollout.q[1:] - rollout.q[:-1]).norm(dim=-1).sum(0),
-                "final_distance": d[-1], "min_clearance": rollout.min_clearance,
-                "collided": rollout.collided.to(d.dtype), "success": rollout.success.to(d.dtype)}
+        first = torch.where(
+            near.any(0), near.double().argmax(0), torch.full_like(near[0], len(rollout.times) - 1, dtype=torch.long)
+        )
+        return {
+            "time": rollout.times[first].to(d.dtype),
+            "path_length": (rollout.q[1:] - rollout.q[:-1]).norm(dim=-1).sum(0),
+            "final_distance": d[-1],
+            "min_clearance": rollout.min_clearance,
+            "collided": rollout.collided.to(d.dtype),
+            "success": rollout.success.to(d.dtype),
+        }
 
     # ------------------------------------------------------------------ sampling
     def _uniform(self, shape: tuple[int, ...], r: Range, g: torch.Generator | None) -> Tensor:
@@ -252,8 +293,9 @@ class Particle2D(ComputesOnDevice, SeededSampling):
                 ok &= gap >= p.obstacle_gap
         return ok
 
-    def sample_envs(self, n_envs: int, generator: torch.Generator | None = None,
-                    split: str = "train") -> dict[str, Tensor]:
+    def sample_envs(
+        self, n_envs: int, generator: torch.Generator | None = None, split: str = "train"
+    ) -> dict[str, Tensor]:
         """``n_envs`` environments as an aux dict of (n_envs, k) tensors; reproducible given the generator.
 
         The training and validation splits are drawn from the same distribution; the test split too unless
@@ -264,12 +306,18 @@ class Particle2D(ComputesOnDevice, SeededSampling):
             return self.for_split("test").sample_envs(n_envs, generator)
         max_tries = self.params.max_tries
         goal, centre, radius = redraw_until_ok(
-            lambda: self._draw_envs(n_envs, generator), lambda v, _: self._env_ok(*v), {}, max_tries,
-            lambda left: f"particle2d: could not sample {left} environments in {max_tries} rounds (env.max_tries) "
-                         f"with the goal env.clearance = {self.params.clearance} from every obstacle, the obstacles "
-                         f"env.obstacle_gap = {self.params.obstacle_gap} apart and inside env.workspace; widen "
-                         "env.goal_region or env.obstacle_along/obstacle_across, or lower env.obstacle_radius, "
-                         "env.clearance or env.obstacle_gap")
+            lambda: self._draw_envs(n_envs, generator),
+            lambda v, _: self._env_ok(*v),
+            {},
+            max_tries,
+            lambda left: (
+                f"particle2d: could not sample {left} environments in {max_tries} rounds (env.max_tries) "
+                f"with the goal env.clearance = {self.params.clearance} from every obstacle, the obstacles "
+                f"env.obstacle_gap = {self.params.obstacle_gap} apart and inside env.workspace; widen "
+                "env.goal_region or env.obstacle_along/obstacle_across, or lower env.obstacle_radius, "
+                "env.clearance or env.obstacle_gap"
+            ),
+        )
         return obstacle_aux(goal, centre, radius)
 
     def sample_initial_states(
@@ -291,10 +339,16 @@ class Particle2D(ComputesOnDevice, SeededSampling):
             return q, speed[:, None] * torch.stack([angle.cos(), angle.sin()], -1)
 
         q0, qd0 = redraw_until_ok(
-            draw, lambda v, a: self.clearance(v[0], a) >= p.clearance, aux, p.max_tries,
-            lambda left: f"particle2d: could not place {left} start states env.clearance = {p.clearance} clear of "
-                         f"the obstacles in {p.max_tries} rounds (env.max_tries); widen env.start_region, or lower "
-                         "env.clearance or env.obstacle_radius")
+            draw,
+            lambda v, a: self.clearance(v[0], a) >= p.clearance,
+            aux,
+            p.max_tries,
+            lambda left: (
+                f"particle2d: could not place {left} start states env.clearance = {p.clearance} clear of "
+                f"the obstacles in {p.max_tries} rounds (env.max_tries); widen env.start_region, or lower "
+                "env.clearance or env.obstacle_radius"
+            ),
+        )
         return q0, qd0, aux
 
     # ------------------------------------------------------------------ dynamics
@@ -324,8 +378,18 @@ class Particle2D(ComputesOnDevice, SeededSampling):
         step = semi_implicit_euler if self.params.integrator == "semi_implicit_euler" else rk4
         home, d = q0.device, self.device
         with torch.set_grad_enabled(enable_grad):
-            ro = self._rollout(policy, step, q0.to(d), qd0.to(d), {k: v.to(d) for k, v in aux.items()}, dt, n_steps,
-                               every, monitor, progress)
+            ro = self._rollout(
+                policy,
+                step,
+                q0.to(d),
+                qd0.to(d),
+                {k: v.to(d) for k, v in aux.items()},
+                dt,
+                n_steps,
+                every,
+                monitor,
+                progress,
+            )
         return ro if d == home else ro.to(home)
 
     def _rollout(self, policy, step, q0, qd0, aux, dt, n_steps, every, monitor, progress) -> Rollout:
@@ -343,7 +407,13 @@ class Particle2D(ComputesOnDevice, SeededSampling):
             a = None
             if k % every == 0:
                 a, V, D = evaluate_policy(policy, q, qd, aux)
-                qs.append(q), qds.append(qd), qdds.append(a), ts.append(k * dt), dists.append(self.goal_distance(q, aux))
+                (
+                    qs.append(q),
+                    qds.append(qd),
+                    qdds.append(a),
+                    ts.append(k * dt),
+                    dists.append(self.goal_distance(q, aux)),
+                )
                 if V is not None:
                     Vs.append(V)
                     if D is not None:
@@ -376,9 +446,17 @@ class Particle2D(ComputesOnDevice, SeededSampling):
         )
 
     # ------------------------------------------------------------------ demonstrations
-    def demonstrations(self, expert: Callable[..., Any], n_envs: int, n_traj: int, n_points: int, interval: float,
-                       generator: torch.Generator | None = None, split: str = "train",
-                       progress: Callable[[int, int], Any] | None = None) -> Dataset:
+    def demonstrations(
+        self,
+        expert: Callable[..., Any],
+        n_envs: int,
+        n_traj: int,
+        n_points: int,
+        interval: float,
+        generator: torch.Generator | None = None,
+        split: str = "train",
+        progress: Callable[[int, int], Any] | None = None,
+    ) -> Dataset:
         """The expert's demonstrations (paper §4.1 "Data"): ``collect`` of ``n_points`` records ``interval`` s
         apart from ``n_traj`` starts in each of ``n_envs`` environments. The splits are drawn from the same
         distribution unless ``test_sampling`` sets the test split's own (``for_split``); the caller's generator

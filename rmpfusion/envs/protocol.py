@@ -5,10 +5,12 @@ metrics, rendering, a planar workspace). Callers test a capability with ``isinst
 instead of probing for attribute names, so a misspelt or missing method is a type error at the protocol, not a
 feature that silently switches off.
 """
+
 from __future__ import annotations
 
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, Callable, Mapping, Protocol, Sequence, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 import torch
@@ -40,25 +42,44 @@ class Env(Protocol):
         """Names and sizes of the per-sample aux state; pass to ``build_tree(..., aux_dims=...)``."""
         ...
 
-    def sample_envs(self, n_envs: int, generator: torch.Generator | None = None,
-                    split: str = "train") -> dict[str, Tensor]:
+    def sample_envs(
+        self, n_envs: int, generator: torch.Generator | None = None, split: str = "train"
+    ) -> dict[str, Tensor]:
         """``n_envs`` environments of a data split as an aux dict of (n_envs, k) tensors."""
         ...
 
-    def sample_initial_states(self, envs_aux: Mapping[str, Tensor], n_per_env: int,
-                              generator: torch.Generator | None = None) -> tuple[Tensor, Tensor, dict[str, Tensor]]:
+    def sample_initial_states(
+        self, envs_aux: Mapping[str, Tensor], n_per_env: int, generator: torch.Generator | None = None
+    ) -> tuple[Tensor, Tensor, dict[str, Tensor]]:
         """(q0, q̇0, aux) for n_envs·n_per_env samples, environment-major."""
         ...
 
-    def rollout(self, policy: Callable[..., Any], q0: Tensor, qd0: Tensor, aux: Mapping[str, Tensor],
-                horizon: float, record_every: float, monitor: Callable[..., Any] | None = None,
-                progress: Callable[[int, int], Any] | None = None, enable_grad: bool = False) -> Rollout:
+    def rollout(
+        self,
+        policy: Callable[..., Any],
+        q0: Tensor,
+        qd0: Tensor,
+        aux: Mapping[str, Tensor],
+        horizon: float,
+        record_every: float,
+        monitor: Callable[..., Any] | None = None,
+        progress: Callable[[int, int], Any] | None = None,
+        enable_grad: bool = False,
+    ) -> Rollout:
         """Run q̈ = policy(q, q̇, aux) for ``horizon`` seconds, recorded every ``record_every`` seconds."""
         ...
 
-    def demonstrations(self, expert: Callable[..., Any], n_envs: int, n_traj: int, n_points: int, interval: float,
-                       generator: torch.Generator | None = None, split: str = "train",
-                       progress: Callable[[int, int], Any] | None = None) -> Dataset:
+    def demonstrations(
+        self,
+        expert: Callable[..., Any],
+        n_envs: int,
+        n_traj: int,
+        n_points: int,
+        interval: float,
+        generator: torch.Generator | None = None,
+        split: str = "train",
+        progress: Callable[[int, int], Any] | None = None,
+    ) -> Dataset:
         """The expert's demonstrations of a data split, at most ``n_points`` records ``interval`` s apart."""
         ...
 
@@ -132,11 +153,11 @@ class Renders(Protocol):
     settings they use come from ``render_settings`` rather than from the environment's parameter model."""
 
     @property
-    def render_settings(self) -> RenderSettings:
-        ...
+    def render_settings(self) -> RenderSettings: ...
 
-    def render(self, q: Tensor | Sequence[float], aux: Mapping[str, Tensor], width: int, height: int,
-               sample: int) -> np.ndarray:
+    def render(
+        self, q: Tensor | Sequence[float], aux: Mapping[str, Tensor], width: int, height: int, sample: int
+    ) -> np.ndarray:
         """(height, width, 3) uint8 image of the configuration ``q`` in environment ``aux[sample]``."""
         ...
 
@@ -182,7 +203,7 @@ class DifferentiableRollouts(Protocol):
         differentiable in q."""
         ...
 
-    def with_step(self, dt: float) -> "DifferentiableRollouts":
+    def with_step(self, dt: float) -> DifferentiableRollouts:
         """The same environment integrated on another step: gradients through long rollouts cost less on a
         coarser one, while evaluation keeps the experiment's own step."""
         ...

@@ -4,6 +4,7 @@ Evaluation, demonstration collection and the figures read rollouts without knowi
 so the fields they read are typed here once instead of probed with ``getattr``. What only a manipulator has (an
 end effector, the execution that ends at the goal) is optional and None elsewhere.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field, fields, replace
@@ -51,8 +52,9 @@ class Rollout:
     def batch_size(self) -> int:
         return self.q.shape[1]
 
-    def to(self, device: torch.device | str) -> "Rollout":
+    def to(self, device: torch.device | str) -> Rollout:
         """Every tensor of the record on ``device`` (a rollout computed on a GPU is read on the CPU)."""
-        moved = {f.name: getattr(self, f.name).to(device) for f in fields(self)
-                 if isinstance(getattr(self, f.name), Tensor)}
+        moved = {
+            f.name: getattr(self, f.name).to(device) for f in fields(self) if isinstance(getattr(self, f.name), Tensor)
+        }
         return replace(self, **moved)

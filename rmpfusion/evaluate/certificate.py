@@ -9,11 +9,13 @@ For each state it checks the theorem's premises and conclusion directly, not thr
 
 ``certify`` takes a batch of states; ``certify_rollout`` takes the records of a rollout.
 """
+
 from __future__ import annotations
 
 import warnings
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field
-from typing import Any, Mapping
+from typing import Any
 
 import torch
 from torch import Tensor
@@ -37,24 +39,31 @@ class Certificate:
 
     @property
     def ok(self) -> bool:
-        return (self.weights_positive and self.inertia_positive_definite and self.energy_identity_holds
-                and self.dissipative and not self.non_finite_states)
+        return (
+            self.weights_positive
+            and self.inertia_positive_definite
+            and self.energy_identity_holds
+            and self.dissipative
+            and not self.non_finite_states
+        )
 
     def as_dict(self) -> dict:
         return {**asdict(self), "ok": self.ok}
 
     def summary(self) -> str:
-        mark = lambda b: "ok  " if b else "FAIL"  # noqa: E731
-        return "\n".join([
-            f"stability certificate over {self.states} states: {'PASSED' if self.ok else 'FAILED'}",
-            f"  [{mark(not self.non_finite_states)}] outputs finite           ({len(self.non_finite_states)} states not)",
-            f"  [{mark(self.weights_positive)}] weights positive         (min w = {self.min_weight:.3e})",
-            f"  [{mark(self.inertia_positive_definite)}] M_r positive definite    (min eig = {self.min_inertia_eigenvalue:.3e})",
-            f"  [{mark(self.energy_identity_holds)}] dV/dt = -qd'B qd         (max rel. error = {self.max_energy_identity_error:.3e})",
-            f"  [{mark(self.dissipative)}] qd'B qd >= 0",
-            *([f"  non-finite states: {self.non_finite_states[:20]}"] if self.non_finite_states else []),
-            *([f"  failing states: {self.failing_states[:20]}"] if self.failing_states else []),
-        ])
+        mark = lambda b: "ok  " if b else "FAIL"
+        return "\n".join(
+            [
+                f"stability certificate over {self.states} states: {'PASSED' if self.ok else 'FAILED'}",
+                f"  [{mark(not self.non_finite_states)}] outputs finite           ({len(self.non_finite_states)} states not)",
+                f"  [{mark(self.weights_positive)}] weights positive         (min w = {self.min_weight:.3e})",
+                f"  [{mark(self.inertia_positive_definite)}] M_r positive definite    (min eig = {self.min_inertia_eigenvalue:.3e})",
+                f"  [{mark(self.energy_identity_holds)}] dV/dt = -qd'B qd         (max rel. error = {self.max_energy_identity_error:.3e})",
+                f"  [{mark(self.dissipative)}] qd'B qd >= 0",
+                *([f"  non-finite states: {self.non_finite_states[:20]}"] if self.non_finite_states else []),
+                *([f"  failing states: {self.failing_states[:20]}"] if self.failing_states else []),
+            ]
+        )
 
 
 def _nanmin(x: Tensor) -> float:
@@ -62,8 +71,9 @@ def _nanmin(x: Tensor) -> float:
     return float(x.min()) if x.numel() else float("nan")
 
 
-def certify(tree: RMPTree, q: Tensor, qd: Tensor, aux=None, eps: float = 1e-6, rtol: float = 1e-5,
-            pd_rtol: float | None = None) -> Certificate:
+def certify(
+    tree: RMPTree, q: Tensor, qd: Tensor, aux=None, eps: float = 1e-6, rtol: float = 1e-5, pd_rtol: float | None = None
+) -> Certificate:
     """Check Theorem 2's premises and identity at every state of the batch (float64 recommended).
 
     ``pd_rtol`` (default 100·machine epsilon of the tree's dtype) is how far above zero, relative to the

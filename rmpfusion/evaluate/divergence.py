@@ -11,6 +11,7 @@ Two tests, each with its tolerance stated here:
   (integration error of a sound step is orders of magnitude below that) says the rollout is not the closed loop
   the theorem describes.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -33,8 +34,14 @@ class Divergence:
     reason: str
 
     def as_dict(self) -> dict:
-        return {"trajectories": len(self.samples), "of": self.total, "samples": self.samples[:20],
-                "reason": self.reason, "growth_limit": GROWTH_LIMIT, "v_rise_limit": V_RISE_LIMIT}
+        return {
+            "trajectories": len(self.samples),
+            "of": self.total,
+            "samples": self.samples[:20],
+            "reason": self.reason,
+            "growth_limit": GROWTH_LIMIT,
+            "v_rise_limit": V_RISE_LIMIT,
+        }
 
 
 def _growth(q: Tensor, qd: Tensor) -> Tensor:
@@ -65,8 +72,10 @@ def divergence(q: Tensor, qd: Tensor, V: Tensor | None = None, theorem2_applies:
         rise = _v_rise(V)
         rose = rise > V_RISE_LIMIT
         if bool(rose.any()):
-            parts.append(f"V_r rose by {float(rise.max()):.3g} of its largest value where Theorem 2 says it never "
-                         f"rises (tolerance {V_RISE_LIMIT:g})")
+            parts.append(
+                f"V_r rose by {float(rise.max()):.3g} of its largest value where Theorem 2 says it never "
+                f"rises (tolerance {V_RISE_LIMIT:g})"
+            )
         bad |= rose
     if not parts:
         return None
@@ -81,11 +90,15 @@ def divergence_of_records(q: Tensor, qd: Tensor, traj_id: Tensor, t: Tensor) -> 
     size = torch.cat([q, qd], -1).abs().nan_to_num(nan=0.0, posinf=0.0).amax(-1).double()
     first_t = torch.full((len(ids),), float("inf"), dtype=t.dtype).scatter_reduce(0, inv, t, "amin")
     start = torch.zeros(len(ids), dtype=size.dtype).scatter_reduce(
-        0, inv, torch.where(t == first_t[inv], size, torch.zeros_like(size)), "amax")
+        0, inv, torch.where(t == first_t[inv], size, torch.zeros_like(size)), "amax"
+    )
     largest = torch.zeros(len(ids), dtype=size.dtype).scatter_reduce(0, inv, size, "amax")
     growth = largest / (1.0 + start)
     bad = growth > GROWTH_LIMIT
     if not bool(bad.any()):
         return None
-    return Divergence(ids[bad].tolist(), len(ids), f"the state grew to {float(growth.max()):.3g} × (1 + its start) "
-                                                   f"(tolerance {GROWTH_LIMIT:g} ×)")
+    return Divergence(
+        ids[bad].tolist(),
+        len(ids),
+        f"the state grew to {float(growth.max()):.3g} × (1 + its start) (tolerance {GROWTH_LIMIT:g} ×)",
+    )

@@ -8,6 +8,7 @@ consecutive records V_t, V_{t+1} of one trajectory:
 i.e. an increase is forgiven only when it is below ``rtol`` relative to the size of V itself (plus a tiny
 absolute floor for V ≈ 0 at the goal). A non-finite V always counts as a violation.
 """
+
 from __future__ import annotations
 
 from torch import Tensor

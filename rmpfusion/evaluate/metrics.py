@@ -1,19 +1,19 @@
 """Evaluation of a learner against its expert (paper §4.1 "Results"): batch-loss on the expert's test data,
 online-loss on the learner's own rollouts (exposes covariate shift), success, collisions and the Lyapunov monitor.
 """
+
 from __future__ import annotations
 
-import math
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Any, Callable, Mapping
+from typing import Any
 
 import torch
 from torch import Tensor, nn
 
 from ..envs.protocol import HasRatioMetrics, HasTaskMetrics, TimeVaryingAux
 from ..envs.rollout import Rollout
-from .lyapunov import lyapunov_monotone
-from .lyapunov import max_relative_increase
+from .lyapunov import lyapunov_monotone, max_relative_increase
 
 
 @dataclass
@@ -30,14 +30,26 @@ class OnlineResult:
     before_collision: float = float("nan")
 
     def metrics(self) -> dict[str, float]:
-        return {"online_loss": self.loss, "online_loss_median": self.median,
-                "online_loss_before_collision": self.before_collision}
+        return {
+            "online_loss": self.loss,
+            "online_loss_median": self.median,
+            "online_loss_before_collision": self.before_collision,
+        }
 
 
 @torch.no_grad()
-def online_loss(policy: Callable, expert: Callable, env, q0: Tensor, qd0: Tensor, aux: Mapping[str, Tensor],
-                horizon: float, interval: float, record_every: float | None = None,
-                progress: Callable | None = None) -> OnlineResult:
+def online_loss(
+    policy: Callable,
+    expert: Callable,
+    env,
+    q0: Tensor,
+    qd0: Tensor,
+    aux: Mapping[str, Tensor],
+    horizon: float,
+    interval: float,
+    record_every: float | None = None,
+    progress: Callable | None = None,
+) -> OnlineResult:
     """Roll ``policy`` out from (q0, qd0); every ``interval`` seconds compare its q̈ with the expert's q̈ at that same state.
 
     ``policy`` is rolled out as given: a tree, or a learner's ``policy``, answers with a TreeOutput, whose V_r the
@@ -72,9 +84,13 @@ def online_loss(policy: Callable, expert: Callable, env, q0: Tensor, qd0: Tensor
     err = ((qdds - eq) ** 2).mean(-1)  # (T, B): squared error per record, averaged over coordinates
     before = valid & (ro.times[::stride][:, None] < ro.first_collision_time[None, :])
     per_traj = torch.stack([_finite_mean(err[:, b][valid[:, b]]) for b in range(B)]) if B else err.new_zeros(0)
-    return OnlineResult(loss=_finite_mean(err[valid]).item(), rollout=ro, expert_qdd=eq,
-                        median=float(per_traj.median()) if B else float("inf"),
-                        before_collision=_finite_mean(err[before]).item())
+    return OnlineResult(
+        loss=_finite_mean(err[valid]).item(),
+        rollout=ro,
+        expert_qdd=eq,
+        median=float(per_traj.median()) if B else float("inf"),
+        before_collision=_finite_mean(err[before]).item(),
+    )
 
 
 def _finite_mean(x: Tensor) -> Tensor:
@@ -107,16 +123,26 @@ def rollout_rates(ro: Rollout, rtol: float = 1e-6, atol: float = 1e-9, with_lyap
             for b in ended:
                 fin = V[:, b].isfinite().nonzero().flatten()
                 if fin.numel() and int(fin[-1]) + 1 < V.shape[0] and bool(V[: int(fin[-1]) + 1, b].isfinite().all()):
-                    V[int(fin[-1]) + 1:, b] = V[int(fin[-1]), b]
+                    V[int(fin[-1]) + 1 :, b] = V[int(fin[-1]), b]
         key = "lyapunov_monotone_fraction_moving" if ro.moving else "lyapunov_monotone_fraction"
         out[key] = float(lyapunov_monotone(V, rtol=rtol, atol=atol).double().mean())
     return out
 
 
-def evaluate_learner(learner: nn.Module, expert: Callable, env, test_data, horizon: float, interval: float,
-                     rtol: float = 1e-6, atol: float = 1e-9, record_every: float | None = None,
-                     progress: Callable | None = None, *, loss: Callable[[nn.Module, Any], float]
-                     ) -> tuple[dict[str, float], OnlineResult]:
+def evaluate_learner(
+    learner: nn.Module,
+    expert: Callable,
+    env,
+    test_data,
+    horizon: float,
+    interval: float,
+    rtol: float = 1e-6,
+    atol: float = 1e-9,
+    record_every: float | None = None,
+    progress: Callable | None = None,
+    *,
+    loss: Callable[[nn.Module, Any], float],
+) -> tuple[dict[str, float], OnlineResult]:
     """All metrics of one learner (a ``rmpfusion.learn.Learner``) as a flat dict of floats, plus the online
     rollout (for figures).
 
@@ -139,6 +165,7 @@ def evaluate_learner(learner: nn.Module, expert: Callable, env, test_data, horiz
 # (B,)}``) and name those compared with the expert as ratios (``HasRatioMetrics``: ``env.ratio_metrics``), as the
 # Franka experiment does (paper Fig. 5b).
 
+
 def _stats(x: Tensor) -> dict[str, float | int]:
     """mean, std (sample, n−1), min, max over the finite entries, and their count n."""
     x = x.detach().double().flatten()
@@ -146,8 +173,13 @@ def _stats(x: Tensor) -> dict[str, float | int]:
     n = int(x.numel())
     if n == 0:
         return {"mean": float("nan"), "std": float("nan"), "min": float("nan"), "max": float("nan"), "n": 0}
-    return {"mean": float(x.mean()), "std": float(x.std()) if n > 1 else 0.0, "min": float(x.min()),
-            "max": float(x.max()), "n": n}
+    return {
+        "mean": float(x.mean()),
+        "std": float(x.std()) if n > 1 else 0.0,
+        "min": float(x.min()),
+        "max": float(x.max()),
+        "n": n,
+    }
 
 
 def summarize(per_trajectory: Mapping[str, Tensor]) -> dict[str, dict[str, float | int]]:
@@ -181,8 +213,16 @@ class StageResult:
     lyapunov: dict[str, float] | None = None
 
 
-def task_stage(label: str, rollout: Rollout, env: HasTaskMetrics, expert: "StageResult | None" = None, rtol: float = 1e-6,
-               atol: float = 1e-9, learner: str | None = None, iteration: int | None = None) -> StageResult:
+def task_stage(
+    label: str,
+    rollout: Rollout,
+    env: HasTaskMetrics,
+    expert: StageResult | None = None,
+    rtol: float = 1e-6,
+    atol: float = 1e-9,
+    learner: str | None = None,
+    iteration: int | None = None,
+) -> StageResult:
     """The env's task metrics of ``rollout`` summarised, the ratios to ``expert`` if given, and the Lyapunov
     monitor per trajectory (fraction monotone, worst relative increase) when the rollout recorded V_r, with
     ``theorem2_applies`` false when obstacles moved (then the fraction is what was observed, not a check)."""
@@ -196,8 +236,18 @@ def task_stage(label: str, rollout: Rollout, env: HasTaskMetrics, expert: "Stage
     if rollout.V is not None:
         mono = lyapunov_monotone(rollout.V, rtol=rtol, atol=atol)
         per["lyapunov_monotone"] = mono.double()
-        lyap = {"monotone_fraction": float(mono.double().mean()),
-                "max_relative_increase": float(max_relative_increase(rollout.V, atol=atol).max()),
-                "theorem2_applies": not rollout.moving}
-    return StageResult(label=label, rollout=rollout, per_trajectory=per, summary=summarize(per), ratios=ratios,
-                       learner=learner, iteration=iteration, lyapunov=lyap)
+        lyap = {
+            "monotone_fraction": float(mono.double().mean()),
+            "max_relative_increase": float(max_relative_increase(rollout.V, atol=atol).max()),
+            "theorem2_applies": not rollout.moving,
+        }
+    return StageResult(
+        label=label,
+        rollout=rollout,
+        per_trajectory=per,
+        summary=summarize(per),
+        ratios=ratios,
+        learner=learner,
+        iteration=iteration,
+        lyapunov=lyap,
+    )

@@ -10,6 +10,7 @@ on the LASA benchmark (Khansari-Zadeh & Billard 2011/2014; Rana et al. 2020).
 * ``final_distance``, ``time_to_tolerance``: where the rollout ends relative to the goal, and when it first
   comes within a tolerance of it (inf if never).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -46,7 +47,7 @@ def swept_error_area(rollout: np.ndarray, demo: np.ndarray) -> float:
     """Area between two paths sampled at the same times, (T, d) each (the shorter is held at its last point)."""
     rollout, demo = np.asarray(rollout, np.float64), np.asarray(demo, np.float64)
     T = max(len(rollout), len(demo))
-    pad = lambda p: np.concatenate([p, np.repeat(p[-1:], T - len(p), axis=0)])  # noqa: E731
+    pad = lambda p: np.concatenate([p, np.repeat(p[-1:], T - len(p), axis=0)])
     x, y = pad(rollout), pad(demo)
     x0, x1, y0, y1 = x[:-1], x[1:], y[:-1], y[1:]
     return float((_triangle_areas(x1 - x0, y0 - x0) + _triangle_areas(y1 - x1, y0 - x1)).sum())

@@ -4,9 +4,10 @@ A learner can match the expert's accelerations while its weights differ (2d2leve
 identifiable), or barely change what the tree does; its behaviour alone does not say which. Summaries over the
 test states go into metrics.json, and values along one test trajectory into a figure, beside the expert's.
 """
+
 from __future__ import annotations
 
-from typing import Mapping
+from collections.abc import Mapping
 
 import torch
 from torch import Tensor
@@ -16,13 +17,13 @@ from ..core.tree import RMPTree
 
 def learned_edges(tree: RMPTree) -> list[str]:
     """The edges whose weight has trainable parameters, in the tree's breadth-first order."""
-    return [n for n in tree.order if n in tree.weights
-            and any(p.requires_grad for p in tree.weights[n].parameters())]
+    return [n for n in tree.order if n in tree.weights and any(p.requires_grad for p in tree.weights[n].parameters())]
 
 
 @torch.no_grad()
-def edge_weights(tree: RMPTree, q: Tensor, qd: Tensor, aux: Mapping[str, Tensor], edges: list[str],
-                 chunk: int = 2048) -> dict[str, Tensor]:
+def edge_weights(
+    tree: RMPTree, q: Tensor, qd: Tensor, aux: Mapping[str, Tensor], edges: list[str], chunk: int = 2048
+) -> dict[str, Tensor]:
     """``{edge: (B,) w}`` at the states (q, q̇, aux), evaluated through the tree (so shared weights see the aux
     their edge binds and the parent state their edge starts from). Chunked: memory stays flat for big sets. The
     states go to the tree's device, the weights come back to the states'."""
@@ -38,5 +39,8 @@ def edge_weights(tree: RMPTree, q: Tensor, qd: Tensor, aux: Mapping[str, Tensor]
 
 def summarize_weights(values: Mapping[str, Tensor]) -> dict[str, dict[str, float]]:
     """``{edge: {min, mean, max}}`` of each edge's weight over the states."""
-    return {e: {"min": float(w.min()), "mean": float(w.mean()), "max": float(w.max())}
-            for e, w in values.items() if w.numel()}
+    return {
+        e: {"min": float(w.min()), "mean": float(w.mean()), "max": float(w.max())}
+        for e, w in values.items()
+        if w.numel()
+    }

@@ -7,11 +7,11 @@ Importing this package registers the learners, objectives, optimisers and traini
 ``OBJECTIVES``, ``OPTIMIZERS``, ``TRAIN_METHODS`` in ``rmpfusion.registry``); the experiment pipeline
 (``rmpfusion.pipeline``) is imported on demand because it pulls in plotting.
 """
+
 from . import learners, methods  # noqa: F401  (registration side effects)
 from .learner import Learner  # noqa: F401
 from .learners import build_learner, build_order  # noqa: F401
 from .objectives import Objective, dataset_loss  # noqa: F401
 from .rmp_learner import RMPLearner  # noqa: F401
-from .unstructured import UnstructuredLearner, width_for_parameters  # noqa: F401
 from .train import TrainResult, train  # noqa: F401
-
+from .unstructured import UnstructuredLearner, width_for_parameters  # noqa: F401

@@ -5,9 +5,11 @@ its schedule); behavior cloning's (``BCParams``, also known as ``TrainConfig``) 
 Configs, checkpoints and run directories written before methods existed have no ``method`` key: they are
 behavior cloning, and ``upgrade_train_config`` says so (with the other keys renamed or added since).
 """
+
 from __future__ import annotations
 
-from typing import Any, ClassVar, Literal, Mapping
+from collections.abc import Mapping
+from typing import Any, ClassVar, Literal
 
 from pydantic import Field, field_validator
 from pydantic_core import PydanticCustomError
@@ -34,19 +36,26 @@ class TrainParams(Params):
 
     optimizer: str = Field("rmsprop", description="a name registered in OPTIMIZERS: rmsprop, adam, sgd or a plugin's")
     lr: float = Field(1e-3, gt=0)
-    lr_schedule: Literal["constant", "cosine"] = Field("constant",
-                                                       description="cosine: anneal lr to lr·lr_final_fraction")
-    lr_final_fraction: float = Field(0.01, ge=0, le=1, description="the final step size as a fraction of lr (cosine "
-                                                                   "schedule): 0.01 ends at lr/100")
+    lr_schedule: Literal["constant", "cosine"] = Field(
+        "constant", description="cosine: anneal lr to lr·lr_final_fraction"
+    )
+    lr_final_fraction: float = Field(
+        0.01, ge=0, le=1, description="the final step size as a fraction of lr (cosine schedule): 0.01 ends at lr/100"
+    )
     iterations: int = Field(20000, ge=0, description="optimiser steps")
-    snapshots: list[int] = Field(default_factory=lambda: [0, 1000, 5000, 20000],
-                                 description="iterations at which the learner is kept and evaluated")
+    snapshots: list[int] = Field(
+        default_factory=lambda: [0, 1000, 5000, 20000],
+        description="iterations at which the learner is kept and evaluated",
+    )
     checkpoint_every: int = Field(1000, gt=0)
     log_every: int = Field(100, gt=0, description="iterations between held-out evaluations (curves and logger)")
     dtype: Literal["float32", "float64"] = "float64"
     grad_clip: float | None = Field(None, gt=0)
-    compile: bool = Field(False, description="train learner trees through torch.compile: a one-off compile "
-                                             "(seconds), then about twice as fast per step (tools/bench.py)")
+    compile: bool = Field(
+        False,
+        description="train learner trees through torch.compile: a one-off compile "
+        "(seconds), then about twice as fast per step (tools/bench.py)",
+    )
 
     #: fields that change what a run writes or how fast, never the weights it ends with
     PLUMBING: ClassVar[tuple[str, ...]] = ("snapshots", "checkpoint_every", "log_every", "compile")
@@ -62,8 +71,7 @@ class TrainParams(Params):
         """The settings a checkpoint must share with this block to be resumed by it: everything except plumbing,
         and ``iterations`` only when the schedule (or the method's rounds) spans them."""
         spans = self.lr_schedule != "constant" or self.ITERATIONS_SHAPE_THE_PATH
-        return tuple(k for k in type(self).model_fields
-                     if k not in self.PLUMBING and (k != "iterations" or spans))
+        return tuple(k for k in type(self).model_fields if k not in self.PLUMBING and (k != "iterations" or spans))
 
     @property
     def batch_loss_objective(self) -> str:
@@ -82,9 +90,13 @@ class BCParams(TrainParams):
 
     method: Literal["bc"] = Field("bc", description="the TRAIN_METHODS entry these settings are for")
     objective: str = Field("mse", description="a name registered in OBJECTIVES: mse or a plugin's")
-    batch_size: int = Field(200, gt=0, description="training points per step, drawn uniformly with replacement; "
-                                                 "above the number of training points a step draws that many "
-                                                 "instead, still uniformly (so not an error)")
+    batch_size: int = Field(
+        200,
+        gt=0,
+        description="training points per step, drawn uniformly with replacement; "
+        "above the number of training points a step draws that many "
+        "instead, still uniformly (so not an error)",
+    )
 
     @field_validator("objective")
     @classmethod
@@ -96,8 +108,10 @@ class BCParams(TrainParams):
         return self.objective
 
     def describe(self) -> str:
-        return f"{self.optimizer} lr={self.lr} batch={self.batch_size} iterations={self.iterations} " \
-               f"snapshots={self.snapshots}"
+        return (
+            f"{self.optimizer} lr={self.lr} batch={self.batch_size} iterations={self.iterations} "
+            f"snapshots={self.snapshots}"
+        )
 
 
 #: The name the training block had when behavior cloning was the only method.

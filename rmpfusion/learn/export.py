@@ -4,11 +4,13 @@ A learner whose policy is a tree is exported through ``core/export.py`` (q̈, an
 learner as its ``forward`` (q̈ only). The program takes ``(q, q̇, *aux)`` with the aux entries in a fixed order,
 for any batch size; ``metadata`` says which, and is stored in the file.
 """
+
 from __future__ import annotations
 
 import json
 import platform
-from typing import Any, Mapping, Sequence
+from collections.abc import Mapping, Sequence
+from typing import Any
 
 import torch
 from torch import Tensor, nn
@@ -33,15 +35,18 @@ class LearnerProgram(nn.Module):
         return self.learner(q, qd, dict(zip(self.aux_names, aux)))
 
 
-def export_learner(learner: Learner, q: Tensor, qd: Tensor, aux: Mapping[str, Tensor], aux_names: Sequence[str],
-                   with_rmp: bool = False) -> torch.export.ExportedProgram:
+def export_learner(
+    learner: Learner, q: Tensor, qd: Tensor, aux: Mapping[str, Tensor], aux_names: Sequence[str], with_rmp: bool = False
+) -> torch.export.ExportedProgram:
     """The learner's policy for any batch size, traced at the example states (B ≥ 2)."""
     learner.eval()
     if learner.tree is not None:
         return export_tree(learner.tree, q, qd, aux, aux_names, with_rmp=with_rmp)
     if with_rmp:
-        raise ValueError("M and f exist for learners whose policy is an RMP tree; this learner has none (export q̈ "
-                         "only: leave out --with-rmp)")
+        raise ValueError(
+            "M and f exist for learners whose policy is an RMP tree; this learner has none (export q̈ "
+            "only: leave out --with-rmp)"
+        )
     if q.shape[0] < 2:
         raise ValueError("export_learner traces at an example batch of at least 2 states (1 would fix the batch size)")
     return export_policy(LearnerProgram(learner, aux_names), q, qd, aux, aux_names)
@@ -53,8 +58,9 @@ class SetsProgram(nn.Module):
     ``scenes.World.set_aux()`` holds. The slots the tree reads are made inside the program, so the number of obstacles
     present is an input (the masks), not part of the traced graph."""
 
-    def __init__(self, tree: nn.Module, sets: Sequence[ObstacleSet], input_names: Sequence[str],
-                 tree_aux_names: Sequence[str]):
+    def __init__(
+        self, tree: nn.Module, sets: Sequence[ObstacleSet], input_names: Sequence[str], tree_aux_names: Sequence[str]
+    ):
         super().__init__()
         self.sets = list(sets)
         self.input_names = list(input_names)
@@ -66,8 +72,9 @@ class SetsProgram(nn.Module):
         return self.program(q, qd, *(aux[n] for n in self.tree_aux_names))
 
 
-def export_with_sets(tree: nn.Module, sets: Sequence[ObstacleSet], q: Tensor, qd: Tensor,
-                     inputs: Mapping[str, Tensor]) -> torch.export.ExportedProgram:
+def export_with_sets(
+    tree: nn.Module, sets: Sequence[ObstacleSet], q: Tensor, qd: Tensor, inputs: Mapping[str, Tensor]
+) -> torch.export.ExportedProgram:
     """A tree holding obstacle sets exported for any obstacles present (0 … N_max of each set): the program takes
     ``inputs`` (``World.set_aux()``: the goal, the set tensors and masks) in their order, at the example's batch size
     (a controller's 1). The batch size is fixed: torch.export cannot yet prove the stride guards of a shared weight
@@ -82,14 +89,23 @@ def export_with_sets(tree: nn.Module, sets: Sequence[ObstacleSet], q: Tensor, qd
         return torch.export.export(program, (q, qd, *entries))
 
 
-def metadata(aux_dims: Mapping[str, int], aux_names: Sequence[str], dim: int, dtype: torch.dtype, with_rmp: bool,
-             **about: Any) -> dict[str, Any]:
+def metadata(
+    aux_dims: Mapping[str, int], aux_names: Sequence[str], dim: int, dtype: torch.dtype, with_rmp: bool, **about: Any
+) -> dict[str, Any]:
     """What a caller needs to call the program, and where it came from (``about``: learner, checkpoint, ...)."""
     inputs = [f"q ({{B}}, {dim})", f"qd ({{B}}, {dim})"] + [f"{n} ({{B}}, {aux_dims[n]})" for n in aux_names]
-    return {"format": "rmpfusion-exported-policy/1", "inputs": inputs, "aux_names": list(aux_names),
-            "aux_dims": {n: int(aux_dims[n]) for n in aux_names}, "dim": int(dim), "dtype": str(dtype).split(".")[-1],
-            "outputs": ["qdd", "M", "f"] if with_rmp else ["qdd"], "torch": torch.__version__,
-            "python": platform.python_version(), **about}
+    return {
+        "format": "rmpfusion-exported-policy/1",
+        "inputs": inputs,
+        "aux_names": list(aux_names),
+        "aux_dims": {n: int(aux_dims[n]) for n in aux_names},
+        "dim": int(dim),
+        "dtype": str(dtype).split(".")[-1],
+        "outputs": ["qdd", "M", "f"] if with_rmp else ["qdd"],
+        "torch": torch.__version__,
+        "python": platform.python_version(),
+        **about,
+    }
 
 
 def metadata_text(meta: Mapping[str, Any]) -> str:

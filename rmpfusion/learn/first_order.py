@@ -16,10 +16,12 @@ the usual way a first-order dynamical system drives a double integrator: q̇ fol
 Trained by the same behavior cloning on the recorded accelerations as the trees (the tracking term makes it fit
 f to the recorded velocities, weighted by k_v², beside the field's own acceleration along the motion).
 """
+
 from __future__ import annotations
 
 import math
-from typing import Any, Literal, Mapping
+from collections.abc import Mapping
+from typing import Any, Literal
 
 import torch
 from pydantic import Field, field_validator
@@ -53,14 +55,28 @@ class FirstOrderLearner(Learner):
                 raise ValueError(f"hidden must list at least one width, each ≥ 1; given {list(v)}")
             return v
 
-    def __init__(self, params: Params, tree_spec: Mapping[str, Any] | None, aux_dims: Mapping[str, int], dim: int,
-                 expert: Mapping[str, Any] | None = None):
+    def __init__(
+        self,
+        params: Params,
+        tree_spec: Mapping[str, Any] | None,
+        aux_dims: Mapping[str, int],
+        dim: int,
+        expert: Mapping[str, Any] | None = None,
+    ):
         super().__init__()
         if params.goal not in aux_dims or int(aux_dims[params.goal]) != dim:
-            raise ValueError(f"first_order needs the aux entry '{params.goal}' of dimension {dim} (the goal); the "
-                             f"environment gives {dict(aux_dims)}")
-        psi = Diffeomorphism.Params(layers=params.layers, hidden=params.hidden, activation=params.activation,
-                                    scale_bound=params.scale_bound, origin=[0.0] * dim, init_std=params.init_std)
+            raise ValueError(
+                f"first_order needs the aux entry '{params.goal}' of dimension {dim} (the goal); the "
+                f"environment gives {dict(aux_dims)}"
+            )
+        psi = Diffeomorphism.Params(
+            layers=params.layers,
+            hidden=params.hidden,
+            activation=params.activation,
+            scale_bound=params.scale_bound,
+            origin=[0.0] * dim,
+            init_std=params.init_std,
+        )
         self.psi = Diffeomorphism(psi, dim).double()
         self.log_rate = nn.Parameter(torch.tensor(math.log(params.rate), dtype=torch.float64))
         self.params, self.dim = params, dim
@@ -81,8 +97,10 @@ class FirstOrderLearner(Learner):
         with torch.enable_grad():
             x = q if q.requires_grad else q.detach().requires_grad_(True)
             f = self.field(x, aux or {})
-            rows = [torch.autograd.grad(f[:, i].sum(), x, create_graph=keep_graph, retain_graph=True)[0]
-                    for i in range(self.dim)]
+            rows = [
+                torch.autograd.grad(f[:, i].sum(), x, create_graph=keep_graph, retain_graph=True)[0]
+                for i in range(self.dim)
+            ]
             along = torch.stack([(r * qd).sum(-1) for r in rows], -1)  # (∂f/∂q) q̇
             qdd = self.params.tracking_gain * (f - qd) + along
         return qdd if keep_graph else qdd.detach()

@@ -5,10 +5,12 @@ tree, so its Lyapunov function is monitored); the pipeline asks for the tree (we
 what to write about the learner into metrics.json, and to compile it. These are members of one base class so
 that a learner states what it offers instead of callers probing for attributes.
 """
+
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from typing import Any, Mapping
+from collections.abc import Mapping
+from typing import Any
 
 from torch import Tensor, nn
 
@@ -24,9 +26,16 @@ class Learner(nn.Module, ABC):
     """
 
     @classmethod
-    def from_params(cls, params: Params, tree_spec: Mapping[str, Any] | None, aux_dims: Mapping[str, int], dim: int,
-                    expert: Mapping[str, Any] | None = None, built: Mapping[str, "Learner"] | None = None,
-                    where: str = "learners") -> "Learner":
+    def from_params(
+        cls,
+        params: Params,
+        tree_spec: Mapping[str, Any] | None,
+        aux_dims: Mapping[str, int],
+        dim: int,
+        expert: Mapping[str, Any] | None = None,
+        built: Mapping[str, Learner] | None = None,
+        where: str = "learners",
+    ) -> Learner:
         """Build from a validated block. ``built`` holds the learners built before this one (by name), for a
         learner sized after another; ``where`` is the block's config path, for errors."""
         return cls(params, tree_spec, aux_dims, dim, expert=expert)
@@ -57,7 +66,7 @@ class Learner(nn.Module, ABC):
         reported at every evaluated snapshot. None by default."""
         return {}
 
-    def compile(self) -> "Learner":
+    def compile(self) -> Learner:
         """Route the learner's tree through torch.compile (same numbers, fused kernels); calling it again keeps
         the compiled tree. A learner without a tree is left eager: a plain network gains little from it."""
         tree = self.tree

@@ -2,18 +2,26 @@
 registered in ``LEARNERS`` like a plugin's, and every one is built the same way (``build_learner``), in an
 order where a learner sized after another comes after it (``build_order``).
 """
+
 from __future__ import annotations
 
-from typing import Any, Mapping
+from collections.abc import Mapping
+from typing import Any
 
 from ..registry import LEARNERS
 from . import first_order, rmp_learner, unstructured  # noqa: F401  (the built-in learners register themselves)
 from .learner import Learner
 
 
-def build_learner(block: Mapping[str, Any], tree_spec: Mapping[str, Any], aux_dims: Mapping[str, int], dim: int,
-                  expert: Mapping[str, Any] | None = None, built: Mapping[str, Learner] | None = None,
-                  where: str = "learners") -> Learner:
+def build_learner(
+    block: Mapping[str, Any],
+    tree_spec: Mapping[str, Any],
+    aux_dims: Mapping[str, int],
+    dim: int,
+    expert: Mapping[str, Any] | None = None,
+    built: Mapping[str, Learner] | None = None,
+    where: str = "learners",
+) -> Learner:
     """Validate ``{type: ..., **params}`` with the learner's own model and build it.
 
     ``built`` holds learners already constructed, so ``match_parameters_of`` can be resolved. Initial weights

@@ -8,14 +8,16 @@ at exactly the weights of an uninterrupted one. Checkpoints are written atomical
 temporary that is never read, and is removed by the next run); SIGTERM (SLURM preemption, ``kill``) and SIGINT
 (Ctrl-C) finish the current step, write a checkpoint and then stop as the signal would have.
 """
+
 from __future__ import annotations
 
 import copy
 import math
 from abc import ABC, abstractmethod
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Mapping
+from typing import Any
 
 import torch
 from torch import nn
@@ -97,14 +99,18 @@ def check_parameters(model: nn.Module, done: int, cfg: TrainParams) -> None:
     largest = torch.stack([p.detach().abs().amax() for p in params]).amax()
     if bool(largest <= PARAMETER_LIMIT):
         return
-    name, p = next((n, p) for n, p in model.named_parameters()
-                   if p.numel() and not bool(p.detach().abs().amax() <= PARAMETER_LIMIT))
+    name, p = next(
+        (n, p)
+        for n, p in model.named_parameters()
+        if p.numel() and not bool(p.detach().abs().amax() <= PARAMETER_LIMIT)
+    )
     bad = p.detach()[~(p.detach().abs() <= PARAMETER_LIMIT)]
     value = float(bad.flatten()[0])
     raise TrainingDivergedError(
         f"training diverged at iteration {done}: parameter {name} holds {value:.3g} ({bad.numel()} of its {p.numel()} "
         f"entries are non-finite or beyond {PARAMETER_LIMIT:.0e}), so nothing it computes means anything; lower "
-        f"train.lr (now {cfg.lr:g}) or set train.grad_clip, and run again in a new run directory")
+        f"train.lr (now {cfg.lr:g}) or set train.grad_clip, and run again in a new run directory"
+    )
 
 
 def state_copy(model: nn.Module) -> dict[str, torch.Tensor]:
@@ -154,11 +160,14 @@ def _resume(s: Loop) -> None:
         s.gen.set_state(state["rng"])
         s.steps.load_state(state.get("method_state", {}))
         s.start = int(state["iteration"])
-        s.res = TrainResult(snapshots={int(k): v for k, v in state["snapshots"].items()},
-                            curve=[tuple(c) for c in state["curve"]],
-                            test_curve=[tuple(c) for c in state["test_curve"]],
-                            val_curve=[tuple(c) for c in state.get("val_curve", [])], resumed_from=s.start,
-                            measure=s.steps.measure)
+        s.res = TrainResult(
+            snapshots={int(k): v for k, v in state["snapshots"].items()},
+            curve=[tuple(c) for c in state["curve"]],
+            test_curve=[tuple(c) for c in state["test_curve"]],
+            val_curve=[tuple(c) for c in state.get("val_curve", [])],
+            resumed_from=s.start,
+            measure=s.steps.measure,
+        )
     if s.start > s.cfg.iterations:
         raise RuntimeError(f"checkpoint in {ckdir} is at iteration {s.start}, beyond iterations={s.cfg.iterations}")
 
@@ -169,9 +178,11 @@ def _check_same_path(ck: Path, old: Mapping[str, Any], cfg: TrainParams) -> None
     fields = type(cfg).model_fields
     bad = [k for k in cfg.path_keys() if _plain(old.get(k, fields[k].default)) != _plain(getattr(cfg, k))]
     if bad:
-        raise CheckpointError(f"checkpoint {ck} was made with different training settings "
-                           f"({', '.join(f'{k}: {old.get(k)!r} vs {_plain(getattr(cfg, k))!r}' for k in bad)}); "
-                           f"delete {ck.parent} to start over")
+        raise CheckpointError(
+            f"checkpoint {ck} was made with different training settings "
+            f"({', '.join(f'{k}: {old.get(k)!r} vs {_plain(getattr(cfg, k))!r}' for k in bad)}); "
+            f"delete {ck.parent} to start over"
+        )
 
 
 def _plain(value: Any) -> Any:
@@ -187,12 +198,24 @@ def _checkpoint(s: Loop, it: int) -> Path | None:
     s.ckdir.mkdir(parents=True, exist_ok=True)
     path = s.ckdir / f"ckpt-{it:08d}.pt"
     res = s.res
-    save_checkpoint({"model": s.model.state_dict(), "optimizer": s.opt.state_dict(), "rng": s.gen.get_state(),
-                     "iteration": it, "snapshots": res.snapshots, "curve": res.curve, "test_curve": res.test_curve,
-                     "val_curve": res.val_curve, "train_config": s.cfg.model_dump(),
-                     "method_state": s.steps.state(), "config": dict(s.run_config or {})}, path)
+    save_checkpoint(
+        {
+            "model": s.model.state_dict(),
+            "optimizer": s.opt.state_dict(),
+            "rng": s.gen.get_state(),
+            "iteration": it,
+            "snapshots": res.snapshots,
+            "curve": res.curve,
+            "test_curve": res.test_curve,
+            "val_curve": res.val_curve,
+            "train_config": s.cfg.model_dump(),
+            "method_state": s.steps.state(),
+            "config": dict(s.run_config or {}),
+        },
+        path,
+    )
     olds = sorted((int(m.group(1)), p) for p in s.ckdir.iterdir() if (m := CHECKPOINT_NAME.match(p.name)))
-    for _, p in olds[:-s.keep_checkpoints]:
+    for _, p in olds[: -s.keep_checkpoints]:
         p.unlink(missing_ok=True)
     return path
 
@@ -235,9 +258,12 @@ def _after_step(s: Loop, done: int, value: float, stop: StopOnSignal) -> None:
         s.progress(done, cfg.iterations)
     if stop.signum is not None:
         saved = saved or _checkpoint(s, done)
-        stop.stop(f"checkpoint at iteration {done}/{cfg.iterations} written to {saved}; run the same command "
-                  "again (same run directory) to resume" if saved else
-                  f"stopped at iteration {done}/{cfg.iterations} (no checkpoint_dir, nothing saved)")
+        stop.stop(
+            f"checkpoint at iteration {done}/{cfg.iterations} written to {saved}; run the same command "
+            "again (same run directory) to resume"
+            if saved
+            else f"stopped at iteration {done}/{cfg.iterations} (no checkpoint_dir, nothing saved)"
+        )
 
 
 def run(s: Loop) -> TrainResult:

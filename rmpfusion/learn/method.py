@@ -5,12 +5,14 @@ Behavior cloning needs only the demonstrations; DAgger also rolls the learner ou
 the policy gradient roll out in the environment without the expert. The context holds all of it explicitly, so a
 method states what it uses instead of reaching into the pipeline (which ``learn/`` never imports).
 """
+
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any, Callable, Mapping
+from typing import Any
 
 import torch
 from torch import nn
@@ -58,7 +60,7 @@ class MethodContext:
     def test(self) -> Dataset | None:
         return self.data.get("test")
 
-    def cast(self, dtype: torch.dtype, device: torch.device | None = None) -> "MethodContext":
+    def cast(self, dtype: torch.dtype, device: torch.device | None = None) -> MethodContext:
         """The same context with every dataset in ``dtype`` (the training dtype) on ``device`` (the model's)."""
         return replace(self, data={k: v.to(dtype, device) for k, v in self.data.items()})
 
@@ -66,8 +68,10 @@ class MethodContext:
         """Refuse a context without what ``method`` needs (``need("dagger", env=self.env)``), naming it."""
         missing = [k for k, v in what.items() if v is None]
         if missing:
-            raise MethodContextError(f"training method '{method}' needs {' and '.join(missing)} in its context, "
-                                     "which this caller did not give (the pipeline's fit stage gives them)")
+            raise MethodContextError(
+                f"training method '{method}' needs {' and '.join(missing)} in its context, "
+                "which this caller did not give (the pipeline's fit stage gives them)"
+            )
 
     def tell(self, message: str) -> None:
         if self.say is not None:
@@ -92,8 +96,7 @@ class TrainingMethod(ABC):
         return []
 
     @abstractmethod
-    def steps(self, model: nn.Module, ctx: MethodContext, opt: torch.optim.Optimizer,
-              gen: torch.Generator) -> Steps:
+    def steps(self, model: nn.Module, ctx: MethodContext, opt: torch.optim.Optimizer, gen: torch.Generator) -> Steps:
         """The method's iterations over ``model`` (in the training dtype), its optimiser and generator."""
 
     def train(self, model: nn.Module, ctx: MethodContext) -> TrainResult:
@@ -104,7 +107,16 @@ class TrainingMethod(ABC):
         ctx = ctx.cast(dtype, module_device(model))  # the model trains where it is; its data goes there once
         opt = make_optimizer(model.parameters(), p.optimizer, p.lr)
         gen = torch.Generator().manual_seed(int(ctx.seed))
-        loop = Loop(model=model, cfg=p, opt=opt, gen=gen, steps=self.steps(model, ctx, opt, gen),
-                    ckdir=ctx.checkpoint_dir, run_config=ctx.run_config, keep_checkpoints=ctx.keep_checkpoints,
-                    progress=ctx.progress, log=ctx.log)
+        loop = Loop(
+            model=model,
+            cfg=p,
+            opt=opt,
+            gen=gen,
+            steps=self.steps(model, ctx, opt, gen),
+            ckdir=ctx.checkpoint_dir,
+            run_config=ctx.run_config,
+            keep_checkpoints=ctx.keep_checkpoints,
+            progress=ctx.progress,
+            log=ctx.log,
+        )
         return run(loop)

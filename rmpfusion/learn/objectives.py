@@ -4,6 +4,7 @@ An objective compares the learner's q̈ with the expert's two ways: as the minib
 and as a sum that ``dataset_loss`` accumulates chunk by chunk, so a whole dataset's loss (batch-loss on the
 test set, the validation curve) is the same quantity training minimises, with memory bounded.
 """
+
 from __future__ import annotations
 
 from abc import ABC, abstractmethod

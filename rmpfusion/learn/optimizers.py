@@ -3,9 +3,10 @@
 An entry is a factory ``(parameters, lr) -> torch.optim.Optimizer``; the step size comes from the training
 block (and its schedule), every other hyper-parameter is the entry's own choice.
 """
+
 from __future__ import annotations
 
-from typing import Iterable
+from collections.abc import Iterable
 
 import torch
 

@@ -2,9 +2,11 @@
 
 Its policy is an RMP tree, so it keeps the tree's Lyapunov function (Theorem 2) whatever the weights learn.
 """
+
 from __future__ import annotations
 
-from typing import Any, Mapping
+from collections.abc import Mapping
+from typing import Any
 
 from pydantic import Field
 from torch import Tensor
@@ -30,35 +32,66 @@ class RMPLearner(Learner):
     """learner-rmp: the given tree with a (fresh, randomly initialised) neural weight on each learned edge."""
 
     class Params(Params):
-        weights: dict[str, Any] = Field(default_factory=_default_weight,
-                                        description="weight spec put on every learned edge; aux: all = every aux input")
-        edges: list[str] | None = Field(None, description="edges to learn; default: those the expert weights, "
-                                                          "else every edge except regulariser leaves")
+        weights: dict[str, Any] = Field(
+            default_factory=_default_weight,
+            description="weight spec put on every learned edge; aux: all = every aux input",
+        )
+        edges: list[str] | None = Field(
+            None,
+            description="edges to learn; default: those the expert weights, else every edge except regulariser leaves",
+        )
         edge_weights: dict[str, dict[str, Any]] = Field(
-            default_factory=dict, description="per-edge keys merged over `weights`, e.g. "
-                                              "{obstacle1: {aux: [obstacle1_center, obstacle1_radius]}}")
+            default_factory=dict,
+            description="per-edge keys merged over `weights`, e.g. "
+            "{obstacle1: {aux: [obstacle1_center, obstacle1_radius]}}",
+        )
         leaves: dict[str, dict[str, Any]] = Field(
-            default_factory=dict, description="per-leaf settings merged over the tree's for this learner only, e.g. "
-                                              "{goal: {gain: {learn: true, init: 0.5}}}: leaf numbers it learns")
+            default_factory=dict,
+            description="per-leaf settings merged over the tree's for this learner only, e.g. "
+            "{goal: {gain: {learn: true, init: 0.5}}}: leaf numbers it learns",
+        )
 
     @classmethod
-    def from_params(cls, params: Params, tree_spec: Mapping[str, Any] | None, aux_dims: Mapping[str, int], dim: int,
-                    expert: Mapping[str, Any] | None = None, built=None, where: str = "learners.rmp") -> "RMPLearner":
+    def from_params(
+        cls,
+        params: Params,
+        tree_spec: Mapping[str, Any] | None,
+        aux_dims: Mapping[str, int],
+        dim: int,
+        expert: Mapping[str, Any] | None = None,
+        built=None,
+        where: str = "learners.rmp",
+    ) -> RMPLearner:
         return cls(params, tree_spec, aux_dims, dim, expert=expert, where=where)
 
-    def __init__(self, params: Params, tree_spec: Mapping[str, Any], aux_dims: Mapping[str, int], dim: int,
-                 expert: Mapping[str, Any] | None = None, where: str = "learners.rmp"):
+    def __init__(
+        self,
+        params: Params,
+        tree_spec: Mapping[str, Any],
+        aux_dims: Mapping[str, int],
+        dim: int,
+        expert: Mapping[str, Any] | None = None,
+        where: str = "learners.rmp",
+    ):
         super().__init__()
         self.params = params
         edges = list(params.edges) if params.edges is not None else self.default_edges(tree_spec, expert)
         stray = [e for e in params.edge_weights if e not in edges]
         if stray:
-            raise ConfigError([Issue(f"{where}.edge_weights.{e}",
-                                     f"'{e}' is not a learned edge; learned edges: {', '.join(edges)} "
-                                     f"(add it to {where}.edges or remove the entry)") for e in stray])
+            raise ConfigError(
+                [
+                    Issue(
+                        f"{where}.edge_weights.{e}",
+                        f"'{e}' is not a learned edge; learned edges: {', '.join(edges)} "
+                        f"(add it to {where}.edges or remove the entry)",
+                    )
+                    for e in stray
+                ]
+            )
         per_edge = {e: expand_aux({**params.weights, **params.edge_weights.get(e, {})}, aux_dims) for e in edges}
-        spec = tree_with_weights(with_leaves(tree_spec, params.leaves, f"{where}.leaves"), per_edge,
-                                 where=f"{where}.edges")
+        spec = tree_with_weights(
+            with_leaves(tree_spec, params.leaves, f"{where}.leaves"), per_edge, where=f"{where}.edges"
+        )
         self.edges = edges
         # registered as the submodule "tree" (state_dict keys tree.…); read back through the ``tree`` property
         self.tree = build_tree(spec, aux_dims=dict(aux_dims), weight_paths={e: f"{where}.weights" for e in edges})
@@ -74,8 +107,7 @@ class RMPLearner(Learner):
         nodes = tree_spec["nodes"]
         if expert:
             return [n for n in nodes if n in expert]
-        return [n for n, nd in nodes.items()
-                if not ((nd.get("rmp") or {}).get("type") in REGULARISER_LEAVES)]
+        return [n for n, nd in nodes.items() if not ((nd.get("rmp") or {}).get("type") in REGULARISER_LEAVES)]
 
     def learned_numbers(self) -> dict[str, float]:
         """``<leaf>.<number>`` → value of every leaf number it learns."""
@@ -102,7 +134,9 @@ def with_leaves(tree_spec: Mapping[str, Any], leaves: Mapping[str, Mapping[str, 
         rmp = (nodes.get(name) or {}).get("rmp")
         if rmp is None:
             leaf_names = [n for n, nd in nodes.items() if nd.get("rmp")]
-            issues.append(Issue(f"{where}.{name}", f"'{name}' is not a leaf of the tree; leaves: {', '.join(leaf_names)}"))
+            issues.append(
+                Issue(f"{where}.{name}", f"'{name}' is not a leaf of the tree; leaves: {', '.join(leaf_names)}")
+            )
             continue
         nodes[name] = {**nodes[name], "rmp": {**rmp, **settings}}
     if issues:

@@ -1,5 +1,6 @@
 """Stopping on a signal without losing work: while a training loop runs, SIGTERM and SIGINT only set a flag, and
 the loop checkpoints at the end of the current step before stopping as the signal would have."""
+
 from __future__ import annotations
 
 import signal
@@ -23,7 +24,7 @@ class StopOnSignal:
         self.signum: int | None = None
         self._old: dict[int, Any] = {}
 
-    def __enter__(self) -> "StopOnSignal":
+    def __enter__(self) -> StopOnSignal:
         if threading.current_thread() is threading.main_thread():
             for s in self.SIGNALS + self.CHAINED:
                 old = signal.getsignal(s)

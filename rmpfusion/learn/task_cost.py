@@ -13,9 +13,10 @@ the nearest obstacle over the interval and q the configuration:
 One function computes them for both methods: APG from records that carry the autograd graph, the policy gradient
 from records of its segments (``rollout_costs``), so the two optimise the same objective.
 """
+
 from __future__ import annotations
 
-from typing import Mapping
+from collections.abc import Mapping
 
 import torch
 import torch.nn.functional as F
@@ -43,16 +44,19 @@ class TaskCost(Params):
     @model_validator(mode="after")
     def _something_to_minimise(self):
         if not any(self.weights().values()):
-            raise ValueError(f"at least one of the weights {', '.join(TERMS)} must be > 0 (a cost of 0 has nothing to "
-                             "minimise); given all 0")
+            raise ValueError(
+                f"at least one of the weights {', '.join(TERMS)} must be > 0 (a cost of 0 has nothing to "
+                "minimise); given all 0"
+            )
         return self
 
     def weights(self) -> dict[str, float]:
         return {k: getattr(self, k) for k in TERMS}
 
 
-def interval_costs(cost: TaskCost, times: Tensor, q: Tensor, distance: Tensor,
-                   clearance: Tensor | None, final: bool = True) -> dict[str, Tensor]:
+def interval_costs(
+    cost: TaskCost, times: Tensor, q: Tensor, distance: Tensor, clearance: Tensor | None, final: bool = True
+) -> dict[str, Tensor]:
     """Each weighted term of ``cost`` per interval between records: ``{term: (T−1, B)}``.
 
     ``times`` (T,), ``q`` (T, B, d) and ``distance`` (T, B) are the records; ``clearance`` (T−1, B) is each
@@ -60,14 +64,15 @@ def interval_costs(cost: TaskCost, times: Tensor, q: Tensor, distance: Tensor,
     interval (a truncated window that is not the rollout's last leaves it out). Terms with weight 0 are left out.
     """
     h = (times[1:] - times[:-1]).to(distance)[:, None]
-    mean = lambda x: 0.5 * (x[1:] + x[:-1])  # noqa: E731 - the trapezoid rule over each interval
+    mean = lambda x: 0.5 * (x[1:] + x[:-1])
     out: dict[str, Tensor] = {}
     w = cost.weights()
     if w["goal_distance"]:
         out["goal_distance"] = w["goal_distance"] * h * mean(distance)
     if w["time_to_goal"]:
-        out["time_to_goal"] = w["time_to_goal"] * h * mean(torch.sigmoid((distance - cost.goal_tolerance)
-                                                                         / cost.temperature))
+        out["time_to_goal"] = (
+            w["time_to_goal"] * h * mean(torch.sigmoid((distance - cost.goal_tolerance) / cost.temperature))
+        )
     if w["path_length"]:
         out["path_length"] = w["path_length"] * (q[1:] - q[:-1]).norm(dim=-1)
     if w["clearance"] and clearance is not None:
@@ -95,7 +100,9 @@ def rollout_costs(cost: TaskCost, ro: Rollout, final: bool = True) -> dict[str, 
     the policy gradient: records at the start and the end); the clearance of the interval is the rollout's
     closest approach over every integration step (``min_clearance``)."""
     if ro.goal_distance is None:
-        raise ValueError("the task cost needs rollouts that record the distance to the goal (Rollout.goal_distance); "
-                         "this environment's rollouts do not")
+        raise ValueError(
+            "the task cost needs rollouts that record the distance to the goal (Rollout.goal_distance); "
+            "this environment's rollouts do not"
+        )
     clear = ro.min_clearance.to(ro.goal_distance)[None].expand(len(ro.times) - 1, -1)
     return interval_costs(cost, ro.times, ro.q, ro.goal_distance, clear, final)

@@ -2,27 +2,39 @@
 ``TRAIN_METHODS`` without the rest of a pipeline. The loop it runs (checkpoints, signals, resume) is
 ``learn/loop.py``; the checkpoint format ``learn/checkpoints.py``; both are re-exported here, where callers have
 always found them."""
+
 from __future__ import annotations
 
 import os
+from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Any, Callable, Mapping
+from typing import Any
 
 from torch import nn
 
 from ..envs.demonstrations import Dataset
-from .checkpoints import (CHECKPOINT_FORMAT, CHECKPOINT_NAME, CheckpointError, checkpoint_checksum,  # noqa: F401
-                          latest_checkpoint, load_checkpoint, save_checkpoint)
+from .checkpoints import (
+    checkpoint_checksum,  # noqa: F401
+)
 from .config import TrainConfig
 from .loop import TrainResult, learning_rate, load_snapshot  # noqa: F401
 from .method import MethodContext
 from .methods.bc import BehaviorCloning
 
 
-def train(model: nn.Module, data: Dataset, cfg: TrainConfig, seed: int, test_data: Dataset | None = None,
-          val_data: Dataset | None = None, checkpoint_dir: str | os.PathLike | None = None,
-          run_config: Mapping[str, Any] | None = None, progress: Callable[[int, int], Any] | None = None,
-          log: Callable[[dict[str, float]], Any] | None = None, keep_checkpoints: int = 2) -> TrainResult:
+def train(
+    model: nn.Module,
+    data: Dataset,
+    cfg: TrainConfig,
+    seed: int,
+    test_data: Dataset | None = None,
+    val_data: Dataset | None = None,
+    checkpoint_dir: str | os.PathLike | None = None,
+    run_config: Mapping[str, Any] | None = None,
+    progress: Callable[[int, int], Any] | None = None,
+    log: Callable[[dict[str, float]], Any] | None = None,
+    keep_checkpoints: int = 2,
+) -> TrainResult:
     """Train ``model`` in place by behavior cloning for ``cfg.iterations`` minibatch steps, resuming from
     ``checkpoint_dir`` if it holds one.
 
@@ -30,8 +42,18 @@ def train(model: nn.Module, data: Dataset, cfg: TrainConfig, seed: int, test_dat
     (the validation loss is the one to choose settings by; the test loss is only reported);
     ``progress(done, total)`` is called after every step.
     """
-    splits = {"train": data, **({"val": val_data} if val_data is not None else {}),
-              **({"test": test_data} if test_data is not None else {})}
-    ctx = MethodContext(data=splits, seed=seed, checkpoint_dir=Path(checkpoint_dir) if checkpoint_dir else None,
-                        run_config=run_config, progress=progress, log=log, keep_checkpoints=keep_checkpoints)
+    splits = {
+        "train": data,
+        **({"val": val_data} if val_data is not None else {}),
+        **({"test": test_data} if test_data is not None else {}),
+    }
+    ctx = MethodContext(
+        data=splits,
+        seed=seed,
+        checkpoint_dir=Path(checkpoint_dir) if checkpoint_dir else None,
+        run_config=run_config,
+        progress=progress,
+        log=log,
+        keep_checkpoints=keep_checkpoints,
+    )
     return BehaviorCloning(cfg).train(model, ctx)

@@ -1,9 +1,11 @@
 """learner-un: a fully connected network [q, q̇, aux] -> q̈ with no stability or safety structure (paper §4.1),
 optionally sized to another learner's parameter count so the comparison is between equal budgets."""
+
 from __future__ import annotations
 
 import math
-from typing import Any, Literal, Mapping
+from collections.abc import Mapping
+from typing import Any, Literal
 
 import torch
 from pydantic import Field, field_validator
@@ -21,12 +23,17 @@ class UnstructuredLearner(Learner):
     """learner-un: a fully connected network [q, q̇, aux] -> q̈ with no stability or safety structure."""
 
     class Params(Params):
-        hidden: list[int] = Field(default_factory=lambda: [64, 64], min_length=1,
-                                  description="widths ≥ 1 (with match_parameters_of only the depth counts)")
+        hidden: list[int] = Field(
+            default_factory=lambda: [64, 64],
+            min_length=1,
+            description="widths ≥ 1 (with match_parameters_of only the depth counts)",
+        )
         activation: Literal["tanh", "relu", "elu", "softplus", "silu"] = "tanh"
         match_parameters_of: str | None = Field(
-            None, description="another learner's name: hidden widths are chosen so the parameter count is "
-                              "parameter_ratio × that learner's (depth = len(hidden))")
+            None,
+            description="another learner's name: hidden widths are chosen so the parameter count is "
+            "parameter_ratio × that learner's (depth = len(hidden))",
+        )
         parameter_ratio: float = Field(1.0, gt=0)
 
         @field_validator("hidden")
@@ -34,8 +41,15 @@ class UnstructuredLearner(Learner):
         def _widths(cls, v: list[int]) -> list[int]:
             return hidden_widths(v)
 
-    def __init__(self, params: Params, tree_spec: Mapping[str, Any] | None, aux_dims: Mapping[str, int], dim: int,
-                 expert: Mapping[str, Any] | None = None, target_parameters: int | None = None):
+    def __init__(
+        self,
+        params: Params,
+        tree_spec: Mapping[str, Any] | None,
+        aux_dims: Mapping[str, int],
+        dim: int,
+        expert: Mapping[str, Any] | None = None,
+        target_parameters: int | None = None,
+    ):
         super().__init__()
         self.aux_names = sorted(aux_dims)
         n_in = 2 * dim + sum(int(aux_dims[a]) for a in self.aux_names)
@@ -43,8 +57,10 @@ class UnstructuredLearner(Learner):
         if target_parameters is not None:
             hidden = [width_for_parameters(target_parameters, n_in, dim, len(hidden))] * len(hidden)
         elif params.match_parameters_of is not None:
-            raise ValueError(f"unstructured learner matches the parameters of '{params.match_parameters_of}': "
-                             "build it through build_learner with the other learners")
+            raise ValueError(
+                f"unstructured learner matches the parameters of '{params.match_parameters_of}': "
+                "build it through build_learner with the other learners"
+            )
         self.hidden = hidden
         sizes = [n_in, *hidden]
         layers: list[nn.Module] = []
@@ -57,15 +73,23 @@ class UnstructuredLearner(Learner):
         self.dim = dim
 
     @classmethod
-    def from_params(cls, params: Params, tree_spec: Mapping[str, Any] | None, aux_dims: Mapping[str, int], dim: int,
-                    expert: Mapping[str, Any] | None = None, built: Mapping[str, Learner] | None = None,
-                    where: str = "learners") -> "UnstructuredLearner":
+    def from_params(
+        cls,
+        params: Params,
+        tree_spec: Mapping[str, Any] | None,
+        aux_dims: Mapping[str, int],
+        dim: int,
+        expert: Mapping[str, Any] | None = None,
+        built: Mapping[str, Learner] | None = None,
+        where: str = "learners",
+    ) -> UnstructuredLearner:
         """``match_parameters_of`` is resolved against ``built``: that learner's count × ``parameter_ratio``."""
         ref, target = params.match_parameters_of, None
         if ref is not None:
             if not built or ref not in built:
-                raise ValueError(f"{where}.match_parameters_of: learner '{ref}' is not built "
-                                 f"(known: {sorted(built or {})})")
+                raise ValueError(
+                    f"{where}.match_parameters_of: learner '{ref}' is not built (known: {sorted(built or {})})"
+                )
             target = round(built[ref].num_parameters() * params.parameter_ratio)
         return cls(params, tree_spec, aux_dims, dim, expert=expert, target_parameters=target)
 
@@ -86,7 +110,7 @@ class UnstructuredLearner(Learner):
         """The hidden widths, which ``match_parameters_of`` chooses at build time."""
         return {"hidden": list(self.hidden)}
 
-    def compile(self) -> "UnstructuredLearner":
+    def compile(self) -> UnstructuredLearner:
         """Nothing to do: there is no tree to compile, and a small MLP gains little from torch.compile."""
         return self
 

@@ -1,6 +1,16 @@
 """Task maps registered by name: the coordinate changes on the edges of a tree."""
-from . import (basic, distances, joint_scaling, kinematics, learned, moving_goal, orientation, self_collision,  # noqa: F401
-               shapes)  # (registration side effects)
+
+from . import (
+    basic,
+    distances,
+    joint_scaling,
+    kinematics,
+    learned,
+    moving_goal,
+    orientation,
+    self_collision,  # noqa: F401
+    shapes,
+)  # (registration side effects)
 from .basic import Compose, Identity, JointLimit, Linear, Offset, Select, build_map  # noqa: F401
 from .distances import BoxDistance, CylinderDistance, SphereDistance  # noqa: F401
 from .joint_scaling import VelocityScaledJoints  # noqa: F401

@@ -1,8 +1,10 @@
 """Affine task maps and composition. All have analytic J and J̇ẋ, and all stack (``core/stacking.py``): their
 constants broadcast against the samples, so maps of one type under one parent group evaluate as one batch."""
+
 from __future__ import annotations
 
-from typing import Any, Literal, Mapping, Sequence
+from collections.abc import Mapping
+from typing import Any, Literal
 
 import torch
 from pydantic import Field, field_validator
@@ -25,8 +27,10 @@ def _coordinates(v: int | list[int], key: str) -> int | list[int]:
     """Refuse negative coordinate numbers: a config means the parent's coordinate k, never Python's x[-k]."""
     bad = [i for i in ([v] if isinstance(v, int) else v) if i < 0]
     if bad:
-        raise ValueError(f"{key} must be ≥ 0 (the parent's coordinates are numbered from 0; negative numbers do not "
-                         f"count from the end); given {v!r}")
+        raise ValueError(
+            f"{key} must be ≥ 0 (the parent's coordinates are numbered from 0; negative numbers do not "
+            f"count from the end); given {v!r}"
+        )
     return v
 
 
@@ -51,9 +55,13 @@ class Identity(TaskMap):
         return x
 
 
-@TASK_MAPS.register("offset", examples=[
-    Example({"origin": [-3.0, 3.0]}, 2, scale=3.0),
-    Example({"origin": "c"}, 2, scale=3.0, aux={"c": AuxInput.normal(2)})])
+@TASK_MAPS.register(
+    "offset",
+    examples=[
+        Example({"origin": [-3.0, 3.0]}, 2, scale=3.0),
+        Example({"origin": "c"}, 2, scale=3.0, aux={"c": AuxInput.normal(2)}),
+    ],
+)
 class Offset(TaskMap):
     """y = x − origin: an attractor space with the goal at 0 (origin may be aux state)."""
 
@@ -96,8 +104,10 @@ class _Affine(TaskMap):
         return y, matvec(self.A, xd), J, torch.zeros_like(y)
 
 
-@TASK_MAPS.register("linear", examples=[
-    Example({"matrix": [[1.0, 2.0], [0.5, -1.0], [3.0, 0.0]], "bias": [1.0, 0.0, -1.0]}, 2, scale=3.0)])
+@TASK_MAPS.register(
+    "linear",
+    examples=[Example({"matrix": [[1.0, 2.0], [0.5, -1.0], [3.0, 0.0]], "bias": [1.0, 0.0, -1.0]}, 2, scale=3.0)],
+)
 class Linear(_Affine):
     """y = A x + b."""
 
@@ -137,9 +147,13 @@ class Select(Linear):
         super().__init__(Linear.Params(matrix=A.tolist()), in_dim, aux_dims)
 
 
-@TASK_MAPS.register("joint_limit", examples=[
-    Example({"side": "upper", "limit": [2.0, 1.0, 0.5]}, 3, scale=3.0),
-    Example({"side": "lower", "limit": -1.0, "joints": [1]}, 3, scale=3.0)])
+@TASK_MAPS.register(
+    "joint_limit",
+    examples=[
+        Example({"side": "upper", "limit": [2.0, 1.0, 0.5]}, 3, scale=3.0),
+        Example({"side": "lower", "limit": -1.0, "joints": [1]}, 3, scale=3.0),
+    ],
+)
 class JointLimit(_Affine):
     """Distance to a joint limit: ``upper − q`` (side=upper) or ``q − lower`` (side=lower), per joint.
 
@@ -185,11 +199,27 @@ class MapSpec(Params):
     type: str
 
 
-@TASK_MAPS.register("compose", examples=[
-    Example({"maps": [{"type": "linear", "matrix": [[1.0, 1.0], [0.0, 2.0], [1.0, -1.0]]},
-                      {"type": "sphere_distance", "center": [1.0, 0.0, 0.5], "radius": 0.2}]}, 2, scale=3.0),
-    Example({"maps": [{"type": "offset", "origin": "c"}, {"type": "sphere_distance", "center": [0.0, 0.0]}]},
-            2, scale=3.0, aux={"c": AuxInput.normal(2)})])
+@TASK_MAPS.register(
+    "compose",
+    examples=[
+        Example(
+            {
+                "maps": [
+                    {"type": "linear", "matrix": [[1.0, 1.0], [0.0, 2.0], [1.0, -1.0]]},
+                    {"type": "sphere_distance", "center": [1.0, 0.0, 0.5], "radius": 0.2},
+                ]
+            },
+            2,
+            scale=3.0,
+        ),
+        Example(
+            {"maps": [{"type": "offset", "origin": "c"}, {"type": "sphere_distance", "center": [0.0, 0.0]}]},
+            2,
+            scale=3.0,
+            aux={"c": AuxInput.normal(2)},
+        ),
+    ],
+)
 class Compose(TaskMap):
     """ψ = ψ_k ∘ … ∘ ψ_1 with J = J_k⋯J_1 and J̇ẋ accumulated by the chain rule."""
 

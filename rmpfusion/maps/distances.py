@@ -1,8 +1,10 @@
 """Distance task maps to obstacles: 1-D coordinates for barrier RMPs. Each stacks (``core/stacking.py``): one
 group evaluates the distances of many (point, obstacle) pairs at once, each reading its own obstacle's aux."""
+
 from __future__ import annotations
 
-from typing import Any, Mapping, Sequence
+from collections.abc import Mapping, Sequence
+from typing import Any
 
 import torch
 from pydantic import Field, field_validator
@@ -34,15 +36,25 @@ def _values(v: Any) -> list[float] | None:
 def _positive_radius(v: AuxOrValue, shape: str) -> AuxOrValue:
     vals = _values(v)
     if vals is not None and not all(x > 0 for x in vals):
-        raise ValueError(f"radius must be > 0 (a {shape} of radius ≤ 0 has no surface to keep a distance from) or "
-                         f"the name of an aux entry; given {v!r}")
+        raise ValueError(
+            f"radius must be > 0 (a {shape} of radius ≤ 0 has no surface to keep a distance from) or "
+            f"the name of an aux entry; given {v!r}"
+        )
     return v
 
 
-@TASK_MAPS.register("sphere_distance", examples=[
-    Example({"center": [0.3, -0.2], "radius": 1.5}, 2, scale=3.0),
-    Example({"center": "c", "radius": "r", "normalized": True}, 2, scale=3.0,
-            aux={"c": AuxInput.normal(2), "r": AuxInput.radius()})])
+@TASK_MAPS.register(
+    "sphere_distance",
+    examples=[
+        Example({"center": [0.3, -0.2], "radius": 1.5}, 2, scale=3.0),
+        Example(
+            {"center": "c", "radius": "r", "normalized": True},
+            2,
+            scale=3.0,
+            aux={"c": AuxInput.normal(2), "r": AuxInput.radius()},
+        ),
+    ],
+)
 class SphereDistance(TaskMap):
     """Distance to a sphere (circle in 2D): ``|y−c| − R``, or ``|y−c|/R − 1`` when ``normalized``."""
 
@@ -85,8 +97,10 @@ class SphereDistance(TaskMap):
         return y, (j * xd).sum(-1, keepdim=True), j.unsqueeze(-2), c
 
 
-@TASK_MAPS.register("cylinder_distance", examples=[
-    Example({"center": [0.1, 0.2, 0.0], "radius": 0.3, "axis": [0.0, 0.3, 1.0]}, 3, scale=3.0)])
+@TASK_MAPS.register(
+    "cylinder_distance",
+    examples=[Example({"center": [0.1, 0.2, 0.0], "radius": 0.3, "axis": [0.0, 0.3, 1.0]}, 3, scale=3.0)],
+)
 class CylinderDistance(TaskMap):
     """Distance to an infinite cylinder with a given axis through ``center``: ``|P(y−c)| − R``."""
 
@@ -106,8 +120,9 @@ class CylinderDistance(TaskMap):
         @classmethod
         def _axis(cls, v: Sequence[float]) -> Sequence[float]:
             if not any(float(a) != 0.0 for a in v):
-                raise ValueError(f"axis must be a non-zero vector (it is the direction the cylinder extends in); "
-                                 f"given {list(v)}")
+                raise ValueError(
+                    f"axis must be a non-zero vector (it is the direction the cylinder extends in); given {list(v)}"
+                )
             return v
 
     def __init__(self, params: Params, in_dim: int, aux_dims: Mapping[str, int] | None = None):
@@ -133,8 +148,9 @@ class CylinderDistance(TaskMap):
         return r - self.radius(aux), (j * xd).sum(-1, keepdim=True), j.unsqueeze(-2), c
 
 
-@TASK_MAPS.register("box_distance", examples=[
-    Example({"center": [0.0, 0.0, 0.0], "half_extents": [0.5, 1.0, 0.25]}, 3, scale=3.0)])
+@TASK_MAPS.register(
+    "box_distance", examples=[Example({"center": [0.0, 0.0, 0.0], "half_extents": [0.5, 1.0, 0.25]}, 3, scale=3.0)]
+)
 class BoxDistance(TaskMap):
     """Signed distance to an axis-aligned box (``center``, ``half_extents``); derivatives by autodiff."""
 
@@ -149,8 +165,10 @@ class BoxDistance(TaskMap):
         def _half_extents(cls, v: AuxOrValue) -> AuxOrValue:
             vals = _values(v)
             if vals is not None and not all(x >= 0 for x in vals):
-                raise ValueError(f"half_extents must all be ≥ 0 (a box cannot reach a negative length from its "
-                                 f"centre) or the name of an aux entry; given {v!r}")
+                raise ValueError(
+                    f"half_extents must all be ≥ 0 (a box cannot reach a negative length from its "
+                    f"centre) or the name of an aux entry; given {v!r}"
+                )
             return v
 
     def __init__(self, params: Params, in_dim: int, aux_dims: Mapping[str, int] | None = None):

@@ -4,10 +4,12 @@
 actuated joint i (or the ``velocity_limit`` given), so ``|ẏ_i| < 1`` is every joint's velocity limit at once and
 one ``velocity_limit`` leaf with ``limit: 1`` serves any robot. A linear map: J = diag(1/v̄), J̇ẋ = 0.
 """
+
 from __future__ import annotations
 
 import math
-from typing import Annotated, Mapping
+from collections.abc import Mapping
+from typing import Annotated
 
 import torch
 from pydantic import Field
@@ -20,30 +22,39 @@ from .kinematics import KUKA_IIWA, PANDA_ARM, joint_limit_states, robot_chain
 from .robot import RobotParams
 
 
-@TASK_MAPS.register("velocity_scaled_joints", examples=[
-    Example(PANDA_ARM, 7, joint_limit_states(PANDA_ARM)),
-    Example({**KUKA_IIWA, "velocity_limit": [1.0, 2.0, 1.5, 1.0, 3.0, 2.0, 2.5]}, 7, joint_limit_states(KUKA_IIWA))])
+@TASK_MAPS.register(
+    "velocity_scaled_joints",
+    examples=[
+        Example(PANDA_ARM, 7, joint_limit_states(PANDA_ARM)),
+        Example({**KUKA_IIWA, "velocity_limit": [1.0, 2.0, 1.5, 1.0, 3.0, 2.0, 2.5]}, 7, joint_limit_states(KUKA_IIWA)),
+    ],
+)
 class VelocityScaledJoints(Linear):
     """y = q ⊘ v̄: each actuated joint divided by its velocity limit (the URDF's, unless ``velocity_limit`` is given)."""
 
     class Params(RobotParams):
         velocity_limit: list[Annotated[float, Field(gt=0)]] | None = Field(
-            None, description="per actuated joint, in their order (rad/s or m/s); default: the URDF's")
+            None, description="per actuated joint, in their order (rad/s or m/s); default: the URDF's"
+        )
 
     def __init__(self, params: Params, in_dim: int, aux_dims: Mapping[str, int] | None = None):
         chain = robot_chain(params, in_dim, "velocity_scaled_joints")
         if params.velocity_limit is not None:
             if len(params.velocity_limit) != chain.dof:
-                raise ValueError(f"velocity_scaled_joints.velocity_limit has {len(params.velocity_limit)} values for "
-                                 f"the {chain.dof} actuated joints ({', '.join(chain.actuated)}); give one per joint")
+                raise ValueError(
+                    f"velocity_scaled_joints.velocity_limit has {len(params.velocity_limit)} values for "
+                    f"the {chain.dof} actuated joints ({', '.join(chain.actuated)}); give one per joint"
+                )
             limits = list(params.velocity_limit)
         else:
             limits = chain.velocity_limit.tolist()
             missing = [n for n, v in zip(chain.actuated, limits) if not (0 < v < math.inf)]
             if missing:
-                raise ValueError(f"velocity_scaled_joints: {params.source()} gives no velocity limit for joints "
-                                 f"{', '.join(missing)} (<limit velocity=...> absent or 0); give velocity_limit: one "
-                                 f"value per actuated joint")
+                raise ValueError(
+                    f"velocity_scaled_joints: {params.source()} gives no velocity limit for joints "
+                    f"{', '.join(missing)} (<limit velocity=...> absent or 0); give velocity_limit: one "
+                    f"value per actuated joint"
+                )
         scale = torch.diag(1.0 / torch.tensor(limits, dtype=CONSTANT_DTYPE))
         super().__init__(Linear.Params(matrix=scale.tolist()), in_dim, aux_dims)
         self.register_buffer("velocity_limit", torch.tensor(limits, dtype=CONSTANT_DTYPE))

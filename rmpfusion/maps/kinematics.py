@@ -4,17 +4,18 @@ Everything is plain torch so FK composes with autograd and torch.func; the task 
 the geometric Jacobian and J̇ẋ analytically because they are cheap and exact, while autodiff of a deep
 chain of 3×3 products costs one pass per joint.
 """
+
 from __future__ import annotations
 
 import difflib
 import math
-from typing import Mapping, Sequence
+from collections.abc import Mapping, Sequence
 
 import torch
-from pydantic import Field, model_validator
+from pydantic import Field
 from torch import Tensor, nn
 
-from ..core.algebra import matmul_small, matvec
+from ..core.algebra import matvec
 from ..core.taskmap import TaskMap
 from ..examples import Example, StateSampler
 from ..registry import TASK_MAPS, Params
@@ -73,15 +74,19 @@ class Chain(nn.Module):
         for name in actuated:
             if name not in movable:
                 what = "is fixed" if name in [j.name for j in model.joints] else "does not exist"
-                raise ValueError(f"actuated joint '{name}' {what} in URDF '{model.name}'; "
-                                 f"{_suggest(name, movable)}movable joints: {', '.join(movable)}")
+                raise ValueError(
+                    f"actuated joint '{name}' {what} in URDF '{model.name}'; "
+                    f"{_suggest(name, movable)}movable joints: {', '.join(movable)}"
+                )
         if len(set(actuated)) != len(actuated):
             raise ValueError(f"actuated joints contain duplicates: {actuated}")
         for name in actuated:
             leader = model.joint(name).mimic
             if leader is not None:
-                raise ValueError(f"joint '{name}' of URDF '{model.name}' mimics '{leader.leader}' (it follows that "
-                                 f"joint): list '{leader.leader}' among the actuated joints instead of '{name}'")
+                raise ValueError(
+                    f"joint '{name}' of URDF '{model.name}' mimics '{leader.leader}' (it follows that "
+                    f"joint): list '{leader.leader}' among the actuated joints instead of '{name}'"
+                )
         self.actuated: tuple[str, ...] = tuple(actuated)
         self.dof = len(actuated)
         self._links: tuple[str, ...] = tuple(model.link_names())  # root, then joint k's child at k + 1
@@ -96,8 +101,9 @@ class Chain(nn.Module):
             self._gain.append(gain if leader is not None else 0.0)
             self._bias.append(bias)  # a frozen joint's constant value (a mimic's offset), folded into its origin
         #: movable joints that follow an actuated joint (URDF <mimic>): q_j = gain · q_leader + bias
-        self.followers: tuple[str, ...] = tuple(j.name for j, k in zip(model.joints, self._kind)
-                                                if k != FIXED and j.name not in actuated)
+        self.followers: tuple[str, ...] = tuple(
+            j.name for j, k in zip(model.joints, self._kind) if k != FIXED and j.name not in actuated
+        )
         K = len(model.joints)
         R0 = torch.stack([rpy_matrix(j.rpy) for j in model.joints]) if K else torch.zeros(0, 3, 3, dtype=torch.float64)
         p0 = torch.tensor([j.xyz for j in model.joints], dtype=torch.float64).reshape(K, 3)
@@ -131,8 +137,11 @@ class Chain(nn.Module):
                     self.T0[k] += math.sin(c) * self.T_sin[k] + (1 - math.cos(c)) * self.T_cos[k]
         self.has_mimic = bool(self.followers)
         self.register_buffer("gain", torch.tensor(self._gain, dtype=torch.float64), persistent=False)
-        self.register_buffer("bias", torch.tensor([b if k != FIXED else 0.0 for k, b in zip(self._kind, self._bias)],
-                                                  dtype=torch.float64), persistent=False)
+        self.register_buffer(
+            "bias",
+            torch.tensor([b if k != FIXED else 0.0 for k, b in zip(self._kind, self._bias)], dtype=torch.float64),
+            persistent=False,
+        )
         act = self.actuated_joints.tolist()
         mix = torch.zeros(len(act), self.dof, dtype=torch.float64)  # moving joint (URDF order) <- configuration
         for a, k in enumerate(act):
@@ -154,8 +163,9 @@ class Chain(nn.Module):
         S[:, :3, :3], C[:, :3, :3], P[:, :3, 3] = self.rot_sin, self.rot_cos, self.origin_axis
         for name, t in (("T0", T0), ("T_sin", S), ("T_cos", C), ("T_slide", P)):
             self.register_buffer(name, t, persistent=False)
-        self.register_buffer("q_of_joint", torch.tensor([max(i, 0) for i in self._qidx], dtype=torch.long),
-                             persistent=False)
+        self.register_buffer(
+            "q_of_joint", torch.tensor([max(i, 0) for i in self._qidx], dtype=torch.long), persistent=False
+        )
         kinds = torch.tensor(self._kind, dtype=torch.long)
         self.register_buffer("turns", (kinds == REVOLUTE).to(torch.float64), persistent=False)
         self.register_buffer("slides", (kinds == PRISMATIC).to(torch.float64), persistent=False)
@@ -166,8 +176,9 @@ class Chain(nn.Module):
         self.register_buffer("actuated_q", torch.tensor(q_of_act, dtype=torch.long), persistent=False)
         # the actuated joints' columns in configuration order (None: URDF order is the configuration's)
         order = sorted(range(len(act)), key=lambda i: q_of_act[i])
-        self.register_buffer("columns", None if order == list(range(len(act))) else torch.tensor(order),
-                             persistent=False)
+        self.register_buffer(
+            "columns", None if order == list(range(len(act))) else torch.tensor(order), persistent=False
+        )
 
     # -- queries -----------------------------------------------------------------------------------
     def link_names(self) -> list[str]:
@@ -179,8 +190,10 @@ class Chain(nn.Module):
 
     def check_link(self, link: str) -> int:
         if link not in self._link_index:
-            raise ValueError(f"URDF '{self.model.name}' has no link '{link}'; {_suggest(link, self._links)}"
-                             f"links: {', '.join(self._links)}")
+            raise ValueError(
+                f"URDF '{self.model.name}' has no link '{link}'; {_suggest(link, self._links)}"
+                f"links: {', '.join(self._links)}"
+            )
         return self._link_index[link]
 
     def path_joints(self, link: str) -> list[int]:
@@ -199,7 +212,9 @@ class Chain(nn.Module):
     # -- kinematics --------------------------------------------------------------------------------
     def _check_q(self, q: Tensor) -> None:
         if q.dim() < 2 or q.shape[-1] != self.dof:
-            raise ValueError(f"q must be (B, {self.dof}) for actuated joints {list(self.actuated)}, got {tuple(q.shape)}")
+            raise ValueError(
+                f"q must be (B, {self.dof}) for actuated joints {list(self.actuated)}, got {tuple(q.shape)}"
+            )
 
     _CONSTANTS = ("T0", "T_sin", "T_cos", "T_slide", "turns", "slides", "axis_local")
 
@@ -248,7 +263,12 @@ class Chain(nn.Module):
         T, O, Z = self.frames(q)
         i = self.check_link(link)
         moving = [k for k in self.path_joints(link) if self._kind[k] != FIXED]
-        return (T[..., i, :3, :3], T[..., i, :3, 3]), [self._qidx[k] for k in moving], O[..., moving, :], Z[..., moving, :]
+        return (
+            (T[..., i, :3, :3], T[..., i, :3, 3]),
+            [self._qidx[k] for k in moving],
+            O[..., moving, :],
+            Z[..., moving, :],
+        )
 
     def forward(self, q: Tensor) -> dict[str, Pose]:
         return self.forward_kinematics(q)
@@ -277,8 +297,10 @@ def robot_chain(p: RobotParams, in_dim: int, what: str) -> Chain:
     mount = None if p.mount is None else mount_matrix(p.mount.xyz, p.mount.rpy)
     chain = Chain(parse_urdf(resolve_urdf_path(p.urdf)), p.joints, mount)
     if in_dim != chain.dof:
-        raise ValueError(f"{what}: the parent space has dimension {in_dim} but {p.source()} has {chain.dof} actuated "
-                         f"joints ({', '.join(chain.actuated)}); the parent must be the joint space")
+        raise ValueError(
+            f"{what}: the parent space has dimension {in_dim} but {p.source()} has {chain.dof} actuated "
+            f"joints ({', '.join(chain.actuated)}); the parent must be the joint space"
+        )
     return chain
 
 
@@ -291,15 +313,21 @@ KUKA_IIWA = {"urdf": "pkg://pybullet_data/kuka_iiwa/model.urdf"}
 def joint_limit_states(robot: Mapping[str, object]) -> StateSampler:
     """Examples' states of a robot (``{"urdf": ..., "joints": ...}``): q uniform inside its joint limits, q̇ ~ N(0, I).
     The URDF is read when states are drawn, never when the example is declared (at import)."""
+
     def states(gen: torch.Generator, n: int, dim: int) -> tuple[Tensor, Tensor]:
         lo, hi = Chain(parse_urdf(str(robot["urdf"])), robot.get("joints")).joint_limits()
         return lo + torch.rand(n, dim, generator=gen) * (hi - lo), torch.randn(n, dim, generator=gen)
+
     return states
 
 
-@TASK_MAPS.register("forward_kinematics", examples=[
-    Example({**PANDA_ARM, "link": "panda_hand", "offset": [0.05, -0.01, 0.02]}, 7, joint_limit_states(PANDA_ARM)),
-    Example({**PANDA_ARM, "link": "panda_link4"}, 7, joint_limit_states(PANDA_ARM))])
+@TASK_MAPS.register(
+    "forward_kinematics",
+    examples=[
+        Example({**PANDA_ARM, "link": "panda_hand", "offset": [0.05, -0.01, 0.02]}, 7, joint_limit_states(PANDA_ARM)),
+        Example({**PANDA_ARM, "link": "panda_link4"}, 7, joint_limit_states(PANDA_ARM)),
+    ],
+)
 class ForwardKinematics(TaskMap):
     """y = world position of a point fixed in a robot link; x = the actuated joint angles.
 
@@ -399,7 +427,7 @@ def _jdot_qdot(y: Tensor, yd: Tensor, O: Tensor, Z: Tensor, rate: Tensor, turns:
     run over its ancestors. ``slides``: the chain has sliding joints (else their terms are left out, being 0)."""
     if Z.shape[-2] == 0:
         return torch.zeros_like(y)
-    excl = lambda t: torch.cumsum(t, -2) - t  # noqa: E731  (sum over j < i)
+    excl = lambda t: torch.cumsum(t, -2) - t
     moving = rate * Z
     w = torch.where(turns, moving, 0.0) if slides else moving  # angular velocity added by each joint
     w_before = excl(w)

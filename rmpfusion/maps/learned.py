@@ -13,9 +13,11 @@ one pass of a second-order jet (``core/jet.py``); the tests hold them to the aut
 so demonstrations in other scales (a handwriting tablet's centimetres, a tabletop's decimetres) are brought to
 that scale before any leaf or learned map sees them.
 """
+
 from __future__ import annotations
 
-from typing import Literal, Mapping
+from collections.abc import Mapping
+from typing import Literal
 
 import torch
 from pydantic import Field, field_validator
@@ -26,6 +28,7 @@ from ..core.jet import SMOOTH, Jet, exp3, tanh3
 from ..core.taskmap import TaskMap
 from ..examples import AuxInput, Example
 from ..registry import TASK_MAPS, Params
+
 
 def coupling_masks(dim: int, layers: int) -> list[Tensor]:
     """Which coordinates each layer keeps (True) and transforms (False): the first ⌊n/2⌋ and then the rest,
@@ -78,12 +81,23 @@ class Coupling(nn.Module):
         return torch.cat([a, b], -1)[..., self.order]
 
 
-@TASK_MAPS.register("diffeomorphism", examples=[
-    Example({}, 2, scale=2.0),
-    Example({"layers": 3, "hidden": [8], "activation": "softplus", "init_std": 0.5, "origin": "c"}, 2, scale=2.0,
-            aux={"c": AuxInput.normal(2)}),
-    Example({"layers": 2, "hidden": [6, 6], "activation": "silu", "init_std": 0.4, "origin": [0.1, 0.2, 0.3]}, 3,
-            scale=2.0)])
+@TASK_MAPS.register(
+    "diffeomorphism",
+    examples=[
+        Example({}, 2, scale=2.0),
+        Example(
+            {"layers": 3, "hidden": [8], "activation": "softplus", "init_std": 0.5, "origin": "c"},
+            2,
+            scale=2.0,
+            aux={"c": AuxInput.normal(2)},
+        ),
+        Example(
+            {"layers": 2, "hidden": [6, 6], "activation": "silu", "init_std": 0.4, "origin": [0.1, 0.2, 0.3]},
+            3,
+            scale=2.0,
+        ),
+    ],
+)
 class Diffeomorphism(TaskMap):
     """y = ψ(x) − ψ(origin): a learnable diffeomorphism of ℝⁿ onto ℝⁿ (coupling layers), shifted so that
     ``origin`` (a goal: constant or aux) maps to 0, where an attractor leaf puts its equilibrium; ``inverse``
@@ -93,11 +107,16 @@ class Diffeomorphism(TaskMap):
         layers: int = Field(4, ge=1, description="coupling layers (alternating halves: ≥ 2 moves every coordinate)")
         hidden: tuple[int, ...] = Field((32, 32), description="hidden widths of each layer's scale/shift network")
         activation: Literal["tanh", "softplus", "silu"] = Field(
-            "tanh", description="smooth activations only: J̇ẋ needs the networks' second derivatives")
+            "tanh", description="smooth activations only: J̇ẋ needs the networks' second derivatives"
+        )
         scale_bound: float = Field(2.0, gt=0, description="|log-scale| of a layer stays below this (stretch ≤ e^bound)")
         origin: AuxOrValue | None = Field(None, description="the point mapped to 0 (a goal); null: ψ itself")
-        init_std: float = Field(0.1, ge=0, description="std of the output layers' initial weights (0: the identity "
-                                                       "map at initialisation; learner-0 is this random map)")
+        init_std: float = Field(
+            0.1,
+            ge=0,
+            description="std of the output layers' initial weights (0: the identity "
+            "map at initialisation; learner-0 is this random map)",
+        )
 
         @field_validator("hidden")
         @classmethod
@@ -109,13 +128,18 @@ class Diffeomorphism(TaskMap):
     def __init__(self, params: Params, in_dim: int, aux_dims: Mapping[str, int] | None = None):
         super().__init__(in_dim, aux_dims)
         if in_dim < 2:
-            raise ValueError(f"diffeomorphism needs a parent space of dimension ≥ 2 (a coupling layer keeps some "
-                             f"coordinates to transform the others); the parent has {in_dim}")
+            raise ValueError(
+                f"diffeomorphism needs a parent space of dimension ≥ 2 (a coupling layer keeps some "
+                f"coordinates to transform the others); the parent has {in_dim}"
+            )
         self.out_dim = in_dim
-        self.layers = nn.ModuleList(Coupling(keep, tuple(params.hidden), params.activation, params.scale_bound)
-                                    for keep in coupling_masks(in_dim, params.layers))
-        self.origin = AuxParam(params.origin, self.aux_dims, "diffeomorphism.origin") \
-            if params.origin is not None else None
+        self.layers = nn.ModuleList(
+            Coupling(keep, tuple(params.hidden), params.activation, params.scale_bound)
+            for keep in coupling_masks(in_dim, params.layers)
+        )
+        self.origin = (
+            AuxParam(params.origin, self.aux_dims, "diffeomorphism.origin") if params.origin is not None else None
+        )
         if self.origin is not None and self.origin.dim != in_dim:
             raise ValueError(f"diffeomorphism.origin has dimension {self.origin.dim} but the parent space has {in_dim}")
         with torch.no_grad():
@@ -156,8 +180,9 @@ class Diffeomorphism(TaskMap):
         return y
 
 
-@TASK_MAPS.register("normalize", examples=[
-    Example({"shift": [0.1, -0.2], "scale": [0.05, 2.0]}, 2), Example({"scale": 40.0}, 3)])
+@TASK_MAPS.register(
+    "normalize", examples=[Example({"shift": [0.1, -0.2], "scale": [0.05, 2.0]}, 2), Example({"scale": 40.0}, 3)]
+)
 class Normalize(TaskMap):
     """y = (x − shift) / scale: constants (a number for every coordinate, or one per coordinate)."""
 

@@ -5,9 +5,10 @@ constants). Like every map it holds aux fixed in its derivatives (docs/math.md �
 The second half carries ``ġ`` to the leaf, which cannot read aux itself: ``moving_goal_attractor`` damps the
 velocity relative to the goal with it (docs/math.md §8, "Moving goals").
 """
+
 from __future__ import annotations
 
-from typing import Mapping
+from collections.abc import Mapping
 
 import torch
 
@@ -17,10 +18,18 @@ from ..examples import AuxInput, Example
 from ..registry import TASK_MAPS, Params
 
 
-@TASK_MAPS.register("moving_offset", examples=[
-    Example({"origin": "c", "velocity": "goal_velocity"}, 2, scale=3.0,
-            aux={"c": AuxInput.normal(2), "goal_velocity": AuxInput.normal(2)}),
-    Example({"origin": [0.5, -1.0, 0.2], "velocity": [0.1, 0.0, -0.3]}, 3, scale=3.0)])
+@TASK_MAPS.register(
+    "moving_offset",
+    examples=[
+        Example(
+            {"origin": "c", "velocity": "goal_velocity"},
+            2,
+            scale=3.0,
+            aux={"c": AuxInput.normal(2), "goal_velocity": AuxInput.normal(2)},
+        ),
+        Example({"origin": [0.5, -1.0, 0.2], "velocity": [0.1, 0.0, -0.3]}, 3, scale=3.0),
+    ],
+)
 class MovingOffset(TaskMap):
     """y = (x − origin, velocity): an attractor space with the goal at 0, and the goal's velocity alongside."""
 

@@ -15,9 +15,11 @@ tests/test_registry_derivatives.py checks both maps against finite differences a
 ``e = (R a_k − d_k)_k``, zero at the target, so a leaf at the origin (``orientation_attractor``) pulls towards it:
 for unit vectors ``½|R a − d|² = 1 − cos θ``.
 """
+
 from __future__ import annotations
 
-from typing import Literal, Mapping, Sequence
+from collections.abc import Mapping, Sequence
+from typing import Literal
 
 import torch
 from pydantic import Field, field_validator
@@ -31,8 +33,12 @@ from .kinematics import KUKA_IIWA, PANDA_ARM, joint_limit_states, robot_chain
 from .robot import RobotParams, Vector3, path_joints
 
 TargetFormat = Literal["quaternion_xyzw", "quaternion_wxyz", "matrix", "axes"]
-TARGET_DIMS = {"quaternion_xyzw": lambda k: 4, "quaternion_wxyz": lambda k: 4, "matrix": lambda k: 9,
-               "axes": lambda k: 3 * k}
+TARGET_DIMS = {
+    "quaternion_xyzw": lambda k: 4,
+    "quaternion_wxyz": lambda k: 4,
+    "matrix": lambda k: 9,
+    "axes": lambda k: 3 * k,
+}
 AXES_XYZ = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
 
 
@@ -45,9 +51,17 @@ def quaternion_matrix(quat: Tensor, scalar_last: bool = True) -> Tensor:
     """(B, 4) quaternions, normalised here, to (B, 3, 3) rotation matrices; (x, y, z, w) when ``scalar_last``."""
     quat = quat / quat.norm(dim=-1, keepdim=True)
     x, y, z, w = quat.unbind(-1) if scalar_last else (quat[..., 1], quat[..., 2], quat[..., 3], quat[..., 0])
-    rows = [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w),
-            2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w),
-            2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]
+    rows = [
+        1 - 2 * (y * y + z * z),
+        2 * (x * y - z * w),
+        2 * (x * z + y * w),
+        2 * (x * y + z * w),
+        1 - 2 * (x * x + z * z),
+        2 * (y * z - x * w),
+        2 * (x * z - y * w),
+        2 * (y * z + x * w),
+        1 - 2 * (x * x + y * y),
+    ]
     return torch.stack(rows, -1).reshape(*quat.shape[:-1], 3, 3)
 
 
@@ -62,26 +76,60 @@ def rotating_vectors(U: Tensor, Z: Tensor, revolute: Tensor, qd: Tensor) -> tupl
     cols = torch.where(rev[None, :, :], cols, torch.zeros_like(cols))
     omega_k = omega.unsqueeze(1).expand_as(U)
     c = torch.linalg.cross(alpha.unsqueeze(1).expand_as(U), U) + torch.linalg.cross(
-        omega_k, torch.linalg.cross(omega_k, U))
+        omega_k, torch.linalg.cross(omega_k, U)
+    )
     return cols, c
 
 
 class _Orientation(RobotParams):
     link: str
-    target: AuxOrValue | None = Field(None, description="the target rotation or directions (see target_format), an "
-                                                        "aux name or constant; none: the map gives the axes themselves")
+    target: AuxOrValue | None = Field(
+        None,
+        description="the target rotation or directions (see target_format), an "
+        "aux name or constant; none: the map gives the axes themselves",
+    )
 
 
-@TASK_MAPS.register("link_orientation", examples=[
-    Example({**PANDA_ARM, "link": "panda_hand", "target": [0.0, 1.0, 0.0, 0.0]}, 7, joint_limit_states(PANDA_ARM)),
-    Example({**PANDA_ARM, "link": "panda_hand", "target": "quaternion", "target_format": "quaternion_wxyz",
-             "axes": [[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]}, 7, joint_limit_states(PANDA_ARM),
-            aux={"quaternion": AuxInput.normal(4)}),
-    Example({**KUKA_IIWA, "link": "lbr_iiwa_link_6", "target": "directions", "target_format": "axes",
-             "axes": [[0.0, 1.0, 0.0], [1.0, 1.0, 0.0]]}, 7, joint_limit_states(KUKA_IIWA),
-            aux={"directions": AuxInput.normal(6)}),
-    Example({**KUKA_IIWA, "link": "lbr_iiwa_link_7", "target": [0.0, -1.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0],
-             "target_format": "matrix"}, 7, joint_limit_states(KUKA_IIWA))])
+@TASK_MAPS.register(
+    "link_orientation",
+    examples=[
+        Example({**PANDA_ARM, "link": "panda_hand", "target": [0.0, 1.0, 0.0, 0.0]}, 7, joint_limit_states(PANDA_ARM)),
+        Example(
+            {
+                **PANDA_ARM,
+                "link": "panda_hand",
+                "target": "quaternion",
+                "target_format": "quaternion_wxyz",
+                "axes": [[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]],
+            },
+            7,
+            joint_limit_states(PANDA_ARM),
+            aux={"quaternion": AuxInput.normal(4)},
+        ),
+        Example(
+            {
+                **KUKA_IIWA,
+                "link": "lbr_iiwa_link_6",
+                "target": "directions",
+                "target_format": "axes",
+                "axes": [[0.0, 1.0, 0.0], [1.0, 1.0, 0.0]],
+            },
+            7,
+            joint_limit_states(KUKA_IIWA),
+            aux={"directions": AuxInput.normal(6)},
+        ),
+        Example(
+            {
+                **KUKA_IIWA,
+                "link": "lbr_iiwa_link_7",
+                "target": [0.0, -1.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0],
+                "target_format": "matrix",
+            },
+            7,
+            joint_limit_states(KUKA_IIWA),
+        ),
+    ],
+)
 class LinkOrientation(TaskMap):
     """y = (R(q) a_k − R* a_k)_k for the link axes ``axes`` (default x, y, z: dimension 9) and a target rotation R*.
 
@@ -94,8 +142,12 @@ class LinkOrientation(TaskMap):
     what = "link_orientation"
 
     class Params(_Orientation):
-        axes: list[Vector3] = Field(default_factory=lambda: [list(a) for a in AXES_XYZ], min_length=1, max_length=3,
-                                    description="directions fixed in the link (normalised here), no two parallel")
+        axes: list[Vector3] = Field(
+            default_factory=lambda: [list(a) for a in AXES_XYZ],
+            min_length=1,
+            max_length=3,
+            description="directions fixed in the link (normalised here), no two parallel",
+        )
         target_format: TargetFormat = "quaternion_xyzw"
 
         @field_validator("axes")
@@ -107,8 +159,10 @@ class LinkOrientation(TaskMap):
             for i in range(len(v)):
                 for j in range(i):
                     if float(torch.linalg.cross(unit[i], unit[j]).norm()) < 1e-9:
-                        raise ValueError(f"axes[{j}] and axes[{i}] are parallel: they pin the same direction twice; "
-                                         f"give directions that are not parallel; given {v}")
+                        raise ValueError(
+                            f"axes[{j}] and axes[{i}] are parallel: they pin the same direction twice; "
+                            f"give directions that are not parallel; given {v}"
+                        )
             return v
 
     def __init__(self, params: Params, in_dim: int, aux_dims: Mapping[str, int] | None = None):
@@ -130,9 +184,11 @@ class LinkOrientation(TaskMap):
         target = AuxParam(value, self.aux_dims, f"{self.what}.target")
         want = TARGET_DIMS[fmt](k)
         if target.dim != want:
-            raise ValueError(f"{self.what}.target has dimension {target.dim} but target_format '{fmt}' with {k} "
-                             f"ax{'is' if k == 1 else 'es'} needs {want}; declare the aux entry with {want} numbers or "
-                             f"change target_format")
+            raise ValueError(
+                f"{self.what}.target has dimension {target.dim} but target_format '{fmt}' with {k} "
+                f"ax{'is' if k == 1 else 'es'} needs {want}; declare the aux entry with {want} numbers or "
+                f"change target_format"
+            )
         if target.name is None:
             _check_constant_target(target.const, fmt, k, self.what)
         return target
@@ -189,16 +245,29 @@ def _check_constant_target(t: Tensor, fmt: str, k: int, what: str) -> None:
         R = t.reshape(3, 3)
         err = float((R @ R.T - torch.eye(3, dtype=R.dtype)).abs().max())
         if err > 1e-6 or float(torch.linalg.det(R)) < 0:
-            raise ValueError(f"{what}.target: {t.tolist()} is not a rotation matrix (rows orthonormal, determinant "
-                             f"+1; |R Rᵀ − I| = {err:.2g}); give the 9 entries of a rotation, row by row")
+            raise ValueError(
+                f"{what}.target: {t.tolist()} is not a rotation matrix (rows orthonormal, determinant "
+                f"+1; |R Rᵀ − I| = {err:.2g}); give the 9 entries of a rotation, row by row"
+            )
 
 
-@TASK_MAPS.register("link_axis", examples=[
-    Example({**PANDA_ARM, "link": "panda_hand", "axis": [0.0, 0.0, 1.0]}, 7, joint_limit_states(PANDA_ARM)),
-    Example({**PANDA_ARM, "link": "panda_link5", "axis": [1.0, -2.0, 0.5], "target": [0.0, 0.0, -1.0]}, 7,
-            joint_limit_states(PANDA_ARM)),
-    Example({**KUKA_IIWA, "link": "lbr_iiwa_link_7", "target": "c3"}, 7, joint_limit_states(KUKA_IIWA),
-            aux={"c3": AuxInput.normal(3)})])
+@TASK_MAPS.register(
+    "link_axis",
+    examples=[
+        Example({**PANDA_ARM, "link": "panda_hand", "axis": [0.0, 0.0, 1.0]}, 7, joint_limit_states(PANDA_ARM)),
+        Example(
+            {**PANDA_ARM, "link": "panda_link5", "axis": [1.0, -2.0, 0.5], "target": [0.0, 0.0, -1.0]},
+            7,
+            joint_limit_states(PANDA_ARM),
+        ),
+        Example(
+            {**KUKA_IIWA, "link": "lbr_iiwa_link_7", "target": "c3"},
+            7,
+            joint_limit_states(KUKA_IIWA),
+            aux={"c3": AuxInput.normal(3)},
+        ),
+    ],
+)
 class LinkAxis(LinkOrientation):
     """y = R(q) a − d: a direction ``axis`` fixed in ``link`` (e.g. a tool axis), minus its target direction ``target``
     (3 numbers or an aux name, normalised here; none: y = R a). ``link_orientation`` with one axis."""
@@ -207,8 +276,11 @@ class LinkAxis(LinkOrientation):
 
     class Params(_Orientation):
         axis: Vector3 = Field(default_factory=lambda: [0.0, 0.0, 1.0], description="direction in the link frame")
-        target: AuxOrValue | None = Field(None, description="the target direction (3 numbers, normalised here) or an "
-                                                            "aux name; none: the map gives the axis itself")
+        target: AuxOrValue | None = Field(
+            None,
+            description="the target direction (3 numbers, normalised here) or an "
+            "aux name; none: the map gives the axis itself",
+        )
 
         @field_validator("axis")
         @classmethod

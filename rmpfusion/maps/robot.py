@@ -7,6 +7,7 @@ Every map on a robot's joint space (``forward_kinematics``, ``link_axis``, ``lin
 and ``mount:`` where the base sits in the world. A robot description (conf/robot/) names them, and the manipulator
 tree writes them into every such map.
 """
+
 from __future__ import annotations
 
 from typing import TYPE_CHECKING, Annotated
@@ -36,8 +37,10 @@ class RobotParams(Params):
     """The robot of a map: its ``urdf``, optionally its actuated ``joints``, and where its base is ``mount``ed."""
 
     urdf: str = Field(description="the URDF: a file path, or pkg://<package>/<path> inside an installed package")
-    joints: list[str] | None = Field(None, description="the actuated joints in configuration order (default: every "
-                                                       "movable joint; the others stay at 0)")
+    joints: list[str] | None = Field(
+        None,
+        description="the actuated joints in configuration order (default: every movable joint; the others stay at 0)",
+    )
     robot: str | None = Field(None, description="retired: a robot is named by its urdf and joints")
     mount: Mount | None = Field(None, description="the base's pose in the world (default: at the origin)")
 
@@ -46,8 +49,10 @@ class RobotParams(Params):
     def _no_robot_names(cls, data):
         robot = data.get("robot") if isinstance(data, dict) else None
         if robot is not None:  # before the other fields: a stored config of old has urdf: null beside it
-            raise ValueError(f"robot ({robot!r}) was retired: robots are described in conf/robot/<name>.yaml; write "
-                             f"that file's urdf and joints here instead (urdf: <its urdf>, joints: [<its joints>])")
+            raise ValueError(
+                f"robot ({robot!r}) was retired: robots are described in conf/robot/<name>.yaml; write "
+                f"that file's urdf and joints here instead (urdf: <its urdf>, joints: [<its joints>])"
+            )
         return data
 
     def source(self) -> str:
@@ -63,8 +68,10 @@ def path_joints(chain: Chain, link: str) -> tuple[list[int], list[bool]]:
     q_index, revolute = [], []
     for joint in chain.model.path_to(link):
         if joint.name in chain.followers:
-            raise ValueError(f"link '{link}' is moved by joint '{joint.name}', which follows another (URDF <mimic>); "
-                             f"orientation maps do not follow mimic joints: choose a link above it")
+            raise ValueError(
+                f"link '{link}' is moved by joint '{joint.name}', which follows another (URDF <mimic>); "
+                f"orientation maps do not follow mimic joints: choose a link above it"
+            )
         if joint.name in chain.actuated:
             q_index.append(chain.actuated.index(joint.name))
             revolute.append(joint.type != "prismatic")

@@ -10,10 +10,11 @@ sphere, sharing one chain). The ``collision_avoidance`` barrier on this coordina
 (``conf/rmp/self_collision.yaml``). Spheres on links that an actuated joint connects directly touch by
 construction, so ``non_adjacent_link_pairs`` lists the link pairs that should be checked.
 """
+
 from __future__ import annotations
 
 import itertools
-from typing import Mapping, Sequence
+from collections.abc import Mapping, Sequence
 
 import torch
 from pydantic import Field
@@ -37,8 +38,9 @@ class LinkSphere(Params):
     radius: float = Field(0.0, ge=0, description="sphere radius (m); 0: the distance is taken from the centre point")
 
 
-def non_adjacent_link_pairs(chain: Chain, links: Sequence[str] | None = None,
-                            min_separation: int = 2) -> list[tuple[str, str]]:
+def non_adjacent_link_pairs(
+    chain: Chain, links: Sequence[str] | None = None, min_separation: int = 2
+) -> list[tuple[str, str]]:
     """The pairs of ``links`` (default: all) that at least ``min_separation`` actuated joints apart: the pairs a
     self-collision check needs (2, the default, leaves out links one joint apart, which touch at that joint).
 
@@ -46,21 +48,28 @@ def non_adjacent_link_pairs(chain: Chain, links: Sequence[str] | None = None,
     their distance never changes, so they are never listed. Pairs come in the order of ``links``.
     """
     if min_separation < 1:
-        raise ValueError(f"min_separation must be ≥ 1 (the number of actuated joints between two links); "
-                         f"given {min_separation}")
+        raise ValueError(
+            f"min_separation must be ≥ 1 (the number of actuated joints between two links); given {min_separation}"
+        )
     names = chain.link_names() if links is None else list(links)
     for name in names:
         chain.check_link(name)
     body = rigid_body_of(chain)
     parent = _body_parents(chain, body)
-    return [(a, b) for a, b in itertools.combinations(names, 2)
-            if _joints_between(body[a], body[b], parent) >= min_separation]
+    return [
+        (a, b)
+        for a, b in itertools.combinations(names, 2)
+        if _joints_between(body[a], body[b], parent) >= min_separation
+    ]
 
 
 def _body_parents(chain: Chain, body: Mapping[str, int]) -> dict[int, int]:
     """Rigid body -> the body its actuated joint hangs from (the root's body has none)."""
-    return {body[j.child]: body[j.parent] for j in chain.model.joints
-            if j.name in chain.actuated or j.name in chain.followers}
+    return {
+        body[j.child]: body[j.parent]
+        for j in chain.model.joints
+        if j.name in chain.actuated or j.name in chain.followers
+    }
 
 
 def _joints_between(a: int, b: int, parent: Mapping[int, int]) -> int:
@@ -80,13 +89,29 @@ def _ancestors(n: int, parent: Mapping[int, int]) -> list[int]:
     return out
 
 
-@TASK_MAPS.register("link_sphere_distance", examples=[
-    Example({**PANDA_ARM, "a": {"link": "panda_link3", "offset": [0.1, 0.07, 0.0], "radius": 0.1},
-             "b": {"link": "panda_hand", "offset": [0.0, 0.0, 0.09], "radius": 0.09}}, 7,
-            joint_limit_states(PANDA_ARM)),
-    Example({**KUKA_IIWA, "a": {"link": "lbr_iiwa_link_2"},
-             "b": {"link": "lbr_iiwa_link_6", "offset": [0.0, 0.05, 0.0], "radius": 0.08}}, 7,
-            joint_limit_states(KUKA_IIWA))])
+@TASK_MAPS.register(
+    "link_sphere_distance",
+    examples=[
+        Example(
+            {
+                **PANDA_ARM,
+                "a": {"link": "panda_link3", "offset": [0.1, 0.07, 0.0], "radius": 0.1},
+                "b": {"link": "panda_hand", "offset": [0.0, 0.0, 0.09], "radius": 0.09},
+            },
+            7,
+            joint_limit_states(PANDA_ARM),
+        ),
+        Example(
+            {
+                **KUKA_IIWA,
+                "a": {"link": "lbr_iiwa_link_2"},
+                "b": {"link": "lbr_iiwa_link_6", "offset": [0.0, 0.05, 0.0], "radius": 0.08},
+            },
+            7,
+            joint_limit_states(KUKA_IIWA),
+        ),
+    ],
+)
 class LinkSphereDistance(TaskMap):
     """y = |p_a(q) − p_b(q)| − r_a − r_b: the gap between control spheres ``a`` and ``b`` on two links of the robot.
 
@@ -108,9 +133,11 @@ class LinkSphereDistance(TaskMap):
             self.chain.check_link(getattr(params, key).link)
         body = rigid_body_of(self.chain)
         if body[params.a.link] == body[params.b.link]:
-            raise ValueError(f"link_sphere_distance: links '{params.a.link}' and '{params.b.link}' move as one rigid "
-                             f"body (no actuated joint between them), so the distance of their spheres never changes; "
-                             f"pick spheres on links that move relative to each other (non_adjacent_link_pairs)")
+            raise ValueError(
+                f"link_sphere_distance: links '{params.a.link}' and '{params.b.link}' move as one rigid "
+                f"body (no actuated joint between them), so the distance of their spheres never changes; "
+                f"pick spheres on links that move relative to each other (non_adjacent_link_pairs)"
+            )
         robot = params.model_dump(include={"robot", "urdf", "joints", "mount"}, exclude_unset=True)
         self.point_a = self._point(params.a, robot, in_dim)
         self.point_b = self._point(params.b, robot, in_dim)
@@ -119,8 +146,9 @@ class LinkSphereDistance(TaskMap):
         object.__setattr__(self, "centres", _centres([self.point_a], [self.point_b]))
 
     def _point(self, sphere: LinkSphere, robot: dict, in_dim: int) -> ForwardKinematics:
-        point = ForwardKinematics(ForwardKinematics.Params(**robot, link=sphere.link, offset=list(sphere.offset)),
-                                  in_dim, self.aux_dims)
+        point = ForwardKinematics(
+            ForwardKinematics.Params(**robot, link=sphere.link, offset=list(sphere.offset)), in_dim, self.aux_dims
+        )
         point.chain = self.chain  # one set of robot constants for both centres
         return point
 
@@ -128,7 +156,7 @@ class LinkSphereDistance(TaskMap):
         return self.point_a.stack_settings()  # spheres on one robot model
 
     @classmethod
-    def stacked(cls, members: Sequence["LinkSphereDistance"], like: Tensor) -> "LinkSphereDistance":
+    def stacked(cls, members: Sequence[LinkSphereDistance], like: Tensor) -> LinkSphereDistance:
         group = shallow_clone(members[0])
         object.__setattr__(group, "centres", _centres([m.point_a for m in members], [m.point_b for m in members]))
         object.__setattr__(group, "radii", stack_values([m.radii for m in members], like))

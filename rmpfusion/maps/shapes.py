@@ -14,9 +14,10 @@ no direction (a sphere's centre, a capsule's or cylinder's axis), the shape is m
 the map returns y = ABSENT_DISTANCE with ẏ = 0, J = 0, J̇ẋ = 0, so a barrier above it is exactly zero and no
 infinity or NaN ever enters the values or their gradients (docs/math.md §13).
 """
+
 from __future__ import annotations
 
-from typing import Mapping
+from collections.abc import Mapping
 
 import torch
 from pydantic import Field, field_validator
@@ -44,8 +45,11 @@ def _checked(v: AuxOrValue | None, ok, what: str) -> AuxOrValue | None:
 
 
 def _axis(v):
-    return _checked(v, lambda x: len(x) == 3 and any(a != 0 for a in x),
-                    "axis must be a non-zero 3-vector (the shape's direction) or the name of an aux entry")
+    return _checked(
+        v,
+        lambda x: len(x) == 3 and any(a != 0 for a in x),
+        "axis must be a non-zero 3-vector (the shape's direction) or the name of an aux entry",
+    )
 
 
 def _non_negative(v):
@@ -74,11 +78,15 @@ class ShapeParams(Params):
     @field_validator("velocity")
     @classmethod
     def _speed(cls, v):
-        return _checked(v, lambda x: len(x) == 3 and all(abs(a) <= 100.0 for a in x),
-                        "velocity must be 3 numbers within ±100 m/s, or the name of an aux entry")
+        return _checked(
+            v,
+            lambda x: len(x) == 3 and all(abs(a) <= 100.0 for a in x),
+            "velocity must be 3 numbers within ±100 m/s, or the name of an aux entry",
+        )
 
-    present: str | None = Field(None, description="aux entry (1): 1 where the obstacle is present, 0 where absent; "
-                                                  "absent: always present")
+    present: str | None = Field(
+        None, description="aux entry (1): 1 where the obstacle is present, 0 where absent; absent: always present"
+    )
 
 
 class ObstacleDistance(TaskMap):
@@ -134,25 +142,38 @@ class ObstacleDistance(TaskMap):
         rel = torch.where(acting, rel, torch.zeros_like(rel))
         d, g, c = self.measure(p, rel, aux)
         zero = torch.zeros_like(d)
-        return (torch.where(acting, d, zero + ABSENT_DISTANCE), torch.where(acting, _dot(g, rel), zero),
-                torch.where(acting, g, torch.zeros_like(g)).unsqueeze(-2), torch.where(acting, c, zero))
+        return (
+            torch.where(acting, d, zero + ABSENT_DISTANCE),
+            torch.where(acting, _dot(g, rel), zero),
+            torch.where(acting, g, torch.zeros_like(g)).unsqueeze(-2),
+            torch.where(acting, c, zero),
+        )
 
     def _acting(self, p: Tensor, rel: Tensor, aux) -> Tensor:
         """(…, 1) bool: the obstacle is present and the distance at ``p`` has a direction (its gradient is finite
         and of unit length). Found without a graph, so a singular point never reaches autograd."""
         with torch.no_grad():
             d, g, c = self.measure(p.detach(), rel.detach(), aux)
-            regular = torch.isfinite(d) & torch.isfinite(c) & torch.isfinite(g).all(-1, keepdim=True) \
-                & (_dot(g, g) > 0.25)
+            regular = (
+                torch.isfinite(d) & torch.isfinite(c) & torch.isfinite(g).all(-1, keepdim=True) & (_dot(g, g) > 0.25)
+            )
         return (self.present(aux) > 0.5) & regular
 
 
 # The examples are static obstacles (no velocity: ẏ = Jẋ); tests/test_scenes.py checks moving ones in time.
-@TASK_MAPS.register("sphere_obstacle", examples=[
-    Example({"center": [0.3, -0.2, 0.1], "radius": 0.5}, 3, scale=2.0),
-    Example({"center": "c3", "radius": "r"}, 3, scale=2.0, aux={"c3": AuxInput.normal(3), "r": AuxInput.radius()}),
-    Example({"center": "c3", "radius": "r", "present": "on"}, 3, scale=2.0,  # a member of an obstacle set
-            aux={"c3": AuxInput.normal(3), "r": AuxInput.radius(), "on": AuxInput.presence()})])
+@TASK_MAPS.register(
+    "sphere_obstacle",
+    examples=[
+        Example({"center": [0.3, -0.2, 0.1], "radius": 0.5}, 3, scale=2.0),
+        Example({"center": "c3", "radius": "r"}, 3, scale=2.0, aux={"c3": AuxInput.normal(3), "r": AuxInput.radius()}),
+        Example(
+            {"center": "c3", "radius": "r", "present": "on"},
+            3,
+            scale=2.0,  # a member of an obstacle set
+            aux={"c3": AuxInput.normal(3), "r": AuxInput.radius(), "on": AuxInput.presence()},
+        ),
+    ],
+)
 class SphereObstacle(ObstacleDistance):
     """|x − c| − R."""
 
@@ -172,10 +193,18 @@ class SphereObstacle(ObstacleDistance):
         return r - self.radius(aux), g, c
 
 
-@TASK_MAPS.register("capsule_obstacle", examples=[
-    Example({"center": [0.1, 0.0, 0.2], "radius": 0.2, "half_length": 0.6, "axis": [0.6, 0.0, 0.8]}, 3, scale=1.5),
-    Example({"center": [0.1, 0.0, 0.2], "radius": 0.2, "half_length": 0.6, "axis": [0.6, 0.0, 0.8], "present": "on"},
-            3, scale=1.5, aux={"on": AuxInput.presence()})])
+@TASK_MAPS.register(
+    "capsule_obstacle",
+    examples=[
+        Example({"center": [0.1, 0.0, 0.2], "radius": 0.2, "half_length": 0.6, "axis": [0.6, 0.0, 0.8]}, 3, scale=1.5),
+        Example(
+            {"center": [0.1, 0.0, 0.2], "radius": 0.2, "half_length": 0.6, "axis": [0.6, 0.0, 0.8], "present": "on"},
+            3,
+            scale=1.5,
+            aux={"on": AuxInput.presence()},
+        ),
+    ],
+)
 class CapsuleObstacle(ObstacleDistance):
     """Distance to the segment c ± h·a, minus R: a cylinder of radius R with hemispherical caps."""
 
@@ -209,10 +238,18 @@ class CapsuleObstacle(ObstacleDistance):
         return r - self.radius(aux), g, c
 
 
-@TASK_MAPS.register("cylinder_obstacle", examples=[
-    Example({"center": [0.0, 0.1, 0.0], "radius": 0.4, "half_height": 0.5, "axis": [0.0, 0.6, 0.8]}, 3, scale=1.5),
-    Example({"center": [0.0, 0.1, 0.0], "radius": 0.4, "half_height": 0.5, "axis": [0.0, 0.6, 0.8], "present": "on"},
-            3, scale=1.5, aux={"on": AuxInput.presence()})])
+@TASK_MAPS.register(
+    "cylinder_obstacle",
+    examples=[
+        Example({"center": [0.0, 0.1, 0.0], "radius": 0.4, "half_height": 0.5, "axis": [0.0, 0.6, 0.8]}, 3, scale=1.5),
+        Example(
+            {"center": [0.0, 0.1, 0.0], "radius": 0.4, "half_height": 0.5, "axis": [0.0, 0.6, 0.8], "present": "on"},
+            3,
+            scale=1.5,
+            aux={"on": AuxInput.presence()},
+        ),
+    ],
+)
 class CylinderObstacle(ObstacleDistance):
     """Signed distance to a finite cylinder: radius R around the axis a through c, |z| ≤ h along it."""
 
@@ -254,12 +291,27 @@ class CylinderObstacle(ObstacleDistance):
         return d, g, c
 
 
-@TASK_MAPS.register("box_obstacle", examples=[
-    # rotated about (1, 2, 2)/3 by 0.7 rad, the box's axes in the world row by row
-    Example({"center": [0.1, 0.0, -0.1], "half_extents": [0.3, 0.5, 0.2],
-             "rotation": [0.791, -0.3772, 0.4817, 0.4817, 0.8694, -0.1102, -0.3772, 0.3193, 0.8694]}, 3, scale=1.5),
-    Example({"center": [0.1, 0.0, -0.1], "half_extents": [0.3, 0.5, 0.2], "present": "on"}, 3, scale=1.5,
-            aux={"on": AuxInput.presence()})])
+@TASK_MAPS.register(
+    "box_obstacle",
+    examples=[
+        # rotated about (1, 2, 2)/3 by 0.7 rad, the box's axes in the world row by row
+        Example(
+            {
+                "center": [0.1, 0.0, -0.1],
+                "half_extents": [0.3, 0.5, 0.2],
+                "rotation": [0.791, -0.3772, 0.4817, 0.4817, 0.8694, -0.1102, -0.3772, 0.3193, 0.8694],
+            },
+            3,
+            scale=1.5,
+        ),
+        Example(
+            {"center": [0.1, 0.0, -0.1], "half_extents": [0.3, 0.5, 0.2], "present": "on"},
+            3,
+            scale=1.5,
+            aux={"on": AuxInput.presence()},
+        ),
+    ],
+)
 class BoxObstacle(ObstacleDistance):
     """Signed distance to a box with half extents e, rotated by R (world = R · box frame), around c."""
 
@@ -268,11 +320,17 @@ class BoxObstacle(ObstacleDistance):
 
     class Params(ShapeParams):
         half_extents: AuxOrValue = Field(description="> 0 along every axis of the box (3), or an aux name")
-        rotation: AuxOrValue = Field((1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0),
-                                     description="R row by row (9): box axes in the world; or an aux name")
-        _rotation = field_validator("rotation")(lambda v: _checked(
-            v, lambda x: len(x) == 9 and all(abs(a) <= 1.0 + 1e-6 for a in x),
-            "rotation must be a rotation matrix row by row (9 numbers within ±1) or the name of an aux entry"))
+        rotation: AuxOrValue = Field(
+            (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0),
+            description="R row by row (9): box axes in the world; or an aux name",
+        )
+        _rotation = field_validator("rotation")(
+            lambda v: _checked(
+                v,
+                lambda x: len(x) == 9 and all(abs(a) <= 1.0 + 1e-6 for a in x),
+                "rotation must be a rotation matrix row by row (9 numbers within ±1) or the name of an aux entry",
+            )
+        )
 
         @field_validator("half_extents")
         @classmethod
@@ -289,7 +347,7 @@ class BoxObstacle(ObstacleDistance):
 
     def measure(self, p, v, aux):
         R = self.rotation(aux).reshape(*self.rotation(aux).shape[:-1], 3, 3)
-        to_box = lambda w: (w.unsqueeze(-2) @ R).squeeze(-2)  # noqa: E731  (Rᵀw, batched)
+        to_box = lambda w: (w.unsqueeze(-2) @ R).squeeze(-2)
         pl, vl = to_box(p), to_box(v)
         s = torch.sign(pl)
         excess = pl.abs() - self.half_extents(aux)
@@ -306,10 +364,18 @@ class BoxObstacle(ObstacleDistance):
         return torch.where(outside, d_out, d_in), g, torch.where(outside, c_out, torch.zeros_like(c_out))
 
 
-@TASK_MAPS.register("plane_obstacle", examples=[
-    Example({"center": [0.1, -0.2, 0.3], "normal": [0.0, 0.6, 0.8]}, 3, scale=2.0),
-    Example({"center": "c3", "normal": "n", "present": "on"}, 3, scale=2.0,
-            aux={"c3": AuxInput.normal(3), "n": AuxInput.normal(3), "on": AuxInput.presence()})])
+@TASK_MAPS.register(
+    "plane_obstacle",
+    examples=[
+        Example({"center": [0.1, -0.2, 0.3], "normal": [0.0, 0.6, 0.8]}, 3, scale=2.0),
+        Example(
+            {"center": "c3", "normal": "n", "present": "on"},
+            3,
+            scale=2.0,
+            aux={"c3": AuxInput.normal(3), "n": AuxInput.normal(3), "on": AuxInput.presence()},
+        ),
+    ],
+)
 class PlaneObstacle(ObstacleDistance):
     """nᵀ(x − c) / |n|: the signed height above the plane through c with normal n (a table top, a wall) as an
     obstacle of a set: its pose is aux state and it may move; ``plane_distance`` is the fixed ground."""
@@ -332,8 +398,7 @@ class PlaneObstacle(ObstacleDistance):
         return d, n, torch.zeros_like(d)
 
 
-@TASK_MAPS.register("plane_distance", examples=[
-    Example({"normal": [0.0, 0.3, 1.0], "height": 0.2}, 3, scale=2.0)])
+@TASK_MAPS.register("plane_distance", examples=[Example({"normal": [0.0, 0.3, 1.0], "height": 0.2}, 3, scale=2.0)])
 class PlaneDistance(TaskMap):
     """nᵀx − h: the height of the point above a plane with unit normal n (a table top, the floor)."""
 
@@ -343,8 +408,13 @@ class PlaneDistance(TaskMap):
         normal: list[float] = Field([0.0, 0.0, 1.0], min_length=1, description="the plane's normal (normalised)")
         height: AuxOrValue = Field(0.0, description="offset of the plane along the normal (m), or an aux name")
 
-        _height = field_validator("height")(lambda v: _checked(
-            v, lambda x: len(x) == 1 and abs(x[0]) <= 100.0, "height must be one number within ±100 m or an aux name"))
+        _height = field_validator("height")(
+            lambda v: _checked(
+                v,
+                lambda x: len(x) == 1 and abs(x[0]) <= 100.0,
+                "height must be one number within ±100 m or an aux name",
+            )
+        )
 
         @field_validator("normal")
         @classmethod

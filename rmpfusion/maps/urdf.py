@@ -3,6 +3,7 @@
 Visuals, collisions and inertias other than the inertial frame are ignored; the inertial frame is kept
 because simulators such as pybullet report some quantities relative to it.
 """
+
 from __future__ import annotations
 
 import functools
@@ -132,16 +133,27 @@ def _parse_joint(el: ET.Element) -> Joint:
             raise ValueError(f"URDF joint '{name}' has a zero axis")
         axis = (axis[0] / n, axis[1] / n, axis[2] / n)
     lim = el.find("limit")
-    get = (lambda k, d: d if lim is None or lim.get(k) is None else float(lim.get(k)))
+    get = lambda k, d: d if lim is None or lim.get(k) is None else float(lim.get(k))
     lower, upper = -math.inf, math.inf
     if jtype in ("revolute", "prismatic"):
         lower, upper = get("lower", -math.inf), get("upper", math.inf)
         if not lower <= upper:  # NaN included: every joint-limit barrier and start range is built from these
-            raise ValueError(f"URDF joint '{name}': limit lower={lower} is above upper={upper} (the joint could take "
-                             f"no angle at all); fix the <limit> of the joint")
+            raise ValueError(
+                f"URDF joint '{name}': limit lower={lower} is above upper={upper} (the joint could take "
+                f"no angle at all); fix the <limit> of the joint"
+            )
     return Joint(
-        name=name, type=jtype, parent=parent.get("link"), child=child.get("link"), xyz=xyz, rpy=rpy, axis=axis,
-        lower=lower, upper=upper, velocity=get("velocity", math.inf), effort=get("effort", math.inf),
+        name=name,
+        type=jtype,
+        parent=parent.get("link"),
+        child=child.get("link"),
+        xyz=xyz,
+        rpy=rpy,
+        axis=axis,
+        lower=lower,
+        upper=upper,
+        velocity=get("velocity", math.inf),
+        effort=get("effort", math.inf),
         mimic=_mimic(el, name, jtype),
     )
 
@@ -159,8 +171,10 @@ def parse_urdf_string(text: str) -> URDFModel:
     """Parse URDF XML text into a kinematic tree (checked: one root, every link with at most one parent)."""
     root_el = ET.fromstring(text)
     if any(el.tag.startswith(XACRO_NAMESPACE) for el in root_el.iter()):
-        raise ValueError("this is a xacro file (it holds xacro: elements), not a URDF: run xacro first "
-                         "(`xacro robot.urdf.xacro > robot.urdf`, with the xacro package) and give the URDF it writes")
+        raise ValueError(
+            "this is a xacro file (it holds xacro: elements), not a URDF: run xacro first "
+            "(`xacro robot.urdf.xacro > robot.urdf`, with the xacro package) and give the URDF it writes"
+        )
     if root_el.tag != "robot":
         raise ValueError(f"URDF root element must be <robot>, got <{root_el.tag}>")
     links = {}
@@ -211,8 +225,9 @@ def _check_mimics(joints: list[Joint]) -> None:
             if leader is None or not leader.movable:
                 raise ValueError(f"URDF joint '{k.name}': <mimic joint='{k.mimic.leader}'> names no movable joint")
             if leader.name in seen:
-                raise ValueError(f"URDF joints {' -> '.join(seen + [leader.name])}: mimic joints follow each other "
-                                 f"in a cycle")
+                raise ValueError(
+                    f"URDF joints {' -> '.join(seen + [leader.name])}: mimic joints follow each other in a cycle"
+                )
             seen.append(leader.name)
             k = leader
 
@@ -234,9 +249,11 @@ def parse_urdf(path: str | os.PathLike) -> URDFModel:
     if not os.path.isfile(path):
         raise FileNotFoundError(f"URDF file not found: {path}")
     if path.endswith(".xacro"):
-        raise ValueError(f"{path} is a xacro file, not a URDF: run xacro first (`xacro {os.path.basename(path)} > "
-                         f"{os.path.basename(path)[:-len('.xacro')] or 'robot'}.urdf`, with the xacro package) and "
-                         f"give the URDF it writes")
+        raise ValueError(
+            f"{path} is a xacro file, not a URDF: run xacro first (`xacro {os.path.basename(path)} > "
+            f"{os.path.basename(path)[: -len('.xacro')] or 'robot'}.urdf`, with the xacro package) and "
+            f"give the URDF it writes"
+        )
     return _parse_cached(path, os.path.getmtime(path))
 
 
@@ -246,14 +263,16 @@ def resolve_urdf_path(location: str | os.PathLike) -> str:
     the URDF it means on every machine without an absolute path."""
     text = os.fspath(location)
     if text.startswith("file://"):
-        return os.path.abspath(text[len("file://"):])
+        return os.path.abspath(text[len("file://") :])
     if not text.startswith(PACKAGE_SCHEME):
         return os.path.abspath(text)
-    package, _, inside = text[len(PACKAGE_SCHEME):].partition("/")
+    package, _, inside = text[len(PACKAGE_SCHEME) :].partition("/")
     root = package_data_dir(package) if package else None
     if root is None or not inside:
-        raise FileNotFoundError(f"URDF {text!r}: no installed Python package {package!r} to look in; write "
-                                f"pkg://<package>/<path inside it> for a package that is installed, or a file path")
+        raise FileNotFoundError(
+            f"URDF {text!r}: no installed Python package {package!r} to look in; write "
+            f"pkg://<package>/<path inside it> for a package that is installed, or a file path"
+        )
     return os.path.join(root, inside)
 
 

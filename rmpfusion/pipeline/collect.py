@@ -1,4 +1,5 @@
 """Stage 1, collect: the expert's demonstrations of every split, cached in the run directory (checksummed)."""
+
 from __future__ import annotations
 
 import hashlib
@@ -11,8 +12,8 @@ import torch
 
 from ..assembly.weighting import plain_data
 from ..envs.demonstrations import Dataset, load_dataset, save_dataset
-from ..evaluate.divergence import Divergence, divergence_of_records
 from ..envs.protocol import Reaches
+from ..evaluate.divergence import Divergence, divergence_of_records
 from ..scenes.crossing import summarize
 from .config import RunConfig
 from .experiment import Experiment
@@ -30,7 +31,8 @@ def expert_diverged(what: str, found: Divergence) -> ExpertDivergedError:
         f"the expert diverged on {len(found.samples)} of {found.total} {what} (trajectories {found.samples[:8]}"
         f"{' …' if len(found.samples) > 8 else ''}): {found.reason}; nothing it demonstrates could be learned, so "
         "the run stops. Lower the tree's gains (tree.nodes.<leaf>.rmp.gain) or the step (env.dt, or a higher "
-        "env.control_rate), and check the expert alone with a short run (data=tiny train=tiny eval=fast)")
+        "env.control_rate), and check the expert alone with a short run (data=tiny train=tiny eval=fast)"
+    )
 
 
 @dataclass
@@ -62,8 +64,13 @@ def data_hash(run: RunConfig, split: str | None = None) -> str:
     env = run.env.model_dump()
     if not env.get("test_sampling") or split in ("train", "val"):
         env.pop("test_sampling", None)
-    key = {"env": env, "tree": run.tree.model_dump(), "expert": {k: plain_data(w) for k, w in run.expert.items()},
-           "seed": run.seed, "data": run.data.model_dump(exclude={"cache_dir", "source"})}
+    key = {
+        "env": env,
+        "tree": run.tree.model_dump(),
+        "expert": {k: plain_data(w) for k, w in run.expert.items()},
+        "seed": run.seed,
+        "data": run.data.model_dump(exclude={"cache_dir", "source"}),
+    }
     return hashlib.sha256(json.dumps(key, sort_keys=True, default=str).encode()).hexdigest()
 
 
@@ -75,9 +82,12 @@ def _trajectory_seconds(ds: Dataset) -> dict[str, float]:
 
 
 def _describe(ds: Dataset) -> dict:
-    return {"trajectories": int(ds.traj_id.unique().numel()), "trajectory_seconds": _trajectory_seconds(ds),
-            "expert_success": float(ds.success.double().mean()),
-            "expert_collision": float(ds.collided.double().mean())}
+    return {
+        "trajectories": int(ds.traj_id.unique().numel()),
+        "trajectory_seconds": _trajectory_seconds(ds),
+        "expert_success": float(ds.success.double().mean()),
+        "expert_collision": float(ds.collided.double().mean()),
+    }
 
 
 #: below these the run warns before training: a reaching task whose obstacle is seldom in the way, and an expert that
@@ -93,7 +103,7 @@ def _crossing(env, ds: Dataset) -> dict:
     return {"crossing": summarize(env.path_clearance(q0, aux), env.ee_radius).as_dict()}
 
 
-def check_task(exp: Experiment, splits: "Splits") -> list[str]:
+def check_task(exp: Experiment, splits: Splits) -> list[str]:
     """Say, before any training, how the task was laid out, whether its obstacle is in the way of the reaches, and
     whether the expert reached the validation goals; returns the warnings (also printed)."""
     env, say, warnings = exp.env, exp.say.say, []
@@ -105,20 +115,26 @@ def check_task(exp: Experiment, splits: "Splits") -> list[str]:
     for split, info in splits.info.items():
         c = info.get("crossing")
         if c:
-            say(f"task: {split}: {c['crossing_fraction']:.0%} of {c['paths']} straight reaches cross an obstacle "
+            say(
+                f"task: {split}: {c['crossing_fraction']:.0%} of {c['paths']} straight reaches cross an obstacle "
                 f"(median clearance {c['clearance_quantiles']['median']:.3f} m, crossing below {c['radius']:.3f} m); "
                 f"the expert reached {info['expert_success']:.0%} of the goals, collided on "
-                f"{info['expert_collision']:.0%}")
+                f"{info['expert_collision']:.0%}"
+            )
     train = splits.info["train"].get("crossing")
     if train and train["crossing_fraction"] < MIN_CROSSING:
-        warnings.append(f"only {train['crossing_fraction']:.0%} of the training reaches cross an obstacle (fewer "
-                        f"than {MIN_CROSSING:.0%}): the obstacle is seldom in the way; move the goals or the obstacle")
+        warnings.append(
+            f"only {train['crossing_fraction']:.0%} of the training reaches cross an obstacle (fewer "
+            f"than {MIN_CROSSING:.0%}): the obstacle is seldom in the way; move the goals or the obstacle"
+        )
     check = splits.info.get("val") or splits.info["train"]
     if check["expert_success"] < MIN_EXPERT_SUCCESS:
-        warnings.append(f"the expert reached only {check['expert_success']:.0%} of the "
-                        f"{'validation' if 'val' in splits.info else 'training'} goals (fewer than "
-                        f"{MIN_EXPERT_SUCCESS:.0%}): its weights do not solve this task on this robot, and the learners "
-                        f"will imitate a failing expert")
+        warnings.append(
+            f"the expert reached only {check['expert_success']:.0%} of the "
+            f"{'validation' if 'val' in splits.info else 'training'} goals (fewer than "
+            f"{MIN_EXPERT_SUCCESS:.0%}): its weights do not solve this task on this robot, and the learners "
+            f"will imitate a failing expert"
+        )
     for w in warnings:
         say(f"warning: {w}")
     return warnings
@@ -137,20 +153,37 @@ def load_or_collect(exp: Experiment, split: str) -> tuple[Dataset, dict]:
     if path.exists():
         ds = load_dataset(path, meta)  # damaged or foreign files raise, naming the file and the fix
         exp.say.say(f"data: reusing {split} set {path} ({len(ds)} points)")
-        return ds, {"path": str(path), "sha256": ds.checksum(), "points": len(ds), "reused": True, **_describe(ds),
-                    **_crossing(exp.env, ds)}
-    n_envs, n_traj = {"train": (d.train_envs, d.train_trajectories), "val": (d.val_envs, d.val_trajectories),
-                      "test": (d.test_envs, d.test_trajectories)}[split]
+        return ds, {
+            "path": str(path),
+            "sha256": ds.checksum(),
+            "points": len(ds),
+            "reused": True,
+            **_describe(ds),
+            **_crossing(exp.env, ds),
+        }
+    n_envs, n_traj = {
+        "train": (d.train_envs, d.train_trajectories),
+        "val": (d.val_envs, d.val_trajectories),
+        "test": (d.test_envs, d.test_trajectories),
+    }[split]
     gen = torch.Generator().manual_seed(exp.run.seed + SPLIT_SEED_OFFSET[split])
     exp.say.say(f"data: collecting {split} set, {n_envs} envs x {n_traj} trajectories x up to {d.points} points")
     t0 = time.time()
-    ds = exp.env.demonstrations(exp.expert, n_envs, n_traj, d.points, d.interval, gen, split=split,
-                                progress=exp.say.bar(f"collect {split}"))
+    ds = exp.env.demonstrations(
+        exp.expert, n_envs, n_traj, d.points, d.interval, gen, split=split, progress=exp.say.bar(f"collect {split}")
+    )
     if (found := divergence_of_records(ds.q, ds.qd, ds.traj_id, ds.t)) is not None:
         raise expert_diverged(f"{split} demonstrations", found)
     sha = save_dataset(path, ds, meta)
-    return ds, {"path": str(path), "sha256": sha, "points": len(ds), "reused": False, "seconds": time.time() - t0,
-                **_describe(ds), **_crossing(exp.env, ds)}
+    return ds, {
+        "path": str(path),
+        "sha256": sha,
+        "points": len(ds),
+        "reused": False,
+        "seconds": time.time() - t0,
+        **_describe(ds),
+        **_crossing(exp.env, ds),
+    }
 
 
 def collect(exp: Experiment, splits: tuple[str, ...] | None = None) -> Splits:

@@ -4,14 +4,26 @@ Hydra composes YAML; this model is the contract every entry point validates agai
 unknown keys rejected). Registry-typed blocks (env, learners, weights) are checked again by their
 entry's own model in ``validate_run_config``, so errors name paths like ``learners.rmp.weights.hidden``.
 """
+
 from __future__ import annotations
 
 import re
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Annotated, Any, Literal, Mapping, Union
+from typing import Annotated, Any, Literal
 
-from pydantic import (BaseModel, BeforeValidator, ConfigDict, Discriminator, Field, Tag, ValidationError,
-                      create_model, field_validator, model_validator)
+from pydantic import (
+    BaseModel,
+    BeforeValidator,
+    ConfigDict,
+    Discriminator,
+    Field,
+    Tag,
+    ValidationError,
+    create_model,
+    field_validator,
+    model_validator,
+)
 from pydantic_core import InitErrorDetails, PydanticCustomError
 
 from ..assembly.errors import TAG_SEPARATOR
@@ -34,8 +46,12 @@ class DataConfig(_Frozen):
     train_trajectories: int = Field(50, gt=0, description="per environment, from unique initial states")
     test_envs: int = Field(5, gt=0)
     test_trajectories: int = Field(10, gt=0)
-    val_envs: int = Field(0, ge=0, description="validation environments, drawn like the training ones (never "
-                                               "trained on): settings are chosen on this split, never on the test set")
+    val_envs: int = Field(
+        0,
+        ge=0,
+        description="validation environments, drawn like the training ones (never "
+        "trained on): settings are chosen on this split, never on the test set",
+    )
     val_trajectories: int = Field(10, gt=0)
     points: int = Field(60, gt=1, description="recorded points per trajectory")
     interval: float = Field(1.0, gt=0, description="seconds between recorded points")
@@ -49,9 +65,11 @@ class DataConfig(_Frozen):
         if v is not None:
             blocking = next((p for p in (Path(v), *Path(v).parents) if p.exists()), None)
             if blocking is not None and not blocking.is_dir():
-                raise ValueError(f"{blocking} is a file, not a directory, so no dataset can be cached "
-                                 f"{'in' if blocking == Path(v) else 'below'} it; point data.cache_dir at a directory "
-                                 "(it is created if missing), or leave it out to keep data in the run directory")
+                raise ValueError(
+                    f"{blocking} is a file, not a directory, so no dataset can be cached "
+                    f"{'in' if blocking == Path(v) else 'below'} it; point data.cache_dir at a directory "
+                    "(it is created if missing), or leave it out to keep data in the run directory"
+                )
         return v
 
 
@@ -64,42 +82,70 @@ class RecordedDataConfig(_Frozen):
     source: Literal["recorded"]
     format: Literal["lasa", "csv", "npz", "hdf5"] = Field(description="how the files are laid out")
     shape: str | None = Field(None, description="format lasa: the handwriting shape (e.g. Angle, Sshape)")
-    files: list[str] = Field(default_factory=list, description="csv / npz / hdf5: the files, one or many "
-                                                                 "demonstrations each")
-    units: Literal["m", "cm", "mm", "rad", "deg"] = Field("m", description="the files' position units; LASA: the "
-                                                                           "dataset's mm are read as m whatever this says")
-    columns: list[str] | None = Field(None, description="csv / npz: the coordinates' names, in order (csv default: "
-                                                        "every column but time, demonstration id and aux)")
+    files: list[str] = Field(
+        default_factory=list, description="csv / npz / hdf5: the files, one or many demonstrations each"
+    )
+    units: Literal["m", "cm", "mm", "rad", "deg"] = Field(
+        "m", description="the files' position units; LASA: the dataset's mm are read as m whatever this says"
+    )
+    columns: list[str] | None = Field(
+        None,
+        description="csv / npz: the coordinates' names, in order (csv default: "
+        "every column but time, demonstration id and aux)",
+    )
     time_column: str = Field("t", description="csv: the time column; npz: the time array's key")
     demo_column: str | None = Field(None, description="csv: a column naming each row's demonstration")
     position_key: str = Field("pos", description="npz / hdf5: the positions' key (hdf5: inside each demo group)")
     rate: float | None = Field(None, gt=0, description="hdf5 without a time dataset: the recording rate (Hz)")
-    goal: list[float] | None = Field(None, description="the goal of every demonstration; default the mean of its "
-                                                       "final rest")
-    derivatives: Literal["filter", "file"] = Field("filter", description="velocities and accelerations from the "
-                                                   "Savitzky–Golay filter, or from the file (every demonstration)")
-    window: int = Field(21, ge=3, le=401, description="the filter's window (samples of the step grid, odd); "
-                                                      "chosen on validation rollouts (tools/lasa_table.py)")
+    goal: list[float] | None = Field(
+        None, description="the goal of every demonstration; default the mean of its final rest"
+    )
+    derivatives: Literal["filter", "file"] = Field(
+        "filter",
+        description="velocities and accelerations from the "
+        "Savitzky–Golay filter, or from the file (every demonstration)",
+    )
+    window: int = Field(
+        21,
+        ge=3,
+        le=401,
+        description="the filter's window (samples of the step grid, odd); "
+        "chosen on validation rollouts (tools/lasa_table.py)",
+    )
     polyorder: int = Field(3, ge=2, le=6, description="the filter's polynomial order")
-    rest_fraction: float = Field(0.02, ge=0, lt=1, description="speeds below this fraction of the peak at either "
-                                                               "end are rest, trimmed")
+    rest_fraction: float = Field(
+        0.02, ge=0, lt=1, description="speeds below this fraction of the peak at either end are rest, trimmed"
+    )
     every: int = Field(1, ge=1, le=1000, description="keep every this-many grid samples for training")
     split: Literal["holdout", "leave_one_out", "all"] = Field(
-        "holdout", description="holdout (val / test counts), leave_one_out (fold), or all: train and test on every "
-                               "demonstration, the protocol of most published LASA numbers")
+        "holdout",
+        description="holdout (val / test counts), leave_one_out (fold), or all: train and test on every "
+        "demonstration, the protocol of most published LASA numbers",
+    )
     val: int = Field(1, ge=0, le=1000, description="holdout: validation demonstrations")
     test: int = Field(1, ge=0, le=1000, description="holdout: test demonstrations")
     fold: int = Field(0, ge=0, description="leave_one_out: the demonstration tested (the next one validates)")
-    starts: int = Field(100, ge=0, le=100000, description="starts at rest in the demonstrations' box, enlarged by "
-                                                           "`enlarge`, for the convergence check")
-    enlarge: float = Field(0.5, ge=0, le=10, description="the box of those starts: the demonstrations' bounding "
-                                                         "box, each side longer by this fraction")
-    horizon_factor: float = Field(3.0, gt=0, le=100, description="their horizon: this times the longest "
-                                                                 "demonstration")
-    tolerance: float = Field(0.001, gt=0, description="converged: within this distance of the goal (m, the "
-                                                      "positions' SI unit) at the horizon")
-    cache_dir: str | None = Field(None, description="where the split datasets are cached (keyed by the files' "
-                                                    "content); default the run directory")
+    starts: int = Field(
+        100,
+        ge=0,
+        le=100000,
+        description="starts at rest in the demonstrations' box, enlarged by `enlarge`, for the convergence check",
+    )
+    enlarge: float = Field(
+        0.5,
+        ge=0,
+        le=10,
+        description="the box of those starts: the demonstrations' bounding box, each side longer by this fraction",
+    )
+    horizon_factor: float = Field(3.0, gt=0, le=100, description="their horizon: this times the longest demonstration")
+    tolerance: float = Field(
+        0.001,
+        gt=0,
+        description="converged: within this distance of the goal (m, the positions' SI unit) at the horizon",
+    )
+    cache_dir: str | None = Field(
+        None, description="where the split datasets are cached (keyed by the files' content); default the run directory"
+    )
 
     @model_validator(mode="after")
     def _what_the_format_needs(self):
@@ -108,8 +154,9 @@ class RecordedDataConfig(_Frozen):
         if self.format != "lasa" and not self.files:
             raise ValueError(f"format {self.format} needs data.files, the recorded files to read")
         if self.window % 2 == 0 or self.window <= self.polyorder:
-            raise ValueError(f"data.window ({self.window}) must be odd and larger than data.polyorder "
-                             f"({self.polyorder})")
+            raise ValueError(
+                f"data.window ({self.window}) must be odd and larger than data.polyorder ({self.polyorder})"
+            )
         return self
 
 
@@ -124,10 +171,15 @@ def _data_source(value: Any) -> str:
 
 
 #: the data block: the expert's rollouts (default) or recorded demonstrations
-DataBlock = Annotated[Union[Annotated[DataConfig, Tag(_EXPERT_DATA)], Annotated[RecordedDataConfig, Tag(_RECORDED_DATA)]],
-                      Discriminator(_data_source, custom_error_type="data_source",
-                                    custom_error_message="data.source must be expert (the expert tree's rollouts, "
-                                                         "the default) or recorded (files of recorded demonstrations)")]
+DataBlock = Annotated[
+    Annotated[DataConfig, Tag(_EXPERT_DATA)] | Annotated[RecordedDataConfig, Tag(_RECORDED_DATA)],
+    Discriminator(
+        _data_source,
+        custom_error_type="data_source",
+        custom_error_message="data.source must be expert (the expert tree's rollouts, "
+        "the default) or recorded (files of recorded demonstrations)",
+    ),
+]
 
 
 def upgrade_run_config(run: Mapping[str, Any]) -> dict[str, Any]:
@@ -163,10 +215,15 @@ class EvalConfig(_Frozen):
     lyapunov_rtol: float = Field(1e-6, ge=0)
     lyapunov_atol: float = Field(1e-9, ge=0)
     figures: bool = True
-    compile: bool = Field(False, description="roll out through torch.compile'd trees (same numbers, faster "
-                                             "after a one-off compile per tree)")
-    unit_weights: bool = Field(False, description="also roll out the expert's tree with every weight 1 (RMPflow) "
-                                                  "from the test starts: what the expert's weights add")
+    compile: bool = Field(
+        False,
+        description="roll out through torch.compile'd trees (same numbers, faster after a one-off compile per tree)",
+    )
+    unit_weights: bool = Field(
+        False,
+        description="also roll out the expert's tree with every weight 1 (RMPflow) "
+        "from the test starts: what the expert's weights add",
+    )
 
 
 class LoggerConfig(_Frozen):
@@ -186,18 +243,27 @@ class RunConfig(_Frozen):
 
     name: str = "experiment"
     seed: int = 0
-    device: str = Field("cpu", description="where trees, learners, training and the 2D environment compute: cpu, "
-                                           "cuda or cuda:<index> (pybullet stays on the CPU; a policy's tensors cross "
-                                           "once a step)")
+    device: str = Field(
+        "cpu",
+        description="where trees, learners, training and the 2D environment compute: cpu, "
+        "cuda or cuda:<index> (pybullet stays on the CPU; a policy's tensors cross "
+        "once a step)",
+    )
     env: TypedBlock
     tree: TreeSpec = Field(description="the tree spec (docs/architecture.md §2) without learned weights")
     expert: dict[str, Any] = Field(default_factory=dict, description="node or shared-weight name -> weight spec")
-    learners: dict[str, TypedBlock] = Field(default_factory=dict, description="learner name -> {type: rmp|unstructured, ...}")
-    data: DataBlock = Field(default_factory=DataConfig, description="the expert's demonstrations (source: expert) or "
-                            "recorded ones (source: recorded)")
+    learners: dict[str, TypedBlock] = Field(
+        default_factory=dict, description="learner name -> {type: rmp|unstructured, ...}"
+    )
+    data: DataBlock = Field(
+        default_factory=DataConfig,
+        description="the expert's demonstrations (source: expert) or recorded ones (source: recorded)",
+    )
     train: Annotated[Any, BeforeValidator(_typed_train)] = Field(
-        default_factory=dict, validate_default=True,
-        description="the training method (method: bc | dagger | apg | pg | a plugin's) and its settings")
+        default_factory=dict,
+        validate_default=True,
+        description="the training method (method: bc | dagger | apg | pg | a plugin's) and its settings",
+    )
     eval: EvalConfig = EvalConfig()
     logger: LoggerConfig = LoggerConfig()
 
@@ -217,15 +283,24 @@ class RunConfig(_Frozen):
         found: list[InitErrorDetails] = []
 
         def refuse(loc: tuple[str, ...], given: Any, message: str) -> None:
-            found.append(InitErrorDetails(type=PydanticCustomError("run_config", "{message}", {"message": message}),
-                                          loc=loc, input=given))
+            found.append(
+                InitErrorDetails(
+                    type=PydanticCustomError("run_config", "{message}", {"message": message}), loc=loc, input=given
+                )
+            )
 
-        bad = [s for s in self.train.snapshots if s < 0 or s > self.train.iterations] \
-            if isinstance(self.train, TrainParams) else []
+        bad = (
+            [s for s in self.train.snapshots if s < 0 or s > self.train.iterations]
+            if isinstance(self.train, TrainParams)
+            else []
+        )
         if bad:
-            refuse(("train", "snapshots"), bad,
-                   f"snapshots {bad} lie outside 0..train.iterations={self.train.iterations} (a snapshot is the "
-                   f"learner after that many iterations); given {self.train.snapshots}")
+            refuse(
+                ("train", "snapshots"),
+                bad,
+                f"snapshots {bad} lie outside 0..train.iterations={self.train.iterations} (a snapshot is the "
+                f"learner after that many iterations); given {self.train.snapshots}",
+            )
         step = getattr(self.env, "integration_step", None) if not isinstance(self.env, TypedBlock) else None
         if isinstance(self.data, RecordedDataConfig):
             found += self._recorded_issues()
@@ -234,50 +309,81 @@ class RunConfig(_Frozen):
             dt, key = step()
             if (too_many := self._too_many_steps(dt, key)) is not None:
                 refuse(("env", key.split("env.", 1)[1]), dt, too_many)
-            for loc, t, what in ((("data", "interval"), self.data.interval, "a positive multiple"),
-                                 (("eval", "horizon"), self.eval.horizon, "a multiple")):
+            for loc, t, what in (
+                (("data", "interval"), self.data.interval, "a positive multiple"),
+                (("eval", "horizon"), self.eval.horizon, "a multiple"),
+            ):
                 if t is not None and not _on_grid(t, dt):
-                    refuse(loc, t, f"must be {what} of the environment's step {key} = {dt:.6g} s (rollouts "
-                                   f"integrate and record on that step's grid only); given {t}")
+                    refuse(
+                        loc,
+                        t,
+                        f"must be {what} of the environment's step {key} = {dt:.6g} s (rollouts "
+                        f"integrate and record on that step's grid only); given {t}",
+                    )
         shown = getattr(self.env, "render_trajectory", None) if not isinstance(self.env, TypedBlock) else None
         n_test = self.data.test_envs * self.data.test_trajectories if isinstance(self.data, DataConfig) else 0
         if isinstance(shown, int) and n_test and shown >= n_test:
-            refuse(("env", "render_trajectory"), shown,
-                   f"must be < {n_test}, the number of test trajectories (data.test_envs × data.test_trajectories, "
-                   f"numbered from 0); given {shown}")
+            refuse(
+                ("env", "render_trajectory"),
+                shown,
+                f"must be < {n_test}, the number of test trajectories (data.test_envs × data.test_trajectories, "
+                f"numbered from 0); given {shown}",
+            )
         if found:
             raise ValidationError.from_exception_data(type(self).__name__, found)
         return self
-
 
     def _recorded_issues(self) -> list[InitErrorDetails]:
         """Recorded demonstrations have no expert: an expert block, or a method that queries one, is refused."""
         issues = []
         if self.expert:
-            issues.append(("expert", dict(self.expert), "recorded demonstrations (data.source=recorded) have no expert "
-                           "tree: remove the expert block; the tree with every weight 1 is reported as the untrained "
-                           "reference"))
+            issues.append(
+                (
+                    "expert",
+                    dict(self.expert),
+                    "recorded demonstrations (data.source=recorded) have no expert "
+                    "tree: remove the expert block; the tree with every weight 1 is reported as the untrained "
+                    "reference",
+                )
+            )
         method = self.train.method if isinstance(self.train, TrainParams) else None
         if method not in (None, "bc"):
-            issues.append((("train", "method"), method, f"train.method={method} needs an expert or the environment's "
-                           "task cost, which recorded demonstrations do not give; use train.method=bc (behavior "
-                           "cloning on the recorded accelerations)"))
-        return [InitErrorDetails(type=PydanticCustomError("run_config", "{message}", {"message": m}),
-                                 loc=(loc,) if isinstance(loc, str) else loc, input=given) for loc, given, m in issues]
+            issues.append(
+                (
+                    ("train", "method"),
+                    method,
+                    f"train.method={method} needs an expert or the environment's "
+                    "task cost, which recorded demonstrations do not give; use train.method=bc (behavior "
+                    "cloning on the recorded accelerations)",
+                )
+            )
+        return [
+            InitErrorDetails(
+                type=PydanticCustomError("run_config", "{message}", {"message": m}),
+                loc=(loc,) if isinstance(loc, str) else loc,
+                input=given,
+            )
+            for loc, given, m in issues
+        ]
 
     def _too_many_steps(self, dt: float, key: str) -> str | None:
         """Why a rollout on the step ``dt`` (set by ``key``) would never end, or None: its longest rollout (the
         demonstrations', the evaluation's, a training method's) must take at most ``MAX_ROLLOUT_STEPS`` steps."""
-        horizons = [(self.data.points * self.data.interval, "data.points × data.interval"),
-                    (self.eval.horizon, "eval.horizon"), (getattr(self.train, "horizon", None), "train.horizon")]
+        horizons = [
+            (self.data.points * self.data.interval, "data.points × data.interval"),
+            (self.eval.horizon, "eval.horizon"),
+            (getattr(self.train, "horizon", None), "train.horizon"),
+        ]
         horizon, what = max(((h, w) for h, w in horizons if h is not None), key=lambda hw: hw[0])
         steps = horizon / dt
         if steps <= MAX_ROLLOUT_STEPS:
             return None
         rate = f"{1 / dt:.3g} Hz" if 1 / dt < float("inf") else "an infinite rate"
-        return (f"a step of {dt:.3g} s ({key}, a control rate of {rate}) makes a rollout of {horizon:g} s ({what}) "
-                f"take {steps:.3g} integration steps, more than the {MAX_ROLLOUT_STEPS:.0e} a run allows (it would "
-                f"never finish); use a step of at least {horizon / MAX_ROLLOUT_STEPS:.3g} s")
+        return (
+            f"a step of {dt:.3g} s ({key}, a control rate of {rate}) makes a rollout of {horizon:g} s ({what}) "
+            f"take {steps:.3g} integration steps, more than the {MAX_ROLLOUT_STEPS:.0e} a run allows (it would "
+            f"never finish); use a step of at least {horizon / MAX_ROLLOUT_STEPS:.3g} s"
+        )
 
 
 #: The most integration steps one rollout may take: a million steps of a 2-D particle take minutes, of an arm in
@@ -306,10 +412,12 @@ def run_config_model() -> type[RunConfig]:
     key = tuple((id(r), r.version) for r in registries)
     if key not in _RUN_MODELS:
         _RUN_MODELS[key] = create_model(
-            "TypedRunConfig", __base__=RunConfig,
+            "TypedRunConfig",
+            __base__=RunConfig,
             env=(typed_union(ENVS), ...),
             tree=(tree_spec_model(), Field(description="the tree spec without learned weights")),
             expert=(dict[str, weight_field()], Field(default_factory=dict)),
             learners=(dict[str, typed_union(LEARNERS)], Field(default_factory=dict)),
-            train=(train_union(), Field(default_factory=dict, validate_default=True)))
+            train=(train_union(), Field(default_factory=dict, validate_default=True)),
+        )
     return _RUN_MODELS[key]

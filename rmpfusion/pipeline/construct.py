@@ -3,10 +3,11 @@
 Validation (``validate.py``) builds these once to learn the dimensions it checks; the pipeline's stages build
 them to run. Both call the functions here, so what was checked is what runs.
 """
+
 from __future__ import annotations
 
+from collections.abc import Mapping
 from contextlib import nullcontext
-from typing import Mapping
 
 from ..assembly.errors import ConfigError, Issue
 from ..assembly.tree import build_tree
@@ -29,8 +30,9 @@ def expert_spec(run: RunConfig) -> dict:
 
 def build_expert(run: RunConfig, aux_dims: Mapping[str, int]) -> RMPTree:
     """The expert tree; a problem with one of the expert's weights is reported at ``expert.<name>``."""
-    return build_tree(expert_spec(run), aux_dims=aux_dims,
-                      weight_paths={n: f"expert.{n}" for n in run.expert if n in run.tree.nodes})
+    return build_tree(
+        expert_spec(run), aux_dims=aux_dims, weight_paths={n: f"expert.{n}" for n in run.expert if n in run.tree.nodes}
+    )
 
 
 def build_unit_weights(run: RunConfig, aux_dims: Mapping[str, int]) -> RMPTree:
@@ -38,8 +40,11 @@ def build_unit_weights(run: RunConfig, aux_dims: Mapping[str, int]) -> RMPTree:
     with. The tree spec may carry weights of its own (the generated Franka tree starts learners' MLPs there): a
     node's own weight is removed (absent = 1) and every shared weight becomes the constant 1."""
     tree = plain_data(run.tree)
-    own = {n: None for n, node in (tree.get("nodes") or {}).items()
-           if isinstance(node.get("weight"), Mapping) and "shared" not in node["weight"]}
+    own = {
+        n: None
+        for n, node in (tree.get("nodes") or {}).items()
+        if isinstance(node.get("weight"), Mapping) and "shared" not in node["weight"]
+    }
     shared = {n: {"type": "constant", "value": 1.0} for n in tree.get("shared_weights") or {}}
     return build_tree(tree_with_weights(tree, {**own, **shared}, where="unit weights"), aux_dims=aux_dims)
 
@@ -54,9 +59,10 @@ def build_learners(run: RunConfig, aux_dims: Mapping[str, int], seeded=None) -> 
     issues: list[Issue] = []
     for n in build_order(blocks):
         try:
-            with (seeded(n) if seeded is not None else nullcontext()):
-                built[n] = build_learner(blocks[n], tree, aux_dims, run.tree.root.dim, expert=expert,
-                                         built=built, where=f"learners.{n}")
+            with seeded(n) if seeded is not None else nullcontext():
+                built[n] = build_learner(
+                    blocks[n], tree, aux_dims, run.tree.root.dim, expert=expert, built=built, where=f"learners.{n}"
+                )
         except ConfigError as e:
             issues += e.issues
         except (ValueError, KeyError, TypeError) as e:

@@ -4,6 +4,7 @@ Each learner is evaluated at every training snapshot (the paper's learner-0 … 
 validation losses, rates, the Lyapunov monitor, the environment's task metrics and their ratios to the
 expert where it has them, and learner-rmp's weights beside the expert's.
 """
+
 from __future__ import annotations
 
 import time
@@ -20,8 +21,8 @@ from ..evaluate.divergence import divergence
 from ..evaluate.metrics import StageResult, evaluate_learner, online_loss, rollout_rates, task_stage
 from ..evaluate.weights import edge_weights, learned_edges, summarize_weights
 from ..learn.learner import Learner
-from ..learn.objectives import dataset_loss
 from ..learn.loop import load_snapshot
+from ..learn.objectives import dataset_loss
 from .collect import Splits, expert_diverged
 from .construct import build_unit_weights
 from .experiment import COMPILING, Experiment, clean
@@ -36,7 +37,7 @@ class ExpertEval:
     rollout: Any
     metrics: dict
     stage: StageResult | None  # task metrics, for environments that have them
-    unit: "ExpertEval | None" = None
+    unit: ExpertEval | None = None
 
 
 def task_line(st: StageResult) -> str:
@@ -49,16 +50,27 @@ def task_line(st: StageResult) -> str:
 UNIT_WEIGHTS = "unit weights (RMPflow)"
 
 
-def _evaluate_tree(exp: Experiment, test: Dataset, label: str, tree, expert: StageResult | None = None,
-                   online_losses: bool = False) -> ExpertEval:
+def _evaluate_tree(
+    exp: Experiment, test: Dataset, label: str, tree, expert: StageResult | None = None, online_losses: bool = False
+) -> ExpertEval:
     """A fixed tree rolled out from the test initial states: rates, the Lyapunov monitor, the online losses
     against the expert when asked (the expert's own are 0), and the task metrics (with their ratios to ``expert``
     when given) for environments that have them."""
     exp.say.say(f"eval: {label}")
     q0, qd0, aux0 = test.initial_states()
     ev, d = exp.run.eval, exp.run.data
-    online = online_loss(tree, exp.expert_at(), exp.env, q0, qd0, aux0, exp.horizon, d.interval,
-                         exp.fine_interval, exp.say.bar(f"rollout {label}"))
+    online = online_loss(
+        tree,
+        exp.expert_at(),
+        exp.env,
+        q0,
+        qd0,
+        aux0,
+        exp.horizon,
+        d.interval,
+        exp.fine_interval,
+        exp.say.bar(f"rollout {label}"),
+    )
     ro = online.rollout
     metrics = rollout_rates(ro, ev.lyapunov_rtol, ev.lyapunov_atol)
     if online_losses:
@@ -78,7 +90,14 @@ def evaluate_expert(exp: Experiment, test: Dataset) -> ExpertEval:
     if (found := divergence(ro.q, ro.qd, ro.V, theorem2_applies=not ro.moving)) is not None:
         raise expert_diverged("test rollouts", found)
     if exp.run.eval.unit_weights:
-        out.unit = _evaluate_tree(exp, test, UNIT_WEIGHTS, build_unit_weights(exp.run, exp.env.aux_dims()).to(device=exp.device), out.stage, online_losses=True)
+        out.unit = _evaluate_tree(
+            exp,
+            test,
+            UNIT_WEIGHTS,
+            build_unit_weights(exp.run, exp.env.aux_dims()).to(device=exp.device),
+            out.stage,
+            online_losses=True,
+        )
     exp.timing["expert_eval_s"] = time.time() - t0
     return out
 
@@ -136,17 +155,35 @@ class _SnapshotEvaluator:
             return met
         ev = self.exp.run.eval
         label = f"learner-{it}" if len(self.exp.run.learners) == 1 else f"{self.name}-{it}"  # the paper's names
-        st = task_stage(label, ro, self.exp.env, self.expert.stage, ev.lyapunov_rtol, ev.lyapunov_atol,
-                        learner=self.name, iteration=it)
+        st = task_stage(
+            label,
+            ro,
+            self.exp.env,
+            self.expert.stage,
+            ev.lyapunov_rtol,
+            ev.lyapunov_atol,
+            learner=self.name,
+            iteration=it,
+        )
         out.task_stages.append(st)
         self.exp.say.say(f"{label}: " + task_line(st))
         return {**met, "task": st.summary, "ratio_to_expert": st.ratios, "lyapunov": st.lyapunov}
 
     def metrics(self, model: Learner, bar_label: str):
         exp, ev = self.exp, self.exp.run.eval
-        return evaluate_learner(model, exp.expert_at(), exp.env, self.splits.test, exp.horizon, exp.run.data.interval,
-                                ev.lyapunov_rtol, ev.lyapunov_atol, exp.fine_interval, exp.say.bar(bar_label),
-                                loss=lambda m, ds: dataset_loss(m, ds, exp.run.train.batch_loss_objective))
+        return evaluate_learner(
+            model,
+            exp.expert_at(),
+            exp.env,
+            self.splits.test,
+            exp.horizon,
+            exp.run.data.interval,
+            ev.lyapunov_rtol,
+            ev.lyapunov_atol,
+            exp.fine_interval,
+            exp.say.bar(bar_label),
+            loss=lambda m, ds: dataset_loss(m, ds, exp.run.train.batch_loss_objective),
+        )
 
     def snapshot(self, model: Learner, it: int, out: LearnerEval):
         met, onl = self.metrics(model, f"eval {self.name}@{it}")
@@ -159,10 +196,18 @@ class _SnapshotEvaluator:
             met["learned_leaf_parameters"] = learned
         ro = onl.rollout
         out.snapshots[str(it)] = clean(met)
-        out.panels.append({"label": f"{self.name} @ {it}", "q": ro.q[:, self.plot_idx], "times": ro.times,
-                           "V": ro.V[:, self.plot_idx] if ro.V is not None else None})
-        self.exp.log_scalars(self.name, {"iteration": float(it), **{f"snapshot_{k}": v for k, v in met.items()
-                                                                    if isinstance(v, (int, float))}})
+        out.panels.append(
+            {
+                "label": f"{self.name} @ {it}",
+                "q": ro.q[:, self.plot_idx],
+                "times": ro.times,
+                "V": ro.V[:, self.plot_idx] if ro.V is not None else None,
+            }
+        )
+        self.exp.log_scalars(
+            self.name,
+            {"iteration": float(it), **{f"snapshot_{k}": v for k, v in met.items() if isinstance(v, (int, float))}},
+        )
         return met, onl
 
 
@@ -220,13 +265,16 @@ def flag_divergence(exp: Experiment, name: str, out: LearnerEval) -> None:
     if found is None:
         return
     out.final["diverged"] = found.as_dict()
-    exp.say.say(f"WARNING: learner {name} DIVERGED on {len(found.samples)} of {found.total} test rollouts: "
-                f"{found.reason}; its metrics describe a policy that does not work (metrics.json: "
-                f"learners.{name}.diverged)")
+    exp.say.say(
+        f"WARNING: learner {name} DIVERGED on {len(found.samples)} of {found.total} test rollouts: "
+        f"{found.reason}; its metrics describe a policy that does not work (metrics.json: "
+        f"learners.{name}.diverged)"
+    )
 
 
-def evaluate(exp: Experiment, splits: Splits, fitted: dict[str, Fitted],
-             expert: ExpertEval | None = None) -> tuple[ExpertEval, dict[str, LearnerEval]]:
+def evaluate(
+    exp: Experiment, splits: Splits, fitted: dict[str, Fitted], expert: ExpertEval | None = None
+) -> tuple[ExpertEval, dict[str, LearnerEval]]:
     """The expert (unless its evaluation is given), then every learner in config order."""
     expert = expert if expert is not None else evaluate_expert(exp, splits.test)
     return expert, {name: evaluate_fitted(exp, name, f, splits, expert) for name, f in fitted.items()}

@@ -1,12 +1,14 @@
 """What every stage of an experiment shares: the validated config, the run directory, the environment, the
 expert, progress output and the metrics logger, and the settings derived from the config once."""
+
 from __future__ import annotations
 
 import math
 import zlib
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Mapping
+from typing import Any
 
 import torch
 from torch import Tensor
@@ -97,9 +99,16 @@ def prepare(run: RunConfig, run_dir: Path, say: Progress, log: Log | None = None
     device = torch.device(run.device)
     if device.type != "cpu":
         if not isinstance(env, ComputesOn):
-            raise ConfigError([Issue("device", f"the environment '{run.env.type}' cannot evaluate policies on "
-                                               f"{run.device} (it does not implement envs.protocol.ComputesOn); "
-                                               "set device=cpu")])
+            raise ConfigError(
+                [
+                    Issue(
+                        "device",
+                        f"the environment '{run.env.type}' cannot evaluate policies on "
+                        f"{run.device} (it does not implement envs.protocol.ComputesOn); "
+                        "set device=cpu",
+                    )
+                ]
+            )
         env.to(device)
     expert = build_expert(run, env.aux_dims()).to(device)
     if run.eval.compile:
@@ -109,8 +118,10 @@ def prepare(run: RunConfig, run_dir: Path, say: Progress, log: Log | None = None
 
 
 #: Said before the first call of a compiled policy, which compiles it (minutes, in silence otherwise).
-COMPILING = ("compiling {what} with torch.compile (first call, cached afterwards: it can take minutes; eval.compile="
-             "false or train.compile=false skip it)")
+COMPILING = (
+    "compiling {what} with torch.compile (first call, cached afterwards: it can take minutes; eval.compile="
+    "false or train.compile=false skip it)"
+)
 
 
 def clean(m: Any) -> Any:

@@ -5,6 +5,7 @@ Checkpoints go to ``checkpoints/<learner>/`` (resumed on a rerun, also after SIG
 written to ``final.pt`` in the same checksummed format. ``require_trained`` turns the stage into loading only:
 what ``rmpfusion-evaluate`` does with the checkpoints ``rmpfusion-train`` left.
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -19,8 +20,8 @@ from ..learn.loop import TrainResult
 from ..learn.method import MethodContext, TrainingMethod
 from ..registry import TRAIN_METHODS
 from .collect import Splits
-from .experiment import COMPILING, Experiment
 from .construct import build_learners
+from .experiment import COMPILING, Experiment
 
 
 class NotTrainedError(RuntimeError):
@@ -59,8 +60,10 @@ def _require_trained(exp: Experiment) -> None:
         if ck is None or int(load_checkpoint(ck)["iteration"]) < exp.run.train.iterations:
             missing.append(name)
     if missing:
-        raise NotTrainedError(f"no fully trained checkpoints for {missing} in {exp.dir / 'checkpoints'}; run "
-                              f"rmpfusion-train with the same overrides and hydra.run.dir={exp.dir} first")
+        raise NotTrainedError(
+            f"no fully trained checkpoints for {missing} in {exp.dir / 'checkpoints'}; run "
+            f"rmpfusion-train with the same overrides and hydra.run.dir={exp.dir} first"
+        )
 
 
 def method(exp: Experiment) -> TrainingMethod:
@@ -73,12 +76,19 @@ def context(exp: Experiment, name: str, splits: Splits) -> MethodContext:
     demonstrations' recording grid, its checkpoint directory, progress and logging."""
     d = exp.run.data
     recorded = d.source == "recorded"  # no expert, and demonstrations of their own lengths
-    return MethodContext(data=dict(splits.data), seed=exp.learner_seed(name) + 1, env=exp.env,
-                         expert=None if recorded else exp.expert, interval=None if recorded else d.interval,
-                         points=None if recorded else d.points,
-                         checkpoint_dir=exp.dir / "checkpoints" / name, run_config=exp.config,
-                         progress=exp.say.bar(f"train {name}"), say=exp.say.say,
-                         log=(lambda m: exp.log_scalars(name, m)) if exp.log is not None else None)
+    return MethodContext(
+        data=dict(splits.data),
+        seed=exp.learner_seed(name) + 1,
+        env=exp.env,
+        expert=None if recorded else exp.expert,
+        interval=None if recorded else d.interval,
+        points=None if recorded else d.points,
+        checkpoint_dir=exp.dir / "checkpoints" / name,
+        run_config=exp.config,
+        progress=exp.say.bar(f"train {name}"),
+        say=exp.say.say,
+        log=(lambda m: exp.log_scalars(name, m)) if exp.log is not None else None,
+    )
 
 
 def fit_one(exp: Experiment, name: str, model: Learner, splits: Splits) -> Fitted:
@@ -91,8 +101,15 @@ def fit_one(exp: Experiment, name: str, model: Learner, splits: Splits) -> Fitte
     if (ck := latest_checkpoint(ckdir)) is not None:
         exp.say.say(f"learner {name}: resuming from {ck}")
     tr = method(exp).train(model, context(exp, name, splits))
-    save_checkpoint({"model": model.state_dict(), "learner": exp.run.learners[name].model_dump(),
-                     "config": exp.config, "iteration": exp.run.train.iterations}, ckdir / "final.pt")
+    save_checkpoint(
+        {
+            "model": model.state_dict(),
+            "learner": exp.run.learners[name].model_dump(),
+            "config": exp.config,
+            "iteration": exp.run.train.iterations,
+        },
+        ckdir / "final.pt",
+    )
     return Fitted(model, tr, time.time() - t0)
 
 

@@ -4,9 +4,11 @@ A checkpoint or run directory embeds the config it was made with; when a later r
 retired a name, that config must be answered with its replacement. These checks run before the schema, on
 plain data, and remove what they reported so the rest of the config is still checked at once.
 """
+
 from __future__ import annotations
 
-from typing import Any, Mapping
+from collections.abc import Mapping
+from typing import Any
 
 from ..assembly.errors import Issue
 from .config import RENAMED_KEYS
@@ -15,18 +17,21 @@ from .config import RENAMED_KEYS
 #: write instead (the experiments and config groups of conf/ kept their names: compose them anew)
 RETIRED = {
     ("env", "type", "franka"): "the environment 'franka' became 'manipulator', which takes its robot and scene from "
-                               "conf/robot/ and conf/scene/; compose the experiment anew (experiment=franka keeps "
-                               "its name and protocol)",
+    "conf/robot/ and conf/scene/; compose the experiment anew (experiment=franka keeps "
+    "its name and protocol)",
     ("tree", "generator", "franka_fig1b"): "the generator 'franka_fig1b' became 'fig1b', which takes the robot and the "
-                                           "scene (conf/tree/fig1b.yaml reads the environment's); compose the "
-                                           "experiment anew (tree=franka keeps its name)",
+    "scene (conf/tree/fig1b.yaml reads the environment's); compose the "
+    "experiment anew (tree=franka keeps its name)",
 }
 
 
 def retired_issues(data: Mapping[str, Any]) -> list[Issue]:
     """A stored config naming a retired environment or generator gets what to write instead, not 'unknown name'."""
-    return [Issue(f"{block}.{key}", f"{value!r} was retired: {fix}") for (block, key, value), fix in RETIRED.items()
-            if isinstance(data.get(block), Mapping) and data[block].get(key) == value]
+    return [
+        Issue(f"{block}.{key}", f"{value!r} was retired: {fix}")
+        for (block, key, value), fix in RETIRED.items()
+        if isinstance(data.get(block), Mapping) and data[block].get(key) == value
+    ]
 
 
 def renamed_issues(data: dict[str, Any]) -> list[Issue]:
@@ -36,7 +41,10 @@ def renamed_issues(data: dict[str, Any]) -> list[Issue]:
     for block, names in RENAMED_KEYS.items():
         for old, new in names.items():
             if isinstance(data.get(block), Mapping) and old in data[block]:
-                issues.append(Issue(f"{block}.{old}", f"was renamed {block}.{new}; write {block}.{new}="
-                                                      f"{data[block][old]!r} instead"))
+                issues.append(
+                    Issue(
+                        f"{block}.{old}", f"was renamed {block}.{new}; write {block}.{new}={data[block][old]!r} instead"
+                    )
+                )
                 data[block] = {k: v for k, v in data[block].items() if k != old}
     return issues

@@ -1,9 +1,10 @@
 """Progress of long steps: a bar on a terminal, plain periodic lines in logs."""
+
 from __future__ import annotations
 
 import sys
 import time
-from typing import Callable
+from collections.abc import Callable
 
 
 class Progress:
@@ -24,7 +25,11 @@ class Progress:
     @staticmethod
     def _clock(seconds: float) -> str:
         seconds = int(max(seconds, 0))
-        return f"{seconds // 3600:d}:{seconds // 60 % 60:02d}:{seconds % 60:02d}" if seconds >= 3600 else f"{seconds // 60:02d}:{seconds % 60:02d}"
+        return (
+            f"{seconds // 3600:d}:{seconds // 60 % 60:02d}:{seconds % 60:02d}"
+            if seconds >= 3600
+            else f"{seconds // 60:02d}:{seconds % 60:02d}"
+        )
 
     def _line(self, label: str, done: int, total: int, elapsed: float) -> str:
         rate = done / elapsed if elapsed > 0 else 0.0
@@ -45,10 +50,15 @@ class Progress:
                 start, last_tenth, last_print = now, -1, 0.0
             tenth = int(10 * done / total)
             if self.tty:
-                print("\r\033[K" + self._line(label, done, total, now - start), end="\n" if done >= total else "",
-                      file=self.stream, flush=True)
+                print(
+                    "\r\033[K" + self._line(label, done, total, now - start),
+                    end="\n" if done >= total else "",
+                    file=self.stream,
+                    flush=True,
+                )
             elif done >= total or tenth > last_tenth or now - last_print >= self.every_seconds:
                 print(self._line(label, done, total, now - start), file=self.stream, flush=True)
                 last_tenth, last_print = max(tenth, last_tenth), now
             self._state[label] = (start, last_tenth, last_print)
+
         return cb

@@ -13,14 +13,15 @@ measures learned dynamical systems (Khansari-Zadeh & Billard 2011; Rana et al. 2
   goal at the end, V_r non-increasing (Theorem 2), and where the others stopped nearly at rest;
 * the trained tree's certificate (Theorem 2's premises and energy identity) at every record of those rollouts.
 """
+
 from __future__ import annotations
 
 import hashlib
 import json
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 import torch
@@ -57,14 +58,19 @@ def split_of(d, n: int, seed: int) -> Split:
 def _cache_key(exp: Experiment, files: str, split: str, members: tuple[int, ...]) -> str:
     """What determines a split's dataset: the files' content hash, the data settings, the step and its members."""
     d = exp.run.data
-    key = {"files": files, "data": d.model_dump(exclude={"cache_dir", "starts", "enlarge",
-                                                                   "horizon_factor", "tolerance"}),
-           "dt": exp.env.dt, "split": split, "members": members}
+    key = {
+        "files": files,
+        "data": d.model_dump(exclude={"cache_dir", "starts", "enlarge", "horizon_factor", "tolerance"}),
+        "dt": exp.env.dt,
+        "split": split,
+        "members": members,
+    }
     return hashlib.sha256(json.dumps(key, sort_keys=True, default=str).encode()).hexdigest()
 
 
-def _dataset(exp: Experiment, files: str, split: str, members: tuple[int, ...],
-             states: list[States]) -> tuple[Dataset, dict]:
+def _dataset(
+    exp: Experiment, files: str, split: str, members: tuple[int, ...], states: list[States]
+) -> tuple[Dataset, dict]:
     """The split's dataset, from the cache when the files (``files``: their content hash) and settings are the
     same, else made and cached."""
     d = exp.run.data
@@ -90,8 +96,10 @@ def recorded_splits(exp: Experiment) -> tuple[Splits, dict[str, list[States]], l
     files = content_hash(d)
     made = {name: _dataset(exp, files, name, members, states) for name, members in parts.items()}
     for name, (ds, info) in made.items():
-        exp.say.say(f"data: {name}: {len(info['demonstrations'])} demonstration(s), {info['points']} points"
-                    f"{' (reused)' if info['reused'] else ''}")
+        exp.say.say(
+            f"data: {name}: {len(info['demonstrations'])} demonstration(s), {info['points']} points"
+            f"{' (reused)' if info['reused'] else ''}"
+        )
     exp.timing["data_s"] = time.time() - t0
     splits = Splits({k: ds for k, (ds, _) in made.items()}, {k: info for k, (_, info) in made.items()})
     return splits, {k: [states[i] for i in m] for k, m in parts.items()}, states
@@ -149,8 +157,15 @@ def evaluation_batch(exp: Experiment, demos: dict[str, list[States]], every_demo
     goals += [goal] * len(grid)
     longest = max(float(s.t[-1]) for s in every_demo)
     horizon = dt * int(np.ceil(d.horizon_factor * longest / dt - 1e-9))
-    return Batch(_as_tensor(np.stack(q0)), _as_tensor(np.stack(qd0)), {"goal": _as_tensor(np.stack(goals))}, held,
-                 index, slice(at, at + len(grid)), horizon)
+    return Batch(
+        _as_tensor(np.stack(q0)),
+        _as_tensor(np.stack(qd0)),
+        {"goal": _as_tensor(np.stack(goals))},
+        held,
+        index,
+        slice(at, at + len(grid)),
+        horizon,
+    )
 
 
 def reproduction(batch: Batch, ro, split: str, tolerance: float) -> dict:
@@ -161,13 +176,23 @@ def reproduction(batch: Batch, ro, split: str, tolerance: float) -> dict:
     for n, demo in zip(range(batch.index[split].start, batch.index[split].stop), batch.demos[split]):
         T = len(demo.t)
         within = np.flatnonzero(dist[:, n] <= tolerance)
-        per.append({"demonstration": demo.source, "dtw": dtw_distance(path[:T, n], demo.q),
-                    "swept_error_area": swept_error_area(path[:T, n], demo.q), "final_distance": float(dist[-1, n]),
-                    "time_to_tolerance": float(ro.times[within[0]]) if within.size else float("inf")})
+        per.append(
+            {
+                "demonstration": demo.source,
+                "dtw": dtw_distance(path[:T, n], demo.q),
+                "swept_error_area": swept_error_area(path[:T, n], demo.q),
+                "final_distance": float(dist[-1, n]),
+                "time_to_tolerance": float(ro.times[within[0]]) if within.size else float("inf"),
+            }
+        )
     mean = {k: float(np.mean([p[k] for p in per])) for k in ("dtw", "swept_error_area", "final_distance")}
     reached = [p["time_to_tolerance"] for p in per if np.isfinite(p["time_to_tolerance"])]
-    return {**mean, "reached": len(reached) / len(per),
-            "time_to_tolerance": float(np.mean(reached)) if reached else None, "per_demonstration": per}
+    return {
+        **mean,
+        "reached": len(reached) / len(per),
+        "time_to_tolerance": float(np.mean(reached)) if reached else None,
+        "per_demonstration": per,
+    }
 
 
 def convergence(batch: Batch, ro, d, rtol: float, atol: float, dt: float) -> dict:
@@ -179,9 +204,15 @@ def convergence(batch: Batch, ro, d, rtol: float, atol: float, dt: float) -> dic
     ok = final <= d.tolerance
     stalled = (~ok & (ro.qd[-1, g].norm(dim=-1) < 1e-3 * d.tolerance / dt)).nonzero().flatten()
     V = ro.V[:, g] if ro.V is not None else None
-    out = {"starts": int(final.numel()), "horizon_s": batch.horizon, "converged": float(ok.double().mean()),
-           "final_distance_max": float(final.max()), "final_distance_median": float(final.median()),
-           "stalled": [ro.q[-1, g][int(b)].tolist() for b in stalled[:10]], "stalled_count": int(stalled.numel())}
+    out = {
+        "starts": int(final.numel()),
+        "horizon_s": batch.horizon,
+        "converged": float(ok.double().mean()),
+        "final_distance_max": float(final.max()),
+        "final_distance_median": float(final.median()),
+        "stalled": [ro.q[-1, g][int(b)].tolist() for b in stalled[:10]],
+        "stalled_count": int(stalled.numel()),
+    }
     if V is not None:
         out["lyapunov_monotone_fraction"] = float(lyapunov_monotone(V, rtol=rtol, atol=atol).double().mean())
     return out
@@ -190,23 +221,30 @@ def convergence(batch: Batch, ro, d, rtol: float, atol: float, dt: float) -> dic
 def evaluate_policy(exp: Experiment, label: str, policy: Callable, batch: Batch) -> tuple[dict, object]:
     """One policy on the evaluation batch: reproduction of the held-out demonstrations, convergence from the grid."""
     d, ev = exp.run.data, exp.run.eval
-    ro = exp.env.rollout(policy, batch.q0, batch.qd0, batch.aux, batch.horizon, exp.env.dt,
-                         progress=exp.say.bar(f"rollout {label}"))
+    ro = exp.env.rollout(
+        policy, batch.q0, batch.qd0, batch.aux, batch.horizon, exp.env.dt, progress=exp.say.bar(f"rollout {label}")
+    )
     out = {f"reproduction_{k}": reproduction(batch, ro, k, d.tolerance) for k in batch.index}
     out["convergence"] = conv = convergence(batch, ro, d, ev.lyapunov_rtol, ev.lyapunov_atol, exp.env.dt)
     rep = out["reproduction_test"]
     monotone = conv.get("lyapunov_monotone_fraction")
-    exp.say.say(f"{label}: test DTW {rep['dtw']:.4g} m, swept area {rep['swept_error_area']:.4g} m², final "
-                f"{rep['final_distance']:.2e} m; converged {conv['converged']:.0%} of {conv['starts']} starts"
-                + (f", V_r monotone {monotone:.0%}" if monotone is not None else " (no V_r: not a tree)"))
+    exp.say.say(
+        f"{label}: test DTW {rep['dtw']:.4g} m, swept area {rep['swept_error_area']:.4g} m², final "
+        f"{rep['final_distance']:.2e} m; converged {conv['converged']:.0%} of {conv['starts']} starts"
+        + (f", V_r monotone {monotone:.0%}" if monotone is not None else " (no V_r: not a tree)")
+    )
     if monotone is not None and monotone < 1.0:
-        exp.say.say(f"WARNING: {label}: V_r rose on {1 - monotone:.0%} of the rollouts from rest, which Theorem 2 forbids "
-                    f"for a tree in continuous time: the integrator's step (env.dt = {exp.env.dt:g} s) is too coarse "
-                    "for this policy there (the certificate checks the identity at each record); rerun with a smaller "
-                    "env.dt to tell integration error from a bug (metrics.json: convergence.lyapunov_monotone_fraction)")
+        exp.say.say(
+            f"WARNING: {label}: V_r rose on {1 - monotone:.0%} of the rollouts from rest, which Theorem 2 forbids "
+            f"for a tree in continuous time: the integrator's step (env.dt = {exp.env.dt:g} s) is too coarse "
+            "for this policy there (the certificate checks the identity at each record); rerun with a smaller "
+            "env.dt to tell integration error from a bug (metrics.json: convergence.lyapunov_monotone_fraction)"
+        )
     if conv["stalled_count"]:
-        exp.say.say(f"{label}: {conv['stalled_count']} start(s) nearly at rest away from the goal at the horizon (a "
-                    f"spurious equilibrium, or a region the policy makes extremely slow), e.g. at {conv['stalled'][0]}")
+        exp.say.say(
+            f"{label}: {conv['stalled_count']} start(s) nearly at rest away from the goal at the horizon (a "
+            f"spurious equilibrium, or a region the policy makes extremely slow), e.g. at {conv['stalled'][0]}"
+        )
     return out, ro
 
 
@@ -229,8 +267,12 @@ def evaluate_recorded(exp: Experiment, fitted: dict, batch: Batch) -> tuple[dict
             final["certificate"] = certificate(model, ro, batch.aux)
         if learned := model.learned_numbers():
             final["learned_leaf_parameters"] = learned
-        res["learners"][name] = {**final, "snapshots": snaps, "train_seconds": f.seconds,
-                                 "final_train_loss": f.result.curve[-1][1] if f.result.curve else None}
+        res["learners"][name] = {
+            **final,
+            "snapshots": snaps,
+            "train_seconds": f.seconds,
+            "final_train_loss": f.result.curve[-1][1] if f.result.curve else None,
+        }
     return res, rollouts
 
 
@@ -251,9 +293,16 @@ def run_recorded(exp: Experiment, require_trained: bool = False) -> dict:
     batch = evaluation_batch(exp, demos, every_demo)
     results, rollouts = evaluate_recorded(exp, fitted, batch)
     results["objective"] = objective(results)
-    metrics = clean({"name": exp.run.name, "seed": exp.run.seed, "source": "recorded",
-                     "data": {k: {kk: vv for kk, vv in v.items() if kk != "path"} for k, v in splits.info.items()},
-                     **results, "timing": {**exp.timing, "total_s": time.time() - started}})
+    metrics = clean(
+        {
+            "name": exp.run.name,
+            "seed": exp.run.seed,
+            "source": "recorded",
+            "data": {k: {kk: vv for kk, vv in v.items() if kk != "path"} for k, v in splits.info.items()},
+            **results,
+            "timing": {**exp.timing, "total_s": time.time() - started},
+        }
+    )
     if exp.run.eval.figures:
         metrics["figures"] = recorded_figures(exp.dir / "figures", rollouts, batch, demos)
     atomic_write_json(exp.dir / "metrics.json", metrics)

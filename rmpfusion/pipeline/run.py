@@ -7,6 +7,7 @@ outputs into the run directory (datasets, checkpoints, figures, metrics.json), s
 All on CPU, one intra-op thread: the batches are small (2-D states), so extra threads only contend on a
 shared machine (a batched 2x2 solve got ~10x slower with 2 busy threads in measurements).
 """
+
 from __future__ import annotations
 
 import os
@@ -45,16 +46,23 @@ def start(run: RunConfig, run_dir: str | os.PathLike, progress: bool = True, log
     return prepare(run, run_dir, Progress(progress), log)
 
 
-def evaluate_and_report(exp: Experiment, splits: Splits, fitted: dict[str, Fitted], started: float,
-                        expert: ExpertEval | None = None) -> dict:
+def evaluate_and_report(
+    exp: Experiment, splits: Splits, fitted: dict[str, Fitted], started: float, expert: ExpertEval | None = None
+) -> dict:
     """Stages 3 and 4 over trained learners: what ``rmpfusion-run`` and ``rmpfusion-evaluate`` end with
     (``expert``: its evaluation when it was done already)."""
     expert, evals = evaluate(exp, splits, fitted, expert)
     return report(exp, splits, fitted, expert, evals, started)
 
 
-def run_experiment(run: RunConfig, run_dir: str | os.PathLike, progress: bool = True, log: Log | None = None,
-                   threads: int = 1, require_trained: bool = False) -> dict:
+def run_experiment(
+    run: RunConfig,
+    run_dir: str | os.PathLike,
+    progress: bool = True,
+    log: Log | None = None,
+    threads: int = 1,
+    require_trained: bool = False,
+) -> dict:
     """Run ``run`` in ``run_dir`` and return (and write) its metrics; rerunning reuses data and checkpoints.
     ``require_trained``: evaluate the checkpoints already there instead of training (``rmpfusion-evaluate``)."""
     started = time.time()

@@ -11,10 +11,12 @@ run on a config that would fail later.
 Of the three jobs between a composed config and a run, this module is the middle one: ``migrate.py`` answers
 keys and names that stored configs still carry, ``construct.py`` builds the experiment's objects.
 """
+
 from __future__ import annotations
 
 import difflib
-from typing import Any, Mapping, Sequence
+from collections.abc import Mapping, Sequence
+from typing import Any
 
 import torch
 from omegaconf import DictConfig, OmegaConf
@@ -78,8 +80,10 @@ def device_problem(device: Any) -> str | None:
         return f"{device!r} is not available here ({why}); set device=cpu, or run where a GPU is"
     index = int(device.split(":")[1]) if ":" in device else 0
     if index >= torch.cuda.device_count():
-        return (f"{device!r} is not available here: this machine has {torch.cuda.device_count()} CUDA device(s), "
-                f"cuda:0 to cuda:{torch.cuda.device_count() - 1}; choose one of them")
+        return (
+            f"{device!r} is not available here: this machine has {torch.cuda.device_count()} CUDA device(s), "
+            f"cuda:0 to cuda:{torch.cuda.device_count() - 1}; choose one of them"
+        )
     return None
 
 
@@ -101,8 +105,13 @@ def _dedupe(issues: list[Issue]) -> list[Issue]:
     for i in issues:
         if any(i.path == o.path or i.path.startswith(o.path + ".") for o in out):
             continue
-        if any(i.path.startswith(f"tree.{k}") and o.path.startswith(f"env.{k}") and o.message.split(" (given")[0]
-               == i.message.split(" (given")[0] for o in issues for k in ("robot", "scene")):
+        if any(
+            i.path.startswith(f"tree.{k}")
+            and o.path.startswith(f"env.{k}")
+            and o.message.split(" (given")[0] == i.message.split(" (given")[0]
+            for o in issues
+            for k in ("robot", "scene")
+        ):
             continue
         out.append(i)
     return out
@@ -142,8 +151,10 @@ def _method_issues(run: RunConfig, env: Any) -> list[Issue]:
     method = TRAIN_METHODS.get(run.train.method).obj
     if run.data.source == "recorded":  # only behavior cloning; the model's own check says so
         return []
-    return [Issue(path, message) for path, message in
-            method.requirements(run.train, env, run.data.train_envs * run.data.train_trajectories)]
+    return [
+        Issue(path, message)
+        for path, message in method.requirements(run.train, env, run.data.train_envs * run.data.train_trajectories)
+    ]
 
 
 def _recording_issues(run: RunConfig, env: Any) -> list[Issue]:
@@ -168,15 +179,25 @@ def _expert_issues(run: RunConfig) -> list[Issue]:
         if n not in nodes and n not in shared:
             why = "is the root, which has no incoming edge to weight" if n == root else "is not a node of the tree"
             names = [*nodes, *shared, *roles]
-            issues.append(Issue(f"expert.{n}", f"'{n}' {why}; {_close(n, names)}nodes and shared weights: "
-                                               f"{_listing([*nodes, *shared])}{role_note}"))
+            issues.append(
+                Issue(
+                    f"expert.{n}",
+                    f"'{n}' {why}; {_close(n, names)}nodes and shared weights: "
+                    f"{_listing([*nodes, *shared])}{role_note}",
+                )
+            )
     missing = [n for n in own_weights(run.tree) if n not in run.expert]
     if missing:
         by_role = {n: r for r, members in roles.items() for n in members}
         said = ", ".join(f"{n} (role {by_role[n]})" if n in by_role else n for n in missing)
-        issues.append(Issue("expert", f"no expert weight for {said}: the tree carries a learnable weight there, which "
-                                      f"the expert would keep at its random initialisation; give each by name or by "
-                                      f"its role"))
+        issues.append(
+            Issue(
+                "expert",
+                f"no expert weight for {said}: the tree carries a learnable weight there, which "
+                f"the expert would keep at its random initialisation; give each by name or by "
+                f"its role",
+            )
+        )
     return issues
 
 
@@ -198,13 +219,20 @@ def _learner_issues(run: RunConfig) -> list[Issue]:
             issues += check_typed(w, WEIGHTS, path)[1]
         ref = block.get("match_parameters_of")
         if ref is not None and ref not in run.learners:
-            issues.append(Issue(f"learners.{name}.match_parameters_of",
-                                f"no learner named '{ref}'; {_close(ref, list(run.learners))}"
-                                f"learners: {_listing(run.learners)}"))
+            issues.append(
+                Issue(
+                    f"learners.{name}.match_parameters_of",
+                    f"no learner named '{ref}'; {_close(ref, list(run.learners))}learners: {_listing(run.learners)}",
+                )
+            )
         for i, e in enumerate(block.get("edges") or []):
             if e not in nodes:
-                issues.append(Issue(f"learners.{name}.edges[{i}]", f"'{e}' is not a node of the tree; "
-                                                                    f"{_close(e, list(nodes))}nodes: {_listing(nodes)}"))
+                issues.append(
+                    Issue(
+                        f"learners.{name}.edges[{i}]",
+                        f"'{e}' is not a node of the tree; {_close(e, list(nodes))}nodes: {_listing(nodes)}",
+                    )
+                )
     return issues
 
 
@@ -266,17 +294,29 @@ def _aux_issues(data: Mapping[str, Any], env_type: str, aux_dims: Mapping[str, i
         if name in binds and name not in aux_dims:
             continue
         if name not in aux_dims:
-            issues.append(Issue(f"tree.aux.{name}", f"the environment '{env_type}' does not provide aux '{name}'; "
-                                                    f"{_close(name, list(aux_dims))}it provides: {', '.join(aux_dims)}"))
+            issues.append(
+                Issue(
+                    f"tree.aux.{name}",
+                    f"the environment '{env_type}' does not provide aux '{name}'; "
+                    f"{_close(name, list(aux_dims))}it provides: {', '.join(aux_dims)}",
+                )
+            )
         elif int(d) != aux_dims[name]:
-            issues.append(Issue(f"tree.aux.{name}", f"declared with dimension {d}, the environment gives {aux_dims[name]}"))
+            issues.append(
+                Issue(f"tree.aux.{name}", f"declared with dimension {d}, the environment gives {aux_dims[name]}")
+            )
     known = {**aux_dims, **{n: d for n, d in declared.items() if n in binds}}
     for path, name in _tree_aux_refs(data):
         if name == "all" and path.endswith(".aux"):
             continue
         if name not in known:
-            issues.append(Issue(path, f"aux name '{name}' is not provided by the environment '{env_type}'; "
-                                      f"{_close(name, list(known))}it provides: {', '.join(known) or 'none'}"))
+            issues.append(
+                Issue(
+                    path,
+                    f"aux name '{name}' is not provided by the environment '{env_type}'; "
+                    f"{_close(name, list(known))}it provides: {', '.join(known) or 'none'}",
+                )
+            )
     return issues
 
 
@@ -330,5 +370,3 @@ def resolve_and_validate(cfg: DictConfig | Mapping[str, Any]) -> RunConfig:
 def validate_graph(run: RunConfig) -> None:
     """The tree's graph checks (rooted, leaves carry rmps, shared weights declared)."""
     validate_tree_spec(run.tree, "tree")
-
-

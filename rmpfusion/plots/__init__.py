@@ -1,4 +1,5 @@
 """Figures as PNG files, drawn off-screen on matplotlib Figures (no pyplot: importing them never picks a backend)."""
+
 from .figures import (  # noqa: F401
     plot_learning_curves,
     plot_lyapunov,

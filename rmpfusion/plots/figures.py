@@ -5,11 +5,12 @@ a half-written PNG that looks like a result.
 Every figure names what it shows (a title), its axes with their units, and every kind of mark in a legend, so it
 reads without the code or the caller. Each ``plot_*`` saves what a ``_draw_*`` returns: the tests inspect that
 ``Figure`` without writing a file."""
+
 from __future__ import annotations
 
 import os
+from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Mapping, Sequence
 
 import matplotlib
 import numpy as np
@@ -84,8 +85,9 @@ def legend_outside(ax, **kwargs):
     handles, labels = policies_first(*ax.get_legend_handles_labels())
     if not handles:
         return None
-    return ax.legend(handles, labels, loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0,
-                     fontsize=LEGEND_SIZE, **kwargs)
+    return ax.legend(
+        handles, labels, loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0, fontsize=LEGEND_SIZE, **kwargs
+    )
 
 
 def figure_legend(fig, handles: Sequence, labels: Sequence[str], ncol: int | None = None):
@@ -93,8 +95,14 @@ def figure_legend(fig, handles: Sequence, labels: Sequence[str], ncol: int | Non
     if not handles:
         return None
     handles, labels = policies_first(handles, labels)
-    return fig.legend(handles, labels, loc="outside lower center", fontsize=LEGEND_SIZE,
-                      ncol=ncol or min(len(labels), 4), frameon=False)
+    return fig.legend(
+        handles,
+        labels,
+        loc="outside lower center",
+        fontsize=LEGEND_SIZE,
+        ncol=ncol or min(len(labels), 4),
+        frameon=False,
+    )
 
 
 def unique_handles(*axes) -> tuple[list, list[str]]:
@@ -127,8 +135,17 @@ def draw_environment(ax, aux: Mapping[str, torch.Tensor], q0=None, qd0=None) -> 
     while f"obstacle{k}_center" in aux:
         c = _np(aux[f"obstacle{k}_center"]).reshape(-1, 2)[0]
         r = float(_np(aux[f"obstacle{k}_radius"]).reshape(-1)[0])
-        ax.add_patch(Circle(c, r, color=_OBSTACLE_COLOURS[(k - 1) % len(_OBSTACLE_COLOURS)], alpha=0.45, lw=0,
-                            label=f"obstacle {k}", zorder=1))
+        ax.add_patch(
+            Circle(
+                c,
+                r,
+                color=_OBSTACLE_COLOURS[(k - 1) % len(_OBSTACLE_COLOURS)],
+                alpha=0.45,
+                lw=0,
+                label=f"obstacle {k}",
+                zorder=1,
+            )
+        )
         k += 1
     g = _np(aux["goal"]).reshape(-1, 2)[0]
     ax.plot(g[0], g[1], "s", color="orange", ms=9, mec="k", zorder=5, label="goal")
@@ -137,8 +154,18 @@ def draw_environment(ax, aux: Mapping[str, torch.Tensor], q0=None, qd0=None) -> 
         ax.plot(q0[:, 0], q0[:, 1], "o", color="k", ms=4, zorder=5, ls="none", label="start")
         if qd0 is not None:
             v = _np(qd0).reshape(-1, 2)
-            ax.quiver(q0[:, 0], q0[:, 1], v[:, 0], v[:, 1], angles="xy", scale_units="xy", scale=1.0, color="k",
-                      width=0.004, zorder=5)
+            ax.quiver(
+                q0[:, 0],
+                q0[:, 1],
+                v[:, 0],
+                v[:, 1],
+                angles="xy",
+                scale_units="xy",
+                scale=1.0,
+                color="k",
+                width=0.004,
+                zorder=5,
+            )
             # a quiver has no legend mark of its own: an arrow-shaped stand-in names it
             ax.plot([], [], ls="none", marker=r"$\rightarrow$", ms=12, color="k", label="initial velocity (1 s)")
     ax.set_aspect("equal")
@@ -153,8 +180,10 @@ def _plane_axes(ax, limits: Sequence[float], unit: str) -> None:
 
 def _trajectories(ax, q, style: Mapping, colour: str, label: str | None) -> list:
     q = _np(q)  # (T, n, 2)
-    return [ax.plot(q[:, i, 0], q[:, i, 1], color=colour, label=label if i == 0 else None, **style)[0]
-            for i in range(q.shape[1])]
+    return [
+        ax.plot(q[:, i, 0], q[:, i, 1], color=colour, label=label if i == 0 else None, **style)[0]
+        for i in range(q.shape[1])
+    ]
 
 
 def _expert_and_learners(ax, expert_q, learner_q: Mapping[str, object]) -> None:
@@ -165,8 +194,16 @@ def _expert_and_learners(ax, expert_q, learner_q: Mapping[str, object]) -> None:
         _trajectories(ax, expert_q, EXPERT_STYLE, "k", "expert")
 
 
-def _draw_trajectories(aux, expert_q, learner_q=None, q0=None, qd0=None, title: str = "",
-                       limits: Sequence[float] = (-5, 5), unit: str = PLANE_UNIT) -> Figure:
+def _draw_trajectories(
+    aux,
+    expert_q,
+    learner_q=None,
+    q0=None,
+    qd0=None,
+    title: str = "",
+    limits: Sequence[float] = (-5, 5),
+    unit: str = PLANE_UNIT,
+) -> Figure:
     fig, ax = subplots(figsize=(6.6, 4.6), layout="constrained")
     draw_environment(ax, aux, q0, qd0)
     _expert_and_learners(ax, expert_q, dict(learner_q or {}))
@@ -176,9 +213,17 @@ def _draw_trajectories(aux, expert_q, learner_q=None, q0=None, qd0=None, title: 
     return fig
 
 
-def plot_trajectories(path, aux: Mapping[str, torch.Tensor], expert_q, learner_q: Mapping[str, object] | None = None,
-                      q0=None, qd0=None, title: str = "", limits: Sequence[float] = (-5, 5),
-                      unit: str = PLANE_UNIT) -> Path:
+def plot_trajectories(
+    path,
+    aux: Mapping[str, torch.Tensor],
+    expert_q,
+    learner_q: Mapping[str, object] | None = None,
+    q0=None,
+    qd0=None,
+    title: str = "",
+    limits: Sequence[float] = (-5, 5),
+    unit: str = PLANE_UNIT,
+) -> Path:
     """Expert (black dashed, on top) and learners (wide, semi-transparent) from the same initial states in one
     environment; ``unit`` is the length unit of the plane."""
     return save_figure(_draw_trajectories(aux, expert_q, learner_q, q0, qd0, title, limits, unit), path)
@@ -227,8 +272,9 @@ def _snapshot_marks(ax, line: np.ndarray, snapshots: Sequence[int], marked: bool
     return marked
 
 
-def _draw_learning_curves(curves, snapshots=None, smooth: int = 50, title: str = "",
-                          unit: str | None = None, measure: str = "loss") -> Figure:
+def _draw_learning_curves(
+    curves, snapshots=None, smooth: int = 50, title: str = "", unit: str | None = None, measure: str = "loss"
+) -> Figure:
     fig, ax = subplots(figsize=(7.6, 3.8), layout="constrained")
     marked = False
     step = "train minibatch" if measure == "loss" else "training rollouts"
@@ -238,7 +284,7 @@ def _draw_learning_curves(curves, snapshots=None, smooth: int = 50, title: str =
             k = max(1, min(smooth, len(tr) // 10 or 1))
             y = np.convolve(tr[:, 1], np.ones(k) / k, mode="valid")
             mean = f", mean of {k} iterations" if k > 1 else ""
-            ax.plot(tr[k - 1:, 0], y, color=colour, alpha=0.6, lw=1, label=f"{name}: {step}{mean}")
+            ax.plot(tr[k - 1 :, 0], y, color=colour, alpha=0.6, lw=1, label=f"{name}: {step}{mean}")
         va = np.asarray(c.get("val") or [], dtype=float).reshape(-1, 2)
         if len(va):
             ax.plot(va[:, 0], va[:, 1], "--", color=colour, lw=1.4, label=f"{name}: validation set")
@@ -254,14 +300,24 @@ def _draw_learning_curves(curves, snapshots=None, smooth: int = 50, title: str =
     ax.xaxis.set_major_formatter(FuncFormatter(_iterations))
     ax.set_ylabel(_loss_label(unit) if measure == "loss" else "task cost per rollout")
     legend_outside(ax)
-    default = ("learning curves: loss against the expert's accelerations" if measure == "loss" else
-               "learning curves: task cost of the rollouts")
+    default = (
+        "learning curves: loss against the expert's accelerations"
+        if measure == "loss"
+        else "learning curves: task cost of the rollouts"
+    )
     ax.set_title(title or default, fontsize=TITLE_SIZE)
     return fig
 
 
-def plot_learning_curves(path, curves: Mapping[str, Mapping[str, Sequence]], snapshots: Mapping[str, Sequence[int]] | None = None,
-                         smooth: int = 50, title: str = "", unit: str | None = None, measure: str = "loss") -> Path:
+def plot_learning_curves(
+    path,
+    curves: Mapping[str, Mapping[str, Sequence]],
+    snapshots: Mapping[str, Sequence[int]] | None = None,
+    smooth: int = 50,
+    title: str = "",
+    unit: str | None = None,
+    measure: str = "loss",
+) -> Path:
     """Train loss (smoothed), validation (dashed) and test batch-loss per learner on a log scale, snapshot
     iterations marked in red. ``unit`` is the unit of q̈ (the loss is in its square). ``measure="cost"``: the
     curves hold a task cost (policy optimisation without an expert): the training rollouts' and the validation
@@ -272,8 +328,9 @@ def plot_learning_curves(path, curves: Mapping[str, Mapping[str, Sequence]], sna
     return save_figure(_draw_learning_curves(curves, snapshots, smooth, title, unit, measure), path)
 
 
-def _draw_progression(aux, expert_q, stages, q0=None, qd0=None, limits: Sequence[float] = (-5, 5),
-                      title: str = "", unit: str = PLANE_UNIT) -> Figure:
+def _draw_progression(
+    aux, expert_q, stages, q0=None, qd0=None, limits: Sequence[float] = (-5, 5), title: str = "", unit: str = PLANE_UNIT
+) -> Figure:
     n = len(stages)
     has_v = any(s.get("V") is not None for s in stages)
     rows = 2 if has_v else 1
@@ -301,14 +358,24 @@ def _draw_progression(aux, expert_q, stages, q0=None, qd0=None, limits: Sequence
                 axv.axis("off")
     shared_ylim(v_axes, v_values)
     figure_legend(fig, *unique_handles(*axes.flat))
-    fig.suptitle(title or "the learner vs the expert at each training snapshot (columns: learner @ iteration)",
-                 fontsize=TITLE_SIZE)
+    fig.suptitle(
+        title or "the learner vs the expert at each training snapshot (columns: learner @ iteration)",
+        fontsize=TITLE_SIZE,
+    )
     return fig
 
 
-def plot_progression(path, aux: Mapping[str, torch.Tensor], expert_q, stages: Sequence[Mapping[str, object]],
-                     q0=None, qd0=None, limits: Sequence[float] = (-5, 5), title: str = "",
-                     unit: str = PLANE_UNIT) -> Path:
+def plot_progression(
+    path,
+    aux: Mapping[str, torch.Tensor],
+    expert_q,
+    stages: Sequence[Mapping[str, object]],
+    q0=None,
+    qd0=None,
+    limits: Sequence[float] = (-5, 5),
+    title: str = "",
+    unit: str = PLANE_UNIT,
+) -> Path:
     """One column per snapshot: trajectories (top) and, when the learner has one, V_r(t) (bottom), the V_r
     panels on one y-scale so the snapshots compare at a glance.
 
@@ -322,8 +389,9 @@ def _draw_weights(times, expert, learned, title: str = "") -> Figure:
     n = max(len(edges), 1)
     cols = min(n, 5)
     rows = (n + cols - 1) // cols
-    fig, axes = subplots(rows, cols, figsize=(3.0 * cols, 2.5 * rows + 0.8), squeeze=False, sharex=True,
-                         layout="constrained")
+    fig, axes = subplots(
+        rows, cols, figsize=(3.0 * cols, 2.5 * rows + 0.8), squeeze=False, sharex=True, layout="constrained"
+    )
     t = _np(times)
     colours = colour_cycle()
     for ax, e in zip(axes.flat, edges):
@@ -343,7 +411,7 @@ def _draw_weights(times, expert, learned, title: str = "") -> Figure:
         ax.set_xlabel(TIME_LABEL, fontsize=8)
         ax.set_ylabel("weight $w$", fontsize=8)
         ax.xaxis.set_tick_params(labelbottom=True)
-    for ax in axes.flat[len(edges):]:
+    for ax in axes.flat[len(edges) :]:
         ax.axis("off")
     handles, labels = unique_handles(*axes.flat)
     figure_legend(fig, handles, labels, ncol=min(len(labels), 6))
@@ -351,8 +419,9 @@ def _draw_weights(times, expert, learned, title: str = "") -> Figure:
     return fig
 
 
-def plot_weights(path, times, expert: Mapping[str, Sequence], learned: Mapping[str, Mapping[str, Sequence]],
-                 title: str = "") -> Path:
+def plot_weights(
+    path, times, expert: Mapping[str, Sequence], learned: Mapping[str, Mapping[str, Sequence]], title: str = ""
+) -> Path:
     """One panel per learned edge: the expert's weight (thick dashed black, on top) and each learner snapshot's
     weight (coloured) at the same states along a test trajectory, on a log scale when the weights span a decade.
 

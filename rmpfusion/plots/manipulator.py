@@ -2,10 +2,12 @@
 policy, a render strip and an animated GIF of one test execution (pybullet's headless renderer), and the
 end-effector paths seen from above. Written atomically, like every figure of the project; each ``plot_*`` saves what
 a ``_draw_*`` returns, so the tests inspect the ``Figure`` without writing a file."""
+
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 import torch
@@ -15,12 +17,28 @@ from matplotlib.patches import Circle, Patch, Rectangle
 
 from ..envs.protocol import Renders
 from ..files import atomic_path
-from .figures import (LEGEND_SIZE, TIME_LABEL, TITLE_SIZE, V_LABEL, _np, figure_legend, legend_outside, save_figure,
-                      shared_ylim, subplots, unique_handles)
+from .figures import (
+    LEGEND_SIZE,
+    TIME_LABEL,
+    TITLE_SIZE,
+    V_LABEL,
+    _np,
+    figure_legend,
+    legend_outside,
+    save_figure,
+    shared_ylim,
+    subplots,
+    unique_handles,
+)
 
-METRIC_LABELS = {"time": "time", "cspace_length": "conf length", "ee_length": "end eff length",
-                 "goal_distance": "goal distance", "timeout_goal_distance": "goal distance\nat time-out",
-                 "min_goal_distance": "closest\ngoal distance"}
+METRIC_LABELS = {
+    "time": "time",
+    "cspace_length": "conf length",
+    "ee_length": "end eff length",
+    "goal_distance": "goal distance",
+    "timeout_goal_distance": "goal distance\nat time-out",
+    "min_goal_distance": "closest\ngoal distance",
+}
 _STAGE_COLOURS = ("tab:red", "tab:orange", "tab:green", "tab:blue", "tab:purple", "tab:brown", "tab:pink")
 
 
@@ -36,8 +54,17 @@ def _draw_ratio_bars(ratios, metrics=None, title: str = "") -> Figure:
         std = [ratios[lab].get(m, {}).get("std", np.nan) for m in metrics]
         mean = np.array([np.nan if v is None else v for v in mean], dtype=float)
         std = np.array([np.nan if v is None else v for v in std], dtype=float)
-        ax.bar(x + (i - (n - 1) / 2) * width, mean, width * 0.9, yerr=std, capsize=3, label=lab,
-               color=_STAGE_COLOURS[(i + 1) % len(_STAGE_COLOURS)], alpha=0.85, error_kw={"lw": 1})
+        ax.bar(
+            x + (i - (n - 1) / 2) * width,
+            mean,
+            width * 0.9,
+            yerr=std,
+            capsize=3,
+            label=lab,
+            color=_STAGE_COLOURS[(i + 1) % len(_STAGE_COLOURS)],
+            alpha=0.85,
+            error_kw={"lw": 1},
+        )
     ax.axhline(1.0, color="k", ls=":", lw=1.2, label="expert (ratio 1)")
     ax.errorbar([], [], yerr=[], fmt="none", ecolor="k", capsize=3, lw=1, label="± std over trajectories")
     tops = [ratios[lab].get(m, {}).get("mean") for lab in labels for m in metrics]
@@ -52,8 +79,9 @@ def _draw_ratio_bars(ratios, metrics=None, title: str = "") -> Figure:
     return fig
 
 
-def plot_ratio_bars(path, ratios: Mapping[str, Mapping[str, Mapping[str, float]]],
-                    metrics: Sequence[str] | None = None, title: str = "") -> Path:
+def plot_ratio_bars(
+    path, ratios: Mapping[str, Mapping[str, Mapping[str, float]]], metrics: Sequence[str] | None = None, title: str = ""
+) -> Path:
     """Paper Fig. 5b: per metric, one bar per policy = mean of the per-trajectory ratios learner/expert, error bar
     = their standard deviation; the expert is the dotted line at 1. ``ratios[label][metric] = {mean, std}``."""
     return save_figure(_draw_ratio_bars(ratios, metrics, title), path)
@@ -73,8 +101,17 @@ def _draw_goal_distances(policies: Sequence[Any], title: str = "") -> Figure:
         mean = np.array([p.summary.get(key, {}).get("mean", np.nan) for p in policies], dtype=float)
         std = np.array([p.summary.get(key, {}).get("std", np.nan) for p in policies], dtype=float)
         lower = np.minimum(std, mean * 0.999)  # a log axis cannot show mean − std ≤ 0
-        ax.bar(x + (j - 0.5) * width, mean, width * 0.9, yerr=[lower, std], capsize=3, label=label,
-               color=("tab:blue", "tab:orange")[j], alpha=0.85, error_kw={"lw": 1})
+        ax.bar(
+            x + (j - 0.5) * width,
+            mean,
+            width * 0.9,
+            yerr=[lower, std],
+            capsize=3,
+            label=label,
+            color=("tab:blue", "tab:orange")[j],
+            alpha=0.85,
+            error_kw={"lw": 1},
+        )
     ax.axhline(0.05, color="k", ls=":", lw=1.2, label="0.05 m: goal reached")
     ax.errorbar([], [], yerr=[], fmt="none", ecolor="k", capsize=3, lw=1, label="± std over trajectories")
     ax.set_yscale("log")
@@ -156,13 +193,22 @@ def _draw_render_strip(rows: Sequence[Mapping[str, Any]], title: str = "") -> Fi
                 ax.set_title(f"t = {f['t']:.1f} s", fontsize=9)
             if j == 0:
                 ax.set_ylabel(str(r["label"]), fontsize=9)
-    handles = [Line2D([], [], color="yellow", lw=1.5),
-               Line2D([], [], ls="none", marker="*", color="orange", mec="k", ms=9),
-               Patch(color="tab:red", alpha=0.8)]
+    handles = [
+        Line2D([], [], color="yellow", lw=1.5),
+        Line2D([], [], ls="none", marker="*", color="orange", mec="k", ms=9),
+        Patch(color="tab:red", alpha=0.8),
+    ]
     fig.subplots_adjust(wspace=0.02, hspace=0.04)
     # just below the images (the saved figure's tight bounding box takes it in), never over a render
-    fig.legend(handles, [TRAIL_LABEL, GOAL_LABEL, OBSTACLE_LABEL], loc="upper center", ncol=3, fontsize=LEGEND_SIZE,
-               frameon=False, bbox_to_anchor=(0.5, 0.105))
+    fig.legend(
+        handles,
+        [TRAIL_LABEL, GOAL_LABEL, OBSTACLE_LABEL],
+        loc="upper center",
+        ncol=3,
+        fontsize=LEGEND_SIZE,
+        frameon=False,
+        bbox_to_anchor=(0.5, 0.105),
+    )
     fig.suptitle(title or "one test execution per policy (rows), left to right in time", fontsize=TITLE_SIZE)
     return fig
 
@@ -195,8 +241,17 @@ def _draw_ee_paths(aux: Mapping[str, torch.Tensor], paths: Mapping[str, Any], ti
         if lab == "expert":
             ax.plot(p[:, 0], p[:, 1], "--", color="k", lw=1.3, zorder=4, label=lab)
         else:
-            ax.plot(p[:, 0], p[:, 1], "-", color=colours[lab], lw=2.6, alpha=0.6, zorder=3, solid_capstyle="round",
-                    label=lab)
+            ax.plot(
+                p[:, 0],
+                p[:, 1],
+                "-",
+                color=colours[lab],
+                lw=2.6,
+                alpha=0.6,
+                zorder=3,
+                solid_capstyle="round",
+                label=lab,
+            )
         if len(p):
             ax.plot(p[0, 0], p[0, 1], "o", color="k", ms=4, zorder=5, label=None if started else "start")
             started = True
@@ -305,28 +360,53 @@ def _index_at(times: torch.Tensor, t: float) -> int:
     return int((times - t).abs().argmin())
 
 
-def manipulator_figures(env: Renders, fig_dir, expert, stages, aux: Mapping[str, torch.Tensor],
-                        title: str = "manipulator") -> list[Path]:
+def manipulator_figures(
+    env: Renders, fig_dir, expert, stages, aux: Mapping[str, torch.Tensor], title: str = "manipulator"
+) -> list[Path]:
     """All the figures of a manipulator experiment; see the module docstring. ``expert``/``stages``: ``StageResult``s."""
     fig_dir = Path(fig_dir)
     out: list[Path] = []
     ratios = {st.label: st.ratios for st in stages if st.ratios}
     if ratios:
-        out.append(plot_ratio_bars(fig_dir / "task_ratios.png", ratios, PATH_RATIOS,
-                                   title=f"{title}: learner / expert on the test set (mean ± std over trajectories)"))
-    out.append(plot_goal_distances(fig_dir / "task_goal_distances.png", [expert, *stages],
-                                   title=f"{title}: goal distance on the test set (mean ± std over trajectories)"))
+        out.append(
+            plot_ratio_bars(
+                fig_dir / "task_ratios.png",
+                ratios,
+                PATH_RATIOS,
+                title=f"{title}: learner / expert on the test set (mean ± std over trajectories)",
+            )
+        )
+    out.append(
+        plot_goal_distances(
+            fig_dir / "task_goal_distances.png",
+            [expert, *stages],
+            title=f"{title}: goal distance on the test set (mean ± std over trajectories)",
+        )
+    )
     b = _example(env, expert)
     policies = [expert, *stages]
-    panels = [{"label": st.label, "times": st.rollout.times, "V": st.rollout.V, "highlight": b}
-              for st in policies if st.rollout.V is not None]
+    panels = [
+        {"label": st.label, "times": st.rollout.times, "V": st.rollout.V, "highlight": b}
+        for st in policies
+        if st.rollout.V is not None
+    ]
     if panels:
-        out.append(plot_lyapunov_stages(fig_dir / "task_lyapunov.png", panels,
-                                        title=f"{title}: $V_r(t)$ on the test set (thick: the rendered execution {b})"))
-    ex_aux = {k: v[b:b + 1] for k, v in aux.items()}
-    out.append(plot_ee_paths(fig_dir / "task_ee_paths.png", ex_aux,
-                             {st.label: st.rollout.ee[:, b] for st in policies},
-                             title=f"{title}: end-effector paths, test execution {b} (top view)"))
+        out.append(
+            plot_lyapunov_stages(
+                fig_dir / "task_lyapunov.png",
+                panels,
+                title=f"{title}: $V_r(t)$ on the test set (thick: the rendered execution {b})",
+            )
+        )
+    ex_aux = {k: v[b : b + 1] for k, v in aux.items()}
+    out.append(
+        plot_ee_paths(
+            fig_dir / "task_ee_paths.png",
+            ex_aux,
+            {st.label: st.rollout.ee[:, b] for st in policies},
+            title=f"{title}: end-effector paths, test execution {b} (top view)",
+        )
+    )
     settings = env.render_settings
     w, h = settings.size
     goal_px = env.project(ex_aux["goal"].reshape(1, 3).cpu().numpy(), w, h)[0]
@@ -341,21 +421,32 @@ def manipulator_figures(env: Renders, fig_dir, expert, stages, aux: Mapping[str,
             q = ro.q[i, b].nan_to_num()
         ee = ro.ee[: i + 1, b]
         ee = ee[ee.isfinite().all(-1)].cpu().numpy()
-        return {"t": float(ro.times[i]), "image": env.render(q, ex_aux, width=width, height=height),
-                "trail": env.project(ee, width, height) if len(ee) else None, "goal": goal}
+        return {
+            "t": float(ro.times[i]),
+            "image": env.render(q, ex_aux, width=width, height=height),
+            "trail": env.project(ee, width, height) if len(ee) else None,
+            "goal": goal,
+        }
 
     horizon = float(expert.rollout.times[-1])
     times = [t for t in settings.times if t <= horizon + 1e-9] or [0.0]
     rows = [{"label": st.label, "frames": [frame(st, t, w, h, goal_px) for t in times]} for st in policies]
-    out.append(plot_render_strip(fig_dir / "task_execution.png", rows,
-                                 title=f"{title}: test execution {b}, left to right in time"))
+    out.append(
+        plot_render_strip(
+            fig_dir / "task_execution.png", rows, title=f"{title}: test execution {b}, left to right in time"
+        )
+    )
     # the animation: policies side by side, real time
     gw, gh = (w * 3) // 4, (h * 3) // 4
     goal_g = env.project(ex_aux["goal"].reshape(1, 3).cpu().numpy(), gw, gh)[0]
     n_frames = int(np.floor(horizon * settings.gif_fps + 1e-9)) + 1
-    caption = _caption(gw * len(policies), [f"{title}: test execution {b}, policies side by side, real time",
-                                            f"yellow line: {TRAIL_LABEL}; orange ring: {GOAL_LABEL}; "
-                                            f"red: obstacles"])
+    caption = _caption(
+        gw * len(policies),
+        [
+            f"{title}: test execution {b}, policies side by side, real time",
+            f"yellow line: {TRAIL_LABEL}; orange ring: {GOAL_LABEL}; red: obstacles",
+        ],
+    )
     frames = []
     for k in range(n_frames):
         t = k / settings.gif_fps
@@ -381,6 +472,12 @@ def _draw_trail(img: np.ndarray, trail, goal) -> np.ndarray:
     return np.asarray(im)
 
 
-__all__ = ["manipulator_figures", "plot_ee_paths", "plot_goal_distances", "plot_lyapunov_stages", "plot_ratio_bars",
-           "plot_render_strip",
-           "save_gif"]
+__all__ = [
+    "manipulator_figures",
+    "plot_ee_paths",
+    "plot_goal_distances",
+    "plot_lyapunov_stages",
+    "plot_ratio_bars",
+    "plot_render_strip",
+    "save_gif",
+]

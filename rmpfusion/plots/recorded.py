@@ -1,10 +1,11 @@
 """Figures of an experiment on recorded demonstrations, drawn from the rollouts the evaluation made: what each policy
 does from a grid of starts at rest over the demonstrations (a second-order policy has no single velocity field to
 draw, so its rollouts are drawn), and V_r along those rollouts (Theorem 2: never rising)."""
+
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Mapping
 
 import numpy as np
 
@@ -28,8 +29,14 @@ def draw_rollouts(rollouts: Mapping[str, object], batch, demos: Mapping[str, lis
             ax.plot(q[:, b, 0], q[:, b, 1], color="k", lw=0.6, label="rollout from rest" if i == 0 else None)
         for split, idx in batch.index.items():
             for i, b in enumerate(range(idx.start, idx.stop)):
-                ax.plot(q[:, b, 0], q[:, b, 1], color="tab:red", lw=1.4, ls="--",
-                        label="rollout from a held-out start" if (i == 0 and split == "test") else None)
+                ax.plot(
+                    q[:, b, 0],
+                    q[:, b, 1],
+                    color="tab:red",
+                    lw=1.4,
+                    ls="--",
+                    label="rollout from a held-out start" if (i == 0 and split == "test") else None,
+                )
         starts = q[0, grid]
         ax.plot(starts[:, 0], starts[:, 1], "k.", ms=3, label="start at rest")
         ax.plot(*goal, "r*", ms=12, label="goal")
@@ -54,8 +61,7 @@ def draw_lyapunov(rollouts: Mapping[str, object], grid: slice, shown: int = 25):
         rel = V / np.maximum(V[:1], 1e-300)
         t = ro.times.numpy()
         for b in np.linspace(0, rel.shape[1] - 1, min(shown, rel.shape[1])).astype(int):
-            ax.plot(t, np.maximum(rel[:, b], 1e-12), color=f"C{k}", lw=0.8, alpha=0.6,
-                    label=label if b == 0 else None)
+            ax.plot(t, np.maximum(rel[:, b], 1e-12), color=f"C{k}", lw=0.8, alpha=0.6, label=label if b == 0 else None)
     ax.set_yscale("log")
     ax.set_xlabel(TIME_LABEL), ax.set_ylabel(f"{V_LABEL} / $V_r(0)$")
     ax.set_title(f"V_r along rollouts from rest ({shown} starts per policy)", fontsize=TITLE_SIZE)

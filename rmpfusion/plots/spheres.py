@@ -1,10 +1,11 @@
 """The coverage figure of a robot's control spheres: per link, the checked surface samples seen along the link's
 two widest directions, covered ones grey, uncovered ones red, the spheres as circles."""
+
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 from matplotlib.figure import Figure
@@ -20,7 +21,7 @@ def _draw_coverage(fits: Sequence[LinkFit], title: str = "") -> Figure:
     cols = min(4, n)
     rows = math.ceil(n / cols)
     fig, axes = subplots(rows, cols, figsize=(3.1 * cols, 3.1 * rows + 0.6), squeeze=False, layout="constrained")
-    for ax in axes.flat[len(fits):]:
+    for ax in axes.flat[len(fits) :]:
         ax.axis("off")
     for ax, f in zip(axes.flat, fits):
         mean = f.points.mean(0)
@@ -33,18 +34,27 @@ def _draw_coverage(fits: Sequence[LinkFit], title: str = "") -> Figure:
         ax.set_aspect("equal")
         ax.autoscale_view()
         over = f"{1000 * f.overshoot.max():.0f}" if len(f.overshoot) else "–"
-        ax.set_title(f"{f.link}: {100 * f.coverage:.2f} % covered\n{len(f.radii)} spheres, overshoot ≤ {over} mm",
-                     fontsize=9)
+        ax.set_title(
+            f"{f.link}: {100 * f.coverage:.2f} % covered\n{len(f.radii)} spheres, overshoot ≤ {over} mm", fontsize=9
+        )
         ax.set_xlabel("widest direction (m)", fontsize=8)
         ax.set_ylabel("second widest (m)", fontsize=8)
-    handles = [Line2D([], [], ls="none", marker="o", color="0.6", ms=3),
-               Line2D([], [], ls="none", marker="o", color="tab:red", ms=3),
-               Line2D([], [], color="tab:blue", lw=1)]
-    figure_legend(fig, handles, ["surface sample inside a sphere", "surface sample outside every sphere",
-                                 "control sphere (projected)"])
+    handles = [
+        Line2D([], [], ls="none", marker="o", color="0.6", ms=3),
+        Line2D([], [], ls="none", marker="o", color="tab:red", ms=3),
+        Line2D([], [], color="tab:blue", lw=1),
+    ]
+    figure_legend(
+        fig,
+        handles,
+        ["surface sample inside a sphere", "surface sample outside every sphere", "control sphere (projected)"],
+    )
     s = summary(list(fits))
-    fig.suptitle(title or f"control-sphere coverage: {100 * s['coverage']:.2f} % of the collision surface, "
-                          f"{s['spheres']} spheres", fontsize=TITLE_SIZE)
+    fig.suptitle(
+        title
+        or f"control-sphere coverage: {100 * s['coverage']:.2f} % of the collision surface, {s['spheres']} spheres",
+        fontsize=TITLE_SIZE,
+    )
     return fig
 
 

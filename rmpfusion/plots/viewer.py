@@ -10,12 +10,13 @@ Sizes stay small on purpose: each sphere is a low-resolution mesh (``SPHERE_RING
 spheres of one robot are one mesh trace, frames are at most ``max_frames`` of the recorded times, and vertex
 coordinates travel as float32 (plotly encodes numpy arrays in binary).
 """
+
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Mapping, Sequence
 
 import numpy as np
 import plotly.graph_objects as go
@@ -65,8 +66,14 @@ def _unit_sphere(rings: int = SPHERE_RINGS, segments: int = SPHERE_SEGMENTS) -> 
     """(vertices (V, 3), triangles (F, 3)) of a unit sphere: two poles and ``rings - 1`` latitude circles."""
     lat = np.linspace(0, math.pi, rings + 1)[1:-1]
     lon = np.linspace(0, 2 * math.pi, segments, endpoint=False)
-    ring = np.stack([np.sin(lat)[:, None] * np.cos(lon), np.sin(lat)[:, None] * np.sin(lon),
-                     np.cos(lat)[:, None].repeat(segments, 1)], -1).reshape(-1, 3)
+    ring = np.stack(
+        [
+            np.sin(lat)[:, None] * np.cos(lon),
+            np.sin(lat)[:, None] * np.sin(lon),
+            np.cos(lat)[:, None].repeat(segments, 1),
+        ],
+        -1,
+    ).reshape(-1, 3)
     verts = np.concatenate([[[0, 0, 1]], ring, [[0, 0, -1]]])
     south, tris = len(verts) - 1, []
     for s in range(segments):
@@ -93,19 +100,38 @@ def _unit_cylinder(segments: int = 2 * SPHERE_SEGMENTS) -> tuple[np.ndarray, np.
     """A cylinder of radius 1 from z = -1 to z = 1, with its two caps."""
     lon = np.linspace(0, 2 * math.pi, segments, endpoint=False)
     circle = np.stack([np.cos(lon), np.sin(lon)], 1)
-    verts = np.concatenate([np.c_[circle, -np.ones(segments)], np.c_[circle, np.ones(segments)],
-                            [[0, 0, -1], [0, 0, 1]]])
+    verts = np.concatenate(
+        [np.c_[circle, -np.ones(segments)], np.c_[circle, np.ones(segments)], [[0, 0, -1], [0, 0, 1]]]
+    )
     tris = []
     for s in range(segments):
         n = (s + 1) % segments
-        tris += [(s, n, segments + n), (s, segments + n, segments + s),
-                 (2 * segments, n, s), (2 * segments + 1, segments + s, segments + n)]
+        tris += [
+            (s, n, segments + n),
+            (s, segments + n, segments + s),
+            (2 * segments, n, s),
+            (2 * segments + 1, segments + s, segments + n),
+        ]
     return verts, np.asarray(tris)
 
 
 _BOX_VERTS = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=float)
-_BOX_TRIS = np.array([(0, 1, 3), (0, 3, 2), (4, 6, 7), (4, 7, 5), (0, 4, 5), (0, 5, 1),
-                      (2, 3, 7), (2, 7, 6), (0, 2, 6), (0, 6, 4), (1, 5, 7), (1, 7, 3)])
+_BOX_TRIS = np.array(
+    [
+        (0, 1, 3),
+        (0, 3, 2),
+        (4, 6, 7),
+        (4, 7, 5),
+        (0, 4, 5),
+        (0, 5, 1),
+        (2, 3, 7),
+        (2, 7, 6),
+        (0, 2, 6),
+        (0, 6, 4),
+        (1, 5, 7),
+        (1, 7, 3),
+    ]
+)
 
 
 def obstacle_mesh(o, center: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -159,13 +185,33 @@ def frame_indices(n_times: int, max_frames: int) -> list[int]:
 
 
 # ---------------------------------------------------------------------------------------------------- traces
-def _mesh(verts: np.ndarray, tris: np.ndarray, color: str, name: str, opacity: float = 1.0, legend: bool = True,
-          visible: bool | str = True) -> go.Mesh3d:
+def _mesh(
+    verts: np.ndarray,
+    tris: np.ndarray,
+    color: str,
+    name: str,
+    opacity: float = 1.0,
+    legend: bool = True,
+    visible: bool | str = True,
+) -> go.Mesh3d:
     v = verts.astype(np.float32)
-    return go.Mesh3d(x=v[:, 0], y=v[:, 1], z=v[:, 2], i=tris[:, 0].astype(np.int32), j=tris[:, 1].astype(np.int32),
-                     k=tris[:, 2].astype(np.int32), color=color, opacity=opacity, name=name, showlegend=legend,
-                     legendgroup=name, visible=visible, flatshading=False,
-                     lighting={"ambient": 0.55, "diffuse": 0.6, "specular": 0.1}, hoverinfo="name")
+    return go.Mesh3d(
+        x=v[:, 0],
+        y=v[:, 1],
+        z=v[:, 2],
+        i=tris[:, 0].astype(np.int32),
+        j=tris[:, 1].astype(np.int32),
+        k=tris[:, 2].astype(np.int32),
+        color=color,
+        opacity=opacity,
+        name=name,
+        showlegend=legend,
+        legendgroup=name,
+        visible=visible,
+        flatshading=False,
+        lighting={"ambient": 0.55, "diffuse": 0.6, "specular": 0.1},
+        hoverinfo="name",
+    )
 
 
 def _moved(v: np.ndarray) -> dict:
@@ -198,8 +244,10 @@ def _ground(scene: Scene, points: np.ndarray, margin: float = 0.25) -> go.Mesh3d
 def _colors(tracks: Sequence[PolicyTrack]) -> list[str]:
     palette, out = iter(LEARNER_COLORS * (len(tracks) // len(LEARNER_COLORS) + 1)), []
     for tr in tracks:
-        out.append(tr.color or (EXPERT_COLOR if tr.label == "expert" else UNIT_COLOR if tr.label == "unit weights"
-                                else next(palette)))
+        out.append(
+            tr.color
+            or (EXPERT_COLOR if tr.label == "expert" else UNIT_COLOR if tr.label == "unit weights" else next(palette))
+        )
     return out
 
 
@@ -208,8 +256,9 @@ def viewer_figure(inp: ViewerInput, max_frames: int = 40) -> go.Figure:
     (each track's spheres, the moving obstacles), and one plotly frame per shown record time on a slider."""
     times = torch.as_tensor(inp.times, dtype=torch.float64)
     shown = frame_indices(len(times), max_frames)
-    tracks = [PolicyTrack(t.label, _forward_filled(torch.as_tensor(t.q, dtype=torch.float64)), t.color)
-              for t in inp.tracks]
+    tracks = [
+        PolicyTrack(t.label, _forward_filled(torch.as_tensor(t.q, dtype=torch.float64)), t.color) for t in inp.tracks
+    ]
     colors = _colors(tracks)
     centers = {t.label: control_sphere_centers(inp.robot, t.q[shown]) for t in tracks}
     radii = control_sphere_centers(inp.robot, tracks[0].q[:1])[1].numpy() if tracks else np.zeros(0)
@@ -223,29 +272,52 @@ def viewer_figure(inp: ViewerInput, max_frames: int = 40) -> go.Figure:
     moving = [k for k, o in enumerate(inp.scene.obstacles) if o.moving]
     for k, o in enumerate(inp.scene.obstacles):
         if not o.moving:
-            static.append(_mesh(*obstacle_mesh(o, obstacles[0, k]), OBSTACLE_COLOR, f"obstacle {k + 1} ({o.type})",
-                                opacity=0.8))
-    static.append(go.Scatter3d(x=[goal[0]], y=[goal[1]], z=[goal[2]], mode="markers", name="goal",
-                               marker={"size": 7, "color": GOAL_COLOR, "symbol": "diamond"}))
+            static.append(
+                _mesh(*obstacle_mesh(o, obstacles[0, k]), OBSTACLE_COLOR, f"obstacle {k + 1} ({o.type})", opacity=0.8)
+            )
+    static.append(
+        go.Scatter3d(
+            x=[goal[0]],
+            y=[goal[1]],
+            z=[goal[2]],
+            mode="markers",
+            name="goal",
+            marker={"size": 7, "color": GOAL_COLOR, "symbol": "diamond"},
+        )
+    )
     ee = inp.robot.end_effector
     for tr, color in zip(tracks, colors):
         chain = build_robot(inp.robot).chain
         R, p = chain.forward_kinematics(tr.q, [ee.link])[ee.link]
         path = (p + R @ torch.tensor(ee.offset, dtype=torch.float64)).numpy()
-        static.append(go.Scatter3d(x=path[:, 0], y=path[:, 1], z=path[:, 2], mode="lines", name=f"{tr.label}: path",
-                                   legendgroup=tr.label, showlegend=False, line={"color": color, "width": 4}))
+        static.append(
+            go.Scatter3d(
+                x=path[:, 0],
+                y=path[:, 1],
+                z=path[:, 2],
+                mode="lines",
+                name=f"{tr.label}: path",
+                legendgroup=tr.label,
+                showlegend=False,
+                line={"color": color, "width": 4},
+            )
+        )
 
     first = len(static)
     dynamic = []
     for n, (tr, color) in enumerate(zip(tracks, colors)):
         v, t = spheres_mesh(centers[tr.label][0][0].numpy(), radii)
         shown_first = n < 2 or n == len(tracks) - 1  # the expert, the next policy and the last; the rest on a click
-        dynamic.append(_mesh(v, t, color, tr.label, opacity=1.0 if n == 0 else 0.5,
-                             visible=True if shown_first else "legendonly"))
+        dynamic.append(
+            _mesh(v, t, color, tr.label, opacity=1.0 if n == 0 else 0.5, visible=True if shown_first else "legendonly")
+        )
     for k in moving:
         o = inp.scene.obstacles[k]
-        dynamic.append(_mesh(*obstacle_mesh(o, obstacles[0, k]), OBSTACLE_COLOR, f"obstacle {k + 1} ({o.type}, moving)",
-                             opacity=0.8))
+        dynamic.append(
+            _mesh(
+                *obstacle_mesh(o, obstacles[0, k]), OBSTACLE_COLOR, f"obstacle {k + 1} ({o.type}, moving)", opacity=0.8
+            )
+        )
     indices = list(range(first, first + len(dynamic)))
 
     frames = []
@@ -261,23 +333,55 @@ def viewer_figure(inp: ViewerInput, max_frames: int = 40) -> go.Figure:
 
 def _layout(inp: ViewerInput, frames: Sequence[go.Frame]) -> dict:
     def go_to(name: str | None, play: bool = False) -> list:
-        return [[name] if name is not None else None,
-                {"frame": {"duration": 120 if play else 0, "redraw": True}, "mode": "immediate",
-                 "fromcurrent": True, "transition": {"duration": 0}}]
+        return [
+            [name] if name is not None else None,
+            {
+                "frame": {"duration": 120 if play else 0, "redraw": True},
+                "mode": "immediate",
+                "fromcurrent": True,
+                "transition": {"duration": 0},
+            },
+        ]
 
     steps = [{"method": "animate", "label": fr.name, "args": go_to(fr.name)} for fr in frames]
     return {
         "title": {"text": inp.title or f"{inp.robot.name}: control spheres, obstacles, goal and rollouts"},
-        "scene": {"aspectmode": "data", "xaxis": {"title": "x (m)"}, "yaxis": {"title": "y (m)"},
-                  "zaxis": {"title": "z (m)"}, "camera": {"eye": {"x": 1.4, "y": -1.4, "z": 0.9}}},
+        "scene": {
+            "aspectmode": "data",
+            "xaxis": {"title": "x (m)"},
+            "yaxis": {"title": "y (m)"},
+            "zaxis": {"title": "z (m)"},
+            "camera": {"eye": {"x": 1.4, "y": -1.4, "z": 0.9}},
+        },
         "legend": {"title": {"text": "click to show or hide"}},
         "margin": {"l": 0, "r": 0, "t": 40, "b": 0},
-        "updatemenus": [{"type": "buttons", "showactive": False, "x": 0.05, "y": 0.05, "xanchor": "right",
-                         "buttons": [{"label": "play", "method": "animate", "args": go_to(None, play=True)},
-                                     {"label": "pause", "method": "animate",
-                                      "args": [[None], {"frame": {"duration": 0}, "mode": "immediate"}]}]}],
-        "sliders": [{"active": 0, "x": 0.08, "len": 0.9, "y": 0.05, "currentvalue": {"prefix": "t = ", "suffix": " s"},
-                     "steps": steps}],
+        "updatemenus": [
+            {
+                "type": "buttons",
+                "showactive": False,
+                "x": 0.05,
+                "y": 0.05,
+                "xanchor": "right",
+                "buttons": [
+                    {"label": "play", "method": "animate", "args": go_to(None, play=True)},
+                    {
+                        "label": "pause",
+                        "method": "animate",
+                        "args": [[None], {"frame": {"duration": 0}, "mode": "immediate"}],
+                    },
+                ],
+            }
+        ],
+        "sliders": [
+            {
+                "active": 0,
+                "x": 0.08,
+                "len": 0.9,
+                "y": 0.05,
+                "currentvalue": {"prefix": "t = ", "suffix": " s"},
+                "steps": steps,
+            }
+        ],
     }
 
 

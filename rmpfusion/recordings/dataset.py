@@ -1,9 +1,10 @@
 """Recorded demonstrations as the ``Dataset`` every learner trains on: the states on the step grid, the
 accelerations the smoothing differentiator gave as labels, the goal as aux state, one trajectory per
 demonstration."""
+
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 import torch
@@ -26,9 +27,17 @@ def recorded_dataset(states: Sequence[States], every: int = 1, dtype: torch.dtyp
         aux["goal"].append(np.repeat(st.goal[None], T, axis=0))
         for name, value in st.aux.items():
             aux.setdefault(name, []).append(np.repeat(np.asarray(value, np.float64)[None], T, axis=0))
-    t = lambda key: torch.as_tensor(np.concatenate(parts[key]), dtype=dtype)  # noqa: E731
+    t = lambda key: torch.as_tensor(np.concatenate(parts[key]), dtype=dtype)
     traj = torch.as_tensor(np.concatenate(parts["traj"]), dtype=torch.long)
     n = len(states)
-    return Dataset(q=t("q"), qd=t("qd"), qdd=t("qdd"), t=t("t"), traj_id=traj, env_id=traj.clone(),
-                   aux={k: torch.as_tensor(np.concatenate(v), dtype=dtype) for k, v in aux.items()},
-                   collided=torch.zeros(n, dtype=torch.bool), success=torch.ones(n, dtype=torch.bool))
+    return Dataset(
+        q=t("q"),
+        qd=t("qd"),
+        qdd=t("qdd"),
+        t=t("t"),
+        traj_id=traj,
+        env_id=traj.clone(),
+        aux={k: torch.as_tensor(np.concatenate(v), dtype=dtype) for k, v in aux.items()},
+        collided=torch.zeros(n, dtype=torch.bool),
+        success=torch.ones(n, dtype=torch.bool),
+    )

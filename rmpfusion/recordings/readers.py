@@ -5,11 +5,12 @@ positions converted to SI units (``units``). A file may hold one demonstration o
 in a CSV, a leading demonstration axis in an NPZ, one group per demonstration in an HDF5 file). Every problem is
 one :class:`RecordingError` naming the file, and the row and column where there is one.
 """
+
 from __future__ import annotations
 
 import csv
+from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Mapping, Sequence
 
 import numpy as np
 
@@ -41,9 +42,15 @@ def _float(text: str, source: str, row: int, column: str) -> float:
         raise RecordingError(f"{where(source, row, column)}: {text!r} is not a number") from None
 
 
-def read_csv(path: str | Path, columns: Sequence[str] | None = None, time_column: str = "t",
-             velocity_columns: Sequence[str] | None = None, demo_column: str | None = None,
-             aux_columns: Mapping[str, Sequence[str]] | None = None, units: str = "m") -> list[Recording]:
+def read_csv(
+    path: str | Path,
+    columns: Sequence[str] | None = None,
+    time_column: str = "t",
+    velocity_columns: Sequence[str] | None = None,
+    demo_column: str | None = None,
+    aux_columns: Mapping[str, Sequence[str]] | None = None,
+    units: str = "m",
+) -> list[Recording]:
     """Demonstrations from a CSV file whose header names ``time_column`` and the coordinates.
 
     ``columns``: the coordinates, in order (default: every column that is not time, a demonstration id, a
@@ -57,17 +64,22 @@ def read_csv(path: str | Path, columns: Sequence[str] | None = None, time_column
         try:
             header = [h.strip() for h in next(reader)]
         except StopIteration:
-            raise RecordingError(f"{source}: the file is empty; it needs a header row naming "
-                                 f"{time_column!r} and the coordinates") from None
+            raise RecordingError(
+                f"{source}: the file is empty; it needs a header row naming {time_column!r} and the coordinates"
+            ) from None
         body = list(reader)
     aux_columns = dict(aux_columns or {})
     used = {time_column, demo_column, *(velocity_columns or ()), *(c for cs in aux_columns.values() for c in cs)}
     columns = list(columns) if columns is not None else [h for h in header if h not in used]
-    for name in [time_column, *columns, *(velocity_columns or ()), *(c for cs in aux_columns.values() for c in cs),
-                 *([demo_column] if demo_column else [])]:
+    for name in [
+        time_column,
+        *columns,
+        *(velocity_columns or ()),
+        *(c for cs in aux_columns.values() for c in cs),
+        *([demo_column] if demo_column else []),
+    ]:
         if name not in header:
-            raise RecordingError(f"{where(source, 1)}: the header has no column {name!r}; it has "
-                                 f"{', '.join(header)}")
+            raise RecordingError(f"{where(source, 1)}: the header has no column {name!r}; it has {', '.join(header)}")
     index = {h: k for k, h in enumerate(header)}
     groups: dict[str, list[int]] = {}
     for r, line in enumerate(body):
@@ -80,22 +92,39 @@ def read_csv(path: str | Path, columns: Sequence[str] | None = None, time_column
     scale = unit_scale(units, source)
     out = []
     for key, rows in groups.items():
-        numbers = lambda names: np.array([[_float(body[r][index[c]], source, r + 2, c) for c in names]  # noqa: E731
-                                          for r in rows], dtype=np.float64)
+        numbers = lambda names: np.array(
+            [
+                [_float(body[r][index[c]], source, r + 2, c) for c in names]
+                for r in rows
+            ],
+            dtype=np.float64,
+        )
         label = f"{source} [{demo_column}={key}]" if demo_column else source
-        kwargs = {"t": numbers([time_column])[:, 0], "pos": numbers(columns),
-                  "vel": numbers(velocity_columns) if velocity_columns else None}
+        kwargs = {
+            "t": numbers([time_column])[:, 0],
+            "pos": numbers(columns),
+            "vel": numbers(velocity_columns) if velocity_columns else None,
+        }
         aux = {name: numbers(cs)[0] for name, cs in aux_columns.items()}
-        out.append(Recording(**_scaled(kwargs, scale), aux=aux, source=label, columns=tuple(columns),
-                             rows=np.asarray(rows) + 2))
+        out.append(
+            Recording(
+                **_scaled(kwargs, scale), aux=aux, source=label, columns=tuple(columns), rows=np.asarray(rows) + 2
+            )
+        )
     if not out:
         raise RecordingError(f"{source}: no samples below the header")
     return out
 
 
 # ------------------------------------------------------------------------------------------------ NPZ
-def read_npz(path: str | Path, time_key: str = "t", position_key: str = "pos", velocity_key: str | None = None,
-             columns: Sequence[str] | None = None, units: str = "m") -> list[Recording]:
+def read_npz(
+    path: str | Path,
+    time_key: str = "t",
+    position_key: str = "pos",
+    velocity_key: str | None = None,
+    columns: Sequence[str] | None = None,
+    units: str = "m",
+) -> list[Recording]:
     """Demonstrations from an NPZ file: ``t`` (T,) and ``pos`` (T, d) for one, or a leading demonstration axis
     (N, T) and (N, T, d) for several of equal length."""
     path = Path(path)
@@ -115,14 +144,21 @@ def read_npz(path: str | Path, time_key: str = "t", position_key: str = "pos", v
     if pos.ndim == 2:  # (N, T) of one coordinate
         pos = pos[..., None]
     if t.ndim != 2 or pos.ndim != 3 or pos.shape[:2] != t.shape:
-        raise RecordingError(f"{source}: {time_key!r} {t.shape} and {position_key!r} {pos.shape} do not match; "
-                             "expected (T,) and (T, d), or (N, T) and (N, T, d)")
+        raise RecordingError(
+            f"{source}: {time_key!r} {t.shape} and {position_key!r} {pos.shape} do not match; "
+            "expected (T,) and (T, d), or (N, T) and (N, T, d)"
+        )
     columns = tuple(columns) if columns is not None else tuple(f"{position_key}[{k}]" for k in range(pos.shape[2]))
     scale = unit_scale(units, source)
-    return [Recording(**_scaled({"t": t[n], "pos": pos[n], "vel": vel[n] if vel is not None else None}, scale),
-                      source=f"{source} [demonstration {n}]" if t.shape[0] > 1 else source, columns=columns,
-                      rows=np.arange(t.shape[1]) + 1)
-            for n in range(t.shape[0])]
+    return [
+        Recording(
+            **_scaled({"t": t[n], "pos": pos[n], "vel": vel[n] if vel is not None else None}, scale),
+            source=f"{source} [demonstration {n}]" if t.shape[0] > 1 else source,
+            columns=columns,
+            rows=np.arange(t.shape[1]) + 1,
+        )
+        for n in range(t.shape[0])
+    ]
 
 
 # ------------------------------------------------------------------------------------------------ HDF5
@@ -134,8 +170,15 @@ def _h5py():
     return h5py
 
 
-def read_hdf5(path: str | Path, position_key: str, group: str = "data", time_key: str | None = None,
-              rate: float | None = None, columns: Sequence[str] | None = None, units: str = "m") -> list[Recording]:
+def read_hdf5(
+    path: str | Path,
+    position_key: str,
+    group: str = "data",
+    time_key: str | None = None,
+    rate: float | None = None,
+    columns: Sequence[str] | None = None,
+    units: str = "m",
+) -> list[Recording]:
     """Demonstrations from an HDF5 file laid out as robomimic does: one subgroup of ``group`` per demonstration
     (``data/demo_0``, ``data/demo_1``, … in natural order), positions at ``position_key`` inside it (e.g.
     ``obs/robot0_joint_pos``), times at ``time_key`` or, where the layout stores none, a fixed ``rate`` (Hz)."""
@@ -143,8 +186,10 @@ def read_hdf5(path: str | Path, position_key: str, group: str = "data", time_key
     path = Path(path)
     source = str(path)
     if (time_key is None) == (rate is None):
-        raise RecordingError(f"{source}: give either a time dataset (time_key) or a sampling rate (rate), not "
-                             f"{'both' if rate is not None else 'neither'}")
+        raise RecordingError(
+            f"{source}: give either a time dataset (time_key) or a sampling rate (rate), not "
+            f"{'both' if rate is not None else 'neither'}"
+        )
     try:
         fh = h5py.File(path, "r")
     except OSError as e:
@@ -167,8 +212,11 @@ def read_hdf5(path: str | Path, position_key: str, group: str = "data", time_key
                 t = np.asarray(demo[time_key], dtype=np.float64).reshape(-1)
             else:
                 t = np.arange(pos.shape[0]) / float(rate)
-            cols = tuple(columns) if columns is not None else tuple(
-                f"{position_key}[{k}]" for k in range(pos.shape[1] if pos.ndim > 1 else 1))
+            cols = (
+                tuple(columns)
+                if columns is not None
+                else tuple(f"{position_key}[{k}]" for k in range(pos.shape[1] if pos.ndim > 1 else 1))
+            )
             out.append(Recording(t=t, pos=pos * scale, source=label, columns=cols, rows=np.arange(t.shape[0]) + 1))
     if not out:
         raise RecordingError(f"{source}: group {group!r} holds no demonstrations")

@@ -5,6 +5,7 @@ not what an RMP tree produced: timestamps may be irregular, velocities may be ab
 seconds are often the arm at rest. Everything downstream (resampling, differentiation, trimming, splits) reads
 this one type, whatever the file format was.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -70,26 +71,36 @@ def check_recording(rec: Recording) -> None:
     """Refuse what no later step can repair, naming the file, row and column: a time column that is not
     strictly increasing, non-finite values, arrays whose lengths or widths disagree."""
     if rec.t.ndim != 1 or rec.pos.shape[0] != rec.t.shape[0]:
-        raise RecordingError(f"{rec.source}: {rec.t.shape[0]} timestamps but {rec.pos.shape[0]} positions; every "
-                             "sample needs one time and one position")
+        raise RecordingError(
+            f"{rec.source}: {rec.t.shape[0]} timestamps but {rec.pos.shape[0]} positions; every "
+            "sample needs one time and one position"
+        )
     if rec.pos.shape[1] != len(rec.columns):
-        raise RecordingError(f"{rec.source}: positions have {rec.pos.shape[1]} coordinates but {len(rec.columns)} "
-                             f"column names were given ({', '.join(rec.columns)})")
+        raise RecordingError(
+            f"{rec.source}: positions have {rec.pos.shape[1]} coordinates but {len(rec.columns)} "
+            f"column names were given ({', '.join(rec.columns)})"
+        )
     if rec.t.shape[0] < 2:
         raise RecordingError(f"{rec.source}: {rec.t.shape[0]} sample(s); a demonstration needs at least two")
     for name, values in (("t", rec.t[:, None]), *((c, rec.pos[:, [k]]) for k, c in enumerate(rec.columns))):
         bad = np.flatnonzero(~np.isfinite(values[:, 0]))
         if bad.size:
-            raise RecordingError(f"{where(rec.source, rec.row(int(bad[0])), name)}: {float(values[bad[0], 0])} is not a finite "
-                                 f"number ({bad.size} such value(s) in this column); fill or drop those samples")
+            raise RecordingError(
+                f"{where(rec.source, rec.row(int(bad[0])), name)}: {float(values[bad[0], 0])} is not a finite "
+                f"number ({bad.size} such value(s) in this column); fill or drop those samples"
+            )
     for label, arr in (("velocity", rec.vel), ("acceleration", rec.acc)):
         if arr is not None and (arr.shape != rec.pos.shape or not np.isfinite(arr).all()):
-            raise RecordingError(f"{rec.source}: the {label} columns must be finite and shaped like the positions "
-                                 f"{rec.pos.shape}; given {arr.shape}")
+            raise RecordingError(
+                f"{rec.source}: the {label} columns must be finite and shaped like the positions "
+                f"{rec.pos.shape}; given {arr.shape}"
+            )
     step = np.diff(rec.t)
     bad = np.flatnonzero(step <= 0)
     if bad.size:
         i = int(bad[0]) + 1
-        raise RecordingError(f"{where(rec.source, rec.row(i), 't')}: time {float(rec.t[i])!r} does not increase (the sample "
-                             f"before is at {float(rec.t[i - 1])!r}); timestamps must be strictly increasing: sort the samples "
-                             "or drop the duplicate")
+        raise RecordingError(
+            f"{where(rec.source, rec.row(i), 't')}: time {float(rec.t[i])!r} does not increase (the sample "
+            f"before is at {float(rec.t[i - 1])!r}); timestamps must be strictly increasing: sort the samples "
+            "or drop the duplicate"
+        )

@@ -12,6 +12,7 @@ differentiator, and trimming the rest at either end.
   dataset; samples before the first and after the last whose speed exceeds ``rest_fraction`` of the
   demonstration's peak speed are dropped, and the mean of the final rest segment is the demonstration's goal.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -44,19 +45,23 @@ def resample(t: np.ndarray, x: np.ndarray, dt: float) -> tuple[np.ndarray, np.nd
     return grid, CubicSpline(t, x, axis=0, bc_type="not-a-knot")(grid)
 
 
-def savgol_derivatives(x: np.ndarray, dt: float, window: int, polyorder: int, source: str
-                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def savgol_derivatives(
+    x: np.ndarray, dt: float, window: int, polyorder: int, source: str
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(smoothed x, ẋ, ẍ) of uniformly sampled ``x`` (T, d) by one Savitzky–Golay filter."""
     from scipy.signal import savgol_filter
 
     if window % 2 == 0 or window <= polyorder:
-        raise RecordingError(f"the differentiator's window ({window}) must be odd and larger than its polyorder "
-                             f"({polyorder})")
+        raise RecordingError(
+            f"the differentiator's window ({window}) must be odd and larger than its polyorder ({polyorder})"
+        )
     if x.shape[0] < window:
-        raise RecordingError(f"{source}: {x.shape[0]} samples after resampling at {dt} s, fewer than the "
-                             f"differentiator's window of {window}; the demonstration is too short for the filter "
-                             "(lower the window or record longer)")
-    f = lambda deriv: savgol_filter(x, window, polyorder, deriv=deriv, delta=dt, axis=0, mode="interp")  # noqa: E731
+        raise RecordingError(
+            f"{source}: {x.shape[0]} samples after resampling at {dt} s, fewer than the "
+            f"differentiator's window of {window}; the demonstration is too short for the filter "
+            "(lower the window or record longer)"
+        )
+    f = lambda deriv: savgol_filter(x, window, polyorder, deriv=deriv, delta=dt, axis=0, mode="interp")
     return f(0), f(1), f(2)
 
 
@@ -69,8 +74,14 @@ def moving_span(speed: np.ndarray, rest_fraction: float) -> tuple[int, int]:
     return max(int(moving[0]) - 1, 0), min(int(moving[-1]) + 1, speed.shape[0] - 1)
 
 
-def to_states(rec: Recording, dt: float, window: int = 21, polyorder: int = 3, rest_fraction: float = 0.02,
-              goal: np.ndarray | None = None) -> States:
+def to_states(
+    rec: Recording,
+    dt: float,
+    window: int = 21,
+    polyorder: int = 3,
+    rest_fraction: float = 0.02,
+    goal: np.ndarray | None = None,
+) -> States:
     """``rec`` on the step grid ``dt`` with its derivatives, the rest at both ends trimmed. Velocities and
     accelerations come from the file when it gave both, else from the Savitzky–Golay filter (all of them: the
     dataset never mixes the two). The goal is ``goal`` if given, else the mean of the final rest segment."""
@@ -86,5 +97,12 @@ def to_states(rec: Recording, dt: float, window: int = 21, polyorder: int = 3, r
     if goal is None:
         goal = final_rest.mean(axis=0)
     keep = slice(first, last + 1)
-    return States(t=t[keep] - t[first], q=q[keep], qd=qd[keep], qdd=qdd[keep], goal=np.asarray(goal, np.float64),
-                  source=rec.source, aux=dict(rec.aux))
+    return States(
+        t=t[keep] - t[first],
+        q=q[keep],
+        qd=qd[keep],
+        qdd=qdd[keep],
+        goal=np.asarray(goal, np.float64),
+        source=rec.source,
+        aux=dict(rec.aux),
+    )

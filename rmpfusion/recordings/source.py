@@ -5,11 +5,13 @@ same way.
 Velocities and accelerations come from one place for the whole dataset: the Savitzky–Golay filter
 (``derivatives: filter``) or the files (``derivatives: file``, refused unless every demonstration carries both).
 """
+
 from __future__ import annotations
 
 import hashlib
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -25,8 +27,10 @@ def source_files(d: Any) -> list[Path]:
         return [lasa_file(d.shape)]
     for f in d.files:
         if not Path(f).is_file():
-            raise RecordingError(f"{f}: no such file (data.files); give the path of a recorded file, relative to the "
-                                 "directory the command runs in or absolute")
+            raise RecordingError(
+                f"{f}: no such file (data.files); give the path of a recorded file, relative to the "
+                "directory the command runs in or absolute"
+            )
     return [Path(f) for f in d.files]
 
 
@@ -46,11 +50,11 @@ def read_recordings(d: Any) -> list[Recording]:
     out: list[Recording] = []
     for path in source_files(d):
         if d.format == "csv":
-            out += read_csv(path, columns=d.columns, time_column=d.time_column, demo_column=d.demo_column,
-                            units=d.units)
+            out += read_csv(
+                path, columns=d.columns, time_column=d.time_column, demo_column=d.demo_column, units=d.units
+            )
         elif d.format == "npz":
-            out += read_npz(path, time_key=d.time_column, position_key=d.position_key, columns=d.columns,
-                            units=d.units)
+            out += read_npz(path, time_key=d.time_column, position_key=d.position_key, columns=d.columns, units=d.units)
         else:
             out += read_hdf5(path, position_key=d.position_key, rate=d.rate, columns=d.columns, units=d.units)
     if not out:
@@ -65,17 +69,21 @@ def check_derivatives(recordings: Sequence[Recording], derivatives: str) -> None
         return
     lacking = [r.source for r in recordings if r.vel is None or r.acc is None]
     if lacking:
-        raise RecordingError(f"{lacking[0]}: data.derivatives=file but this demonstration has no velocity and "
-                             f"acceleration columns ({len(lacking)} of {len(recordings)} lack them); use "
-                             "data.derivatives=filter for the whole dataset")
+        raise RecordingError(
+            f"{lacking[0]}: data.derivatives=file but this demonstration has no velocity and "
+            f"acceleration columns ({len(lacking)} of {len(recordings)} lack them); use "
+            "data.derivatives=filter for the whole dataset"
+        )
 
 
 def check_dimension(states: Sequence[States], dim: int, env: str) -> None:
     """The demonstrations have the environment's dimension (one coordinate per degree of freedom)."""
     if states[0].q.shape[1] != dim:
-        raise RecordingError(f"{states[0].source}: the demonstrations have {states[0].q.shape[1]} coordinates but the "
-                             f"environment {env} has {dim}; choose an environment of that dimension (env=...) or the "
-                             "columns to read (data.columns)")
+        raise RecordingError(
+            f"{states[0].source}: the demonstrations have {states[0].q.shape[1]} coordinates but the "
+            f"environment {env} has {dim}; choose an environment of that dimension (env=...) or the "
+            "columns to read (data.columns)"
+        )
 
 
 def to_grid(recordings: Sequence[Recording], d: Any, dt: float) -> list[States]:
@@ -83,12 +91,13 @@ def to_grid(recordings: Sequence[Recording], d: Any, dt: float) -> list[States]:
     check_derivatives(recordings, d.derivatives)
     goal = np.asarray(d.goal, np.float64) if d.goal is not None else None
     if goal is not None and goal.shape != (recordings[0].dim,):
-        raise RecordingError(f"data.goal has {goal.size} coordinates but the demonstrations have "
-                             f"{recordings[0].dim} ({', '.join(recordings[0].columns)})")
+        raise RecordingError(
+            f"data.goal has {goal.size} coordinates but the demonstrations have "
+            f"{recordings[0].dim} ({', '.join(recordings[0].columns)})"
+        )
     out = []
     for rec in recordings:
         if d.derivatives == "filter":  # the file's derivatives are never mixed with the filter's
             rec = Recording(t=rec.t, pos=rec.pos, source=rec.source, columns=rec.columns, aux=rec.aux, rows=rec.rows)
-        out.append(to_states(rec, dt, window=d.window, polyorder=d.polyorder, rest_fraction=d.rest_fraction,
-                             goal=goal))
+        out.append(to_states(rec, dt, window=d.window, polyorder=d.polyorder, rest_fraction=d.rest_fraction, goal=goal))
     return out

@@ -6,6 +6,7 @@ weights; the autodiff curvature of the base class is the reference the tests com
 Their numbers (gains, radii, ...) only ever meet per-sample scalars, so leaves of one type evaluate as one batch
 with their numbers stacked (``core/stacking.py``); on its own a leaf computes with plain floats.
 """
+
 from __future__ import annotations
 
 import torch
@@ -60,15 +61,31 @@ class RadialMetricAttractor(GDS):
         w, grad_w = self._w(y)
         eye = _eye_like(y)
         Xi, xi = self._curvature(y, yd, grad_w)
-        return w[..., None, None] * eye, (self.eta * w)[..., None, None] * eye, self.potential(y), \
-            self.potential_grad(y), Xi, xi
+        return (
+            w[..., None, None] * eye,
+            (self.eta * w)[..., None, None] * eye,
+            self.potential(y),
+            self.potential_grad(y),
+            Xi,
+            xi,
+        )
 
 
-@LEAF_RMPS.register("goal_attractor", examples=[
-    Example({}, 2),
-    Example({"w_u": 10.0, "w_l": 1.0, "sigma": 0.7, "gain": 2.0, "alpha": 3.0, "eta": 1.0}, 3),
-    Example({"w_u": {"learn": True, "init": 10.0}, "sigma": {"learn": True, "init": 0.7},  # learned
-             "gain": {"learn": True, "init": 2.0, "max": 5.0}}, 3)])
+@LEAF_RMPS.register(
+    "goal_attractor",
+    examples=[
+        Example({}, 2),
+        Example({"w_u": 10.0, "w_l": 1.0, "sigma": 0.7, "gain": 2.0, "alpha": 3.0, "eta": 1.0}, 3),
+        Example(
+            {
+                "w_u": {"learn": True, "init": 10.0},
+                "sigma": {"learn": True, "init": 0.7},  # learned
+                "gain": {"learn": True, "init": 2.0, "max": 5.0},
+            },
+            3,
+        ),
+    ],
+)
 class GoalAttractor(RadialMetricAttractor):
     """Soft-normalised attractor to the origin of its space (use an ``offset`` map to place the goal).
 
@@ -115,15 +132,18 @@ class Barrier1D(GDS):
         epsilon: float = Field(0.2, ge=0, description="metric floor (always-on part of the gating)")
         alpha: float = Field(1e-5, ge=0, description="potential gain")
         eta: float = Field(0.0, ge=0, description="damping gain")
-        min_distance: float = Field(1e-3, gt=0, description="< r_w: where the barrier's tangent-line continuation "
-                                                             "inside an obstacle starts")
+        min_distance: float = Field(
+            1e-3, gt=0, description="< r_w: where the barrier's tangent-line continuation inside an obstacle starts"
+        )
 
         @model_validator(mode="after")
         def _acts_somewhere(self):
             if not self.min_distance < self.r_w:
-                raise ValueError(f"min_distance must be < r_w (w(x) is evaluated at x ≥ min_distance and is zero "
-                                 f"from r_w on, so the barrier would never act); given min_distance={self.min_distance}, "
-                                 f"r_w={self.r_w}")
+                raise ValueError(
+                    f"min_distance must be < r_w (w(x) is evaluated at x ≥ min_distance and is zero "
+                    f"from r_w on, so the barrier would never act); given min_distance={self.min_distance}, "
+                    f"r_w={self.r_w}"
+                )
             return self
 
     stack_fields = ("r_w", "sigma", "epsilon", "alpha", "eta", "min_distance")
@@ -181,8 +201,14 @@ class Barrier1D(GDS):
         g = w * u
         Xi = 0.5 * xd * w * du
         xi = 0.5 * xd**2 * u * gw
-        return (g[..., None, None], (self.eta * g)[..., None, None], 0.5 * self.alpha * w**2,
-                (self.alpha * w * gw)[..., None], Xi[..., None, None], xi[..., None])
+        return (
+            g[..., None, None],
+            (self.eta * g)[..., None, None],
+            0.5 * self.alpha * w**2,
+            (self.alpha * w * gw)[..., None],
+            Xi[..., None, None],
+            xi[..., None],
+        )
 
 
 def barrier_states(gen: torch.Generator, n: int, dim: int) -> tuple[Tensor, Tensor]:
@@ -193,10 +219,21 @@ def barrier_states(gen: torch.Generator, n: int, dim: int) -> tuple[Tensor, Tens
     return y, torch.randn(n, dim, generator=gen)
 
 
-@LEAF_RMPS.register("collision_avoidance", examples=[
-    Example({"r_w": 2.0, "eta": 0.5, "alpha": 0.1}, 1, barrier_states),
-    Example({"r_w": {"learn": True, "init": 2.0}, "eta": {"learn": True, "init": 0.5},
-             "sigma": {"learn": True, "init": 0.5}}, 1, barrier_states)])
+@LEAF_RMPS.register(
+    "collision_avoidance",
+    examples=[
+        Example({"r_w": 2.0, "eta": 0.5, "alpha": 0.1}, 1, barrier_states),
+        Example(
+            {
+                "r_w": {"learn": True, "init": 2.0},
+                "eta": {"learn": True, "init": 0.5},
+                "sigma": {"learn": True, "init": 0.5},
+            },
+            1,
+            barrier_states,
+        ),
+    ],
+)
 class CollisionAvoidance(Barrier1D):
     """Obstacle barrier on a distance space (velocity-gated, as in RMPflow)."""
 
@@ -243,8 +280,7 @@ class Damper(GDS):
 
     def terms(self, y, yd):
         G = self.metric(y, yd)
-        return G, self.damping(y, yd), self.potential(y), torch.zeros_like(y), torch.zeros_like(G), \
-            torch.zeros_like(yd)
+        return G, self.damping(y, yd), self.potential(y), torch.zeros_like(y), torch.zeros_like(G), torch.zeros_like(yd)
 
     def stack_key(self):
         return (Damper, self.stack_settings(), self.learned_signature())  # identity metric: a damper, undamped

@@ -9,9 +9,11 @@ when given. The leaf stores it as it stores a constant (``self.gain = params.gai
 of the tree, kept inside that range (``core/learnable.py``), so the leaf stays the GDS its ranges allow and Theorem
 2 keeps holding while it learns. ``{learn: false, init: x}`` is the constant x.
 """
+
 from __future__ import annotations
 
-from typing import Any, Mapping
+from collections.abc import Mapping
+from typing import Any
 
 import annotated_types
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_serializer, model_validator
@@ -45,18 +47,24 @@ def field_range(field: FieldInfo) -> tuple[float | None, float | None]:
 def _narrowed(name: str, field: FieldInfo, spec: LearnSpec) -> tuple[float | None, float | None]:
     """The range a learned number stays in: its field's, narrowed by the spec's min/max (never widened)."""
     lower, upper = field_range(field)
-    for bound, value, tighter in (("min", spec.min, lambda a, b: b is None or a >= b),
-                                  ("max", spec.max, lambda a, b: b is None or a <= b)):
+    for bound, value, tighter in (
+        ("min", spec.min, lambda a, b: b is None or a >= b),
+        ("max", spec.max, lambda a, b: b is None or a <= b),
+    ):
         own = lower if bound == "min" else upper
         if value is not None and not tighter(value, own):
-            raise ValueError(f"{name}: {bound}={value} lies outside the parameter's own range "
-                             f"({lower}, {upper}); {bound} can only narrow it")
+            raise ValueError(
+                f"{name}: {bound}={value} lies outside the parameter's own range "
+                f"({lower}, {upper}); {bound} can only narrow it"
+            )
     lower = spec.min if spec.min is not None else lower
     upper = spec.max if spec.max is not None else upper
     if (lower is not None and not spec.init > lower) or (upper is not None and not spec.init < upper):
-        raise ValueError(f"{name}: a learned value must start strictly inside its range ({lower}, {upper}): it is "
-                         f"kept there by a parameterisation that reaches the bounds only in the limit; given "
-                         f"init={spec.init}")
+        raise ValueError(
+            f"{name}: a learned value must start strictly inside its range ({lower}, {upper}): it is "
+            f"kept there by a parameterisation that reaches the bounds only in the limit; given "
+            f"init={spec.init}"
+        )
     return lower, upper
 
 
@@ -84,14 +92,18 @@ class LeafParams(Params):
                 spec = _spec(value)
             except ValidationError as e:
                 said = "; ".join(f"{'.'.join(map(str, err['loc']))}: {err['msg']}" for err in e.errors())
-                raise ValueError(f"{name}: {said} (a learnable number is written {{learn: true, init: x}}, optionally "
-                                 "with min and max)") from None
+                raise ValueError(
+                    f"{name}: {said} (a learnable number is written {{learn: true, init: x}}, optionally "
+                    "with min and max)"
+                ) from None
             if spec is None:
                 continue
             field = cls.model_fields.get(name)
             if field is None or field.annotation is not float:
-                raise ValueError(f"{name}: only a number of the leaf can be learned; this leaf's numbers: "
-                                 f"{', '.join(n for n, f in cls.model_fields.items() if f.annotation is float)}")
+                raise ValueError(
+                    f"{name}: only a number of the leaf can be learned; this leaf's numbers: "
+                    f"{', '.join(n for n, f in cls.model_fields.items() if f.annotation is float)}"
+                )
             plain[name] = spec.init
             if spec.learn:
                 learned[name] = spec

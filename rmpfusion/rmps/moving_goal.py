@@ -10,6 +10,7 @@ metric that force is, in x,
 so for aux held fixed the leaf is an exact GDS on y = (e, ġ) with G = diag(w·I, 0), B = η·G and this Φ, and
 Theorem 2 holds as for any leaf. What holds while the goal moves is in docs/math.md §8 ("Moving goals").
 """
+
 from __future__ import annotations
 
 import torch
@@ -21,8 +22,9 @@ from ..registry import LEAF_RMPS, Params
 from .potentials import soft_norm, soft_norm_grad
 
 
-@LEAF_RMPS.register("moving_goal_attractor", examples=[
-    Example({}, 4), Example({"gain": 2.0, "alpha": 4.0, "eta": 3.0, "w": 0.5}, 6)])
+@LEAF_RMPS.register(
+    "moving_goal_attractor", examples=[Example({}, 4), Example({"gain": 2.0, "alpha": 4.0, "eta": 3.0, "w": 0.5}, 6)]
+)
 class MovingGoalAttractor(GDS):
     """Tracks a moving goal: on y = (e, ġ) (``moving_offset``), G = diag(w·I, 0), B = η·G,
     Φ = gain·log cosh(α|e|)/α − η·w·ġᵀe (module docstring)."""
@@ -37,17 +39,19 @@ class MovingGoalAttractor(GDS):
 
     def __init__(self, params: Params, dim: int):
         if dim % 2:
-            raise ValueError(f"moving_goal_attractor works on (offset to the goal, goal velocity), an even dimension, "
-                             f"but its space has dimension {dim}; put it under a moving_offset map")
+            raise ValueError(
+                f"moving_goal_attractor works on (offset to the goal, goal velocity), an even dimension, "
+                f"but its space has dimension {dim}; put it under a moving_offset map"
+            )
         super().__init__(dim)
         self.gain, self.alpha, self.eta, self.w = params.gain, params.alpha, params.eta, params.w
         self.n = dim // 2
 
     def _split(self, y):
-        return y[:, : self.n], y[:, self.n:]
+        return y[:, : self.n], y[:, self.n :]
 
     def metric(self, y, yd):
-        diagonal = torch.cat([torch.full_like(y[:, : self.n], self.w), torch.zeros_like(y[:, self.n:])], -1)
+        diagonal = torch.cat([torch.full_like(y[:, : self.n], self.w), torch.zeros_like(y[:, self.n :])], -1)
         return torch.diag_embed(diagonal)
 
     def damping(self, y, yd):

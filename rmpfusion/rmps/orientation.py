@@ -1,4 +1,5 @@
 """The orientation attractor: a GDS on the error of ``link_axis`` / ``link_orientation``, e = (R a_k − d_k)_k."""
+
 from __future__ import annotations
 
 from pydantic import Field
@@ -10,8 +11,10 @@ from .gds_leaves import RadialMetricAttractor
 from .learnable import LeafParams
 
 
-@LEAF_RMPS.register("orientation_attractor", examples=[
-    Example({}, 3), Example({"gain": 3.0, "eta": 1.5, "w_u": 5.0, "w_l": 1.0, "sigma": 0.4}, 9)])
+@LEAF_RMPS.register(
+    "orientation_attractor",
+    examples=[Example({}, 3), Example({"gain": 3.0, "eta": 1.5, "w_u": 5.0, "w_l": 1.0, "sigma": 0.4}, 9)],
+)
 class OrientationAttractor(RadialMetricAttractor):
     """Pulls link axes onto their target directions: Φ = gain·½|e|², G = w(|e|)·I, B = η·G.
 
@@ -28,8 +31,9 @@ class OrientationAttractor(RadialMetricAttractor):
         eta: float = Field(2.0, ge=0, description="damping relative to the metric")
         w_u: float = Field(1.0, gt=0, description="metric scale at the target")
         w_l: float = Field(1.0, gt=0, description="metric scale far from the target")
-        sigma: float = Field(0.5, gt=0, description="|e| (≈ angle in rad near the target) over which the metric "
-                                                     "changes from w_l to w_u")
+        sigma: float = Field(
+            0.5, gt=0, description="|e| (≈ angle in rad near the target) over which the metric changes from w_l to w_u"
+        )
 
     stack_fields = ("gain", "eta", "w_u", "w_l", "sigma")
 

@@ -1,9 +1,10 @@
 """Scalar helpers shared by leaves: a stable log-cosh, the soft norm built on it, and radial integrals by
 Gauss–Legendre quadrature."""
+
 from __future__ import annotations
 
 import math
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 import torch
@@ -29,7 +30,9 @@ def soft_norm_grad(y: Tensor, alpha: float | Tensor) -> Tensor:
     """∇_y of ``soft_norm``: tanh(α|y|)·y/|y|, of norm < 1; at y = 0 the limit α·y keeps it finite and smooth."""
     r = y.norm(dim=-1)
     small = r < 1e-8
-    ratio = torch.where(small, alpha + torch.zeros_like(r), torch.tanh(alpha * r) / torch.where(small, torch.ones_like(r), r))
+    ratio = torch.where(
+        small, alpha + torch.zeros_like(r), torch.tanh(alpha * r) / torch.where(small, torch.ones_like(r), r)
+    )
     return ratio[..., None] * y
 
 

@@ -4,9 +4,8 @@ An RMPflow user can move a tree here and get identical accelerations. Beyond RMP
 leaf also reports G, B, Φ so L and V exist for pullback* and for the Lyapunov monitor. Their numbers only
 meet per-sample scalars, so leaves of one type stack (``core/stacking.py``).
 """
-from __future__ import annotations
 
-from typing import Mapping
+from __future__ import annotations
 
 import torch
 from pydantic import Field
@@ -26,8 +25,9 @@ def positive_distance_states(gen: torch.Generator, n: int, dim: int) -> tuple[Te
     return 0.3 + 1.7 * torch.rand(n, dim, generator=gen), torch.randn(n, dim, generator=gen)
 
 
-@LEAF_RMPS.register("rmpflow_collision_avoidance", examples=[
-    Example({"alpha": 1e-3, "eta": 0.5}, 1, positive_distance_states)])
+@LEAF_RMPS.register(
+    "rmpflow_collision_avoidance", examples=[Example({"alpha": 1e-3, "eta": 0.5}, 1, positive_distance_states)]
+)
 class RMPflowCollisionAvoidance(LeafRMP):
     """RMPflow's CollisionAvoidance on a distance coordinate x.
 
@@ -65,12 +65,14 @@ class RMPflowCollisionAvoidance(LeafRMP):
         f = (-grad_Phi - xi - Bx).clamp(-1e10, 1e10)
         Phi = 0.5 * self.alpha * w**2
         K = 0.5 * xd**2 * g
-        as_mat = lambda s: s[..., None, None]  # noqa: E731
+        as_mat = lambda s: s[..., None, None]
         return NodeRMP(f=f[..., None], M=as_mat(M), G=as_mat(g), B=as_mat(self.eta * g), Phi=Phi, L=K - Phi, V=K + Phi)
 
 
-@LEAF_RMPS.register("rmpflow_goal_attractor", examples=[
-    Example({}, 2, scale=2.0), Example({"gain": 1.5, "sigma": 0.8, "eta": 1.0}, 3, scale=2.0)])
+@LEAF_RMPS.register(
+    "rmpflow_goal_attractor",
+    examples=[Example({}, 2, scale=2.0), Example({"gain": 1.5, "sigma": 0.8, "eta": 1.0}, 3, scale=2.0)],
+)
 class RMPflowGoalAttractor(LeafRMP):
     """RMPflow's GoalAttractorUni on x = y − goal.
 
@@ -154,5 +156,6 @@ class RMPflowDamper(LeafRMP):
         G = spread(self.w, 2) * eye
         K = 0.5 * self.w * (yd * yd).sum(-1)
         Phi = torch.zeros_like(K)
-        return NodeRMP(f=-spread(self.eta * self.w, 1) * yd, M=G, G=G, B=spread(self.eta * self.w, 2) * eye, Phi=Phi,
-                       L=K, V=K)
+        return NodeRMP(
+            f=-spread(self.eta * self.w, 1) * yd, M=G, G=G, B=spread(self.eta * self.w, 2) * eye, Phi=Phi, L=K, V=K
+        )

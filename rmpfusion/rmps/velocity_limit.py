@@ -13,6 +13,7 @@ damping acceleration and no curvature terms, so it is not a GDS; this metric sta
 carries Ξ. From ``linear_from`` of the band on, φ continues along its tangent line, so a state beyond the limit (an
 integrator's overshoot, a measured velocity) gets a large but finite metric and the leaf stays an exact GDS.
 """
+
 from __future__ import annotations
 
 import torch
@@ -38,6 +39,7 @@ def band_states(limit: tuple[float, ...] = (1.0,), onset: float = 0.8, linear_fr
     limit, never within 0.05 band widths of the onset, of the start of the linear continuation or of the limit
     (where its metric is only C¹, or changes fast); positions do not matter. One sample has every coordinate
     inside the band."""
+
     def states(gen: torch.Generator, n: int, dim: int) -> tuple[Tensor, Tensor]:
         L = torch.tensor(limit).expand(dim)
         on, band = onset * L, (1 - onset) * L
@@ -50,33 +52,48 @@ def band_states(limit: tuple[float, ...] = (1.0,), onset: float = 0.8, linear_fr
         yd = sign * (lo + (hi - lo) * torch.rand(n, dim, generator=gen))
         yd[0] = on + band * 0.5
         return torch.randn(n, dim, generator=gen), yd
+
     return states
 
 
-@LEAF_RMPS.register("velocity_limit", examples=[
-    Example({}, 3, band_states()),
-    Example({"limit": [2.0, 0.5], "onset": 0.6, "w": 3.0, "eta": 0.5, "linear_from": 0.9}, 2,
-            band_states((2.0, 0.5), 0.6, 0.9))])
+@LEAF_RMPS.register(
+    "velocity_limit",
+    examples=[
+        Example({}, 3, band_states()),
+        Example(
+            {"limit": [2.0, 0.5], "onset": 0.6, "w": 3.0, "eta": 0.5, "linear_from": 0.9},
+            2,
+            band_states((2.0, 0.5), 0.6, 0.9),
+        ),
+    ],
+)
 class VelocityLimit(GDS):
     """Keeps |ẏ_i| below ``limit`` (per coordinate, or one for all): G = diag(w·φ(r_i)), B = η·G, Φ = 0 (module
     docstring); on ``velocity_scaled_joints`` with limit 1 it caps every joint at its URDF velocity limit."""
 
     class Params(Params):
-        limit: float | list[float] = Field(1.0, description="> 0: the velocity limit of each coordinate (one value "
-                                                             "for all, or one per coordinate)")
+        limit: float | list[float] = Field(
+            1.0, description="> 0: the velocity limit of each coordinate (one value for all, or one per coordinate)"
+        )
         onset: float = Field(0.8, gt=0, lt=1, description="fraction of the limit where the cap starts acting")
         w: float = Field(1.0, gt=0, description="metric scale")
         eta: float = Field(1.0, ge=0, description="damping relative to the metric")
-        linear_from: float = Field(0.99, gt=0, lt=1, description="fraction of the band (onset to limit) from which "
-                                                                  "the metric grows linearly: finite beyond the limit")
+        linear_from: float = Field(
+            0.99,
+            gt=0,
+            lt=1,
+            description="fraction of the band (onset to limit) from which "
+            "the metric grows linearly: finite beyond the limit",
+        )
 
         @field_validator("limit")
         @classmethod
         def _positive(cls, v: float | list[float]) -> float | list[float]:
             values = v if isinstance(v, list) else [v]
             if not values or not all(x > 0 for x in values):
-                raise ValueError(f"limit must be > 0 (a velocity limit of 0 or less leaves no velocity allowed); "
-                                 f"given {v!r}")
+                raise ValueError(
+                    f"limit must be > 0 (a velocity limit of 0 or less leaves no velocity allowed); given {v!r}"
+                )
             return v
 
     def __init__(self, params: Params, dim: int):
@@ -85,8 +102,10 @@ class VelocityLimit(GDS):
         if limit.numel() == 1:
             limit = limit.expand(dim).clone()
         if limit.numel() != dim:
-            raise ValueError(f"velocity_limit.limit has {limit.numel()} values for a {dim}-dimensional space; give one "
-                             f"value, or one per coordinate")
+            raise ValueError(
+                f"velocity_limit.limit has {limit.numel()} values for a {dim}-dimensional space; give one "
+                f"value, or one per coordinate"
+            )
         self.register_buffer("limit", limit)
         self.register_buffer("band", (1 - params.onset) * limit)
         self.onset, self.w, self.eta, self.linear_from = params.onset, params.w, params.eta, params.linear_from
@@ -117,4 +136,11 @@ class VelocityLimit(GDS):
         """All six terms from one evaluation of the band metric."""
         g, half_v_dg = self._g(yd)
         G = torch.diag_embed(g)
-        return G, self.eta * G, y.new_zeros(y.shape[0]), torch.zeros_like(y), torch.diag_embed(half_v_dg), torch.zeros_like(yd)
+        return (
+            G,
+            self.eta * G,
+            y.new_zeros(y.shape[0]),
+            torch.zeros_like(y),
+            torch.diag_embed(half_v_dg),
+            torch.zeros_like(yd),
+        )

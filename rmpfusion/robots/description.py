@@ -6,13 +6,15 @@ control-point spheres that obstacle barriers keep away from obstacles. The envir
 and the manipulator tree is generated from it, so both always see the same robot. Every name in it is checked
 against the URDF when it is validated, with the closest names offered.
 """
+
 from __future__ import annotations
 
 import difflib
 import functools
 import math
 import xml.etree.ElementTree as ET
-from typing import Literal, Sequence
+from collections.abc import Sequence
+from typing import Literal
 
 from pydantic import Field, field_validator, model_validator
 
@@ -71,18 +73,26 @@ class RobotDescription(Params):
     type: Literal["urdf"] = "urdf"
     name: str = Field(description="how figures and messages name the robot")
     urdf: str = Field(description="a file path, or pkg://<package>/<path> inside an installed Python package")
-    packages: dict[str, str | None] = Field(default_factory=dict, description="ROS package name -> its folder (a "
-                                            "path or pkg://<python package>/<folder>; null: searched for), for the "
-                                            "URDF's package:// meshes (robots/packages.py)")
-    mount: Mount | None = Field(None, description="where the base sits in the world (xyz m, rpy rad); default the "
-                                                   "origin")
-    srdf: str | None = Field(None, description="an SRDF (path or pkg://) whose <disable_collisions> link pairs get no "
-                                               "self-collision barrier")
-    joints: list[str] = Field(min_length=1, description="the actuated joints, in configuration order; other movable "
-                                                        "joints are held at 0")
+    packages: dict[str, str | None] = Field(
+        default_factory=dict,
+        description="ROS package name -> its folder (a "
+        "path or pkg://<python package>/<folder>; null: searched for), for the "
+        "URDF's package:// meshes (robots/packages.py)",
+    )
+    mount: Mount | None = Field(
+        None, description="where the base sits in the world (xyz m, rpy rad); default the origin"
+    )
+    srdf: str | None = Field(
+        None, description="an SRDF (path or pkg://) whose <disable_collisions> link pairs get no self-collision barrier"
+    )
+    joints: list[str] = Field(
+        min_length=1, description="the actuated joints, in configuration order; other movable joints are held at 0"
+    )
     end_effector: EndEffector
-    home: list[float] = Field(description="a configuration inside the limits (rad), one value per actuated joint: "
-                                          "the centre of the starts unless the experiment says otherwise")
+    home: list[float] = Field(
+        description="a configuration inside the limits (rad), one value per actuated joint: "
+        "the centre of the starts unless the experiment says otherwise"
+    )
     limits: dict[str, JointLimits] = Field(default_factory=dict, description="per-joint overrides of the URDF limits")
     control_points: list[ControlPoint] = Field(default_factory=list, description="spheres approximating the arm")
     held_joint_gains: HeldJointGains = HeldJointGains()
@@ -93,9 +103,10 @@ class RobotDescription(Params):
         try:
             _model(v)  # a missing or malformed file is said here, with its path
         except FileNotFoundError as e:
-            raise ValueError(f"{e}; fix urdf: in the robot's file (conf/robot/<name>.yaml or env.robot.urdf=...) to "
-                             "name a URDF that exists (a path from the working directory, or pkg://<package>/<path>)") \
-                from None
+            raise ValueError(
+                f"{e}; fix urdf: in the robot's file (conf/robot/<name>.yaml or env.robot.urdf=...) to "
+                "name a URDF that exists (a path from the working directory, or pkg://<package>/<path>)"
+            ) from None
         return v
 
     @field_validator("packages")
@@ -115,28 +126,38 @@ class RobotDescription(Params):
         movable, links = model.movable_joint_names(), model.link_names()
         for i, j in enumerate(self.joints):
             if j not in movable:
-                raise ValueError(f"joints[{i}] = {j!r} is not a movable joint of {self.urdf}; {_close(j, movable)}"
-                                 f"movable joints: {', '.join(movable)}")
+                raise ValueError(
+                    f"joints[{i}] = {j!r} is not a movable joint of {self.urdf}; {_close(j, movable)}"
+                    f"movable joints: {', '.join(movable)}"
+                )
             mimic = model.joint(j).mimic
             if mimic is not None:
-                raise ValueError(f"joints[{i}] = {j!r} follows {mimic.leader!r} (URDF <mimic>), so it cannot be "
-                                 f"actuated on its own; list {mimic.leader!r} instead (its followers move with it)")
+                raise ValueError(
+                    f"joints[{i}] = {j!r} follows {mimic.leader!r} (URDF <mimic>), so it cannot be "
+                    f"actuated on its own; list {mimic.leader!r} instead (its followers move with it)"
+                )
         if len(set(self.joints)) != len(self.joints):
             raise ValueError(f"joints lists a joint twice: {self.joints}")
-        for where, link in [("end_effector.link", self.end_effector.link),
-                            *((f"control_points[{i}].link", c.link) for i, c in enumerate(self.control_points))]:
+        for where, link in [
+            ("end_effector.link", self.end_effector.link),
+            *((f"control_points[{i}].link", c.link) for i, c in enumerate(self.control_points)),
+        ]:
             if link not in links:
-                raise ValueError(f"{where} = {link!r} is not a link of {self.urdf}; {_close(link, links)}"
-                                 f"links: {', '.join(links)}")
+                raise ValueError(
+                    f"{where} = {link!r} is not a link of {self.urdf}; {_close(link, links)}links: {', '.join(links)}"
+                )
         for j in self.limits:
             if j not in self.joints:
-                raise ValueError(f"limits.{j}: not an actuated joint; {_close(j, self.joints)}"
-                                 f"actuated: {', '.join(self.joints)}")
+                raise ValueError(
+                    f"limits.{j}: not an actuated joint; {_close(j, self.joints)}actuated: {', '.join(self.joints)}"
+                )
         for a, b in self.disabled_collisions():
             for link in (a, b):
                 if link not in links:
-                    raise ValueError(f"srdf {self.srdf}: <disable_collisions> names {link!r}, not a link of "
-                                     f"{self.urdf}; {_close(link, links)}links: {', '.join(links)}")
+                    raise ValueError(
+                        f"srdf {self.srdf}: <disable_collisions> names {link!r}, not a link of "
+                        f"{self.urdf}; {_close(link, links)}links: {', '.join(links)}"
+                    )
         self._check_home()
         return self
 

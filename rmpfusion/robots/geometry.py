@@ -6,11 +6,12 @@ and spheres are built by trimesh as well, so every element is sampled the same w
 ``robots/packages.py`` says, and only those of the links asked for are read. A link with visual geometry but no
 collision geometry is covered by its visual geometry, and the caller is told which links those are.
 """
+
 from __future__ import annotations
 
 import xml.etree.ElementTree as ET
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Mapping, Sequence
 
 import numpy as np
 
@@ -32,12 +33,14 @@ def _read_mesh(path: str, link: str):
 
     try:
         m = trimesh.load(path, force="mesh")
-    except BaseException as e:  # noqa: BLE001 - trimesh raises anything, even for a missing reader's dependency
+    except BaseException as e:
         if isinstance(e, (KeyboardInterrupt, SystemExit)):
             raise
         cause = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
-        raise MeshUnreadable(f"link {link!r}: mesh {path} could not be read ({cause}); convert it to STL or OBJ, "
-                             f"or install the reader trimesh asks for") from None
+        raise MeshUnreadable(
+            f"link {link!r}: mesh {path} could not be read ({cause}); convert it to STL or OBJ, "
+            f"or install the reader trimesh asks for"
+        ) from None
     if not hasattr(m, "faces") or len(m.faces) == 0:
         raise MeshUnreadable(f"link {link!r}: mesh {path} holds no triangles")
     return m
@@ -86,8 +89,9 @@ class LinkGeometry:
     from_visual: list[str] = field(default_factory=list)
 
 
-def link_geometry(urdf: str, links: Sequence[str] | None = None, packages: Mapping[str, str] | None = None,
-                  use_visual: bool = True) -> LinkGeometry:
+def link_geometry(
+    urdf: str, links: Sequence[str] | None = None, packages: Mapping[str, str] | None = None, use_visual: bool = True
+) -> LinkGeometry:
     """The collision geometry of ``links`` (default: every link), read from their meshes only; a link with none
     takes its visual geometry when ``use_visual``. Links with neither are left out."""
     path = resolve_urdf_path(urdf)
@@ -118,8 +122,9 @@ def links_with_geometry(urdf: str) -> dict[str, str]:
     return out
 
 
-def collision_meshes(urdf: str, links: Sequence[str] | None = None,
-                     packages: Mapping[str, str] | None = None) -> dict[str, object]:
+def collision_meshes(
+    urdf: str, links: Sequence[str] | None = None, packages: Mapping[str, str] | None = None
+) -> dict[str, object]:
     """Link name -> its collision geometry (else its visual geometry) as one trimesh mesh in the link's frame."""
     return link_geometry(urdf, links, packages).meshes
 

@@ -6,6 +6,7 @@ joint can raise or lower, such as a shoulder that only spins about the vertical,
 configuration; and a sphere that can never rise ``clearance`` above the ground is asked only for the height it can
 reach.
 """
+
 from __future__ import annotations
 
 import math
@@ -63,8 +64,9 @@ def ground_check(robot: RobotDescription, ground: float = 0.0, clearance: float 
     return lambda q: (sphere_heights(robot, q)[:, moves] >= need[moves]).all(-1)
 
 
-def propose_home(robot: RobotDescription, ground: float = 0.0, clearance: float = 0.05,
-                 seed: int = 0) -> tuple[list[float], str]:
+def propose_home(
+    robot: RobotDescription, ground: float = 0.0, clearance: float = 0.05, seed: int = 0
+) -> tuple[list[float], str]:
     """(home, how it was chosen): mid-range when every sphere that can move up or down is ``clearance`` above the
     ground there, else the sampled configuration nearest to mid-range (in fractions of each range) that is."""
     mid = torch.tensor([mid_range(robot)], dtype=torch.float64)
@@ -78,9 +80,13 @@ def propose_home(robot: RobotDescription, ground: float = 0.0, clearance: float 
         return mid[0].tolist(), "the middle of every joint's range (clear of the ground)"
     ok = clear(samples)
     if not bool(ok.any()):
-        return mid[0].tolist(), (f"the middle of every joint's range, though some sphere is less than {clearance} m "
-                                 f"above the ground there and no sampled configuration clears it: set home by hand")
+        return mid[0].tolist(), (
+            f"the middle of every joint's range, though some sphere is less than {clearance} m "
+            f"above the ground there and no sampled configuration clears it: set home by hand"
+        )
     distance = ((samples - mid) / (hi - lo)).norm(dim=-1).masked_fill(~ok, math.inf)
     best = torch.minimum(torch.maximum(samples[int(distance.argmin())].round(decimals=3), lo), hi)
-    return best.tolist(), (f"the configuration nearest the middle of every joint's range whose "
-                                                 f"spheres clear the ground by {clearance} m, of {SAMPLES} sampled")
+    return best.tolist(), (
+        f"the configuration nearest the middle of every joint's range whose "
+        f"spheres clear the ground by {clearance} m, of {SAMPLES} sampled"
+    )

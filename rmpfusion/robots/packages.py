@@ -19,14 +19,15 @@ The sphere fitter resolves only the meshes of the links it fits; simulators load
 URDF with every mesh an absolute path, cached by content, written atomically, so no consumer relies on a search of
 its own (pybullet's would find other files, or none).
 """
+
 from __future__ import annotations
 
 import hashlib
 import os
 import re
 import xml.etree.ElementTree as ET
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Mapping
 
 from ..files import atomic_write_bytes
 from ..maps.urdf import resolve_urdf_path
@@ -57,8 +58,9 @@ def _package_xml_names(folder: str) -> str | None:
 
 
 def _is_package(folder: str, name: str) -> bool:
-    return os.path.isdir(folder) and (os.path.basename(os.path.normpath(folder)) == name
-                                      or _package_xml_names(folder) == name)
+    return os.path.isdir(folder) and (
+        os.path.basename(os.path.normpath(folder)) == name or _package_xml_names(folder) == name
+    )
 
 
 def _under(entry: str, name: str) -> list[str]:
@@ -67,7 +69,7 @@ def _under(entry: str, name: str) -> list[str]:
     for here, subdirs, _ in os.walk(start):
         if _is_package(here, name):
             found.append(here)
-        if _package_xml_names(here) is not None or here[len(start):].count(os.sep) >= _ROS_SEARCH_DEPTH:
+        if _package_xml_names(here) is not None or here[len(start) :].count(os.sep) >= _ROS_SEARCH_DEPTH:
             subdirs.clear()
         subdirs[:] = [d for d in subdirs if not d.startswith(".")]
     return found
@@ -80,8 +82,10 @@ def package_folder(name: str, given: str) -> str:
     except FileNotFoundError as e:
         raise FileNotFoundError(f"packages.{name} = {given!r}: {e}") from None
     if not os.path.isdir(path):
-        raise FileNotFoundError(f"packages.{name} = {given!r}: no folder {path}; give the folder that holds the "
-                                f"package's files (the one with its package.xml)")
+        raise FileNotFoundError(
+            f"packages.{name} = {given!r}: no folder {path}; give the folder that holds the "
+            f"package's files (the one with its package.xml)"
+        )
     return path
 
 
@@ -105,16 +109,20 @@ def _steps(name: str, urdf_path: str, packages: Mapping[str, str | None]) -> lis
     ]
 
 
-def package_dir(name: str, urdf_path: str, packages: Mapping[str, str | None] | None = None) -> tuple[str | None, list[str]]:
+def package_dir(
+    name: str, urdf_path: str, packages: Mapping[str, str | None] | None = None
+) -> tuple[str | None, list[str]]:
     """(the folder of ROS package ``name`` or None, every place looked in), searched in the module's order."""
     looked: list[str] = []
     for step, places, found in _steps(name, urdf_path, packages or {}):
         looked += [f"{p} ({step})" for p in places]
         distinct = sorted({os.path.realpath(f) for f in found})
         if len(distinct) > 1:
-            raise PackageConflict(f"package {name!r} is found twice by {step}: {distinct[0]} and {distinct[1]}; say "
-                                  f"which one is meant with packages: {{{name}: PATH}} in the robot file "
-                                  f"(--package-dir {name}=PATH)")
+            raise PackageConflict(
+                f"package {name!r} is found twice by {step}: {distinct[0]} and {distinct[1]}; say "
+                f"which one is meant with packages: {{{name}: PATH}} in the robot file "
+                f"(--package-dir {name}=PATH)"
+            )
         if distinct:
             return found[0], looked
     return None, looked
@@ -124,23 +132,28 @@ def mesh_path(uri: str, link: str, urdf_path: str, packages: Mapping[str, str | 
     """The file a mesh URI of ``link`` names: ``package://``, ``file://``, absolute, or relative to the URDF."""
     urdf_dir = os.path.dirname(os.path.abspath(urdf_path))
     if uri.startswith(PACKAGE_URI):
-        name, _, rest = uri[len(PACKAGE_URI):].partition("/")
+        name, _, rest = uri[len(PACKAGE_URI) :].partition("/")
         root, looked = package_dir(name, urdf_path, packages)
         # no package of that name: the URI read as a path from the URDF's folder, as pybullet reads it (some
         # published URDFs write package://meshes/... for meshes beside them)
-        candidates = ([os.path.join(root, rest)] if root is not None
-                      else [os.path.join(urdf_dir, name, rest), os.path.join(urdf_dir, rest)])
+        candidates = (
+            [os.path.join(root, rest)]
+            if root is not None
+            else [os.path.join(urdf_dir, name, rest), os.path.join(urdf_dir, rest)]
+        )
     elif uri.startswith(FILE_URI):
-        candidates, looked = [uri[len(FILE_URI):]], []
+        candidates, looked = [uri[len(FILE_URI) :]], []
     else:
         candidates, looked = [uri if os.path.isabs(uri) else os.path.join(urdf_dir, uri)], []
     for c in candidates:
         if os.path.isfile(c):
             return os.path.abspath(c)
     places = "; ".join(looked + candidates) or "nowhere"
-    raise MeshNotFound(f"{urdf_path}: link {link!r}: mesh {uri!r} not found; looked in: {places}. Give the package's "
-                       f"folder as packages: {{NAME: PATH}} in the robot file (--package-dir NAME=PATH), or set "
-                       f"ROS_PACKAGE_PATH")
+    raise MeshNotFound(
+        f"{urdf_path}: link {link!r}: mesh {uri!r} not found; looked in: {places}. Give the package's "
+        f"folder as packages: {{NAME: PATH}} in the robot file (--package-dir NAME=PATH), or set "
+        f"ROS_PACKAGE_PATH"
+    )
 
 
 def package_names(urdf: str) -> list[str]:
@@ -149,7 +162,7 @@ def package_names(urdf: str) -> list[str]:
     for _, mesh in link_meshes(ET.parse(resolve_urdf_path(urdf)).getroot()):
         uri = mesh.get("filename") or ""
         if uri.startswith(PACKAGE_URI):
-            name = uri[len(PACKAGE_URI):].partition("/")[0]
+            name = uri[len(PACKAGE_URI) :].partition("/")[0]
             if name not in names:
                 names.append(name)
     return names
@@ -163,7 +176,8 @@ def link_meshes(root: ET.Element) -> list[tuple[str, ET.Element]]:
 def cache_dir() -> Path:
     """Where resolved URDFs are kept: ``$RMPFUSION_CACHE/urdf`` (default ``~/.cache/rmpfusion/urdf``)."""
     base = os.environ.get("RMPFUSION_CACHE") or os.path.join(
-        os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache"), "rmpfusion")
+        os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache"), "rmpfusion"
+    )
     return Path(base) / "urdf"
 
 

@@ -6,11 +6,13 @@ a class with ``rmpfusion.registry.ROBOTS`` whose ``Params`` subclasses ``RobotDe
 finds the fields it reads) and whose constructor takes those params; it may override how the robot is loaded into
 a simulator (``envs/manipulator/scene.py`` calls ``load_into``).
 """
+
 from __future__ import annotations
 
 import functools
 import math
-from typing import Annotated, Any, Mapping
+from collections.abc import Mapping
+from typing import Annotated, Any
 
 import numpy as np
 import torch
@@ -62,13 +64,20 @@ class URDFRobot:
         ``params.control_points``."""
         cps = self.params.control_points
         poses = self.chain.forward_kinematics(q, sorted({cp.link for cp in cps}))
-        return torch.stack([poses[cp.link][1] + (poses[cp.link][0] @ torch.tensor(cp.offset, dtype=q.dtype)
-                                                 .unsqueeze(-1)).squeeze(-1) for cp in cps], 1)
+        return torch.stack(
+            [
+                poses[cp.link][1]
+                + (poses[cp.link][0] @ torch.tensor(cp.offset, dtype=q.dtype).unsqueeze(-1)).squeeze(-1)
+                for cp in cps
+            ],
+            1,
+        )
 
     def moves(self, link: str) -> bool:
         """Whether some actuated joint moves ``link`` (links fixed to the base cannot reach an obstacle's side)."""
-        return any(j.name in self.params.joints or j.name in self.chain.followers
-                   for j in self.params.model().path_to(link))
+        return any(
+            j.name in self.params.joints or j.name in self.chain.followers for j in self.params.model().path_to(link)
+        )
 
     def held_joints(self) -> list[str]:
         """Movable joints that are not actuated: those that follow an actuated joint (URDF <mimic>), and the others
@@ -93,28 +102,49 @@ class URDFRobot:
         if self.params.mount is None:
             return [0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]
         r, p_, y = self.params.mount.rpy
-        cr, sr, cp, sp, cy, sy = (math.cos(r / 2), math.sin(r / 2), math.cos(p_ / 2), math.sin(p_ / 2),
-                                  math.cos(y / 2), math.sin(y / 2))
-        quaternion = [sr * cp * cy - cr * sp * sy, cr * sp * cy + sr * cp * sy, cr * cp * sy - sr * sp * cy,
-                      cr * cp * cy + sr * sp * sy]
+        cr, sr, cp, sp, cy, sy = (
+            math.cos(r / 2),
+            math.sin(r / 2),
+            math.cos(p_ / 2),
+            math.sin(p_ / 2),
+            math.cos(y / 2),
+            math.sin(y / 2),
+        )
+        quaternion = [
+            sr * cp * cy - cr * sp * sy,
+            cr * sp * cy + sr * cp * sy,
+            cr * cp * sy - sr * sp * cy,
+            cr * cp * cy + sr * sp * sy,
+        ]
         return list(self.params.mount.xyz), quaternion
 
     def load_into(self, p: Any, cid: int) -> tuple[int, list[int], list[int]]:
         """Load the robot into pybullet world ``cid`` on a fixed base at its mount: (body, pybullet indices of the
         actuated joints in configuration order, indices of the held joints)."""
         position, orientation = self.base_pose()
-        body = p.loadURDF(self.urdf_path, position, orientation, useFixedBase=True,
-                          flags=p.URDF_USE_INERTIA_FROM_FILE, physicsClientId=cid)
-        index = {p.getJointInfo(body, i, physicsClientId=cid)[1].decode(): i
-                 for i in range(p.getNumJoints(body, physicsClientId=cid))}
+        body = p.loadURDF(
+            self.urdf_path,
+            position,
+            orientation,
+            useFixedBase=True,
+            flags=p.URDF_USE_INERTIA_FROM_FILE,
+            physicsClientId=cid,
+        )
+        index = {
+            p.getJointInfo(body, i, physicsClientId=cid)[1].decode(): i
+            for i in range(p.getNumJoints(body, physicsClientId=cid))
+        }
         return body, [index[j] for j in self.params.joints], [index[j] for j in self.held_joints()]
 
 
 def _robot_block(value: Any) -> Any:
     """Validate a robot block by its kind's own model (``type`` defaults to the URDF kind)."""
     if isinstance(value, RobotDescription) or not isinstance(value, Mapping):
-        return value if isinstance(value, RobotDescription) else _refuse(f"a robot is a mapping (conf/robot/), "
-                                                                         f"given {value!r}")
+        return (
+            value
+            if isinstance(value, RobotDescription)
+            else _refuse(f"a robot is a mapping (conf/robot/), given {value!r}")
+        )
     kind = value.get("type", "urdf")
     try:
         entry = ROBOTS.get(kind)
@@ -123,8 +153,12 @@ def _robot_block(value: Any) -> Any:
     try:
         return entry.params.model_validate({**value, "type": kind})
     except ValidationError as e:
-        _refuse("; ".join((f"{'.'.join(map(str, err['loc']))}: " if err["loc"] else "")
-                          + err["msg"].removeprefix("Value error, ") for err in e.errors()))
+        _refuse(
+            "; ".join(
+                (f"{'.'.join(map(str, err['loc']))}: " if err["loc"] else "") + err["msg"].removeprefix("Value error, ")
+                for err in e.errors()
+            )
+        )
 
 
 def _refuse(message: str):

@@ -7,6 +7,7 @@ some sphere of their link (spheres of other links are not counted, so a link is 
 **overshoot** is, per sphere, the largest distance from a point of its surface to the link's surface: how far the
 sphere reaches out where there is no robot.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -69,14 +70,16 @@ def overshoot(centers: np.ndarray, radii: np.ndarray, surface: np.ndarray, per_s
     return np.array(out)
 
 
-def fit_link(link: str, mesh, k: int, margin: float = 0.002, n_fit: int = 4000, n_check: int = 4000,
-             seed: int = 0) -> LinkFit:
+def fit_link(
+    link: str, mesh, k: int, margin: float = 0.002, n_fit: int = 4000, n_check: int = 4000, seed: int = 0
+) -> LinkFit:
     """``k`` spheres covering one link's collision surface, measured on an independent sample."""
     fit_pts = surface_samples(mesh, n_fit, seed)
     centres = kmeans(fit_pts, k, seed)
     label = torch.cdist(torch.as_tensor(fit_pts), torch.as_tensor(centres)).argmin(1).numpy()
-    radii = np.array([np.linalg.norm(fit_pts[label == j] - centres[j], axis=1).max(initial=0.0) + margin
-                      for j in range(k)])
+    radii = np.array(
+        [np.linalg.norm(fit_pts[label == j] - centres[j], axis=1).max(initial=0.0) + margin for j in range(k)]
+    )
     return measure(link, mesh, centres, radii, n_check, seed + 1)
 
 
@@ -84,15 +87,23 @@ def measure(link: str, mesh, centers, radii, n_check: int = 4000, seed: int = 1)
     """Coverage and overshoot of given spheres on one link, on ``n_check`` fresh surface samples."""
     centers, radii = np.asarray(centers, dtype=np.float64).reshape(-1, 3), np.asarray(radii, dtype=np.float64)
     pts = surface_samples(mesh, n_check, seed)
-    return LinkFit(link, centers, radii, pts, covered_by(pts, centers, radii) if len(radii) else
-                   np.zeros(len(pts), dtype=bool), overshoot(centers, radii, pts) if len(radii) else np.zeros(0))
+    return LinkFit(
+        link,
+        centers,
+        radii,
+        pts,
+        covered_by(pts, centers, radii) if len(radii) else np.zeros(len(pts), dtype=bool),
+        overshoot(centers, radii, pts) if len(radii) else np.zeros(0),
+    )
 
 
 def summary(fits: list[LinkFit]) -> dict[str, float]:
     """Coverage over every checked point (each link weighted by its samples), and overshoot over every sphere."""
     covered = np.concatenate([f.covered for f in fits]) if fits else np.zeros(0)
     over = np.concatenate([f.overshoot for f in fits]) if fits else np.zeros(0)
-    return {"coverage": float(covered.mean()) if len(covered) else float("nan"),
-            "overshoot_mean": float(over.mean()) if len(over) else float("nan"),
-            "overshoot_max": float(over.max()) if len(over) else float("nan"),
-            "spheres": int(sum(len(f.radii) for f in fits))}
+    return {
+        "coverage": float(covered.mean()) if len(covered) else float("nan"),
+        "overshoot_mean": float(over.mean()) if len(over) else float("nan"),
+        "overshoot_max": float(over.max()) if len(over) else float("nan"),
+        "spheres": int(sum(len(f.radii) for f in fits)),
+    }

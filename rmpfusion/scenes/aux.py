@@ -8,10 +8,11 @@ smallest half extent. Centres are where the obstacle is at the time the aux desc
 t = 0 aux state to any time (one time per sample), so rollouts, demonstrations and the evaluation all see the
 same motion.
 """
+
 from __future__ import annotations
 
 import math
-from typing import Mapping
+from collections.abc import Mapping
 
 import torch
 from torch import Tensor
@@ -21,7 +22,9 @@ from .spec import Box, Capsule, Cylinder, Linear, Scene, Waypoints
 
 #: aux entries of each shape beyond centre and radius: name suffix -> dimension
 SHAPE_AUX: dict[str, dict[str, int]] = {
-    "sphere": {}, "box": {"half_extents": 3, "rotation": 9}, "cylinder": {"axis": 3, "half_height": 1},
+    "sphere": {},
+    "box": {"half_extents": 3, "rotation": 9},
+    "cylinder": {"axis": 3, "half_height": 1},
     "capsule": {"axis": 3, "half_length": 1},
 }
 
@@ -49,8 +52,11 @@ def _unit(v) -> list[float]:
 
 def _shape_values(o) -> dict[str, list[float]]:
     if isinstance(o, Box):
-        return {"radius": [min(o.half_extents)], "half_extents": list(o.half_extents),
-                "rotation": rpy_matrix(o.rpy).reshape(-1).tolist()}
+        return {
+            "radius": [min(o.half_extents)],
+            "half_extents": list(o.half_extents),
+            "rotation": rpy_matrix(o.rpy).reshape(-1).tolist(),
+        }
     if isinstance(o, Cylinder):
         return {"radius": [o.radius], "axis": _unit(o.axis), "half_height": [o.height / 2]}
     if isinstance(o, Capsule):

@@ -11,6 +11,7 @@ What Theorem 2 promises: between two clouds the members are fixed aux state and 
 cloud replaces the members (or the kept cubes switch as the arm moves), the aux state jumps, and V_r may jump with
 it, as at any change of the world (docs/math.md §13).
 """
+
 from __future__ import annotations
 
 import torch

@@ -12,10 +12,11 @@ Every shape is convex, so the signed distance along a segment is convex in the s
 ternary search finds its least value. A moving obstacle is measured where it is at t = 0; the ground plane is not an
 obstacle a reach crosses.
 """
+
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Mapping
 
 import torch
 from torch import Tensor
@@ -36,6 +37,7 @@ def segment_clearance(scene: Scene, aux: Mapping[str, Tensor], start: Tensor, en
 
 def _one_obstacle(scene: Scene, aux: Mapping[str, Tensor], start: Tensor, end: Tensor, k: int) -> Tensor:
     """(B,) the least distance to obstacle ``k`` (from 0) along each segment, by ternary search on its parameter."""
+
     def at(t: Tensor) -> Tensor:
         return distances(scene, aux, start + t[:, None] * (end - start))[:, k]
 
@@ -67,8 +69,12 @@ class CrossingSummary:
     clearance_quantiles: dict[str, float]  # of each path's least clearance over the obstacles (m)
 
     def as_dict(self) -> dict:
-        return {"paths": self.paths, "crossing_fraction": self.crossing_fraction, "radius": self.radius,
-                "clearance_quantiles": dict(self.clearance_quantiles)}
+        return {
+            "paths": self.paths,
+            "crossing_fraction": self.crossing_fraction,
+            "radius": self.radius,
+            "clearance_quantiles": dict(self.clearance_quantiles),
+        }
 
 
 QUANTILES = {"min": 0.0, "q10": 0.1, "q25": 0.25, "median": 0.5, "q75": 0.75, "q90": 0.9, "max": 1.0}
@@ -81,5 +87,6 @@ def summarize(clearance: Tensor, radius: float) -> CrossingSummary:
         return CrossingSummary(n, 0.0, radius, {})
     least = clearance.min(-1).values.double()
     qs = torch.quantile(least, torch.tensor(list(QUANTILES.values()), dtype=torch.float64))
-    return CrossingSummary(n, float(crosses(clearance, radius).double().mean()), radius,
-                           {name: float(v) for name, v in zip(QUANTILES, qs)})
+    return CrossingSummary(
+        n, float(crosses(clearance, radius).double().mean()), radius, {name: float(v) for name, v in zip(QUANTILES, qs)}
+    )

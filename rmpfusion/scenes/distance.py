@@ -3,9 +3,11 @@
 The manipulator tree puts one of these under every control point, and the environment measures goal clearance
 with the same maps, so the tree and the sampling agree on where an obstacle's surface is.
 """
+
 from __future__ import annotations
 
-from typing import Any, Mapping
+from collections.abc import Mapping
+from typing import Any
 
 import torch
 from torch import Tensor
@@ -16,10 +18,19 @@ from .spec import Scene
 
 #: the registered map measuring each shape; a vertical infinite cylinder (``cylinder_distance``) is the other choice
 #: for a standing cylinder, conservative above its top
-SHAPE_MAPS = {"sphere": "sphere_obstacle", "box": "box_obstacle", "cylinder": "cylinder_obstacle",
-              "capsule": "capsule_obstacle"}
-_KEYS = {"half_extents": "half_extents", "rotation": "rotation", "axis": "axis", "half_height": "half_height",
-         "half_length": "half_length"}
+SHAPE_MAPS = {
+    "sphere": "sphere_obstacle",
+    "box": "box_obstacle",
+    "cylinder": "cylinder_obstacle",
+    "capsule": "capsule_obstacle",
+}
+_KEYS = {
+    "half_extents": "half_extents",
+    "rotation": "rotation",
+    "axis": "axis",
+    "half_height": "half_height",
+    "half_length": "half_length",
+}
 
 
 def obstacle_map(k: int, shape: str, moving: bool, map_type: str | None = None) -> dict[str, Any]:
@@ -29,8 +40,9 @@ def obstacle_map(k: int, shape: str, moving: bool, map_type: str | None = None) 
     spec: dict[str, Any] = {"type": map_type, "center": pre + "center"}
     if map_type == "cylinder_distance":  # the infinite vertical cylinder: centre and radius only, static
         if moving:
-            raise ValueError(f"obstacle {k} moves, but cylinder_distance measures a static cylinder; use "
-                             f"{SHAPE_MAPS['cylinder']}")
+            raise ValueError(
+                f"obstacle {k} moves, but cylinder_distance measures a static cylinder; use {SHAPE_MAPS['cylinder']}"
+            )
         return {**spec, "radius": pre + "radius"}
     if shape != "box":
         spec["radius"] = pre + "radius"

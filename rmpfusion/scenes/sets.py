@@ -13,9 +13,11 @@ The fields of each shape are those of a scene's obstacles (``scenes/aux.py``) pl
 every shape has a ``radius``, the size the shared obstacle weights read (a box's smallest half extent, as in a
 scene; for a plane, the size the caller wants its weight to see).
 """
+
 from __future__ import annotations
 
-from typing import Any, Literal, Mapping
+from collections.abc import Mapping
+from typing import Any, Literal
 
 import torch
 from pydantic import Field
@@ -29,17 +31,37 @@ SET_SHAPES = ("sphere", "box", "cylinder", "capsule", "plane")
 #: the fields of each shape's members beyond centre and radius (name -> dimension)
 SET_FIELDS: dict[str, dict[str, int]] = {**SHAPE_AUX, "plane": {"normal": 3}}
 #: the distance map measuring each shape's members
-SET_MAPS = {"sphere": "sphere_obstacle", "box": "box_obstacle", "cylinder": "cylinder_obstacle",
-            "capsule": "capsule_obstacle", "plane": "plane_obstacle"}
+SET_MAPS = {
+    "sphere": "sphere_obstacle",
+    "box": "box_obstacle",
+    "cylinder": "cylinder_obstacle",
+    "capsule": "capsule_obstacle",
+    "plane": "plane_obstacle",
+}
 #: what an absent member's fields hold: a small, well-formed obstacle at the origin (its distance is never used)
 PARKED: dict[str, tuple[float, ...]] = {
-    "center": (0.0, 0.0, 0.0), "radius": (0.1,), "velocity": (0.0, 0.0, 0.0), "half_extents": (0.1, 0.1, 0.1),
-    "rotation": (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0), "axis": (0.0, 0.0, 1.0), "half_height": (0.1,),
-    "half_length": (0.1,), "normal": (0.0, 0.0, 1.0)}
+    "center": (0.0, 0.0, 0.0),
+    "radius": (0.1,),
+    "velocity": (0.0, 0.0, 0.0),
+    "half_extents": (0.1, 0.1, 0.1),
+    "rotation": (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0),
+    "axis": (0.0, 0.0, 1.0),
+    "half_height": (0.1,),
+    "half_length": (0.1,),
+    "normal": (0.0, 0.0, 1.0),
+}
 #: map parameter reading each field (a box's radius is read by the weights only)
-_MAP_KEYS = {"center": "center", "radius": "radius", "velocity": "velocity", "half_extents": "half_extents",
-             "rotation": "rotation", "axis": "axis", "half_height": "half_height", "half_length": "half_length",
-             "normal": "normal"}
+_MAP_KEYS = {
+    "center": "center",
+    "radius": "radius",
+    "velocity": "velocity",
+    "half_extents": "half_extents",
+    "rotation": "rotation",
+    "axis": "axis",
+    "half_height": "half_height",
+    "half_length": "half_length",
+    "normal": "normal",
+}
 
 
 class ObstacleSet(Params):
@@ -48,8 +70,11 @@ class ObstacleSet(Params):
     shape: Literal["sphere", "box", "cylinder", "capsule", "plane"]
     n_max: int = Field(ge=1, le=4096, description="how many members the tree allocates")
     moving: bool = Field(False, description="members carry a velocity (3) as well")
-    name: str | None = Field(None, pattern=r"^[A-Za-z_][A-Za-z0-9_]*[A-Za-z_]$",
-                             description="prefix of its aux entries; default: the shape's plural, e.g. 'spheres'")
+    name: str | None = Field(
+        None,
+        pattern=r"^[A-Za-z_][A-Za-z0-9_]*[A-Za-z_]$",
+        description="prefix of its aux entries; default: the shape's plural, e.g. 'spheres'",
+    )
 
     @property
     def prefix(self) -> str:
@@ -97,8 +122,10 @@ class ObstacleSet(Params):
     def slots(self, aux: Mapping[str, Tensor]) -> dict[str, Tensor]:
         """The slot entries of this set from its ``(B, N_max, k)`` tensors and mask: absent members parked first."""
         if f"{self.prefix}_mask" not in aux:
-            raise KeyError(f"obstacle set '{self.prefix}' needs aux '{self.prefix}_mask' of shape (B, {self.n_max}): "
-                           f"1 where a member is present, 0 where absent")
+            raise KeyError(
+                f"obstacle set '{self.prefix}' needs aux '{self.prefix}_mask' of shape (B, {self.n_max}): "
+                f"1 where a member is present, 0 where absent"
+            )
         mask = aux[f"{self.prefix}_mask"]
         self._check(f"{self.prefix}_mask", mask, (self.n_max,))
         present = mask if mask.dtype == torch.bool else mask > 0.5
@@ -116,13 +143,15 @@ class ObstacleSet(Params):
                 out[self.slot_name(i, f)] = safe[:, i - 1]
         on = present.to(dtype)
         for i in range(1, self.n_max + 1):
-            out[self.slot_name(i, "present")] = on[:, i - 1: i]
+            out[self.slot_name(i, "present")] = on[:, i - 1 : i]
         return out
 
     def _check(self, name: str, t: Tensor, shape: tuple[int, ...]) -> None:
         if t.dim() != len(shape) + 1 or tuple(t.shape[1:]) != shape:
-            raise ValueError(f"aux '{name}' must be (B, {', '.join(map(str, shape))}) for obstacle set "
-                             f"'{self.prefix}' (n_max = {self.n_max}); got {tuple(t.shape)}")
+            raise ValueError(
+                f"aux '{name}' must be (B, {', '.join(map(str, shape))}) for obstacle set "
+                f"'{self.prefix}' (n_max = {self.n_max}); got {tuple(t.shape)}"
+            )
 
 
 def every_shape(n_max: int, moving: bool = False) -> list[ObstacleSet]:

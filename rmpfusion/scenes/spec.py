@@ -5,9 +5,10 @@ from: every obstacle becomes one distance edge under every control point, and it
 as aux state (``scenes/aux.py``), so the same tree runs in every scene whose obstacles have the same shapes in the
 same order (the test split's scene moves and resizes them).
 """
+
 from __future__ import annotations
 
-from typing import Annotated, Literal, Union
+from typing import Annotated, Literal
 
 from pydantic import Field, field_validator
 
@@ -40,7 +41,9 @@ class Linear(Params):
     @classmethod
     def _bounded(cls, v: Vec3) -> Vec3:
         if not all(abs(a) <= 2.0 for a in v):
-            raise ValueError(f"velocity components must lie within ±2 m/s (faster than an arm can react); given {list(v)}")
+            raise ValueError(
+                f"velocity components must lie within ±2 m/s (faster than an arm can react); given {list(v)}"
+            )
         return v
 
 
@@ -60,7 +63,7 @@ class Waypoints(Params):
         return v
 
 
-Motion = Annotated[Union[Static, Linear, Waypoints], Field(discriminator="type")]
+Motion = Annotated[Static | Linear | Waypoints, Field(discriminator="type")]
 
 
 class _Obstacle(Params):
@@ -121,7 +124,7 @@ class Capsule(_Obstacle):
         return _nonzero(v, "axis")
 
 
-Obstacle = Annotated[Union[Sphere, Box, Cylinder, Capsule], Field(discriminator="type")]
+Obstacle = Annotated[Sphere | Box | Cylinder | Capsule, Field(discriminator="type")]
 SHAPES = ("sphere", "box", "cylinder", "capsule")
 
 
@@ -149,10 +152,24 @@ class Scene(Params):
 def same_layout(a: Scene, b: Scene, what: str) -> None:
     """Refuse a second scene (the test split's) that a tree built for ``a`` could not run in."""
     if a.layout() != b.layout() or (a.ground is None) != (b.ground is None):
-        raise ValueError(f"{what} must have the obstacles of the training scene, with the same shapes in the same "
-                         f"order, each static or moving as there, and a ground plane if and only if it has one (the "
-                         f"tree has one distance edge per obstacle); training: {a.layout()}, given: {b.layout()}")
+        raise ValueError(
+            f"{what} must have the obstacles of the training scene, with the same shapes in the same "
+            f"order, each static or moving as there, and a ground plane if and only if it has one (the "
+            f"tree has one distance edge per obstacle); training: {a.layout()}, given: {b.layout()}"
+        )
 
 
-__all__ = ["Box", "Capsule", "Cylinder", "Ground", "Linear", "Obstacle", "Scene", "Sphere", "Static", "Waypoints",
-           "SHAPES", "same_layout"]
+__all__ = [
+    "SHAPES",
+    "Box",
+    "Capsule",
+    "Cylinder",
+    "Ground",
+    "Linear",
+    "Obstacle",
+    "Scene",
+    "Sphere",
+    "Static",
+    "Waypoints",
+    "same_layout",
+]

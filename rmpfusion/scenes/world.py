@@ -10,9 +10,10 @@ fix is a larger ``n_max`` when the tree is built.
 An obstacle that appears inside the arm is measured like any other: its distance map clamps the distance at its
 floor (``maps/shapes.py``), so the barrier pushes out as hard as it can and nothing becomes NaN (docs/math.md §13).
 """
+
 from __future__ import annotations
 
-from typing import Mapping, Sequence
+from collections.abc import Mapping, Sequence
 
 import torch
 from torch import Tensor
@@ -31,8 +32,13 @@ class WorldError(ValueError):
 class World:
     """The run-time world of a controller: a goal and the members of its obstacle sets, for a batch of ``batch``."""
 
-    def __init__(self, sets: Sequence[ObstacleSet], goal: Sequence[float] | Tensor = (0.0, 0.0, 0.0),
-                 batch: int = 1, dtype: torch.dtype = torch.float64):
+    def __init__(
+        self,
+        sets: Sequence[ObstacleSet],
+        goal: Sequence[float] | Tensor = (0.0, 0.0, 0.0),
+        batch: int = 1,
+        dtype: torch.dtype = torch.float64,
+    ):
         self.sets = {s.prefix: s for s in sets}
         if len(self.sets) != len(sets):
             raise WorldError(f"obstacle sets need distinct names; given {[s.prefix for s in sets]}")
@@ -53,12 +59,16 @@ class World:
         mask = self.tensors[f"{s.prefix}_mask"]
         free = (mask[0] == 0).nonzero().flatten()
         if free.numel() == 0:
-            raise WorldError(f"obstacle set '{s.prefix}' is full: all {s.n_max} members are present; remove one, or "
-                             f"build the tree with a larger n_max for this set")
+            raise WorldError(
+                f"obstacle set '{s.prefix}' is full: all {s.n_max} members are present; remove one, or "
+                f"build the tree with a larger n_max for this set"
+            )
         slot = int(free[0])
         oid = name or f"{s.prefix}{slot + 1}"
         if oid in self.where:
-            raise WorldError(f"an obstacle named '{oid}' is already in the world; remove it first or choose another name")
+            raise WorldError(
+                f"an obstacle named '{oid}' is already in the world; remove it first or choose another name"
+            )
         missing = [f for f in s.fields() if f not in fields and f not in ("velocity", "rotation", "radius")]
         if missing:
             raise WorldError(f"adding a {shape} needs {', '.join(missing)} (its fields: {', '.join(s.fields())})")
@@ -73,7 +83,9 @@ class World:
         s, slot = self._find(oid)
         sizes = [f for f in pose if f in SIZE_FIELDS]
         if sizes:
-            raise WorldError(f"move changes an obstacle's pose; {', '.join(sizes)} is its size: use resize('{oid}', ...)")
+            raise WorldError(
+                f"move changes an obstacle's pose; {', '.join(sizes)} is its size: use resize('{oid}', ...)"
+            )
         self._write(s, slot, pose)
 
     def resize(self, oid: str, **size) -> None:
@@ -82,7 +94,9 @@ class World:
         s, slot = self._find(oid)
         pose = [f for f in size if f not in SIZE_FIELDS]
         if pose:
-            raise WorldError(f"resize changes an obstacle's size; {', '.join(pose)} is its pose: use move('{oid}', ...)")
+            raise WorldError(
+                f"resize changes an obstacle's size; {', '.join(pose)} is its pose: use move('{oid}', ...)"
+            )
         if s.shape == "box" and "half_extents" in size and "radius" not in size:
             size = {**size, "radius": min(float(v) for v in size["half_extents"])}
         self._write(s, slot, size)
@@ -96,8 +110,7 @@ class World:
     def set_goal(self, goal: Sequence[float] | Tensor) -> None:
         self.goal = self._row(goal, 3, "goal")
 
-    def set_cloud(self, set_name: str, points: Tensor, voxel: float, radius: float,
-                  near: Tensor | None = None) -> int:
+    def set_cloud(self, set_name: str, points: Tensor, voxel: float, radius: float, near: Tensor | None = None) -> int:
         """Fill the sphere set ``set_name`` with a point cloud (P, 3) in world coordinates, replacing whatever it
         held: one sphere of ``radius`` per occupied cube of side ``voxel``, the nearest to ``near`` kept when they are
         more than the set's members (``scenes/clouds.py``). The set then belongs to the cloud (its members have no
@@ -110,9 +123,11 @@ class World:
         if not radius > 0:
             raise WorldError(f"a cloud's spheres need a radius > 0 (m); given {radius}")
         if any(prefix == set_name for prefix, _ in self.where.values()):
-            raise WorldError(f"obstacle set '{set_name}' holds obstacles added one by one "
-                             f"({', '.join(o for o, (p, _) in self.where.items() if p == set_name)}); a cloud needs a "
-                             "set of its own")
+            raise WorldError(
+                f"obstacle set '{set_name}' holds obstacles added one by one "
+                f"({', '.join(o for o, (p, _) in self.where.items() if p == set_name)}); a cloud needs a "
+                "set of its own"
+            )
         centres, mask = cloud_members(torch.as_tensor(points, dtype=self.dtype), voxel, s.n_max, near)
         self.tensors[f"{set_name}_center"][:] = centres
         self.tensors[f"{set_name}_radius"][:] = radius
@@ -146,10 +161,14 @@ class World:
         of_shape = [s for s in self.sets.values() if s.shape == shape]
         if not of_shape:
             held = sorted({s.shape for s in self.sets.values()})
-            raise WorldError(f"no obstacle set holds {shape}s (the tree was built with sets of {', '.join(held) or 'no'} "
-                             f"shape); a policy can meet only the shapes allocated before it was built")
+            raise WorldError(
+                f"no obstacle set holds {shape}s (the tree was built with sets of {', '.join(held) or 'no'} "
+                f"shape); a policy can meet only the shapes allocated before it was built"
+            )
         if len(of_shape) > 1:
-            raise WorldError(f"several sets hold {shape}s ({', '.join(s.prefix for s in of_shape)}); say which with set=")
+            raise WorldError(
+                f"several sets hold {shape}s ({', '.join(s.prefix for s in of_shape)}); say which with set="
+            )
         return of_shape[0]
 
     def _find(self, oid: str) -> tuple[ObstacleSet, int]:

@@ -1,8 +1,9 @@
 """Hand-designed weight functions with analytic gradients: the fixed weights of expert policies. Their numbers
 broadcast against the samples, so weights of one type stack (``core/stacking.py``)."""
+
 from __future__ import annotations
 
-from typing import Mapping, Sequence
+from collections.abc import Mapping, Sequence
 
 import torch
 from pydantic import Field, field_validator
@@ -28,8 +29,10 @@ class Constant(WeightFunction):
         @classmethod
         def _positive(cls, v: float) -> float:
             if not v > 0:
-                raise ValueError(f"constant weight must be > 0 (positive weights are what keep the policy "
-                                 f"Lyapunov-stable, Theorem 2); given {v}")
+                raise ValueError(
+                    f"constant weight must be > 0 (positive weights are what keep the policy "
+                    f"Lyapunov-stable, Theorem 2); given {v}"
+                )
             return v
 
     def __init__(self, params: Params, in_dim: int, aux_dims: Mapping[str, int] | None = None):
@@ -53,8 +56,10 @@ def _surface_radius(v: AuxOrValue) -> AuxOrValue:
     if not isinstance(v, str):
         vals = [float(x) for x in v] if isinstance(v, Sequence) else [float(v)]
         if not all(x >= 0 for x in vals):
-            raise ValueError(f"radius must be ≥ 0 (0 measures the distance from the centre point; a negative radius "
-                             f"is no surface) or the name of an aux entry; given {v!r}")
+            raise ValueError(
+                f"radius must be ≥ 0 (0 measures the distance from the centre point; a negative radius "
+                f"is no surface) or the name of an aux entry; given {v!r}"
+            )
     return v
 
 
@@ -89,10 +94,18 @@ class _DistanceWeight(WeightFunction):
         return w, ((self.high - self.low) * ds)[..., None] * dd_dx
 
 
-@WEIGHTS.register("rbf", examples=[
-    Example({"low": 0.5, "high": 4.0, "center": "obstacle_center", "radius": "obstacle_radius", "sigma": 0.7}, 2,
-            scale=2.0, aux={"obstacle_center": AuxInput.normal(2), "obstacle_radius": AuxInput.radius()}),
-    Example({"low": 2.0, "high": 0.1, "center": [1.0, -1.0]}, 2, scale=2.0)])
+@WEIGHTS.register(
+    "rbf",
+    examples=[
+        Example(
+            {"low": 0.5, "high": 4.0, "center": "obstacle_center", "radius": "obstacle_radius", "sigma": 0.7},
+            2,
+            scale=2.0,
+            aux={"obstacle_center": AuxInput.normal(2), "obstacle_radius": AuxInput.radius()},
+        ),
+        Example({"low": 2.0, "high": 0.1, "center": [1.0, -1.0]}, 2, scale=2.0),
+    ],
+)
 class RBF(_DistanceWeight):
     """w = low + (high − low)·exp(−d²/2σ²), d = |x − center| − radius: high near a point or surface."""
 
@@ -117,10 +130,24 @@ class RBF(_DistanceWeight):
         return e, -d / self.sigma**2 * e
 
 
-@WEIGHTS.register("logistic", examples=[
-    Example({"low": 0.2, "high": 3.0, "center": "obstacle_center", "radius": "obstacle_radius", "steepness": -3.0,
-             "switch_distance": 0.5}, 2, scale=2.0,
-            aux={"obstacle_center": AuxInput.normal(2), "obstacle_radius": AuxInput.radius()})])
+@WEIGHTS.register(
+    "logistic",
+    examples=[
+        Example(
+            {
+                "low": 0.2,
+                "high": 3.0,
+                "center": "obstacle_center",
+                "radius": "obstacle_radius",
+                "steepness": -3.0,
+                "switch_distance": 0.5,
+            },
+            2,
+            scale=2.0,
+            aux={"obstacle_center": AuxInput.normal(2), "obstacle_radius": AuxInput.radius()},
+        )
+    ],
+)
 class Logistic(_DistanceWeight):
     """w = low + (high − low)·σ(k·(d − d0)), d = |x − center| − radius: a smooth switch at distance d0.
 
@@ -142,8 +169,9 @@ class Logistic(_DistanceWeight):
         @classmethod
         def _nonzero(cls, v: float) -> float:
             if not (v > 0 or v < 0):  # NaN too
-                raise ValueError(f"steepness must be non-zero (k = 0 is a constant weight: use type constant "
-                                 f"instead); given {v}")
+                raise ValueError(
+                    f"steepness must be non-zero (k = 0 is a constant weight: use type constant instead); given {v}"
+                )
             return v
 
     stack_fields = _DistanceWeight.stack_fields + ("k", "d0")

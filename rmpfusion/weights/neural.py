@@ -7,11 +7,13 @@ The math is written for D networks of one architecture at once (``mlp_with_gradi
 product per layer), which is how a tree evaluates all its weight networks of one kind (``core/stacking.py``);
 a single network is the case D = 1.
 """
+
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Callable, Literal, Mapping
+from typing import Literal
 
 import torch
 import torch.nn.functional as F
@@ -73,19 +75,32 @@ def hidden_widths(v: list[int]) -> list[int]:
     """Hidden-layer widths are ≥ 1: a layer of width 0 cuts the output off from every input."""
     bad = [w for w in v if w < 1]
     if bad:
-        raise ValueError(f"hidden widths must be ≥ 1 (a layer of width {bad[0]} cuts the output off from the inputs, "
-                         f"so nothing could be learned); given {list(v)}")
+        raise ValueError(
+            f"hidden widths must be ≥ 1 (a layer of width {bad[0]} cuts the output off from the inputs, "
+            f"so nothing could be learned); given {list(v)}"
+        )
     return v
 
 
-@WEIGHTS.register("mlp", examples=[
-    Example({"hidden": [16, 16], "aux": ["goal", "obstacle_center", "obstacle_radius"]}, 2, scale=2.0,
-            aux={"goal": AuxInput.normal(2), "obstacle_center": AuxInput.normal(2),
-                 "obstacle_radius": AuxInput.radius()}),
-    Example({"hidden": [8], "activation": "softplus", "positivity": "exp"}, 2, scale=2.0),
-    Example({"hidden": [8, 8, 8], "activation": "elu"}, 2, scale=2.0),
-    Example({"hidden": [8], "activation": "silu", "aux": ["goal"]}, 2, scale=2.0, aux={"goal": AuxInput.normal(2)}),
-    Example({"hidden": [8], "activation": "sigmoid"}, 2, scale=2.0)])
+@WEIGHTS.register(
+    "mlp",
+    examples=[
+        Example(
+            {"hidden": [16, 16], "aux": ["goal", "obstacle_center", "obstacle_radius"]},
+            2,
+            scale=2.0,
+            aux={
+                "goal": AuxInput.normal(2),
+                "obstacle_center": AuxInput.normal(2),
+                "obstacle_radius": AuxInput.radius(),
+            },
+        ),
+        Example({"hidden": [8], "activation": "softplus", "positivity": "exp"}, 2, scale=2.0),
+        Example({"hidden": [8, 8, 8], "activation": "elu"}, 2, scale=2.0),
+        Example({"hidden": [8], "activation": "silu", "aux": ["goal"]}, 2, scale=2.0, aux={"goal": AuxInput.normal(2)}),
+        Example({"hidden": [8], "activation": "sigmoid"}, 2, scale=2.0),
+    ],
+)
 class MLPWeight(WeightFunction):
     """w = floor + pos(MLP([x, aux features])) with pos = softplus or exp.
 
@@ -110,8 +125,10 @@ class MLPWeight(WeightFunction):
         @model_validator(mode="after")
         def _reachable_start(self):
             if self.init_bias is not None and not self.init_bias > self.floor:
-                raise ValueError(f"init_bias must be > floor (w = floor + a positive term never reaches floor or "
-                                 f"below); given init_bias={self.init_bias}, floor={self.floor}")
+                raise ValueError(
+                    f"init_bias must be > floor (w = floor + a positive term never reaches floor or "
+                    f"below); given init_bias={self.init_bias}, floor={self.floor}"
+                )
             return self
 
     def __init__(self, params: Params, in_dim: int, aux_dims: Mapping[str, int] | None = None):
@@ -143,7 +160,7 @@ class MLPWeight(WeightFunction):
         sizes = tuple((l.in_features, l.out_features) for l in self.layers)
         return (MLPWeight, self.in_dim, dims, sizes, self.activation, self.positivity, self.floor, self.use_config)
 
-    def with_bind(self, bind: Mapping[str, str]) -> "MLPWeight":
+    def with_bind(self, bind: Mapping[str, str]) -> MLPWeight:
         if not bind:
             return self
         view = shallow_clone(self)
@@ -151,7 +168,7 @@ class MLPWeight(WeightFunction):
         return view
 
     @classmethod
-    def stacked(cls, members, like: Tensor) -> "StackedMLP":
+    def stacked(cls, members, like: Tensor) -> StackedMLP:
         return StackedMLP(members)
 
     def layer_parameters(self) -> list[tuple[Tensor, Tensor]]:
@@ -163,16 +180,23 @@ class MLPWeight(WeightFunction):
         feats = aux_features(self.aux_names, aux, lead)
         parts = ([x] if self.use_config else []) + ([feats] if feats is not None else [])
         h = torch.cat(parts, dim=-1) if len(parts) > 1 else parts[0]
-        w, grad = mlp_with_gradient(self.layer_parameters(), h.reshape(1, -1, h.shape[-1]),
-                                    self.in_dim if self.use_config else 0, self.act, self.positivity, self.floor)
+        w, grad = mlp_with_gradient(
+            self.layer_parameters(),
+            h.reshape(1, -1, h.shape[-1]),
+            self.in_dim if self.use_config else 0,
+            self.act,
+            self.positivity,
+            self.floor,
+        )
         return w.reshape(lead), None if grad is None else grad.reshape(*lead, -1)
 
     def value(self, x, aux):
         return self.forward(x, aux)[0]
 
 
-def mlp_with_gradient(layers: list[tuple[Tensor, Tensor]], h: Tensor, n_config: int, act, positivity: str,
-                      floor: float) -> tuple[Tensor, Tensor | None]:
+def mlp_with_gradient(
+    layers: list[tuple[Tensor, Tensor]], h: Tensor, n_config: int, act, positivity: str, floor: float
+) -> tuple[Tensor, Tensor | None]:
     """w = floor + pos(MLP(h)) and ∇w with respect to the first ``n_config`` inputs, for D networks at once.
 
     ``layers``: per layer (W (D, out, in), b (D, out)); ``h``: (D, N, in), network d's inputs. The tangent
@@ -210,14 +234,16 @@ class StackedMLP(nn.Module):
         first = members[0]
         distinct = list({id(m.layers): m for m in members}.values())
         if len(members) % len(distinct) or any(
-                id(m.layers) != id(distinct[i // (len(members) // len(distinct))].layers) for i, m in enumerate(members)):
+            id(m.layers) != id(distinct[i // (len(members) // len(distinct))].layers) for i, m in enumerate(members)
+        ):
             raise ValueError("stacked weight networks must be contiguous and equally often used")
         object.__setattr__(self, "networks", distinct)  # the members own the parameters
         self.size, self.in_dim, self.use_config = len(members), first.in_dim, first.use_config
         self.act, self.positivity, self.floor = first.act, first.positivity, first.floor
         self.features = nn.ModuleList(
             StackedAux([AuxParam(m.aux_names[k], m.aux_dims, "mlp.aux") for m in members])
-            for k in range(len(first.aux_names)))
+            for k in range(len(first.aux_names))
+        )
 
     def forward(self, x: Tensor, aux: AuxDict | None = None):
         G, B = self.size, x.shape[1]
@@ -225,8 +251,19 @@ class StackedMLP(nn.Module):
         parts += [f(aux).expand(G, B, -1) for f in self.features]
         h = torch.cat(parts, -1) if len(parts) > 1 else parts[0]
         D = len(self.networks)
-        layers = [(torch.stack([net.layers[i].weight for net in self.networks]),
-                   torch.stack([net.layers[i].bias for net in self.networks])) for i in range(len(self.networks[0].layers))]
-        w, grad = mlp_with_gradient(layers, h.reshape(D, -1, h.shape[-1]), self.in_dim if self.use_config else 0,
-                                    self.act, self.positivity, self.floor)
+        layers = [
+            (
+                torch.stack([net.layers[i].weight for net in self.networks]),
+                torch.stack([net.layers[i].bias for net in self.networks]),
+            )
+            for i in range(len(self.networks[0].layers))
+        ]
+        w, grad = mlp_with_gradient(
+            layers,
+            h.reshape(D, -1, h.shape[-1]),
+            self.in_dim if self.use_config else 0,
+            self.act,
+            self.positivity,
+            self.floor,
+        )
         return w.reshape(G, B), None if grad is None else grad.reshape(G, B, -1)

@@ -15,5 +15,6 @@ The environment (``env.py``) serves the pipeline's ``Env`` protocol and its capa
 (``demonstrations.py``), task metrics and ratios to the expert (``metrics.py``), rendering (``render.py``), and
 time-varying aux state for moving obstacles (``aux_at``).
 """
+
 from .env import Manipulator  # noqa: F401  (registers "manipulator" in rmpfusion.registry.ENVS)
 from .params import ManipulatorParams  # noqa: F401

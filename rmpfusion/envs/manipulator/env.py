@@ -1,9 +1,11 @@
 """The manipulator environment: any robot of conf/robot/ reaching goals in a scene of conf/scene/. Its aux state
 (goal, obstacles), reproducible sampling of environments and starts, collision geometry, moving obstacles, and the
 entry points that the rollout modes, demonstrations, metrics and rendering serve."""
+
 from __future__ import annotations
 
-from typing import Any, Callable, Literal, Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any, Literal
 
 import numpy as np
 import torch
@@ -12,7 +14,15 @@ from torch import Tensor
 from ...registry import ENVS
 from ...robots import build_robot
 from ...scenes import Scene, aux_at, distances, same_layout, scene_aux, scene_aux_dims
-from ..common import DTYPES, ComputesOnDevice, SeededSampling, check_initial_states, on_device, redraw_until_ok, time_grid
+from ..common import (
+    DTYPES,
+    ComputesOnDevice,
+    SeededSampling,
+    check_initial_states,
+    on_device,
+    redraw_until_ok,
+    time_grid,
+)
 from ..demonstrations import Dataset
 from ..protocol import RenderSettings
 from ..rollout import Rollout
@@ -21,8 +31,8 @@ from . import render as rendering
 from .kinematic import rollout_kinematic
 from .layout import Clearances, Derived, derive
 from .metrics import RATIO_METRICS, task_metrics
-from .paths import end_effector_radius, path_clearance
 from .params import ManipulatorParams
+from .paths import end_effector_radius, path_clearance
 from .scene import HelperWorlds, _Scene, fixed_links_extent, sample_aux
 from .torque import rollout_torque
 
@@ -42,12 +52,23 @@ class Manipulator(ComputesOnDevice, SeededSampling):
         self.dtype = DTYPES[params.dtype]
         self.robot = build_robot(params.robot)
         self.worlds = HelperWorlds(self.robot, params.gravity)
-        self.layout = None if params.reach_layout is None else derive(
-            self.robot, params.start_centre(), params.spread(), params.reach_layout,
-            Clearances(start=params.start_clearance, goal=params.goal_clearance,
-                       end_effector=end_effector_radius(self.robot),
-                       fixed_extent=fixed_links_extent(self.worlds.checker(), self.robot)),
-            centre_given=params.nominal_q is not None)
+        self.layout = (
+            None
+            if params.reach_layout is None
+            else derive(
+                self.robot,
+                params.start_centre(),
+                params.spread(),
+                params.reach_layout,
+                Clearances(
+                    start=params.start_clearance,
+                    goal=params.goal_clearance,
+                    end_effector=end_effector_radius(self.robot),
+                    fixed_extent=fixed_links_extent(self.worlds.checker(), self.robot),
+                ),
+                centre_given=params.nominal_q is not None,
+            )
+        )
         self.params = params if self.layout is None else _laid_out(params, self.layout)
         self.dim = self.robot.dof
         self.lower, self.upper = self.robot.lower.to(self.dtype), self.robot.upper.to(self.dtype)
@@ -169,14 +190,20 @@ class Manipulator(ComputesOnDevice, SeededSampling):
         lo = [r[0] for r in p.goal_region]
         hi = [r[1] for r in p.goal_region]
         (goal,) = redraw_until_ok(
-            lambda: (self._uniform((n, 3), lo, hi, generator),), lambda v, a: self._goal_ok(v[0], a), aux,
+            lambda: (self._uniform((n, 3), lo, hi, generator),),
+            lambda v, a: self._goal_ok(v[0], a),
+            aux,
             p.max_tries,
-            lambda left: f"manipulator: no goal clear of the obstacles for {left} samples in {p.max_tries} rounds; "
-                         "move goal_region or lower goal_clearance")
+            lambda left: (
+                f"manipulator: no goal clear of the obstacles for {left} samples in {p.max_tries} rounds; "
+                "move goal_region or lower goal_clearance"
+            ),
+        )
         return goal
 
-    def sample_envs(self, n_envs: int, generator: torch.Generator | None = None,
-                    split: str = "train") -> dict[str, Tensor]:
+    def sample_envs(
+        self, n_envs: int, generator: torch.Generator | None = None, split: str = "train"
+    ) -> dict[str, Tensor]:
         """``n_envs`` environments as an aux dict of (n_envs, k) tensors, reproducible given the generator.
 
         Obstacles are the split's scene's (``scene_of``) with every centre moved by ``obstacle_jitter``; goals are
@@ -223,11 +250,17 @@ class Manipulator(ComputesOnDevice, SeededSampling):
             return good
 
         q0, qd0 = redraw_until_ok(
-            draw, ok, aux, p.max_tries,
-            lambda left: f"manipulator: could not place {left} start configurations clear of the obstacles and the "
-                         f"ground by env.start_clearance ({p.start_clearance} m) and env.min_start_goal_distance "
-                         f"({p.min_start_goal_distance} m) from the goal in {p.max_tries} rounds; move the starts' "
-                         f"centre ({_centre_key(p)}), or change env.start_spread or env.start_clearance")
+            draw,
+            ok,
+            aux,
+            p.max_tries,
+            lambda left: (
+                f"manipulator: could not place {left} start configurations clear of the obstacles and the "
+                f"ground by env.start_clearance ({p.start_clearance} m) and env.min_start_goal_distance "
+                f"({p.min_start_goal_distance} m) from the goal in {p.max_tries} rounds; move the starts' "
+                f"centre ({_centre_key(p)}), or change env.start_spread or env.start_clearance"
+            ),
+        )
         return q0, qd0, aux
 
     # ------------------------------------------------------------------ rollouts
@@ -267,9 +300,17 @@ class Manipulator(ComputesOnDevice, SeededSampling):
         """(B,) records to keep of each demonstration; see ``manipulator.demonstrations.demonstration_lengths``."""
         return demos.demonstration_lengths(self.params, ro)
 
-    def demonstrations(self, expert: Callable[..., Any], n_envs: int, n_traj: int, n_points: int, interval: float,
-                       generator: torch.Generator | None = None, split: str = "train",
-                       progress: Callable[[int, int], Any] | None = None) -> Dataset:
+    def demonstrations(
+        self,
+        expert: Callable[..., Any],
+        n_envs: int,
+        n_traj: int,
+        n_points: int,
+        interval: float,
+        generator: torch.Generator | None = None,
+        split: str = "train",
+        progress: Callable[[int, int], Any] | None = None,
+    ) -> Dataset:
         """The expert's demonstrations of a data split (paper §4.2): 5–10 s each, the split's scene, a goal per
         trajectory; see ``manipulator.demonstrations.demonstrations``."""
         return demos.demonstrations(self, expert, n_envs, n_traj, n_points, interval, generator, split, progress)
@@ -282,11 +323,18 @@ class Manipulator(ComputesOnDevice, SeededSampling):
     @property
     def render_settings(self) -> RenderSettings:
         p = self.params
-        return RenderSettings(size=tuple(p.render_size), times=tuple(p.render_times), gif_fps=p.gif_fps,
-                              trajectory=p.render_trajectory)
+        return RenderSettings(
+            size=tuple(p.render_size), times=tuple(p.render_times), gif_fps=p.gif_fps, trajectory=p.render_trajectory
+        )
 
-    def render(self, q: Tensor | Sequence[float], aux: Mapping[str, Tensor], width: int = 320, height: int = 240,
-               sample: int = 0) -> np.ndarray:
+    def render(
+        self,
+        q: Tensor | Sequence[float],
+        aux: Mapping[str, Tensor],
+        width: int = 320,
+        height: int = 240,
+        sample: int = 0,
+    ) -> np.ndarray:
         """(height, width, 3) uint8 image of the robot at ``q`` in environment ``aux[sample]``, rendered
         headless by pybullet's tiny renderer, for figures and animations."""
         return rendering.render(self, q, aux, width, height, sample)
@@ -306,16 +354,26 @@ def _laid_out(p: ManipulatorParams, d: Derived) -> ManipulatorParams:
     try:
         same_layout(p.scene, d.scene, "the reach layout's scene")
     except ValueError as e:
-        raise ValueError(f"env.reach_layout places one standing cylinder above a ground plane; env.scene must have "
-                         f"that layout (conf/scene/reach_post.yaml), as the tree is built from it: {e}") from None
+        raise ValueError(
+            f"env.reach_layout places one standing cylinder above a ground plane; env.scene must have "
+            f"that layout (conf/scene/reach_post.yaml), as the tree is built from it: {e}"
+        ) from None
     centre = {} if d.start_centre is None else {"nominal_q": d.start_centre}
-    return p.model_copy(update={"goal_region": d.goal_region, "scene": d.scene, "test_scene": d.test_scene,
-                                "obstacle_jitter": d.obstacle_jitter,
-                                "min_start_goal_distance": d.min_start_goal_distance, **centre})
+    return p.model_copy(
+        update={
+            "goal_region": d.goal_region,
+            "scene": d.scene,
+            "test_scene": d.test_scene,
+            "obstacle_jitter": d.obstacle_jitter,
+            "min_start_goal_distance": d.min_start_goal_distance,
+            **centre,
+        }
+    )
 
 
-def _reporting(monitor: Callable[..., Any] | None, progress: Callable[[int, int], Any],
-               total: int) -> Callable[..., Any]:
+def _reporting(
+    monitor: Callable[..., Any] | None, progress: Callable[[int, int], Any], total: int
+) -> Callable[..., Any]:
     """``monitor`` that also reports ``progress(records done, records in all)`` at every record."""
 
     def both(i, *rest):

@@ -1,8 +1,10 @@
 """Kinematic mode: the closed loop q̈ = π(q, q̇, aux) integrated in torch for the whole batch at once (fast, for
 data collection), then every integration step replayed in pybullet to find collisions after the fact."""
+
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any, Callable, Mapping
+from collections.abc import Callable, Mapping
+from typing import TYPE_CHECKING, Any
 
 import torch
 from torch import Tensor
@@ -17,8 +19,16 @@ if TYPE_CHECKING:
     from .env import Manipulator
 
 
-def rollout_kinematic(env: "Manipulator", policy: Callable[..., Any], q0: Tensor, qd0: Tensor, aux: Mapping[str, Tensor],
-                      n_steps: int, every: int, monitor: Callable[..., Any] | None) -> Rollout:
+def rollout_kinematic(
+    env: Manipulator,
+    policy: Callable[..., Any],
+    q0: Tensor,
+    qd0: Tensor,
+    aux: Mapping[str, Tensor],
+    n_steps: int,
+    every: int,
+    monitor: Callable[..., Any] | None,
+) -> Rollout:
     """``n_steps`` integration steps recorded every ``every`` steps; a sample whose policy evaluation raises or
     whose state stops being finite ends there with its reason, the others go on."""
     policy = IsolatingPolicy(policy)  # a sample whose evaluation raises gets NaN, the others go on
@@ -29,7 +39,7 @@ def rollout_kinematic(env: "Manipulator", policy: Callable[..., Any], q0: Tensor
     return finish(env, "kinematic", rec, aux, min_clear, first_hit, goal_hit, errors)
 
 
-def _integrate(env: "Manipulator", policy: IsolatingPolicy, q0, qd0, aux, n_steps, every, monitor, errors):
+def _integrate(env: Manipulator, policy: IsolatingPolicy, q0, qd0, aux, n_steps, every, monitor, errors):
     """The torch integration: (records, q at every integration step, goal tracker, alive). Semi-implicit Euler
     evaluates the policy once a step (the recorded evaluation drives the step); RK4 reuses it at record steps."""
     dt, B, p = env.dt, q0.shape[0], env.params
@@ -68,8 +78,9 @@ def _integrate(env: "Manipulator", policy: IsolatingPolicy, q0, qd0, aux, n_step
     return rec, path, goal_hit, alive
 
 
-def _replay_collisions(env: "Manipulator", Q: Tensor, aux, n_steps: int, death: list[int],
-                       errors: list[str | None]) -> tuple[Tensor, Tensor]:
+def _replay_collisions(
+    env: Manipulator, Q: Tensor, aux, n_steps: int, death: list[int], errors: list[str | None]
+) -> tuple[Tensor, Tensor]:
     """(smallest clearance, first collision time) of every sample from its configurations Q (n_steps+1, B, dof) up
     to the step it died at, by pybullet's closest points in the env's collision world (moving obstacles where they
     were at each step)."""
@@ -83,8 +94,9 @@ def _replay_collisions(env: "Manipulator", Q: Tensor, aux, n_steps: int, death: 
             last = n_steps if errors[b] is None else death[b]
             for k in range(last + 1):
                 if env.moving:
-                    sc.move_obstacles(env.scene, sample_aux(env.aux_at({n: v[b:b + 1] for n, v in aux.items()},
-                                                                       k * dt), 0))
+                    sc.move_obstacles(
+                        env.scene, sample_aux(env.aux_at({n: v[b : b + 1] for n, v in aux.items()}, k * dt), 0)
+                    )
                 sc.reset(Q[k, b].cpu().numpy())
                 min_clear[b] = min(float(min_clear[b]), sc.clearance(env.params.clearance_query))
                 if min_clear[b] <= 0.0 and first_hit[b].isinf():

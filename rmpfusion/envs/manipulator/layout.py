@@ -27,6 +27,7 @@ around G (``goal_half_width``).
 The layout is derived from a fixed seed, so validation and the run derive the same numbers, and ``describe`` says
 what they are, with the fraction of its own reaches that cross.
 """
+
 from __future__ import annotations
 
 import math
@@ -48,32 +49,58 @@ _GRID = 11  # places tried along and across the reach
 class ReachLayout(Params):
     """How ``experiment=reach`` lays the task out for the environment's robot; fractions are of the arm's reach."""
 
-    min_outreach: float = Field(0.35, ge=0, lt=1, description="the starts' end effector must lie at least this "
-                                "fraction of the reach out from the base's axis (a reach turned about the base needs "
-                                "room); where the robot's home is closer (an upright arm), the starts' centre becomes ...")
-    outreach: tuple[float, float] = Field((0.45, 0.75), description="... the sampled configuration nearest home whose "
-                                          "end effector lies between these fractions of the reach out, clear of the "
-                                          "ground")
-    turn: float = Field(1.2, gt=0, lt=math.pi, description="rad the goal point is turned from the start point about "
-                                                          "the base's vertical axis")
+    min_outreach: float = Field(
+        0.35,
+        ge=0,
+        lt=1,
+        description="the starts' end effector must lie at least this "
+        "fraction of the reach out from the base's axis (a reach turned about the base needs "
+        "room); where the robot's home is closer (an upright arm), the starts' centre becomes ...",
+    )
+    outreach: tuple[float, float] = Field(
+        (0.45, 0.75),
+        description="... the sampled configuration nearest home whose "
+        "end effector lies between these fractions of the reach out, clear of the "
+        "ground",
+    )
+    turn: float = Field(
+        1.2,
+        gt=0,
+        lt=math.pi,
+        description="rad the goal point is turned from the start point about the base's vertical axis",
+    )
     goal_half_width: float = Field(0.08, ge=0, le=0.5, description="goals ~ uniform in G ± this fraction of the reach")
-    obstacle_radius: float = Field(0.06, gt=0, le=0.5, description="the standing cylinder's smallest radius tried, "
-                                                                 "fraction of the reach")
-    radius_steps: tuple[float, ...] = Field((1.0,), min_length=1, description="radii tried: obstacle_radius "
-                                                                                       "times each of these")
-    along: tuple[float, float] = Field((0.25, 0.75), description="the cylinder's place is searched between these "
-                                                                "fractions of the way from S to G ...")
+    obstacle_radius: float = Field(
+        0.06, gt=0, le=0.5, description="the standing cylinder's smallest radius tried, fraction of the reach"
+    )
+    radius_steps: tuple[float, ...] = Field(
+        (1.0,), min_length=1, description="radii tried: obstacle_radius times each of these"
+    )
+    along: tuple[float, float] = Field(
+        (0.25, 0.75), description="the cylinder's place is searched between these fractions of the way from S to G ..."
+    )
     across: float = Field(0.15, ge=0, le=0.5, description="... and this fraction of the reach either side of that line")
-    outward: float = Field(0.05, ge=0, le=0.5, description="the preferred place: the midpoint of S and G moved this "
-                                                         "fraction outward (away from the base), where the straight "
-                                                         "reach grazes the cylinder's inner side instead of meeting it "
-                                                         "head on ...")
-    keep: float = Field(0.9, gt=0, le=1, description="... taken while at least this fraction of the most reaches cross "
-                                                   "there; else the place nearest it that does")
+    outward: float = Field(
+        0.05,
+        ge=0,
+        le=0.5,
+        description="the preferred place: the midpoint of S and G moved this "
+        "fraction outward (away from the base), where the straight "
+        "reach grazes the cylinder's inner side instead of meeting it "
+        "head on ...",
+    )
+    keep: float = Field(
+        0.9,
+        gt=0,
+        le=1,
+        description="... taken while at least this fraction of the most reaches cross "
+        "there; else the place nearest it that does",
+    )
     obstacle_top: float = Field(0.15, ge=0, description="the cylinder's top above the higher of S and G, fraction")
     jitter: float = Field(0.02, ge=0, le=0.5, description="± uniform horizontal move of the cylinder per environment")
-    test_shift: float = Field(0.04, ge=0, le=0.5, description="the test cylinder moved along the reach (towards the "
-                                                              "goals) by this fraction")
+    test_shift: float = Field(
+        0.04, ge=0, le=0.5, description="the test cylinder moved along the reach (towards the goals) by this fraction"
+    )
     test_widen: float = Field(1.2, gt=0, description="the test cylinder's radius, times the training one's")
 
     @field_validator("radius_steps")
@@ -109,13 +136,18 @@ class Derived:
 
     def describe(self) -> str:
         c, r = self.scene.obstacles[0].center, self.scene.obstacles[0].radius
-        f = lambda v: "(" + ", ".join(f"{a:.3f}" for a in v) + ")"  # noqa: E731
-        lean = "" if self.start_centre is None else (
-            f"starts around {f(self.start_centre)} (home leaves the end effector too near the base's axis); ")
-        return (f"reach layout: reach {self.reach:.3f} m; {lean}starts' end effector around {f(self.start_point)}, goals "
-                f"around {f(self.goal_point)}; a standing cylinder of radius {r:.3f} m at {f(c[:2])} (test: "
-                f"{f(self.test_scene.obstacles[0].center[:2])}, radius {self.test_scene.obstacles[0].radius:.3f} m); "
-                f"{self.crossing:.0%} of the layout's own reaches cross it ({self.startable:.0%} may start)")
+        f = lambda v: "(" + ", ".join(f"{a:.3f}" for a in v) + ")"
+        lean = (
+            ""
+            if self.start_centre is None
+            else (f"starts around {f(self.start_centre)} (home leaves the end effector too near the base's axis); ")
+        )
+        return (
+            f"reach layout: reach {self.reach:.3f} m; {lean}starts' end effector around {f(self.start_point)}, goals "
+            f"around {f(self.goal_point)}; a standing cylinder of radius {r:.3f} m at {f(c[:2])} (test: "
+            f"{f(self.test_scene.obstacles[0].center[:2])}, radius {self.test_scene.obstacles[0].radius:.3f} m); "
+            f"{self.crossing:.0%} of the layout's own reaches cross it ({self.startable:.0%} may start)"
+        )
 
 
 @dataclass(frozen=True)
@@ -128,8 +160,14 @@ class Clearances:
     fixed_extent: float  # the links no joint moves (the base) reach this far horizontally from the base's axis
 
 
-def derive(robot, centre: tuple[float, ...], spread: tuple[float, ...], layout: ReachLayout,
-           clear: Clearances, centre_given: bool = False) -> Derived:
+def derive(
+    robot,
+    centre: tuple[float, ...],
+    spread: tuple[float, ...],
+    layout: ReachLayout,
+    clear: Clearances,
+    centre_given: bool = False,
+) -> Derived:
     """The task for ``robot`` (a built robot: kinematics, limits, control spheres) with starts centred on ``centre`` ±
     ``spread`` (the robot's home, or ``nominal_q`` when ``centre_given``: then it is never moved)."""
     g = torch.Generator().manual_seed(_SEED)
@@ -144,10 +182,12 @@ def derive(robot, centre: tuple[float, ...], spread: tuple[float, ...], layout: 
     chosen = None
     if float((robot.ee_position(c[None])[0] - base)[:2].norm()) < layout.min_outreach * reach:
         if centre_given:
-            raise ValueError(f"reach_layout: env.nominal_q puts {robot.name}'s end effector less than "
-                             f"{layout.min_outreach} of its reach ({reach:.3f} m) from the base's axis, leaving no room "
-                             f"for a reach turned about the base; lean the arm out in nominal_q, or leave nominal_q "
-                             f"out and the layout picks the starts' centre")
+            raise ValueError(
+                f"reach_layout: env.nominal_q puts {robot.name}'s end effector less than "
+                f"{layout.min_outreach} of its reach ({reach:.3f} m) from the base's axis, leaving no room "
+                f"for a reach turned about the base; lean the arm out in nominal_q, or leave nominal_q "
+                f"out and the layout picks the starts' centre"
+            )
         c = _leaning_centre(robot, c, anywhere, out, reach, layout, clear)
         chosen = tuple(round(float(v), 4) for v in c)
     starts = (c + s * (2 * torch.rand(_REACHES, robot.dof, generator=g, dtype=torch.float64) - 1)).clamp(lo, hi)
@@ -165,50 +205,76 @@ def derive(robot, centre: tuple[float, ...], spread: tuple[float, ...], layout: 
     test_xy = xy + layout.test_shift * reach * along  # along the reach: as far from its line as in training
 
     def post(at, r) -> Scene:
-        return Scene(obstacles=[{"type": "cylinder", "center": [float(at[0]), float(at[1]), top / 2], "radius": r,
-                                 "height": top}], ground=Ground(height=0.0))
+        return Scene(
+            obstacles=[
+                {"type": "cylinder", "center": [float(at[0]), float(at[1]), top / 2], "radius": r, "height": top}
+            ],
+            ground=Ground(height=0.0),
+        )
 
     j = layout.jitter * reach
-    return Derived(reach=reach, start_point=tuple(map(float, S)), goal_point=tuple(map(float, G)),
-                   goal_region=goal_region, scene=post(xy, radius), test_scene=post(test_xy, layout.test_widen * radius),
-                   obstacle_jitter=(j, j, 0.0), min_start_goal_distance=0.5 * float((S - G).norm()),
-                   start_centre=chosen, crossing=crossing, startable=startable)
+    return Derived(
+        reach=reach,
+        start_point=tuple(map(float, S)),
+        goal_point=tuple(map(float, G)),
+        goal_region=goal_region,
+        scene=post(xy, radius),
+        test_scene=post(test_xy, layout.test_widen * radius),
+        obstacle_jitter=(j, j, 0.0),
+        min_start_goal_distance=0.5 * float((S - G).norm()),
+        start_centre=chosen,
+        crossing=crossing,
+        startable=startable,
+    )
 
 
-def _leaning_centre(robot, home: torch.Tensor, samples: torch.Tensor, out: torch.Tensor, reach: float,
-                    layout: ReachLayout, clear: Clearances) -> torch.Tensor:
+def _leaning_centre(
+    robot,
+    home: torch.Tensor,
+    samples: torch.Tensor,
+    out: torch.Tensor,
+    reach: float,
+    layout: ReachLayout,
+    clear: Clearances,
+) -> torch.Tensor:
     """Of the configurations ``samples`` (their end effectors ``out`` m from the base's axis), the one nearest
     ``home`` (in fractions of each joint's range) whose end effector lies ``layout.outreach`` of the reach out and
     whose control spheres clear the ground as a start must."""
     lo, hi = layout.outreach
     fits = (out >= lo * reach) & (out <= hi * reach) & ground_check(robot.params, clearance=clear.start)(samples)
     if not bool(fits.any()):
-        raise ValueError(f"reach_layout: no configuration of {robot.name} inside its limits puts the end effector "
-                         f"{lo}-{hi} of its reach out from the base clear of the ground; set a home that leans "
-                         f"out in the robot file, or env.nominal_q")
-    span = (robot.upper.clamp(max=math.pi) - robot.lower.clamp(min=-math.pi))
+        raise ValueError(
+            f"reach_layout: no configuration of {robot.name} inside its limits puts the end effector "
+            f"{lo}-{hi} of its reach out from the base clear of the ground; set a home that leans "
+            f"out in the robot file, or env.nominal_q"
+        )
+    span = robot.upper.clamp(max=math.pi) - robot.lower.clamp(min=-math.pi)
     distance = ((samples - home) / span).norm(dim=-1).masked_fill(~fits, math.inf)
     return samples[int(distance.argmin())]
 
 
 def _turned(a: float) -> torch.Tensor:
     """The rotation by ``a`` about the vertical axis."""
-    return torch.tensor([[math.cos(a), -math.sin(a), 0.0], [math.sin(a), math.cos(a), 0.0], [0.0, 0.0, 1.0]],
-                        dtype=torch.float64)
+    return torch.tensor(
+        [[math.cos(a), -math.sin(a), 0.0], [math.sin(a), math.cos(a), 0.0], [0.0, 0.0, 1.0]], dtype=torch.float64
+    )
 
 
-def _place_cylinder(robot, starts, ee, goals, S, G, base, reach: float, layout: ReachLayout,
-                    clear: Clearances) -> tuple[torch.Tensor, float, float, float]:
+def _place_cylinder(
+    robot, starts, ee, goals, S, G, base, reach: float, layout: ReachLayout, clear: Clearances
+) -> tuple[torch.Tensor, float, float, float]:
     """(xy, radius, crossing, startable) of the standing cylinder that the most of the layout's reaches (start
     configurations ``starts`` with end effectors ``ee``, goals ``goals``) both cross and may start; see the module
     docstring. The cylinder stands taller than the reaches, so only horizontal distances count (a control sphere
     above its top is counted as if beside it: a stricter start)."""
-    along, across = torch.meshgrid(torch.linspace(*layout.along, _GRID, dtype=torch.float64),
-                                   torch.linspace(-layout.across, layout.across, _GRID, dtype=torch.float64),
-                                   indexing="ij")
+    along, across = torch.meshgrid(
+        torch.linspace(*layout.along, _GRID, dtype=torch.float64),
+        torch.linspace(-layout.across, layout.across, _GRID, dtype=torch.float64),
+        indexing="ij",
+    )
     line = (G - S)[:2]
     normal = torch.stack([-line[1], line[0]]) / line.norm().clamp_min(1e-9)
-    places = (S[:2] + along.reshape(-1, 1) * line + across.reshape(-1, 1) * reach * normal)  # (P, 2)
+    places = S[:2] + along.reshape(-1, 1) * line + across.reshape(-1, 1) * reach * normal  # (P, 2)
     mid = (S + G)[:2] / 2
     outward = (mid - base[:2]) / (mid - base[:2]).norm().clamp_min(1e-9)
     preferred_distance = (places - (mid + layout.outward * reach * outward)).norm(dim=-1)
@@ -229,10 +295,12 @@ def _place_cylinder(robot, starts, ee, goals, S, G, base, reach: float, layout: 
             crossing = float((cross[i] & ok[i]).double().sum() / ok[i].double().sum().clamp_min(1))
             best = (float(score[i]), places[i], r, crossing, float(ok[i].double().mean()))
     if best is None or best[0] <= 0.0:
-        raise ValueError(f"reach_layout: no place between the start and goal points of {robot.name} lets a standing "
-                         f"cylinder cross the reaches while the starts stay clear of it (and of the base) by "
-                         f"env.start_clearance; raise reach_layout.turn or reach_layout.across, or lower "
-                         f"env.start_clearance")
+        raise ValueError(
+            f"reach_layout: no place between the start and goal points of {robot.name} lets a standing "
+            f"cylinder cross the reaches while the starts stay clear of it (and of the base) by "
+            f"env.start_clearance; raise reach_layout.turn or reach_layout.across, or lower "
+            f"env.start_clearance"
+        )
     return best[1], best[2], best[3], best[4]
 
 
@@ -257,6 +325,8 @@ def _check_reachable(G: torch.Tensor, centre: torch.Tensor, reach: float, robot)
             q.copy_(torch.maximum(torch.minimum(q, robot.upper), robot.lower))
     miss = float((robot.ee_position(q.detach())[0] - G).norm())
     if miss > 0.01 * reach:
-        raise ValueError(f"reach_layout: {robot.name} cannot reach the goal point {[round(float(v), 3) for v in G]} "
-                         f"inside its joint limits (inverse kinematics ends {miss:.3f} m from it); lower "
-                         f"reach_layout.turn or move the robot's home")
+        raise ValueError(
+            f"reach_layout: {robot.name} cannot reach the goal point {[round(float(v), 3) for v in G]} "
+            f"inside its joint limits (inverse kinematics ends {miss:.3f} m from it); lower "
+            f"reach_layout.turn or move the robot's home"
+        )

@@ -1,4 +1,5 @@
 """The reaching task's per-trajectory metrics (paper §4.2) and which of them are compared with the expert."""
+
 from __future__ import annotations
 
 import torch
@@ -32,11 +33,22 @@ def task_metrics(ro: Rollout, dtype: torch.dtype) -> dict[str, Tensor]:
     failed = torch.tensor([e is not None for e in ro.error])
     time = torch.where(ro.reached, ro.time_to_goal, torch.full_like(ro.time_to_goal, timeout))
     closest = torch.where(ro.goal_distance.isfinite(), ro.goal_distance, float("inf")).min(0).values
-    out = {"time": time, "cspace_length": ro.cspace_length, "ee_length": ro.ee_length,
-           "goal_distance": ro.end_goal_distance, "timeout_goal_distance": ro.goal_distance[-1],
-           "min_goal_distance": closest}
+    out = {
+        "time": time,
+        "cspace_length": ro.cspace_length,
+        "ee_length": ro.ee_length,
+        "goal_distance": ro.end_goal_distance,
+        "timeout_goal_distance": ro.goal_distance[-1],
+        "min_goal_distance": closest,
+    }
     out = {k: torch.where(failed, float("nan"), v) for k, v in out.items()}
-    out.update({"reached": ro.reached.to(dtype), "collided": ro.collided.to(dtype),
-                "min_clearance": ro.min_clearance, "error": failed.to(dtype),
-                "close_pass": (~ro.collided & (ro.min_clearance < CLOSE_PASS)).to(dtype)})
+    out.update(
+        {
+            "reached": ro.reached.to(dtype),
+            "collided": ro.collided.to(dtype),
+            "min_clearance": ro.min_clearance,
+            "error": failed.to(dtype),
+            "close_pass": (~ro.collided & (ro.min_clearance < CLOSE_PASS)).to(dtype),
+        }
+    )
     return out

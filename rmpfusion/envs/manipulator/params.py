@@ -1,6 +1,7 @@
 """The manipulator environment's settings: the robot and the scenes (conf/robot/, conf/scene/), goals and starts,
 the two rollout modes, the demonstrations' length, and how figures render; validated when the environment is built
 from YAML."""
+
 from __future__ import annotations
 
 from typing import Literal
@@ -23,57 +24,74 @@ def _per_joint(name: str, v: tuple[float, ...] | float, info: ValidationInfo) ->
     if isinstance(v, (int, float)):
         return (float(v),) * (n or 1)
     if n is not None and len(v) != n:
-        raise ValueError(f"{name} needs one value per actuated joint ({n}: {', '.join(robot.joints)}); given "
-                         f"{len(v)}: {list(v)}")
+        raise ValueError(
+            f"{name} needs one value per actuated joint ({n}: {', '.join(robot.joints)}); given {len(v)}: {list(v)}"
+        )
     return tuple(v)
 
 
 class ManipulatorParams(Params):
     gui: bool = Field(False, description="open pybullet's GUI for the first torque-mode world (else DIRECT)")
     mode: Literal["torque", "kinematic"] = Field(
-        "kinematic", description="how rollouts run policies (evaluation); torque = pybullet, computed torque")
+        "kinematic", description="how rollouts run policies (evaluation); torque = pybullet, computed torque"
+    )
     collect_mode: Literal["torque", "kinematic"] = Field(
-        "kinematic", description="how the expert's demonstrations are rolled out (kinematic: batched, fast)")
+        "kinematic", description="how the expert's demonstrations are rolled out (kinematic: batched, fast)"
+    )
     control_rate: float = Field(240.0, gt=0, description="Hz; the pybullet/integration step is 1/control_rate")
     integrator: Literal["semi_implicit_euler", "rk4"] = Field(
-        "semi_implicit_euler", description="kinematic mode; semi-implicit Euler is what pybullet uses")
+        "semi_implicit_euler", description="kinematic mode; semi-implicit Euler is what pybullet uses"
+    )
     gravity: float = -9.81
     robot: RobotField = Field(description="the robot description (conf/robot/<name>.yaml)")
     scene: Scene = Field(default_factory=Scene, description="the training and validation splits' scene (conf/scene/)")
     test_scene: Scene | None = Field(
-        None, description="the test split's scene (paper: a different placement); null = the same as scene")
+        None, description="the test split's scene (paper: a different placement); null = the same as scene"
+    )
     obstacle_jitter: Vec3 = Field((0.0, 0.0, 0.0), description="± uniform perturbation of every centre per env")
     goal_per_trajectory: bool = Field(
-        True, description="draw a goal per trajectory (paper §4.2); else one goal per environment")
+        True, description="draw a goal per trajectory (paper §4.2); else one goal per environment"
+    )
     min_start_goal_distance: float = Field(0.0, ge=0, description="starts whose end effector is closer are redrawn")
     demo_min_duration: float = Field(5.0, ge=0, description="demonstrations last at least this long (s) ...")
-    demo_settle_distance: float = Field(0.01, gt=0, description="... and end once the end effector is this close "
-                                                                 "to the goal (m) ...")
-    demo_settle_speed: float = Field(0.05, gt=0, description="... with joint speed ‖q̇‖ below this (rad/s); "
-                                                              "at most data.points records")
-    goal_region: tuple[Range, Range, Range] = Field(((0.3, 0.6), (-0.45, -0.2), (0.15, 0.55)),
-                                                    description="goal ~ uniform in this box (m)")
+    demo_settle_distance: float = Field(
+        0.01, gt=0, description="... and end once the end effector is this close to the goal (m) ..."
+    )
+    demo_settle_speed: float = Field(
+        0.05, gt=0, description="... with joint speed ‖q̇‖ below this (rad/s); at most data.points records"
+    )
+    goal_region: tuple[Range, Range, Range] = Field(
+        ((0.3, 0.6), (-0.45, -0.2), (0.15, 0.55)), description="goal ~ uniform in this box (m)"
+    )
     reach_layout: ReachLayout | None = Field(
-        None, description="lay the task out from the robot's kinematics (experiment=reach): goal_region, the scenes' "
-                          "placement, obstacle_jitter and min_start_goal_distance are derived, not read")
+        None,
+        description="lay the task out from the robot's kinematics (experiment=reach): goal_region, the scenes' "
+        "placement, obstacle_jitter and min_start_goal_distance are derived, not read",
+    )
     goal_clearance: float = Field(0.15, ge=0, description="min horizontal distance from goal to obstacle surfaces")
     nominal_q: tuple[float, ...] | None = Field(None, description="centre of the starts (rad); null: the robot's home")
-    start_spread: tuple[float, ...] | float = Field(0.3, description="± uniform per joint (rad): one value for every "
-                                                                      "joint, or one per joint")
+    start_spread: tuple[float, ...] | float = Field(
+        0.3, description="± uniform per joint (rad): one value for every joint, or one per joint"
+    )
     start_speed: float = Field(0.0, ge=0, description="initial joint speeds ~ uniform in ±start_speed")
     start_clearance: float = Field(0.05, ge=0, description="min pybullet clearance of the start configuration")
     joint_margin: float = Field(0.05, ge=0, description="starts stay this far inside the URDF limits (rad)")
     goal_tolerance: float = Field(0.05, gt=0)
     clearance_query: float = Field(0.3, gt=0, description="distances beyond this are not resolved")
     max_tries: int = Field(200, ge=1)
-    camera: tuple[float, float, float, Vec3] = Field((1.2, -20.0, -50.0, (0.3, 0.0, 0.3)),
-                                                     description="render: distance, yaw, pitch (deg), target")
+    camera: tuple[float, float, float, Vec3] = Field(
+        (1.2, -20.0, -50.0, (0.3, 0.0, 0.3)), description="render: distance, yaw, pitch (deg), target"
+    )
     render_size: tuple[int, int] = Field((320, 240), description="figures: width, height of a rendered frame")
-    render_times: tuple[float, ...] = Field((0.0, 1.0, 2.0, 3.0, 5.0, 10.0),
-                                            description="figures: times (s) of the frames of the render strip")
+    render_times: tuple[float, ...] = Field(
+        (0.0, 1.0, 2.0, 3.0, 5.0, 10.0), description="figures: times (s) of the frames of the render strip"
+    )
     render_trajectory: int | None = Field(
-        None, ge=0, description="figures: the test trajectory rendered; null = the one where the expert comes "
-                                "closest to the obstacle")
+        None,
+        ge=0,
+        description="figures: the test trajectory rendered; null = the one where the expert comes "
+        "closest to the obstacle",
+    )
     gif_fps: float = Field(10.0, gt=0, description="figures: frames per second of the execution GIF (real time)")
     dtype: Literal["float64", "float32"] = "float64"
 
@@ -94,8 +112,10 @@ class ManipulatorParams(Params):
         if info.field_name == "start_spread":
             v = _per_joint("start_spread", v, info)
         if not all(x >= 0 for x in v):
-            raise ValueError(f"{info.field_name} must be ≥ 0 in every entry (each is the half-width of a uniform "
-                             f"± perturbation); given {list(v)}")
+            raise ValueError(
+                f"{info.field_name} must be ≥ 0 in every entry (each is the half-width of a uniform "
+                f"± perturbation); given {list(v)}"
+            )
         return v
 
     @field_validator("goal_region")
@@ -103,8 +123,10 @@ class ManipulatorParams(Params):
     def _box(cls, v: tuple[Range, Range, Range]):
         for axis, r in zip("xyz", v):
             if not r[0] <= r[1]:
-                raise ValueError(f"goal_region.{axis} must be (low, high) with low ≤ high (goals are drawn uniformly "
-                                 f"between them); given {tuple(r)}")
+                raise ValueError(
+                    f"goal_region.{axis} must be (low, high) with low ≤ high (goals are drawn uniformly "
+                    f"between them); given {tuple(r)}"
+                )
         return v
 
     @field_validator("nominal_q")
@@ -116,8 +138,10 @@ class ManipulatorParams(Params):
         v = _per_joint("nominal_q", v, info)
         for name, q, (lo, hi, _) in zip(robot.joints, v, robot.joint_limits()):
             if not lo <= q <= hi:
-                raise ValueError(f"nominal_q: {name} = {q} lies outside its limits [{lo}, {hi}] (starts are drawn around "
-                                 f"it and clamped to the limits)")
+                raise ValueError(
+                    f"nominal_q: {name} = {q} lies outside its limits [{lo}, {hi}] (starts are drawn around "
+                    f"it and clamped to the limits)"
+                )
         return v
 
     @field_validator("joint_margin")
@@ -129,14 +153,18 @@ class ManipulatorParams(Params):
         nominal = info.data.get("nominal_q") or robot.home
         for k, (name, (lo, hi, _)) in enumerate(zip(robot.joints, robot.joint_limits())):
             if not lo + v < hi - v:
-                raise ValueError(f"joint_margin must be < half of every joint's range (starts are drawn in "
-                                 f"[lower + margin, upper − margin]); {name} spans [{lo:.5g}, {hi:.5g}], "
-                                 f"half of it is {(hi - lo) / 2:.4g}; given {v}")
+                raise ValueError(
+                    f"joint_margin must be < half of every joint's range (starts are drawn in "
+                    f"[lower + margin, upper − margin]); {name} spans [{lo:.5g}, {hi:.5g}], "
+                    f"half of it is {(hi - lo) / 2:.4g}; given {v}"
+                )
             if not lo + v <= nominal[k] <= hi - v:
-                raise ValueError(f"joint_margin puts the start centre {name} = {nominal[k]} outside its start range "
-                                 f"[{lo:.5g} + margin, {hi:.5g} − margin] (every start would be clamped to its edge); "
-                                 f"move {'nominal_q' if info.data.get('nominal_q') else 'home (the robot file)'} "
-                                 f"inward or lower joint_margin; given {v}")
+                raise ValueError(
+                    f"joint_margin puts the start centre {name} = {nominal[k]} outside its start range "
+                    f"[{lo:.5g} + margin, {hi:.5g} − margin] (every start would be clamped to its edge); "
+                    f"move {'nominal_q' if info.data.get('nominal_q') else 'home (the robot file)'} "
+                    f"inward or lower joint_margin; given {v}"
+                )
         return v
 
     def start_centre(self) -> tuple[float, ...]:
@@ -152,8 +180,10 @@ class ManipulatorParams(Params):
     @classmethod
     def _in_front(cls, v):
         if not v[0] > 0:
-            raise ValueError(f"camera distance (the first entry) must be > 0 (the camera looks at the target from "
-                             f"that far); given {v[0]}")
+            raise ValueError(
+                f"camera distance (the first entry) must be > 0 (the camera looks at the target from "
+                f"that far); given {v[0]}"
+            )
         return v
 
     @field_validator("render_size")

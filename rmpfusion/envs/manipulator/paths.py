@@ -1,8 +1,9 @@
 """The straight reach of a start: the end-effector segment from the start to its goal, and how close it passes to the
 obstacles (``scenes/crossing.py``: whether the obstacle is in the way of the reach)."""
+
 from __future__ import annotations
 
-from typing import Mapping
+from collections.abc import Mapping
 
 import torch
 from torch import Tensor

@@ -1,8 +1,10 @@
 """What both rollout modes record on the way: the records (NaN rows once a sample has died), the goal tracker
 (the execution of paper §4.2, which ends on reaching the goal) and the finished ``Rollout``."""
+
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Mapping
+from collections.abc import Mapping
+from typing import TYPE_CHECKING
 
 import torch
 from torch import Tensor
@@ -82,8 +84,16 @@ class GoalTracker:
         self.reached |= hit
 
 
-def finish(env: "Manipulator", mode: str, rec: Recorder, aux: Mapping[str, Tensor], min_clear: Tensor, first_hit: Tensor,
-           goal_hit: GoalTracker, errors: list[str | None]) -> Rollout:
+def finish(
+    env: Manipulator,
+    mode: str,
+    rec: Recorder,
+    aux: Mapping[str, Tensor],
+    min_clear: Tensor,
+    first_hit: Tensor,
+    goal_hit: GoalTracker,
+    errors: list[str | None],
+) -> Rollout:
     """The ``Rollout`` of the records: end-effector paths and goal distances from the recorded q (NaN where a
     sample had died), collision from the smallest clearance, success = reached, never collided, no error."""
     q = rec.stack(rec.q)
@@ -96,10 +106,22 @@ def finish(env: "Manipulator", mode: str, rec: Recorder, aux: Mapping[str, Tenso
     return Rollout(
         mode=mode,
         times=torch.tensor(rec.t, dtype=env.dtype),
-        q=q, qd=rec.stack(rec.qd), qdd=rec.stack(rec.qdd), ee=ee, goal_distance=gd,
-        collided=collided, min_clearance=min_clear, first_collision_time=first_hit, reached=goal_hit.reached,
-        time_to_goal=goal_hit.time, success=goal_hit.reached & ~collided & ok, error=list(errors),
-        cspace_length=goal_hit.cspace_length, ee_length=goal_hit.ee_length, end_goal_distance=goal_hit.end_distance,
-        V=rec.stack(rec.V) if rec.V else None, moving=env.moving,
+        q=q,
+        qd=rec.stack(rec.qd),
+        qdd=rec.stack(rec.qdd),
+        ee=ee,
+        goal_distance=gd,
+        collided=collided,
+        min_clearance=min_clear,
+        first_collision_time=first_hit,
+        reached=goal_hit.reached,
+        time_to_goal=goal_hit.time,
+        success=goal_hit.reached & ~collided & ok,
+        error=list(errors),
+        cspace_length=goal_hit.cspace_length,
+        ee_length=goal_hit.ee_length,
+        end_goal_distance=goal_hit.end_distance,
+        V=rec.stack(rec.V) if rec.V else None,
+        moving=env.moving,
         dissipation=rec.stack(rec.D) if rec.D else None,
     )

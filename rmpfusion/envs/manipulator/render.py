@@ -1,8 +1,10 @@
 """Images of a manipulator scene for figures and animations: pybullet's headless tiny renderer through a fixed
 camera, and the projection of world points into those images (to draw paths on them)."""
+
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Mapping, Sequence
+from collections.abc import Mapping, Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
@@ -17,8 +19,14 @@ if TYPE_CHECKING:
 Camera = tuple[float, float, float, Vec3]  # distance, yaw, pitch (deg), target: ManipulatorParams.camera
 
 
-def render(env: "Manipulator", q: Tensor | Sequence[float], aux: Mapping[str, Tensor], width: int = 320,
-           height: int = 240, sample: int = 0) -> np.ndarray:
+def render(
+    env: Manipulator,
+    q: Tensor | Sequence[float],
+    aux: Mapping[str, Tensor],
+    width: int = 320,
+    height: int = 240,
+    sample: int = 0,
+) -> np.ndarray:
     """(height, width, 3) uint8 image of the robot at ``q`` in environment ``aux[sample]``."""
     p = _pb()
     q = torch.as_tensor(q, dtype=env.dtype).reshape(-1, env.dim)

@@ -5,10 +5,11 @@ Obstacles are built from a sample's aux state (``scenes/aux.py``), the same numb
 tree avoids and what pybullet collides with are one geometry. pybullet is imported on first use, so the
 environment (and the package) imports without it.
 """
+
 from __future__ import annotations
 
 import math
-from typing import Mapping
+from collections.abc import Mapping
 
 import numpy as np
 from torch import Tensor
@@ -66,12 +67,14 @@ class _Scene:
         for j in range(-1, p.getNumJoints(self.robot, physicsClientId=self.cid)):
             # pybullet's default link damping is not in its inverse dynamics; remove it so the
             # computed-torque loop realises the commanded acceleration exactly
-            p.changeDynamics(self.robot, j, linearDamping=0.0, angularDamping=0.0, jointDamping=0.0,
-                             physicsClientId=self.cid)
+            p.changeDynamics(
+                self.robot, j, linearDamping=0.0, angularDamping=0.0, jointDamping=0.0, physicsClientId=self.cid
+            )
         p.setGravity(0, 0, gravity, physicsClientId=self.cid)
         self.joints = self.arm + self.held
-        p.setJointMotorControlArray(self.robot, self.joints, p.VELOCITY_CONTROL, forces=[0.0] * len(self.joints),
-                                    physicsClientId=self.cid)
+        p.setJointMotorControlArray(
+            self.robot, self.joints, p.VELOCITY_CONTROL, forces=[0.0] * len(self.joints), physicsClientId=self.cid
+        )
         self.obstacles: list[int] = []
         self.ground: int | None = None
         self.goal_marker: int | None = None
@@ -91,7 +94,10 @@ class _Scene:
             args, orient = {"radius": r}, [0.0, 0.0, 0.0, 1.0]
             shape = p.GEOM_SPHERE
         elif kind == "box":
-            args, orient = {"halfExtents": a[pre + "half_extents"].tolist()}, _quaternion_of(a[pre + "rotation"].reshape(3, 3))
+            args, orient = (
+                {"halfExtents": a[pre + "half_extents"].tolist()},
+                _quaternion_of(a[pre + "rotation"].reshape(3, 3)),
+            )
             shape = p.GEOM_BOX
         else:
             half = float(a[pre + ("half_height" if kind == "cylinder" else "half_length")][0])
@@ -114,7 +120,9 @@ class _Scene:
             self.obstacles.append(p.createMultiBody(0.0, col, vis, centre, orient, physicsClientId=cid))
         if scene.ground is not None:
             col = p.createCollisionShape(p.GEOM_PLANE, physicsClientId=cid)
-            vis = p.createVisualShape(p.GEOM_PLANE, rgbaColor=[0.85, 0.85, 0.8, 1], physicsClientId=cid) if visual else -1
+            vis = (
+                p.createVisualShape(p.GEOM_PLANE, rgbaColor=[0.85, 0.85, 0.8, 1], physicsClientId=cid) if visual else -1
+            )
             self.ground = p.createMultiBody(0.0, col, vis, [0.0, 0.0, scene.ground.height], physicsClientId=cid)
         if visual and "goal" in a:
             if self.goal_marker is None:
@@ -127,8 +135,9 @@ class _Scene:
         for k, (o, body) in enumerate(zip(scene.obstacles, self.obstacles), start=1):
             if o.moving:
                 _, orient = self.p.getBasePositionAndOrientation(body, physicsClientId=self.cid)
-                self.p.resetBasePositionAndOrientation(body, a[f"obstacle{k}_center"].tolist(), orient,
-                                                       physicsClientId=self.cid)
+                self.p.resetBasePositionAndOrientation(
+                    body, a[f"obstacle{k}_center"].tolist(), orient, physicsClientId=self.cid
+                )
 
     def add_floor(self) -> None:
         """pybullet_data's checkered plane at z = 0 (renders only: the robot's base sits on it)."""
@@ -210,8 +219,11 @@ def ground_links(world: _Scene, robot: URDFRobot, samples: int = GROUND_SAMPLES,
     hi = np.minimum(robot.upper.numpy(), np.pi)
     rng = np.random.default_rng(seed)
     qs = lo + (hi - lo) * rng.random((samples, robot.dof))
-    links = [i for i in range(p.getNumJoints(world.robot, physicsClientId=cid))
-             if robot.moves(p.getJointInfo(world.robot, i, physicsClientId=cid)[12].decode())]
+    links = [
+        i
+        for i in range(p.getNumJoints(world.robot, physicsClientId=cid))
+        if robot.moves(p.getJointInfo(world.robot, i, physicsClientId=cid)[12].decode())
+    ]
     lowest = np.empty((samples, len(links)))
     for s, q in enumerate(qs):
         world.reset(q)
@@ -260,8 +272,10 @@ def fixed_links_extent(world: _Scene, robot: URDFRobot) -> float:
     (plus a start's clearance) leaves no start clear of it, whatever the joints do."""
     p, cid = world.p, world.cid
     base = np.array(robot.base_pose()[0][:2])
-    names = {i: p.getJointInfo(world.robot, i, physicsClientId=cid)[12].decode()
-             for i in range(p.getNumJoints(world.robot, physicsClientId=cid))}
+    names = {
+        i: p.getJointInfo(world.robot, i, physicsClientId=cid)[12].decode()
+        for i in range(p.getNumJoints(world.robot, physicsClientId=cid))
+    }
     fixed = [-1] + [i for i, link in names.items() if not robot.moves(link)]
     extent = 0.0
     for i in fixed:

@@ -1,9 +1,11 @@
 """Torque mode: every sample has its own pybullet world, and the policy's acceleration becomes joint torques by
 computed-torque control (pybullet's inverse dynamics, default velocity motors disabled). The simulated robot is
 then the paper's feedback-linearised system, integrated by pybullet itself."""
+
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any, Callable, Mapping
+from collections.abc import Callable, Mapping
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
@@ -19,8 +21,16 @@ if TYPE_CHECKING:
     from .env import Manipulator
 
 
-def rollout_torque(env: "Manipulator", policy: Callable[..., Any], q0: Tensor, qd0: Tensor, aux: Mapping[str, Tensor],
-                   n_steps: int, every: int, monitor: Callable[..., Any] | None) -> Rollout:
+def rollout_torque(
+    env: Manipulator,
+    policy: Callable[..., Any],
+    q0: Tensor,
+    qd0: Tensor,
+    aux: Mapping[str, Tensor],
+    n_steps: int,
+    every: int,
+    monitor: Callable[..., Any] | None,
+) -> Rollout:
     """``n_steps`` pybullet steps recorded every ``every`` steps; a sample whose world fails (a pybullet error)
     or whose policy answers a non-finite acceleration ends there with its reason, the others go on."""
     dt = env.dt
@@ -42,8 +52,9 @@ def rollout_torque(env: "Manipulator", policy: Callable[..., Any], q0: Tensor, q
                 worlds.move_obstacles(env.aux_at(aux, (k + 1) * dt))
             worlds.step(a, k)
             worlds.read_states()
-            goal_hit.update((k + 1) * dt, env.ee_position(worlds.q), aux["goal"], env.params.goal_tolerance,
-                            worlds.alive, worlds.q)
+            goal_hit.update(
+                (k + 1) * dt, env.ee_position(worlds.q), aux["goal"], env.params.goal_tolerance, worlds.alive, worlds.q
+            )
     finally:
         worlds.close()
     return finish(env, "torque", rec, aux, worlds.min_clear, worlds.first_hit, goal_hit, worlds.errors)
@@ -53,7 +64,7 @@ class _Worlds:
     """The batch's pybullet worlds, one a sample, and what each has seen: its state (q, q̇ of the actuated joints,
     the held joints' apart), whether it is still alive and why not, its smallest clearance and first collision time."""
 
-    def __init__(self, env: "Manipulator", policy: IsolatingPolicy, q0: Tensor, qd0: Tensor):
+    def __init__(self, env: Manipulator, policy: IsolatingPolicy, q0: Tensor, qd0: Tensor):
         B = q0.shape[0]
         self.env, self.policy, self.q0, self.qd0 = env, policy, q0, qd0
         self.errors: list[str | None] = [None] * B
@@ -128,7 +139,7 @@ class _Worlds:
         index, gain, bias = sc.held_drive  # mimic joints follow their leaders; the others are held where they are
         q, qd = self.q[b].cpu().numpy(), self.qd[b].cpu().numpy()
         target, target_v = gain * q[index] + bias, gain * qd[index]
-        acc_f = (gain * a[index] - gains.kp * (self.fingers[b] - target) - gains.kd * (self.finger_v[b] - target_v))
+        acc_f = gain * a[index] - gains.kp * (self.fingers[b] - target) - gains.kd * (self.finger_v[b] - target_v)
         qs = self.q[b].tolist() + self.fingers[b].tolist()
         vs = self.qd[b].tolist() + self.finger_v[b].tolist()
         tau = p.calculateInverseDynamics(sc.robot, qs, vs, a.tolist() + acc_f.tolist(), physicsClientId=sc.cid)

@@ -1,4 +1,5 @@
 """The built-in training methods, registered in ``TRAIN_METHODS`` by the names ``train.method`` gives them:
 behavior cloning (``bc``), DAgger (``dagger``), analytic policy gradients through the simulator (``apg``) and a
 score-function policy gradient (``pg``)."""
+
 from . import apg, bc, dagger, pg  # noqa: F401

@@ -15,6 +15,7 @@ back-propagated within the window (the gradients of all windows add up) and the 
 detached end state. Memory is bounded by one window and exploding products of long Jacobian chains are cut, at
 the price of ignoring how a window's actions change the later windows' cost.
 """
+
 from __future__ import annotations
 
 from typing import Any, Literal
@@ -38,11 +39,19 @@ class APGParams(TrainParams):
     method: Literal["apg"] = Field("apg", description="the TRAIN_METHODS entry these settings are for")
     batch_size: int = Field(16, ge=1, description="rollouts per step, from training initial states drawn uniformly")
     horizon: float = Field(30.0, gt=0, description="seconds each training rollout lasts")
-    truncation: float | None = Field(None, gt=0, description="seconds per back-propagated window (null: the whole "
-                                                             "horizon); the horizon must be a multiple of it")
+    truncation: float | None = Field(
+        None,
+        gt=0,
+        description="seconds per back-propagated window (null: the whole "
+        "horizon); the horizon must be a multiple of it",
+    )
     record_every: float = Field(0.1, gt=0, description="seconds between the records the cost is integrated over")
-    dt: float | None = Field(None, gt=0, description="integration step of the training rollouts (null: the "
-                                                     "environment's); evaluation keeps the environment's own")
+    dt: float | None = Field(
+        None,
+        gt=0,
+        description="integration step of the training rollouts (null: the "
+        "environment's); evaluation keeps the environment's own",
+    )
     cost: TaskCost = TaskCost()
 
     @model_validator(mode="after")
@@ -50,8 +59,10 @@ class APGParams(TrainParams):
         w = self.truncation or self.horizon
         n = round(self.horizon / w)
         if n < 1 or abs(n * w - self.horizon) > 1e-9 * self.horizon:
-            raise ValueError(f"horizon must be a multiple of truncation (whole windows); given horizon={self.horizon}, "
-                             f"truncation={self.truncation}")
+            raise ValueError(
+                f"horizon must be a multiple of truncation (whole windows); given horizon={self.horizon}, "
+                f"truncation={self.truncation}"
+            )
         return self
 
     @property
@@ -63,8 +74,10 @@ class APGParams(TrainParams):
         return round(self.horizon / self.window)
 
     def describe(self) -> str:
-        return (f"{super().describe()}; {self.batch_size} rollouts of {self.horizon}s per step, windows of "
-                f"{self.window}s{f', integrated at dt={self.dt}' if self.dt else ''}")
+        return (
+            f"{super().describe()}; {self.batch_size} rollouts of {self.horizon}s per step, windows of "
+            f"{self.window}s{f', integrated at dt={self.dt}' if self.dt else ''}"
+        )
 
 
 class RolloutCost:
@@ -79,11 +92,13 @@ class RolloutCost:
         """The mean over the batch of each term of the cost (and ``total``) of one rollout per start."""
         p, sums = self.params, {}
         for w in range(p.windows):
-            ro = self.env.rollout(policy, q, qd, aux, horizon=p.window, record_every=p.record_every,
-                                  enable_grad=backward)
+            ro = self.env.rollout(
+                policy, q, qd, aux, horizon=p.window, record_every=p.record_every, enable_grad=backward
+            )
             d = self.env.goal_distance(ro.q, aux)
-            terms = interval_costs(p.cost, ro.times, ro.q, d, record_clearance(self.env.clearance(ro.q, aux)),
-                                   final=w == p.windows - 1)
+            terms = interval_costs(
+                p.cost, ro.times, ro.q, d, record_clearance(self.env.clearance(ro.q, aux)), final=w == p.windows - 1
+            )
             cost = total(terms).sum(0)  # (B,)
             if backward:
                 cost.mean().backward()
@@ -130,8 +145,13 @@ class APGSteps(Steps):
         return {"expert_queries": 0, "validation_cost_terms": self.last_val}
 
 
-def on_grid(lengths: dict[str, float], every: float, dt: float, every_key: str = "record_every",
-            step: str = "the environment's step") -> list[tuple[str, str]]:
+def on_grid(
+    lengths: dict[str, float],
+    every: float,
+    dt: float,
+    every_key: str = "record_every",
+    step: str = "the environment's step",
+) -> list[tuple[str, str]]:
     """Each of ``lengths`` (train.<key> = seconds) a whole number of ``every``, itself a whole number of the
     integration step ``dt``: rollouts record on that grid only, and a window must end on a record."""
     issues = []
@@ -142,8 +162,12 @@ def on_grid(lengths: dict[str, float], every: float, dt: float, every_key: str =
     for key, t in lengths.items():
         n = round(t / every)
         if n < 1 or abs(n * every - t) > 1e-9 * max(1.0, t):
-            issues.append((f"train.{key}", f"must be a whole number of train.{every_key} = {every} s (rollouts end "
-                                           f"on a record); given {t}"))
+            issues.append(
+                (
+                    f"train.{key}",
+                    f"must be a whole number of train.{every_key} = {every} s (rollouts end on a record); given {t}",
+                )
+            )
     return issues
 
 
@@ -156,12 +180,21 @@ class APG(TrainingMethod):
     @classmethod
     def requirements(cls, params: APGParams, env: Env, train_trajectories: int) -> list[tuple[str, str]]:
         if not isinstance(env, DifferentiableRollouts):
-            return [("train.method", f"apg back-propagates through rollouts, which the environment "
-                                     f"'{type(env).__name__}' does not offer (it is not simulated in torch with a "
-                                     "differentiable goal distance and clearance); use method pg, or an environment "
-                                     "such as particle2d")]
-        return on_grid({"horizon": params.horizon, "truncation": params.window}, params.record_every,
-                       params.dt or env.dt, step="the training step train.dt" if params.dt else "the environment's step")
+            return [
+                (
+                    "train.method",
+                    f"apg back-propagates through rollouts, which the environment "
+                    f"'{type(env).__name__}' does not offer (it is not simulated in torch with a "
+                    "differentiable goal distance and clearance); use method pg, or an environment "
+                    "such as particle2d",
+                )
+            ]
+        return on_grid(
+            {"horizon": params.horizon, "truncation": params.window},
+            params.record_every,
+            params.dt or env.dt,
+            step="the training step train.dt" if params.dt else "the environment's step",
+        )
 
     def steps(self, model, ctx, opt, gen) -> Steps:
         return APGSteps(model, self.params, ctx, opt, gen)

@@ -1,6 +1,7 @@
 """Behavior cloning (``train: {method: bc}``): minimise the objective (the paper's MSE unless ``objective`` names
 another) between the learner's and the expert's accelerations on minibatches of the demonstrations (paper §3.4,
 §4.1), with the optimiser ``optimizer`` names."""
+
 from __future__ import annotations
 
 from typing import Any
@@ -20,14 +21,17 @@ class MinibatchSteps(Steps):
     """Minibatch steps of an objective against the expert's q̈ on a dataset, uniformly with replacement; the
     held-out losses on the validation and test sets."""
 
-    def __init__(self, model: nn.Module, params: BCParams, ctx: MethodContext, opt: torch.optim.Optimizer,
-                 gen: torch.Generator):
+    def __init__(
+        self, model: nn.Module, params: BCParams, ctx: MethodContext, opt: torch.optim.Optimizer, gen: torch.Generator
+    ):
         self.model, self.params, self.ctx, self.opt, self.gen = model, params, ctx, opt, gen
         self.objective = make_objective(params.objective)
         self.data: Dataset = ctx.train
         if params.batch_size > len(self.data):
-            ctx.tell(f"train.batch_size={params.batch_size} is more than the {len(self.data)} training points: every "
-                     f"step draws {len(self.data)} (capped at the dataset's size)")
+            ctx.tell(
+                f"train.batch_size={params.batch_size} is more than the {len(self.data)} training points: every "
+                f"step draws {len(self.data)} (capped at the dataset's size)"
+            )
 
     def step(self, it: int) -> float:
         N = len(self.data)

@@ -15,9 +15,11 @@ accelerations, q̈ = β·q̈* + (1 − β)·q̈_learner: the limit of choosing p
 learner alone. While β > 0 the expert also acts during the rollouts; those calls are counted apart from the labels
 (``expert_calls_in_rollouts``), so a comparison "at equal expert queries" can say which it equalises.
 """
+
 from __future__ import annotations
 
-from typing import Any, Literal, Mapping
+from collections.abc import Mapping
+from typing import Any, Literal
 
 import torch
 from pydantic import Field, model_validator
@@ -39,13 +41,21 @@ class DAggerParams(BCParams):
     method: Literal["dagger"] = Field("dagger", description="the TRAIN_METHODS entry these settings are for")
     rounds: int = Field(5, ge=1, description="aggregation rounds after round 0 (the demonstrations)")
     initial_trajectories: int | None = Field(
-        None, ge=1, description="demonstrations round 0 trains on, drawn at random from the training split "
-                                "(null: all); the rest of the expert's labels come from the rounds")
-    trajectories_per_round: int = Field(100, ge=1, description="rollouts per round, each from a training initial "
-                                                              "state; every one is labelled at data.points records")
+        None,
+        ge=1,
+        description="demonstrations round 0 trains on, drawn at random from the training split "
+        "(null: all); the rest of the expert's labels come from the rounds",
+    )
+    trajectories_per_round: int = Field(
+        100,
+        ge=1,
+        description="rollouts per round, each from a training initial "
+        "state; every one is labelled at data.points records",
+    )
     beta_schedule: Literal["indicator", "exponential", "constant"] = Field(
-        "indicator", description="β_r of round r ≥ 1: indicator 0 (the learner alone), exponential beta^r, "
-                                 "constant beta")
+        "indicator",
+        description="β_r of round r ≥ 1: indicator 0 (the learner alone), exponential beta^r, constant beta",
+    )
     beta: float = Field(0.5, ge=0, le=1, description="the exponential schedule's base, or the constant β")
 
     ITERATIONS_SHAPE_THE_PATH = True  # the rounds start at fractions of `iterations`
@@ -53,23 +63,27 @@ class DAggerParams(BCParams):
     @model_validator(mode="after")
     def _beta_used(self):
         if self.beta_schedule == "indicator" and "beta" in self.model_fields_set:
-            raise ValueError(f"beta is not used by beta_schedule=indicator (β = 0 after round 0); use "
-                             f"beta_schedule=exponential or constant, or leave beta out; given beta={self.beta}")
+            raise ValueError(
+                f"beta is not used by beta_schedule=indicator (β = 0 after round 0); use "
+                f"beta_schedule=exponential or constant, or leave beta out; given beta={self.beta}"
+            )
         return self
 
     def beta_at(self, r: int) -> float:
         """β of round ``r`` (round 0 is the expert's demonstrations: 1)."""
         if r == 0:
             return 1.0
-        return {"indicator": 0.0, "exponential": self.beta ** r, "constant": self.beta}[self.beta_schedule]
+        return {"indicator": 0.0, "exponential": self.beta**r, "constant": self.beta}[self.beta_schedule]
 
     def round_start(self, r: int) -> int:
         """The iteration at which round ``r`` aggregates its data."""
         return (r * self.iterations) // (self.rounds + 1)
 
     def describe(self) -> str:
-        return (f"{super().describe()}; {self.rounds} rounds x {self.trajectories_per_round} rollouts, "
-                f"β {self.beta_schedule}{'' if self.beta_schedule == 'indicator' else f' {self.beta}'}")
+        return (
+            f"{super().describe()}; {self.rounds} rounds x {self.trajectories_per_round} rollouts, "
+            f"β {self.beta_schedule}{'' if self.beta_schedule == 'indicator' else f' {self.beta}'}"
+        )
 
 
 class _Counted:
@@ -98,11 +112,23 @@ class DAggerSteps(MinibatchSteps):
         super().__init__(model, params, ctx, opt, gen)
         ctx.need("dagger", env=ctx.env, expert=ctx.expert, interval=ctx.interval, points=ctx.points)
         first = ctx.train.t == ctx.train.t.min()
-        self.starts = (ctx.train.q[first], ctx.train.qd[first], {k: v[first] for k, v in ctx.train.aux.items()},
-                       ctx.train.env_id[first])
+        self.starts = (
+            ctx.train.q[first],
+            ctx.train.qd[first],
+            {k: v[first] for k, v in ctx.train.aux.items()},
+            ctx.train.env_id[first],
+        )
         self.data = _initial(ctx.train, params.initial_trajectories, ctx.seed)
-        self.rounds: list[dict[str, Any]] = [{"round": 0, "beta": 1.0, "iteration": 0, "labels": len(self.data),
-                                              "expert_calls_in_rollouts": 0, "training_points": len(self.data)}]
+        self.rounds: list[dict[str, Any]] = [
+            {
+                "round": 0,
+                "beta": 1.0,
+                "iteration": 0,
+                "labels": len(self.data),
+                "expert_calls_in_rollouts": 0,
+                "training_points": len(self.data),
+            }
+        ]
 
     def step(self, it: int) -> float:
         r = len(self.rounds)
@@ -121,18 +147,32 @@ class DAggerSteps(MinibatchSteps):
         aux = {a: v[idx] for a, v in self.starts[2].items()}
         acting = _Counted(ctx.expert)
         with torch.no_grad():
-            ro = ctx.env.rollout(_mixture(self.model, acting, beta), q0, qd0, aux,
-                                 horizon=(ctx.points - 1) * ctx.interval, record_every=ctx.interval)
+            ro = ctx.env.rollout(
+                _mixture(self.model, acting, beta),
+                q0,
+                qd0,
+                aux,
+                horizon=(ctx.points - 1) * ctx.interval,
+                record_every=ctx.interval,
+            )
         new = _labelled(ro, aux, env_id, ctx.expert, first_id=int(self.data.traj_id.max()) + 1)
         self.data = Dataset.concat([self.data, new])
-        record = {"round": r, "beta": beta, "iteration": it, "labels": len(new), "expert_calls_in_rollouts":
-                  acting.calls, "training_points": len(self.data),
-                  "learner_collision_rate": float(ro.collided.double().mean()),
-                  "learner_success_rate": float(ro.success.double().mean())}
+        record = {
+            "round": r,
+            "beta": beta,
+            "iteration": it,
+            "labels": len(new),
+            "expert_calls_in_rollouts": acting.calls,
+            "training_points": len(self.data),
+            "learner_collision_rate": float(ro.collided.double().mean()),
+            "learner_success_rate": float(ro.success.double().mean()),
+        }
         self.rounds.append(record)
-        ctx.tell(f"dagger round {r}/{p.rounds} at iteration {it}: β={beta:.3g}, {k} rollouts "
-                 f"({100 * record['learner_collision_rate']:.0f} % collided), {len(new)} expert labels, "
-                 f"{len(self.data)} training points")
+        ctx.tell(
+            f"dagger round {r}/{p.rounds} at iteration {it}: β={beta:.3g}, {k} rollouts "
+            f"({100 * record['learner_collision_rate']:.0f} % collided), {len(new)} expert labels, "
+            f"{len(self.data)} training points"
+        )
 
     def state(self) -> dict[str, Any]:
         return {"data": self.data.tensors(), "rounds": self.rounds}
@@ -146,9 +186,13 @@ class DAggerSteps(MinibatchSteps):
         """Expert labels (round 0's demonstrations and every round's), and the expert's calls while acting in
         β-mixtures, counted apart."""
         labels = [r["labels"] for r in self.rounds]
-        return {"expert_queries": sum(labels), "expert_queries_per_round": labels,
-                "expert_calls_in_rollouts": sum(r["expert_calls_in_rollouts"] for r in self.rounds),
-                "training_points": len(self.data), "rounds": self.rounds}
+        return {
+            "expert_queries": sum(labels),
+            "expert_queries_per_round": labels,
+            "expert_calls_in_rollouts": sum(r["expert_calls_in_rollouts"] for r in self.rounds),
+            "training_points": len(self.data),
+            "rounds": self.rounds,
+        }
 
 
 def _initial(train: Dataset, n: int | None, seed: int) -> Dataset:
@@ -158,8 +202,10 @@ def _initial(train: Dataset, n: int | None, seed: int) -> Dataset:
     if n is None:
         return train
     if n > ids.numel():
-        raise ValueError(f"train.initial_trajectories={n} but the training split has {ids.numel()} demonstrations; "
-                         "lower it, or collect more (data.train_envs, data.train_trajectories)")
+        raise ValueError(
+            f"train.initial_trajectories={n} but the training split has {ids.numel()} demonstrations; "
+            "lower it, or collect more (data.train_envs, data.train_trajectories)"
+        )
     pick = torch.randperm(ids.numel(), generator=torch.Generator().manual_seed(int(seed) + 7919))[:n]
     return train.trajectories(ids[pick.sort().values])
 
@@ -168,7 +214,7 @@ def _labelled(ro, aux: Mapping[str, Tensor], env_id: Tensor, expert, first_id: i
     """The expert's q̈ at every finite record of the rollout (a sample the expert cannot evaluate is left out):
     a dataset laid out like demonstrations, trajectory-major."""
     T, B, d = ro.q.shape
-    flat = lambda x: x.transpose(0, 1).reshape(B * T, *x.shape[2:])  # noqa: E731 - trajectory-major
+    flat = lambda x: x.transpose(0, 1).reshape(B * T, *x.shape[2:])
     q, qd = flat(ro.q), flat(ro.qd)
     rep = {k: v.repeat_interleave(T, dim=0) for k, v in aux.items()}
     with torch.no_grad():
@@ -179,9 +225,17 @@ def _labelled(ro, aux: Mapping[str, Tensor], env_id: Tensor, expert, first_id: i
             qdd[finite] = out if isinstance(out, Tensor) else out.qdd
     keep = qdd.isfinite().all(-1)
     traj = first_id + torch.arange(B).repeat_interleave(T)
-    return Dataset(q=q[keep], qd=qd[keep], aux={k: v[keep] for k, v in rep.items()}, qdd=qdd[keep].detach(),
-                   env_id=env_id.repeat_interleave(T)[keep], traj_id=traj[keep], t=ro.times.repeat(B)[keep].to(q),
-                   collided=ro.collided.clone(), success=ro.success.clone())
+    return Dataset(
+        q=q[keep],
+        qd=qd[keep],
+        aux={k: v[keep] for k, v in rep.items()},
+        qdd=qdd[keep].detach(),
+        env_id=env_id.repeat_interleave(T)[keep],
+        traj_id=traj[keep],
+        t=ro.times.repeat(B)[keep].to(q),
+        collided=ro.collided.clone(),
+        success=ro.success.clone(),
+    )
 
 
 @TRAIN_METHODS.register("dagger")
@@ -193,10 +247,14 @@ class DAgger(TrainingMethod):
     @classmethod
     def requirements(cls, params: DAggerParams, env: Env, train_trajectories: int) -> list[tuple[str, str]]:
         if params.initial_trajectories is not None and params.initial_trajectories > train_trajectories:
-            return [("train.initial_trajectories",
-                     f"round 0 would draw {params.initial_trajectories} demonstrations but the training split has "
-                     f"{train_trajectories} (data.train_envs × data.train_trajectories); lower it or collect more "
-                     "(a smoke run on data=tiny: train=dagger_smoke)")]
+            return [
+                (
+                    "train.initial_trajectories",
+                    f"round 0 would draw {params.initial_trajectories} demonstrations but the training split has "
+                    f"{train_trajectories} (data.train_envs × data.train_trajectories); lower it or collect more "
+                    "(a smoke run on data=tiny: train=dagger_smoke)",
+                )
+            ]
         return []
 
     def steps(self, model, ctx, opt, gen) -> Steps:

@@ -17,10 +17,12 @@ The mean policy μ_θ, the tree itself, is what is evaluated and deployed; the L
 runs on it (the Gaussian exploration is no GDS: Theorem 2 covers the mean, not the draws). Held out: the cost of
 the mean policy under the same decisions (σ = 0) from the validation split's starts.
 """
+
 from __future__ import annotations
 
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Any, Callable, Literal, Mapping
+from typing import Any, Literal
 
 import torch
 from pydantic import Field, model_validator
@@ -39,22 +41,30 @@ class PGParams(TrainParams):
     """Episodes per step, the decisions' period and exploration, the task cost."""
 
     method: Literal["pg"] = Field("pg", description="the TRAIN_METHODS entry these settings are for")
-    episodes: int = Field(16, ge=2, description="episodes per step, from training initial states drawn uniformly "
-                                                "(≥ 2: the baseline of one is the others' mean)")
+    episodes: int = Field(
+        16,
+        ge=2,
+        description="episodes per step, from training initial states drawn uniformly "
+        "(≥ 2: the baseline of one is the others' mean)",
+    )
     horizon: float = Field(3.0, gt=0, description="seconds each episode lasts")
     decision_interval: float = Field(0.1, gt=0, description="seconds each drawn acceleration is held")
-    sigma: float = Field(1.0, gt=0, description="standard deviation of the Gaussian around the tree's q̈ "
-                                                "(the unit of q̈)")
+    sigma: float = Field(
+        1.0, gt=0, description="standard deviation of the Gaussian around the tree's q̈ (the unit of q̈)"
+    )
     baseline: Literal["leave_one_out", "none"] = Field(
-        "leave_one_out", description="b_d: the other episodes' mean cost-to-go, or none (0)")
+        "leave_one_out", description="b_d: the other episodes' mean cost-to-go, or none (0)"
+    )
     cost: TaskCost = TaskCost()
 
     @model_validator(mode="after")
     def _whole_decisions(self):
         n = round(self.horizon / self.decision_interval)
         if n < 1 or abs(n * self.decision_interval - self.horizon) > 1e-9 * self.horizon:
-            raise ValueError(f"horizon must be a whole number of decision intervals; given horizon={self.horizon}, "
-                             f"decision_interval={self.decision_interval}")
+            raise ValueError(
+                f"horizon must be a whole number of decision intervals; given horizon={self.horizon}, "
+                f"decision_interval={self.decision_interval}"
+            )
         return self
 
     @property
@@ -62,8 +72,10 @@ class PGParams(TrainParams):
         return round(self.horizon / self.decision_interval)
 
     def describe(self) -> str:
-        return (f"{super().describe()}; {self.episodes} episodes of {self.horizon}s per step, decisions every "
-                f"{self.decision_interval}s, σ={self.sigma}")
+        return (
+            f"{super().describe()}; {self.episodes} episodes of {self.horizon}s per step, decisions every "
+            f"{self.decision_interval}s, σ={self.sigma}"
+        )
 
 
 @dataclass
@@ -79,8 +91,16 @@ class Episode:
     terms: dict[str, float]  # the mean over episodes of each term's sum over the horizon
 
 
-def run_episodes(env: Env, mean: Callable[..., Tensor], q: Tensor, qd: Tensor, aux: Mapping[str, Tensor],
-                 params: PGParams, sigma: float, gen: torch.Generator | None) -> Episode:
+def run_episodes(
+    env: Env,
+    mean: Callable[..., Tensor],
+    q: Tensor,
+    qd: Tensor,
+    aux: Mapping[str, Tensor],
+    params: PGParams,
+    sigma: float,
+    gen: torch.Generator | None,
+) -> Episode:
     """Roll out the Gaussian policy (σ = ``sigma``; 0 for the mean policy) for ``params.decisions`` decisions.
 
     An episode that the simulator ends early (a recorded error, a non-finite state) stops deciding: its state is
@@ -95,8 +115,9 @@ def run_episodes(env: Env, mean: Callable[..., Tensor], q: Tensor, qd: Tensor, a
         a = mu + sigma * torch.randn(mu.shape, generator=gen, dtype=mu.dtype) if sigma > 0 else mu
         ro = env.rollout(lambda *_: a, q, qd, aux, horizon=p.decision_interval, record_every=p.decision_interval)
         parts = rollout_costs(p.cost, ro, final=d == p.decisions - 1)
-        ended = torch.tensor([e is not None for e in ro.error], dtype=torch.bool) if ro.error else \
-            torch.zeros_like(live)
+        ended = (
+            torch.tensor([e is not None for e in ro.error], dtype=torch.bool) if ro.error else torch.zeros_like(live)
+        )
         ok = live & ~ended & ro.q[-1].isfinite().all(-1) & ro.qd[-1].isfinite().all(-1)
         cost = torch.where(ok, total(parts)[0], torch.zeros(()))
         for k, v in parts.items():
@@ -106,8 +127,15 @@ def run_episodes(env: Env, mean: Callable[..., Tensor], q: Tensor, qd: Tensor, a
         qd = torch.where(ok[:, None], ro.qd[-1], torch.zeros_like(qd)).detach()
         live = ok
     stack = {k: torch.stack(v) for k, v in out.items()}
-    return Episode(q=stack["q"], qd=stack["qd"], aux=aux, actions=stack["a"], costs=stack["c"], live=stack["live"],
-                   terms={k: float(v.mean()) for k, v in terms.items()})
+    return Episode(
+        q=stack["q"],
+        qd=stack["qd"],
+        aux=aux,
+        actions=stack["a"],
+        costs=stack["c"],
+        live=stack["live"],
+        terms={k: float(v.mean()) for k, v in terms.items()},
+    )
 
 
 def cost_to_go(costs: Tensor) -> Tensor:
@@ -121,7 +149,7 @@ def surrogate(model: nn.Module, ep: Episode, sigma: float, baseline: str) -> Ten
     D, B, dim = ep.actions.shape
     aux = {k: v.repeat(D, *([1] * (v.dim() - 1))) for k, v in ep.aux.items()}  # decision-major, as the reshape
     mu = model(ep.q.reshape(D * B, dim), ep.qd.reshape(D * B, dim), aux).reshape(D, B, dim)
-    log_prob = -0.5 * ((ep.actions - mu) ** 2).sum(-1) / sigma ** 2  # (D, B), up to a constant
+    log_prob = -0.5 * ((ep.actions - mu) ** 2).sum(-1) / sigma**2  # (D, B), up to a constant
     G = cost_to_go(ep.costs)
     b = (G.sum(1, keepdim=True) - G) / (B - 1) if baseline == "leave_one_out" else torch.zeros_like(G)
     advantage = ((G - b) * ep.live).detach()
@@ -147,8 +175,16 @@ class PGSteps(Steps):
     def step(self, it: int) -> float:
         q0, qd0, aux = self.starts
         idx = torch.randint(q0.shape[0], (self.params.episodes,), generator=self.gen)
-        ep = run_episodes(self.ctx.env, self._mean, q0[idx], qd0[idx], {k: v[idx] for k, v in aux.items()},
-                          self.params, self.params.sigma, self.gen)
+        ep = run_episodes(
+            self.ctx.env,
+            self._mean,
+            q0[idx],
+            qd0[idx],
+            {k: v[idx] for k, v in aux.items()},
+            self.params,
+            self.params.sigma,
+            self.gen,
+        )
         self.opt.zero_grad(set_to_none=True)
         surrogate(self.model, ep, self.params.sigma, self.params.baseline).backward()
         optimizer_step(self.model, self.opt, self.params)

@@ -8,6 +8,7 @@ rmpfusion's finite-difference tests (tests/test_registry_derivatives.py) build i
 (its M and f against the GDS definitions, its analytic curvature against autodiff). A plugin entry without
 examples fails those tests, naming itself.
 """
+
 from __future__ import annotations
 
 import torch
