@@ -5,7 +5,7 @@ PY     := $(VENV)/bin/python
 # CPU machines get the CPU build of torch; a torch already importable in the venv (e.g. CUDA) is kept.
 TORCH_SPEC ?= torch==2.13.0
 
-.PHONY: install demo test test-all bench clean
+.PHONY: install demo test test-all lint docs bench clean
 
 $(VENV)/.installed: pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -25,8 +25,17 @@ test: install  ## the fast test suite (pyproject deselects the tests marked slow
 test-all: install  ## every test, the slow ones too: multiruns, kill/resume runs, plugin pip installs (what CI runs)
 	$(PY) -m pytest -m 'slow or not slow'
 
+lint: install  ## ruff (lint, then the format check) and mypy over the package; settings in pyproject.toml
+	$(VENV)/bin/ruff check rmpfusion tools tests docs/_ext
+	$(VENV)/bin/ruff format --check rmpfusion tools tests docs/_ext
+	$(VENV)/bin/mypy
+
+docs: install  ## the documentation site, strictly: any warning (a broken link or reference) fails the build
+	$(VENV)/bin/sphinx-build -W --keep-going -n -q -b html docs docs/_build/html
+	@echo "docs: docs/_build/html/index.html"
+
 bench: install
 	$(PY) tools/bench.py
 
 clean:
-	rm -rf $(VENV) .pytest_cache
+	rm -rf $(VENV) .pytest_cache docs/_build docs/reference

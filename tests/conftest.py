@@ -22,6 +22,43 @@ torch.set_num_threads(1)
 ROOT = Path(__file__).resolve().parents[1]
 CONF = ROOT / "conf"
 PLUGIN_EXAMPLE = ROOT / "tests" / "plugin_example"
+#: The pages a user reads: README.md first, then every hand-written page of docs/ (the registry reference is
+#: generated when the site is built, docs/_build is the built site). Their code blocks run and their results tables
+#: are checked against results/ wherever a section lives.
+DOC_PAGES = [
+    ROOT / "README.md",
+    *sorted(
+        p
+        for p in (ROOT / "docs").rglob("*.md")
+        if not p.relative_to(ROOT / "docs").parts[0] in ("reference", "_build", "_ext")
+    ),
+]
+
+
+def page_name(page: Path) -> str:
+    """A page as messages name it: its path from the repository root."""
+    return str(page.relative_to(ROOT))
+
+
+def section_of(heading: str) -> tuple[Path, str]:
+    """(page, text) of the section a heading line (e.g. ``# When things go wrong``) starts, on whichever page
+    holds it: its text runs to the next heading of the same or a higher level (lines in code blocks are not
+    headings)."""
+    level = len(heading) - len(heading.lstrip("#"))
+    for page in DOC_PAGES:
+        lines = page.read_text(encoding="utf-8").splitlines(keepends=True)
+        if heading + "\n" not in lines:
+            continue
+        start, fenced = lines.index(heading + "\n") + 1, False
+        for end in range(start, len(lines)):
+            fenced ^= lines[end].startswith("```")
+            hashes = len(lines[end]) - len(lines[end].lstrip("#"))
+            if not fenced and 0 < hashes <= level and lines[end][hashes : hashes + 1] == " ":
+                return page, "".join(lines[start:end])
+        return page, "".join(lines[start:])
+    raise AssertionError(f"no page of the documentation has the heading {heading!r}")
+
+
 #: the smallest run: tiny data and training, a fast evaluation, no wandb
 TINY = ["data=tiny", "train=tiny", "eval=fast", "logger=disabled"]
 

@@ -39,7 +39,7 @@ def test_the_nearest_cubes_are_kept_when_the_set_is_too_small():
     kept = keep_nearest(centres, 3, near)
     assert sorted(kept[:, 0].tolist()) == [3.0, 4.0, 5.0]
     assert keep_nearest(centres, 10, near).shape == (6, 3)
-    members, mask = cloud_members(centres, 0.5, 8)
+    _members, mask = cloud_members(centres, 0.5, 8)
     assert mask.tolist() == [1.0] * 6 + [0.0] * 2
 
 

@@ -85,7 +85,7 @@ def test_every_group_file_is_listed():
 def test_every_config_file_composes_validates_builds(group, option):
     cfg = compose_cfg(_overrides_for(group, option), hydra_cfg=group in ("sweep", "launcher"))
     run = resolve_and_validate(cfg)
-    env, expert, learners = build_all(run)
+    _env, expert, learners = build_all(run)
     assert expert.dim == run.tree.root.dim and learners
     if group == "sweep":
         assert cfg.hydra.sweeper.params, "a sweep recipe must set hydra.sweeper.params"
@@ -101,13 +101,13 @@ def test_every_experiment_validates_and_builds(experiment):
     shape = run.data.shape if experiment == "lasa" else None  # experiment=lasa adds the shape (lasa_Angle)
     suffix = robot or shape
     assert run.name == (experiment if suffix is None else f"{experiment}_{suffix}")
-    env, expert, learners = build_all(run)
+    _env, expert, learners = build_all(run)
     assert set(learners) == set(run.learners)
     assert expert.describe().startswith(run.tree.root.name)
 
 
 def test_without_an_experiment_the_run_is_named_default():
-    """conf/config.yaml's own configuration is not labelled as one of the experiments (issue 14, item 5)."""
+    """conf/config.yaml's own configuration is not labelled as one of the experiments."""
     assert resolve_and_validate(compose_cfg()).name == "default"
     assert (
         resolve_and_validate(compose_cfg(["tree=2d2level", "env=particle2d_2obstacles", "expert=2d2level"])).name

@@ -97,7 +97,7 @@ def test_environments_compute_on_a_chosen_device_and_return_cpu_records():
     for env in (Particle2D(n_obstacles=1), franka_env()):
         assert isinstance(env, ComputesOn) and env.to("cpu") is env
     tree = rmpfusion.build_tree(TWO_LEVEL)
-    q, qd, aux = two_level_inputs(3, torch.Generator().manual_seed(0))
+    _q, _qd, _aux = two_level_inputs(3, torch.Generator().manual_seed(0))
     assert on_device(tree, "cpu") is tree and isinstance(on_device(tree, "meta"), OnDevice)
 
 

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import torch
 import yaml
+from pydantic import ValidationError
 
 pytest.importorskip("pybullet")
 
@@ -220,7 +221,7 @@ def test_registered_params_and_sampling(env):
     assert entry.obj is Manipulator
     p = entry.validate({"mode": "torque", "control_rate": 100, "robot": robot("panda")})
     assert p.mode == "torque" and not p.gui and Manipulator(p).dt == pytest.approx(0.01)
-    with pytest.raises(Exception):
+    with pytest.raises(ValidationError, match="control_hz"):
         entry.validate({"control_hz": 100, "robot": robot("panda")})
     q0, qd0, aux = env.sample(3, 2, seed=5)
     assert q0.shape == (6, 7) and aux["goal"].shape == (6, 3) and aux["obstacle1_radius"].shape == (6, 1)
@@ -254,7 +255,7 @@ def test_execution_metrics_match_the_recorded_path(expert):
         r = env.rollout(expert, q0, torch.zeros_like(q0), aux, horizon=3.0, record_every=env.dt)
     env.close()
     assert bool(r.reached[0])
-    k = int(round(r.time_to_goal.item() / env.dt))  # the record where the execution ended
+    k = round(r.time_to_goal.item() / env.dt)  # the record where the execution ended
     assert r.goal_distance[k, 0] <= env.params.goal_tolerance < r.goal_distance[k - 1, 0]
     torch.testing.assert_close(r.cspace_length[0], (r.q[1 : k + 1, 0] - r.q[:k, 0]).norm(dim=-1).sum())
     torch.testing.assert_close(r.ee_length[0], (r.ee[1 : k + 1, 0] - r.ee[:k, 0]).norm(dim=-1).sum())

@@ -103,7 +103,7 @@ def test_tiny_run_reports_validation_loss_weights_and_online_loss_variants(tmp_p
     assert m["data"]["val"]["points"] == 1 * 2 * 3  # data=tiny: 1 validation environment x 2 trajectories x 3 points
     edges = {"goal", "obstacles", "obstacle1", "obstacle2"}
     assert set(m["expert"]["weights"]) == edges
-    for it, snap in m["learners"]["rmp"]["snapshots"].items():
+    for snap in m["learners"]["rmp"]["snapshots"].values():
         assert snap["val_loss"] > 0
         assert {"online_loss", "online_loss_median", "online_loss_before_collision"} <= set(snap)
         assert set(snap["weights"]) == edges

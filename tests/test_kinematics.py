@@ -139,7 +139,7 @@ def test_jacobian_matches_pybullet(chain, model, bullet, link, offset):
     fkm = make_map(link, offset)
     q = random_q(chain, 20, seed=3)
     J = fkm.jacobian(q)
-    _, _, O, Z = fkm.chain.path_frames(q, link)
+    _, _, _O, Z = fkm.chain.path_frames(q, link)
     Jw = torch.einsum("bki,kn->bin", Z, fkm.select)  # angular Jacobian: world axes of the path joints
     R_in = rpy_matrix(model.link(link).inertial_rpy)
     local = (R_in.T @ torch.tensor(offset, dtype=DT)).tolist()

@@ -1,6 +1,7 @@
 """Learning pipeline: datasets (determinism, tamper detection), learners, behavior cloning with exact resume,
 and the whole 2D experiment end to end on tiny sizes."""
 
+import itertools
 import json
 import os
 from pathlib import Path
@@ -128,7 +129,7 @@ def test_tree_with_weights_names_missing_node_and_copies():
 
 # ------------------------------------------------------------------------------------------ datasets
 def test_dataset_layout_labels_are_expert_accelerations(small_data):
-    env, expert, ds = small_data
+    _env, expert, ds = small_data
     assert len(ds) == 2 * 3 * 5
     assert ds.env_id.tolist() == [i // 15 for i in range(30)]
     assert torch.allclose(ds.t[:5], torch.tensor([0.0, 0.5, 1.0, 1.5, 2.0]))
@@ -394,7 +395,7 @@ def test_cosine_schedule_anneals_and_resumes_exactly(tmp_path, small_data):
     )
     lrs = [learning_rate(cfg, i) for i in range(40)]
     assert lrs[0] == pytest.approx(1e-2) and lrs[-1] == pytest.approx(1e-3)
-    assert all(a >= b for a, b in zip(lrs, lrs[1:]))
+    assert all(a >= b for a, b in itertools.pairwise(lrs))
     a = _learner()
     train(a, ds, cfg, seed=5, checkpoint_dir=tmp_path / "a")
 
@@ -641,7 +642,7 @@ def test_pipeline_end_to_end_2d1level(tmp_path, capsys):
         "learning_curves.png",
     } <= figs
     for f in on_disk["figures"]:
-        assert open(f, "rb").read(8) == b"\x89PNG\r\n\x1a\n"
+        assert Path(f).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert any("learner-rmp/train_loss" in e for e in logged)
     out = capsys.readouterr().out
     assert "collecting train set" in out and "\r" not in out  # plain lines when not a TTY

@@ -225,7 +225,7 @@ def test_a_plugin_method_is_selected_by_its_name_and_runs_in_the_shared_loop(spl
 
 
 def test_a_method_without_what_it_needs_says_so(splits):
-    env, expert, data = splits
+    _env, _expert, data = splits
     with pytest.raises(MethodContextError, match="'dagger' needs env and expert"):
         DAgger(DAggerParams(rounds=1, iterations=2)).train(
             _learner(), MethodContext(data=data, seed=0, interval=0.5, points=5)
@@ -234,7 +234,7 @@ def test_a_method_without_what_it_needs_says_so(splits):
 
 # ------------------------------------------------------------------------------------------ DAgger
 def test_dagger_grows_its_data_by_the_counted_expert_queries_labelled_by_the_expert(splits):
-    env, expert, data = splits
+    _env, expert, data = splits
     params = DAggerParams(
         rounds=2,
         initial_trajectories=4,
@@ -275,7 +275,7 @@ def test_dagger_grows_its_data_by_the_counted_expert_queries_labelled_by_the_exp
 def test_dagger_beta_mixture_blends_the_expert_and_counts_its_calls(splits):
     """β = 1 rolls out the expert itself: its records are the expert's own trajectories, and every policy call of
     the rollouts is counted as an expert call, apart from the labels."""
-    env, expert, data = splits
+    env, expert, _data = splits
     params = DAggerParams(
         rounds=1,
         trajectories_per_round=2,

@@ -267,7 +267,7 @@ def test_every_shape_allocated_up_front_runs_with_none_present():
     """A tree holding a set of every shape a controller may meet, nothing present, is the tree without obstacles."""
     sets = every_shape(n_max=2)
     assert [s.shape for s in sets] == list(SET_SHAPES)
-    q, qd, raw = inputs(ObstacleSet(shape="sphere", n_max=2), B=3, seed=9)
+    q, qd, _raw = inputs(ObstacleSet(shape="sphere", n_max=2), B=3, seed=9)
     gen = torch.Generator().manual_seed(4)
     aux, nodes, shared = (
         {"obstacle_center": 3, "obstacle_radius": 1, **set_dims(sets)},

@@ -152,12 +152,7 @@ def test_theorem_2_and_alignment_on_panda_tool_axis_rollouts():
         tree, rec["q"][::50].flatten(0, 1), rec["qd"][::50].flatten(0, 1), {k: v.repeat(7, 1) for k, v in aux.items()}
     )
     angle = lambda q: torch.acos(
-        (tree.maps["tool"].psi(q, aux) + aux["tool_direction"])
-        .mul(
-            aux["tool_direction"]
-        )
-        .sum(-1)
-        .clamp(-1, 1)
+        (tree.maps["tool"].psi(q, aux) + aux["tool_direction"]).mul(aux["tool_direction"]).sum(-1).clamp(-1, 1)
     )
     start, end = angle(rec["q"][0]), angle(rec["q"][-1])
     assert float(start.min()) > 0.5 and float(end.max()) < 0.15, (start, end)  # from 30-75° to within 9°

@@ -243,7 +243,7 @@ def tree_rollout():
 
 
 def test_tree_rollout_is_safe_stable_and_reaches(tree_rollout):
-    env, tree, aux, r = tree_rollout
+    _env, tree, aux, r = tree_rollout
     B = 16
     assert r.q.shape == (101, B, 2) and r.V.shape == r.dissipation.shape == (101, B)
     assert not r.collided.any()

@@ -34,7 +34,7 @@ def test_stages_one_at_a_time_give_the_metrics_of_one_run(tmp_path):
     splits = collect(exp)
     staged = evaluate_and_report(exp, splits, fit(exp, splits, require_trained=True), started=0.0)
 
-    n, worst, differ, one_sided = compare(whole, staged, rtol=0.0)
+    n, _worst, differ, one_sided = compare(whole, staged, rtol=0.0)
     assert n > 50 and not differ and not one_sided, (differ, one_sided)
     assert set(whole["learners"]) == {"rmp", "un", "un_large"}  # both kinds of learner went through every stage
     assert json.loads((staged_dir / "metrics.json").read_text())["learners"]["rmp"]["resumed_from"] == 3

@@ -9,7 +9,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from conftest import TINY  # and the plugin_site fixture: the example plugin pip-installed
+from conftest import TINY, section_of  # and the plugin_site fixture: the example plugin pip-installed
 
 
 def _cli(site: Path, *args, timeout=300):
@@ -93,9 +93,8 @@ def test_plugin_rmp_in_process(plugin_site, monkeypatch):
 
 
 def _readme_leaf_recipe() -> str:
-    """The README's leaf-RMP plugin code, verbatim, without the line that only lets the README run it twice."""
-    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
-    section = readme[readme.index("## Adding an RMP as a plugin") :]
+    """The plugin tutorial's leaf-RMP code, verbatim, without the line that only lets the page run it twice."""
+    _, section = section_of("# Adding an RMP as a plugin")
     code = section[section.index("```python\n") + len("```python\n") :]
     code = code[: code.index("```")]
     assert "class MySpring(GDS)" in code and "def curvature" not in code  # curvature terms left to autodiff
@@ -167,7 +166,7 @@ def test_readme_leaf_recipe_runs_compiled_at_every_batch_size_like_eager(readme_
 
     from compare_metrics import compare
 
-    n, worst, differ, _ = compare(
+    n, _worst, differ, _ = compare(
         *(json.loads((tmp_path / d / "metrics.json").read_text()) for d in ("compiled", "eager")), rtol=1e-9
     )
     assert n > 20 and not differ, differ

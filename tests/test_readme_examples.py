@@ -1,4 +1,5 @@
-"""Every code block of README.md runs as written, in a fresh process from the repository root (issue 14, item 2).
+"""Every code block of the documentation (README.md and the hand-written pages of docs/) runs as written, in a fresh
+process from the repository root.
 
 * ``python`` blocks: ``python -c <block>`` with the repository root as working directory; nothing is injected, so
   a block that needs a name or a file must say where it comes from.
@@ -15,7 +16,7 @@
   failing validation is what that command prints; the run-directory listing and the source layout are prose.
 
 Nothing is skipped silently: a command that must not run is listed in ``EXCLUDED`` with the reason, every block is
-accounted for (``test_every_block_is_accounted_for``), and an exclusion that no longer matches the README fails.
+accounted for (``test_every_block_is_accounted_for``), and an exclusion that no longer matches a page fails.
 """
 
 from __future__ import annotations
@@ -29,15 +30,17 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
-from conftest import PLUGIN_EXAMPLE, ROOT, compose_cfg
+import yaml
+from conftest import DOC_PAGES, PLUGIN_EXAMPLE, ROOT, compose_cfg, page_name
 from conftest import TINY as TINY_RUN  # and the plugin_site fixture: ``pip install tests/plugin_example``
+
+from rmpfusion.assembly import build_tree
+from rmpfusion.core import RMPTree
 
 try:
     import tomllib
 except ModuleNotFoundError:  # Python 3.10
     tomllib = pytest.importorskip("tomli")
-
-README = ROOT / "README.md"
 
 
 @dataclass(frozen=True)
@@ -45,29 +48,36 @@ class Block:
     lang: str
     text: str
     line: int  # of the opening fence, 1-based
+    page: str = "README.md"  # from the repository root
 
     @property
     def first(self) -> str:
         return self.text.splitlines()[0] if self.text.strip() else ""
 
+    @property
+    def where(self) -> str:
+        return f"{self.page} line {self.line}"
 
-def readme_blocks() -> list[Block]:
-    blocks, lines = [], README.read_text().splitlines(keepends=True)
+
+def page_blocks(page: Path) -> list[Block]:
+    """The fenced blocks of one page; a MyST directive (```{toctree}, ```{include}) is the site's, not code."""
+    blocks, lines = [], page.read_text(encoding="utf-8").splitlines(keepends=True)
     i = 0
     while i < len(lines):
-        m = re.match(r"^```(\w*)\s*$", lines[i])
+        m = re.match(r"^```(\{[\w-]+\}|\w*)", lines[i])
         if not m:
             i += 1
             continue
         j = i + 1
         while not lines[j].startswith("```"):
             j += 1
-        blocks.append(Block(m.group(1), "".join(lines[i + 1 : j]), i + 1))
+        if not m.group(1).startswith("{"):
+            blocks.append(Block(m.group(1), "".join(lines[i + 1 : j]), i + 1, page_name(page)))
         i = j + 1
     return blocks
 
 
-BLOCKS = readme_blocks()
+BLOCKS = [b for page in DOC_PAGES for b in page_blocks(page)]
 
 #: Commands of bash blocks that are not run, and why (matched against the command without its comment).
 EXCLUDED = {
@@ -91,11 +101,15 @@ NOT_COMMANDS = {
     "tests/test_export.py",
 }
 
+#: Background pages whose unlabelled blocks are formulas and folder listings, never commands (every labelled block
+#: on them is checked like any other).
+FORMULA_PAGES = {"docs/math.md", "docs/architecture.md"}
+
 #: Commands that fail on purpose, with their exit status.
 FAILS = {"rmpfusion-validate expert.goal.type=rfb +tree.nodes.goal.rmp.gian=2 tree.nodes.goal.map.origin=gaol": 2}
 
 #: Appended to every command that runs the pipeline (rmpfusion-run, tools/reproduce_2d.py): tiny data, 3 training
-#: steps, evaluation without figures or torch.compile, no wandb. The README's commands stay as written before them.
+#: steps, evaluation without figures or torch.compile, no wandb. The documented commands stay as written before them.
 TINY = [*TINY_RUN, "eval.compile=false"]
 #: Appended to commands on recorded demonstrations (experiment=lasa): 3 training steps, 4 starts, rollouts as long
 #: as the longest demonstration, no figures (the data are the dataset's own: there is nothing to make tiny).
@@ -146,7 +160,7 @@ class Unit:
 
     @property
     def id(self) -> str:
-        return f"L{self.block.line}:{self.cmds[0][:60]}"
+        return f"{self.block.page}:L{self.block.line}:{self.cmds[0][:60]}"
 
     @property
     def needs_plugin(self) -> bool:  # the commands after "pip install tests/plugin_example" use its presets
@@ -198,7 +212,7 @@ def _env(**extra) -> dict:
 
 
 def appended(cmd: str, out: Path) -> list[str]:
-    """What the test adds after the README's command (see the module docstring)."""
+    """What the test adds after the documented command (see the module docstring)."""
     if cmd.startswith("rmpfusion-validate"):
         return [f"hydra.run.dir={out}"]
     if cmd.startswith("python tools/tracking_demo.py"):
@@ -206,7 +220,7 @@ def appended(cmd: str, out: Path) -> list[str]:
     if cmd.startswith("rmpfusion-view"):
         return ["--horizon", "0.1", "--out", str(out / "viewer.html")]  # a tenth of a second of each rollout
     if cmd.startswith("rmpfusion-fit-spheres"):
-        return []  # writes where the README says: under outputs/, which git ignores
+        return []  # writes where the page says: under outputs/, which git ignores
     if cmd.startswith("python tools/reproduce_2d.py"):
         return ["--scale", "0.0005", "--out", str(out), *TINY]  # 10 iterations of each experiment
     if cmd.startswith("python tools/dagger_table.py"):  # 30 iterations, 2 demonstrations per environment
@@ -252,7 +266,7 @@ def appended(cmd: str, out: Path) -> list[str]:
         else:
             extra.append(f"hydra.run.dir={out}")
         return extra
-    raise AssertionError(f"README command {cmd!r} is neither run by this test nor listed in EXCLUDED")
+    raise AssertionError(f"documented command {cmd!r} is neither run by this test nor listed in EXCLUDED")
 
 
 def _following_text_block(block: Block) -> Block:
@@ -266,17 +280,17 @@ def _check_documented_output(out: str, block: Block) -> None:
         pos = 0
         for piece in (p.strip() for p in line.split("...")):
             k = out.find(piece, pos)
-            assert k >= 0, f"README line {line!r}: {piece!r} is not in what the command printed:\n{out}"
+            assert k >= 0, f"{block.where}: {line!r}: {piece!r} is not in what the command printed:\n{out}"
             pos = k + len(piece)
 
 
 # ------------------------------------------------------------------------------------------------- python blocks
-@pytest.mark.parametrize("block", PYTHON, ids=[f"L{b.line}" for b in PYTHON])
+@pytest.mark.parametrize("block", PYTHON, ids=[f"{b.page}:L{b.line}" for b in PYTHON])
 def test_python_block_runs_in_a_fresh_process(block):
     r = subprocess.run(
         [sys.executable, "-c", block.text], cwd=ROOT, capture_output=True, text=True, env=_env(), timeout=600
     )
-    assert r.returncode == 0, f"README.md line {block.line}:\n{r.stdout[-2000:]}\n{r.stderr[-4000:]}"
+    assert r.returncode == 0, f"{block.where}:\n{r.stdout[-2000:]}\n{r.stderr[-4000:]}"
 
 
 # --------------------------------------------------------------------------------------------------- bash blocks
@@ -291,7 +305,7 @@ def _run_unit(unit: Unit, tmp_path: Path, request) -> None:
         r = subprocess.run(["bash", "-c", line], cwd=ROOT, capture_output=True, text=True, env=env, timeout=1800)
         want = FAILS.get(cmd, 0)
         assert r.returncode == want, (
-            f"README.md line {unit.block.line}: `{line}` exited {r.returncode}, expected "
+            f"{unit.block.where}: `{line}` exited {r.returncode}, expected "
             f"{want}\n{r.stdout[-2000:]}\n{r.stderr[-4000:]}"
         )
         if cmd in FAILS:
@@ -319,11 +333,11 @@ def test_every_run_command_composes():
     with Hydra; the plugin's need the plugin, 'glob(*)' is expanded by the sweeper (both run in the slow tests)."""
     runs = [shlex.split(c)[1:] for u in UNITS for c in u.cmds if c.startswith("rmpfusion-run")]
     assert len(runs) >= 10
-    for u in UNITS:  # a folder given by --config-dir is made by the README's own command before it (the robot fit)
+    for u in UNITS:  # a folder given by --config-dir is made by the same block's command before it (the robot fit)
         for c in u.cmds:
             made = [shlex.split(m) for m in u.cmds if m.startswith("rmpfusion-fit-spheres")]
             if "--config-dir" in c and not (ROOT / shlex.split(c)[shlex.split(c).index("--config-dir") + 1]).exists():
-                assert made, f"README: {c!r} reads a --config-dir that no command before it writes"
+                assert made, f"{u.block.where}: {c!r} reads a --config-dir that no command before it writes"
                 subprocess.run(made[0], cwd=ROOT, check=True, capture_output=True, env=_env(), timeout=600)
 
     def one_point(a: str) -> str:
@@ -347,50 +361,56 @@ def _subset(part, whole, where: str) -> None:
             assert k in whole, f"{where}.{k} is not in {PLUGIN_EXAMPLE / 'pyproject.toml'}"
             _subset(v, whole[k], f"{where}.{k}")
     else:
-        assert part == whole, f"{where}: README {part!r} vs plugin {whole!r}"
+        assert part == whole, f"{where}: the page shows {part!r}, the plugin has {whole!r}"
 
 
 def test_toml_blocks_are_the_example_plugins_settings():
-    """The pyproject settings the README shows are those of the plugin that tests/test_plugins.py installs."""
+    """The pyproject settings the plugin tutorial shows are those of the plugin that tests/test_plugins.py installs."""
     plugin = tomllib.loads((PLUGIN_EXAMPLE / "pyproject.toml").read_text())
     tomls = [b for b in BLOCKS if b.lang == "toml"]
     assert len(tomls) >= 2
     for b in tomls:
-        _subset(tomllib.loads(b.text), plugin, f"README.md line {b.line}")
+        _subset(tomllib.loads(b.text), plugin, b.where)
 
 
-def test_yaml_blocks_are_conf_files_or_used_by_a_python_block():
+def test_yaml_blocks_are_conf_files_or_used_by_a_python_block_or_trees_that_build():
     confs = {p: p.read_text() for p in (ROOT / "conf").rglob("*.yaml")}
     for b in (b for b in BLOCKS if b.lang == "yaml"):
         files = [p for p, text in confs.items() if text == b.text]
         users = [p for p in PYTHON if b.text in p.text]
-        assert files or users, (
-            f"README.md line {b.line}: a YAML block that is neither a file of conf/ nor used "
-            "verbatim by a Python block (which runs it)"
+        if files or users:
+            continue
+        spec = yaml.safe_load(b.text)  # a tree shown as an example of the schema: it must build as shown
+        assert isinstance(spec, dict) and "nodes" in spec, (
+            f"{b.where}: a YAML block that is neither a file of conf/, nor used verbatim by a Python block (which "
+            "runs it), nor a tree spec"
         )
+        assert isinstance(build_tree(spec), RMPTree), b.where
 
 
 def test_the_search_path_plugin_shown_is_the_example_plugins_file():
     path = PLUGIN_EXAMPLE / "hydra_plugins" / "rmpfusion_spring" / "searchpath.py"
-    assert any(b.text == path.read_text() for b in PYTHON), f"README shows a different {path.name}"
-    assert not (PLUGIN_EXAMPLE / "hydra_plugins" / "__init__.py").exists()  # the namespace package the README describes
+    assert any(b.text == path.read_text() for b in PYTHON), f"the plugin tutorial shows a different {path.name}"
+    assert not (
+        PLUGIN_EXAMPLE / "hydra_plugins" / "__init__.py"
+    ).exists()  # the namespace package the tutorial describes
 
 
 def test_every_block_is_accounted_for():
-    """Every block is run, checked, or named here as not a command; every exclusion still matches the README."""
+    """Every block is run, checked, or named here as not a command; every exclusion still matches a page."""
     for b in BLOCKS:
-        assert b.lang in ("python", "bash", "yaml", "toml", "text", "cpp", ""), (
-            f"line {b.line}: unknown block {b.lang!r}"
-        )
-        if b.lang in ("text", "cpp", ""):
+        assert b.lang in ("python", "bash", "yaml", "toml", "text", "cpp", ""), f"{b.where}: unknown block {b.lang!r}"
+        if b.lang in ("text", "cpp", "") and b.page not in FORMULA_PAGES:
             assert b.first in NOT_COMMANDS, (
-                f"README.md line {b.line}: a {b.lang or 'plain'} block that is not "
+                f"{b.where}: a {b.lang or 'plain'} block that is not "
                 f"listed in NOT_COMMANDS; if it is a command, make it a bash block"
             )
     cmds = [c for b in BLOCKS if b.lang == "bash" for c in commands(b)]
     assert set(EXCLUDED) <= set(cmds), f"stale exclusions: {set(EXCLUDED) - set(cmds)}"
     assert set(FAILS) <= set(cmds)
-    assert {b.first for b in BLOCKS if b.lang in ("text", "cpp", "")} == set(NOT_COMMANDS)
+    assert {b.first for b in BLOCKS if b.lang in ("text", "cpp", "") and b.page not in FORMULA_PAGES} == set(
+        NOT_COMMANDS
+    )
     run = {c for u in UNITS for c in u.cmds}
     assert set(cmds) == run | set(EXCLUDED)
     for c in run:

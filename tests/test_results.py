@@ -1,6 +1,7 @@
-"""The README's results tables are what the stored runs say: each table backed by results/ is regenerated from the
-metrics.json files there with the table tool that made it and must equal the README's text; every other results
-table is listed in results/tables.yaml as not yet backed, with the commands that would back it."""
+"""The documentation's results tables are what the stored runs say: each table backed by results/ is regenerated
+from the metrics.json files there with the table tool that made it and must equal the page's text (README.md or a page
+of docs/); every other results table is listed in results/tables.yaml as not yet backed, with the commands that would
+back it."""
 
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ from pathlib import Path
 
 import pytest
 import yaml
+from conftest import DOC_PAGES, page_name
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "results"
@@ -28,28 +30,31 @@ RUNS = yaml.safe_load((RESULTS / "runs.yaml").read_text(encoding="utf-8"))
 TOOLS = {"reproduce_2d": reproduce_2d.table, "lasa_table": lasa_table.table_of}
 
 
-def _marked() -> dict[str, tuple[int, str]]:
-    """{id: (first line's index, the table's text)} for every README table a ``<!-- results table: ID -->`` line
-    precedes (blank or prose lines may come between)."""
-    lines = (ROOT / "README.md").read_text(encoding="utf-8").splitlines()
-    out = {}
-    for i, line in enumerate(lines):
-        m = MARKER.match(line)
-        if m:
-            j = i + 1
-            while j < len(lines) and not lines[j].startswith("|"):
-                j += 1
-            k = j
-            while k < len(lines) and lines[k].startswith("|"):
-                k += 1
-            assert m.group(1) not in out, f"two README tables are marked {m.group(1)}"
-            out[m.group(1)] = (j, "\n".join(lines[j:k]) + "\n")
+def _marked() -> dict[str, tuple[str, int, str]]:
+    """{id: (page, first line's index, the table's text)} for every table of the documentation that a
+    ``<!-- results table: ID -->`` line precedes (blank or prose lines may come between)."""
+    out: dict[str, tuple[str, int, str]] = {}
+    for page in DOC_PAGES:
+        lines = page.read_text(encoding="utf-8").splitlines()
+        for i, line in enumerate(lines):
+            m = MARKER.match(line)
+            if m:
+                j = i + 1
+                while j < len(lines) and not lines[j].startswith("|"):
+                    j += 1
+                k = j
+                while k < len(lines) and lines[k].startswith("|"):
+                    k += 1
+                assert m.group(1) not in out, (
+                    f"two tables are marked {m.group(1)}: {page_name(page)} and {out[m.group(1)][0]}"
+                )
+                out[m.group(1)] = (page_name(page), j, "\n".join(lines[j:k]) + "\n")
     return out
 
 
 def readme_tables() -> dict[str, str]:
-    """{id: the table's text} of every marked README table."""
-    return {name: text for name, (_, text) in _marked().items()}
+    """{id: the table's text} of every marked table of the documentation."""
+    return {name: text for name, (_, _, text) in _marked().items()}
 
 
 def stored(run: str) -> dict:
@@ -64,14 +69,16 @@ def test_every_marked_readme_table_is_listed_and_every_listed_table_is_in_the_re
             assert entry["pending"] and all(isinstance(c, str) and c for c in entry["pending"]), name
 
 
-def test_every_results_table_of_the_readme_is_marked():
-    """Every README table with a success, reached or collisions column carries a marker, so none is missed."""
-    lines = (ROOT / "README.md").read_text(encoding="utf-8").splitlines()
-    starts = {start for start, _ in _marked().values()}
-    for i, line in enumerate(lines):
-        first = line.startswith("| ") and (i == 0 or not lines[i - 1].startswith("|"))
-        if first and re.search(r"\b(success|reached|collisions)\b", line):
-            assert i in starts, f"README line {i + 1} starts a results table without a marker: {line[:80]}"
+def test_every_results_table_of_the_documentation_is_marked():
+    """Every table with a success, reached or collisions column carries a marker, so none is missed."""
+    starts = {(page, start) for page, start, _ in _marked().values()}
+    for page in DOC_PAGES:
+        lines = page.read_text(encoding="utf-8").splitlines()
+        for i, line in enumerate(lines):
+            first = line.startswith("| ") and (i == 0 or not lines[i - 1].startswith("|"))
+            if first and re.search(r"\b(success|reached|collisions)\b", line):
+                where = f"{page_name(page)} line {i + 1}"
+                assert (page_name(page), i) in starts, f"{where} starts a results table without a marker: {line[:80]}"
 
 
 @pytest.mark.parametrize("name", [n for n, e in TABLES.items() if "tool" in e])
@@ -95,7 +102,7 @@ def test_every_stored_run_says_how_it_was_made_and_is_used_by_a_table():
                 ["git", "rev-parse", "--is-shallow-repository"], cwd=ROOT, capture_output=True, text=True
             ).stdout.strip()
             assert shallow == "true", f"{run}: commit {info['commit']} is not in this repository"
-        assert run in used, f"results/{run} is stored but no README table reads it"
+        assert run in used, f"results/{run} is stored but no table of the documentation reads it"
 
 
 def test_compare_metrics_finds_a_stored_run_by_its_name():

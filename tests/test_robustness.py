@@ -1,6 +1,6 @@
-"""Robustness (issue #8): one table of bad inputs and faults, each with how it is triggered, what must happen,
+"""Robustness: one table of bad inputs and faults, each with how it is triggered, what must happen,
 and the message a user actually sees. Every row runs as a test; ``python tests/test_robustness.py`` runs them
-all and prints the table as markdown (the README's "When things go wrong" section is that output).
+all and prints the table as markdown (docs/troubleshooting.md, "When things go wrong", is that output).
 
 Rows marked ``known gap`` are strict xfails: they document behaviour that is still wrong (and who can fix it);
 they fail loudly once it is fixed, so the mark is removed with the fix.
@@ -18,6 +18,7 @@ from pathlib import Path
 
 import pytest
 import torch
+from conftest import section_of
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from torch import nn
@@ -682,8 +683,10 @@ for _case, _fault, _trigger, _shows in [
         "missing",
         "dataset file missing",
         "load_dataset on a path that does not exist",
-        "dataset file <dir>/nope.pt does not exist; run the experiment (it collects the data) or point data.cache_dir "
-        "at the directory that holds it",
+        (
+            "dataset file <dir>/nope.pt does not exist; run the experiment (it collects the data) or point data.cache_dir "
+            "at the directory that holds it"
+        ),
     ),
     (
         "truncated",
@@ -701,8 +704,10 @@ for _case, _fault, _trigger, _shows in [
         "flipped-header",
         "dataset damaged (one bit of the structure)",
         "one bit flipped in the pickled header",
-        f"{_DS} is damaged or was not written by rmpfusion: it asks for the Python object <text>, which no file of "
-        f"rmpfusion holds (nothing in it was loaded or run); {_AGAIN}",
+        (
+            f"{_DS} is damaged or was not written by rmpfusion: it asks for the Python object <text>, which no file of "
+            f"rmpfusion holds (nothing in it was loaded or run); {_AGAIN}"
+        ),
     ),
     (
         "foreign",
@@ -832,8 +837,10 @@ for _case, _fault, _trigger, _shows in [
         "missing",
         "checkpoint file missing",
         "load_checkpoint on a path that does not exist",
-        "checkpoint file <dir>/checkpoints/learner-rmp/ckpt-00000099.pt does not exist; run rmpfusion-train first "
-        "(it writes checkpoints/<learner>/ in the run directory)",
+        (
+            "checkpoint file <dir>/checkpoints/learner-rmp/ckpt-00000099.pt does not exist; run rmpfusion-train first "
+            "(it writes checkpoints/<learner>/ in the run directory)"
+        ),
     ),
     (
         "truncated",
@@ -851,16 +858,20 @@ for _case, _fault, _trigger, _shows in [
         "other-model",
         "checkpoint of a different model",
         "resume with a learner of another width",
-        f"checkpoint file {_CK} holds the weights of a different model (net.0.bias: file (4,) vs model (8,), "
-        "net.0.weight: file (4, 4) vs model (8, 4), net.2.weight: file (2, 4) vs model (2, 8)); it was made by another "
-        f"configuration of this learner: use the run directory that made it, or {_RESUME}",
+        (
+            f"checkpoint file {_CK} holds the weights of a different model (net.0.bias: file (4,) vs model (8,), "
+            "net.0.weight: file (4, 4) vs model (8, 4), net.2.weight: file (2, 4) vs model (2, 8)); it was made by another "
+            f"configuration of this learner: use the run directory that made it, or {_RESUME}"
+        ),
     ),
     (
         "other-settings",
         "checkpoint made with different training settings",
         "resume with another learning rate",
-        f"checkpoint {_CK} was made with different training settings (lr: 0.001 vs 0.01); "
-        "delete <dir>/checkpoints/learner-rmp to start over",
+        (
+            f"checkpoint {_CK} was made with different training settings (lr: 0.001 vs 0.01); "
+            "delete <dir>/checkpoints/learner-rmp to start over"
+        ),
     ),
 ]:
     row(f"checkpoint-{_case}", _fault, _trigger, "an error naming the file and what to do", shows=_shows)(
@@ -1139,24 +1150,30 @@ for _id, _fault, _overrides, _shows, _needs in [
         "negative-radius",
         "a negative radius on a tree's distance map",
         ["tree.nodes.obstacle.map.radius=-1"],
-        "tree.nodes.obstacle.map.radius: radius must be > 0 (a sphere of radius ≤ 0 has no surface to keep a distance "
-        "from) or the name of an aux entry; given -1.0",
+        (
+            "tree.nodes.obstacle.map.radius: radius must be > 0 (a sphere of radius ≤ 0 has no surface to keep a distance "
+            "from) or the name of an aux entry; given -1.0"
+        ),
         (),
     ),
     (
         "negative-weight-radius",
         "a negative radius in an expert's weight",
         ["expert.obstacle.radius=-0.5"],
-        "expert.obstacle.radius: radius must be ≥ 0 (0 measures the distance from the centre point; a negative "
-        "radius is no surface) or the name of an aux entry; given -0.5",
+        (
+            "expert.obstacle.radius: radius must be ≥ 0 (0 measures the distance from the centre point; a negative "
+            "radius is no surface) or the name of an aux entry; given -0.5"
+        ),
         (),
     ),
     (
         "negative-index",
         "a negative coordinate in a select map",
         ["tree.nodes.goal.map.type=select", "~tree.nodes.goal.map.origin", "+tree.nodes.goal.map.indices=[-1]"],
-        "tree.nodes.goal.map.indices: indices must be ≥ 0 (the parent's coordinates are numbered from 0; negative "
-        "numbers do not count from the end); given [-1]",
+        (
+            "tree.nodes.goal.map.indices: indices must be ≥ 0 (the parent's coordinates are numbered from 0; negative "
+            "numbers do not count from the end); given [-1]"
+        ),
         (),
     ),
     (
@@ -1170,40 +1187,50 @@ for _id, _fault, _overrides, _shows, _needs in [
         "barrier-never-acts",
         "a barrier whose support ends before it starts",
         ["+tree.nodes.obstacle.rmp.min_distance=2"],
-        "tree.nodes.obstacle.rmp: min_distance must be < r_w (w(x) is evaluated at x ≥ min_distance and is zero from "
-        "r_w on, so the barrier would never act); given min_distance=2.0, r_w=1.0",
+        (
+            "tree.nodes.obstacle.rmp: min_distance must be < r_w (w(x) is evaluated at x ≥ min_distance and is zero from "
+            "r_w on, so the barrier would never act); given min_distance=2.0, r_w=1.0"
+        ),
         (),
     ),
     (
         "hidden-width-zero",
         "a hidden width of 0 in a learner's weight network",
         ["learners.rmp.weights.hidden=[0]"],
-        "learners.rmp.weights.hidden: hidden widths must be ≥ 1 (a layer of width 0 cuts the output off from the "
-        "inputs, so nothing could be learned); given [0]",
+        (
+            "learners.rmp.weights.hidden: hidden widths must be ≥ 1 (a layer of width 0 cuts the output off from the "
+            "inputs, so nothing could be learned); given [0]"
+        ),
         (),
     ),
     (
         "init-bias-below-floor",
         "a weight network asked to start below its floor",
         ["+learners.rmp.weights.init_bias=0.0005"],
-        "learners.rmp.weights: init_bias must be > floor (w = floor + a positive term never reaches floor or below); "
-        "given init_bias=0.0005, floor=0.001",
+        (
+            "learners.rmp.weights: init_bias must be > floor (w = floor + a positive term never reaches floor or below); "
+            "given init_bias=0.0005, floor=0.001"
+        ),
         (),
     ),
     (
         "range-inverted",
         "an environment range with low > high",
         ["+env.obstacle_radius=[1.5,0.5]"],
-        "env.obstacle_radius: obstacle_radius must be (low, high) with low ≤ high (values are drawn uniformly between "
-        "them); given (1.5, 0.5)",
+        (
+            "env.obstacle_radius: obstacle_radius must be (low, high) with low ≤ high (values are drawn uniformly between "
+            "them); given (1.5, 0.5)"
+        ),
         (),
     ),
     (
         "fraction-outside",
         "a fraction outside [0, 1]",
         ["+env.obstacle_along=[0.3,1.5]"],
-        "env.obstacle_along: obstacle_along must lie in [0, 1] (a fraction of the way from the starts to the goal: "
-        "outside it the obstacle is not between them); given (0.3, 1.5)",
+        (
+            "env.obstacle_along: obstacle_along must lie in [0, 1] (a fraction of the way from the starts to the goal: "
+            "outside it the obstacle is not between them); given (0.3, 1.5)"
+        ),
         (),
     ),
     ("zero-dt", "a zero integration step", ["env.dt=0"], "env.dt: Input should be greater than 0 (given: 0)", ()),
@@ -1225,8 +1252,10 @@ for _id, _fault, _overrides, _shows, _needs in [
         "snapshot-beyond-training",
         "a snapshot after the last training iteration",
         ["train.snapshots=[0,30000]"],
-        "train.snapshots: snapshots [30000] lie outside 0..train.iterations=20000 (a snapshot is the learner after "
-        "that many iterations); given [0, 30000]",
+        (
+            "train.snapshots: snapshots [30000] lie outside 0..train.iterations=20000 (a snapshot is the learner after "
+            "that many iterations); given [0, 30000]"
+        ),
         (),
     ),
     (
@@ -1240,17 +1269,21 @@ for _id, _fault, _overrides, _shows, _needs in [
         "dagger-too-few-demonstrations",
         "DAgger asked for more demonstrations than the training split holds",
         ["train=dagger", "data=tiny"],
-        "train.initial_trajectories: round 0 would draw 500 demonstrations but the training split has 4 "
-        "(data.train_envs × data.train_trajectories); lower it or collect more (a smoke run on data=tiny: "
-        "train=dagger_smoke)",
+        (
+            "train.initial_trajectories: round 0 would draw 500 demonstrations but the training split has 4 "
+            "(data.train_envs × data.train_trajectories); lower it or collect more (a smoke run on data=tiny: "
+            "train=dagger_smoke)"
+        ),
         (),
     ),
     (
         "dagger-beta-unused",
         "a β that the DAgger schedule would ignore",
         ["train=dagger", "+train.beta=0.3"],
-        "train: beta is not used by beta_schedule=indicator (β = 0 after round 0); use beta_schedule=exponential or "
-        "constant, or leave beta out; given beta=0.3",
+        (
+            "train: beta is not used by beta_schedule=indicator (β = 0 after round 0); use beta_schedule=exponential or "
+            "constant, or leave beta out; given beta=0.3"
+        ),
         (),
     ),
     (
@@ -1264,53 +1297,65 @@ for _id, _fault, _overrides, _shows, _needs in [
         "apg-not-differentiable",
         "APG asked to back-propagate through a simulator stepped outside torch",
         ["experiment=franka", "train=apg"],
-        "train.method: apg back-propagates through rollouts, which the environment 'Manipulator' does not offer (it is not "
-        "simulated in torch with a differentiable goal distance and clearance); use method pg, or an environment "
-        "such as particle2d",
+        (
+            "train.method: apg back-propagates through rollouts, which the environment 'Manipulator' does not offer (it is not "
+            "simulated in torch with a differentiable goal distance and clearance); use method pg, or an environment "
+            "such as particle2d"
+        ),
         ("pybullet",),
     ),
     (
         "joint-margin-no-room",
         "a joint margin that leaves lower ≥ upper for the starts",
         ["experiment=franka", "env.joint_margin=2.0"],
-        "env.joint_margin: joint_margin must be < half of every joint's range (starts are drawn in [lower + margin, "
-        "upper − margin]); panda_joint2 spans [-1.8326, 1.8326], half of it is 1.833; given 2.0",
+        (
+            "env.joint_margin: joint_margin must be < half of every joint's range (starts are drawn in [lower + margin, "
+            "upper − margin]); panda_joint2 spans [-1.8326, 1.8326], half of it is 1.833; given 2.0"
+        ),
         ("pybullet",),
     ),
     (
         "render-trajectory-missing",
         "a rendered test trajectory that is not collected",
         ["experiment=franka", "env.render_trajectory=20"],
-        "env.render_trajectory: must be < 20, the number of test trajectories (data.test_envs × "
-        "data.test_trajectories, numbered from 0); given 20",
+        (
+            "env.render_trajectory: must be < 20, the number of test trajectories (data.test_envs × "
+            "data.test_trajectories, numbered from 0); given 20"
+        ),
         ("pybullet",),
     ),
     (
         "robot-joint-misspelt",
         "a robot description naming a joint its URDF does not have",
         ["experiment=franka", "env.robot.joints.6=panda_joint_7"],
-        "env.robot: joints[6] = 'panda_joint_7' is not a movable joint of pkg://pybullet_data/franka_panda/panda.urdf; "
-        "did you mean 'panda_joint7', 'panda_joint6', 'panda_joint5'? movable joints: panda_joint1, panda_joint2, "
-        "panda_joint3, panda_joint4, panda_joint5, panda_joint6, panda_joint7, panda_finger_joint1, "
-        "panda_finger_joint2<text>",
+        (
+            "env.robot: joints[6] = 'panda_joint_7' is not a movable joint of pkg://pybullet_data/franka_panda/panda.urdf; "
+            "did you mean 'panda_joint7', 'panda_joint6', 'panda_joint5'? movable joints: panda_joint1, panda_joint2, "
+            "panda_joint3, panda_joint4, panda_joint5, panda_joint6, panda_joint7, panda_finger_joint1, "
+            "panda_finger_joint2<text>"
+        ),
         ("pybullet",),
     ),
     (
         "test-scene-other-shapes",
         "a test scene whose obstacles the training scene's tree cannot measure",
         ["experiment=franka", "scene@env.test_scene=iiwa_box"],
-        "env: test_scene must have the obstacles of the training scene, with the same shapes in the same order, "
-        "each static or moving as there, and a ground plane if and only if it has one (the tree has one distance "
-        "edge per obstacle); training: [('cylinder', 'static')], given: [('box', 'static')]",
+        (
+            "env: test_scene must have the obstacles of the training scene, with the same shapes in the same order, "
+            "each static or moving as there, and a ground plane if and only if it has one (the tree has one distance "
+            "edge per obstacle); training: [('cylinder', 'static')], given: [('box', 'static')]"
+        ),
         ("pybullet",),
     ),
     (
         "retired-environment",
         "a config naming the environment of old, before robots and scenes were data",
         ["experiment=franka", "env.type=franka"],
-        "env.type: 'franka' was retired: the environment 'franka' became 'manipulator', which takes its robot and "
-        "scene from conf/robot/ and conf/scene/; compose the experiment anew (experiment=franka keeps its name and "
-        "protocol)",
+        (
+            "env.type: 'franka' was retired: the environment 'franka' became 'manipulator', which takes its robot and "
+            "scene from conf/robot/ and conf/scene/; compose the experiment anew (experiment=franka keeps its name and "
+            "protocol)"
+        ),
         ("pybullet",),
     ),
 ]:
@@ -1346,8 +1391,10 @@ def _urdf_inverted(tmp_path, monkeypatch):
     urdf.write_text(URDF_INVERTED, encoding="utf-8")
     return validation_issue(
         [
-            f"+tree.nodes.arm={{parent: q, map: {{type: forward_kinematics, robot: null, "
-            f"urdf: '{urdf}', link: tip}}, rmp: {{type: damper}}}}"
+            (
+                f"+tree.nodes.arm={{parent: q, map: {{type: forward_kinematics, robot: null, "
+                f"urdf: '{urdf}', link: tip}}, rmp: {{type: damper}}}}"
+            )
         ]
     )
 
@@ -1381,62 +1428,84 @@ for _id, _fault, _node, _shows, _velocity in [
         "link-axis-zero",
         "a tool axis of zero length",
         f"{{parent: q, map: {{type: link_axis, {_ARM}, link: tip, axis: [0, 0, 0]}}, rmp: {{type: orientation_attractor}}}}",
-        "tree.nodes.leaf.map.axis: axis must be a non-zero vector (it is a direction in the link frame); given "
-        "[0.0, 0.0, 0.0]",
+        (
+            "tree.nodes.leaf.map.axis: axis must be a non-zero vector (it is a direction in the link frame); given "
+            "[0.0, 0.0, 0.0]"
+        ),
         True,
     ),
     (
         "orientation-parallel-axes",
         "two parallel axes for a full orientation",
-        f"{{parent: q, map: {{type: link_orientation, {_ARM}, link: tip, axes: [[1, 0, 0], [-2, 0, 0]]}}, "
-        f"rmp: {{type: orientation_attractor}}}}",
-        "tree.nodes.leaf.map.axes: axes[0] and axes[1] are parallel: they pin the same direction twice; give "
-        "directions that are not parallel; given [[1.0, 0.0, 0.0], [-2.0, 0.0, 0.0]]",
+        (
+            f"{{parent: q, map: {{type: link_orientation, {_ARM}, link: tip, axes: [[1, 0, 0], [-2, 0, 0]]}}, "
+            f"rmp: {{type: orientation_attractor}}}}"
+        ),
+        (
+            "tree.nodes.leaf.map.axes: axes[0] and axes[1] are parallel: they pin the same direction twice; give "
+            "directions that are not parallel; given [[1.0, 0.0, 0.0], [-2.0, 0.0, 0.0]]"
+        ),
         True,
     ),
     (
         "orientation-target-dimension",
         "an orientation target of the wrong dimension",
-        f"{{parent: q, map: {{type: link_orientation, {_ARM}, link: tip, target: goal}}, "
-        f"rmp: {{type: orientation_attractor}}}}",
-        "tree.nodes.leaf.map: link_orientation.target has dimension 2 but target_format 'quaternion_xyzw' with 3 "
-        "axes needs 4; declare the aux entry with 4 numbers or change target_format",
+        (
+            f"{{parent: q, map: {{type: link_orientation, {_ARM}, link: tip, target: goal}}, "
+            f"rmp: {{type: orientation_attractor}}}}"
+        ),
+        (
+            "tree.nodes.leaf.map: link_orientation.target has dimension 2 but target_format 'quaternion_xyzw' with 3 "
+            "axes needs 4; declare the aux entry with 4 numbers or change target_format"
+        ),
         True,
     ),
     (
         "orientation-not-a-rotation",
         "a target matrix that is not a rotation",
-        f"{{parent: q, map: {{type: link_orientation, {_ARM}, link: tip, target_format: matrix, "
-        f"target: [1, 0, 0, 0, 2, 0, 0, 0, 1]}}, rmp: {{type: orientation_attractor}}}}",
-        "tree.nodes.leaf.map: link_orientation.target: [1.0, 0.0, 0.0, 0.0, 2.0, 0.0, 0.0, 0.0, 1.0] is not a "
-        "rotation matrix (rows orthonormal, determinant +1; |R Rᵀ − I| = 3); give the 9 entries of a rotation, row "
-        "by row",
+        (
+            f"{{parent: q, map: {{type: link_orientation, {_ARM}, link: tip, target_format: matrix, "
+            f"target: [1, 0, 0, 0, 2, 0, 0, 0, 1]}}, rmp: {{type: orientation_attractor}}}}"
+        ),
+        (
+            "tree.nodes.leaf.map: link_orientation.target: [1.0, 0.0, 0.0, 0.0, 2.0, 0.0, 0.0, 0.0, 1.0] is not a "
+            "rotation matrix (rows orthonormal, determinant +1; |R Rᵀ − I| = 3); give the 9 entries of a rotation, row "
+            "by row"
+        ),
         True,
     ),
     (
         "self-collision-one-body",
         "self-collision spheres on links that move together",
-        f"{{parent: q, map: {{type: link_sphere_distance, {_ARM}, a: {{link: tip, radius: 0.05}}, "
-        f"b: {{link: tool, radius: 0.05}}}}, rmp: {{type: collision_avoidance}}}}",
-        "tree.nodes.leaf.map: link_sphere_distance: links 'tip' and 'tool' move as one rigid body (no actuated joint "
-        "between them), so the distance of their spheres never changes; pick spheres on links that move relative to "
-        "each other (non_adjacent_link_pairs)",
+        (
+            f"{{parent: q, map: {{type: link_sphere_distance, {_ARM}, a: {{link: tip, radius: 0.05}}, "
+            f"b: {{link: tool, radius: 0.05}}}}, rmp: {{type: collision_avoidance}}}}"
+        ),
+        (
+            "tree.nodes.leaf.map: link_sphere_distance: links 'tip' and 'tool' move as one rigid body (no actuated joint "
+            "between them), so the distance of their spheres never changes; pick spheres on links that move relative to "
+            "each other (non_adjacent_link_pairs)"
+        ),
         True,
     ),
     (
         "velocity-limit-absent",
         "a URDF without joint velocity limits, for a velocity cap",
         f"{{parent: q, map: {{type: velocity_scaled_joints, {_ARM}}}, rmp: {{type: velocity_limit}}}}",
-        "tree.nodes.leaf.map: velocity_scaled_joints: URDF '<dir>/arm.urdf' gives no velocity limit for joints j1, "
-        "j2 (<limit velocity=...> absent or 0); give velocity_limit: one value per actuated joint",
+        (
+            "tree.nodes.leaf.map: velocity_scaled_joints: URDF '<dir>/arm.urdf' gives no velocity limit for joints j1, "
+            "j2 (<limit velocity=...> absent or 0); give velocity_limit: one value per actuated joint"
+        ),
         False,
     ),
     (
         "velocity-limit-count",
         "a velocity cap with one limit too many",
         "{parent: q, map: {type: identity}, rmp: {type: velocity_limit, limit: [1.0, 2.0, 0.5]}}",
-        "tree.nodes.leaf.rmp: velocity_limit.limit has 3 values for a 2-dimensional space; give one value, or one "
-        "per coordinate",
+        (
+            "tree.nodes.leaf.rmp: velocity_limit.limit has 3 values for a 2-dimensional space; give one value, or one "
+            "per coordinate"
+        ),
         True,
     ),
     (
@@ -1450,16 +1519,20 @@ for _id, _fault, _node, _shows, _velocity in [
         "moving-goal-without-velocity",
         "a moving-goal attractor on a plain offset (no goal velocity)",
         "{parent: q, map: {type: offset, origin: goal}, rmp: {type: moving_goal_attractor}}",
-        "tree.nodes.leaf.rmp: 'moving_goal_attractor' reads the output of a 'moving_offset' map, but the map here "
-        "gives plain coordinates; put it under a moving_offset map",
+        (
+            "tree.nodes.leaf.rmp: 'moving_goal_attractor' reads the output of a 'moving_offset' map, but the map here "
+            "gives plain coordinates; put it under a moving_offset map"
+        ),
         True,
     ),
     (
         "moving-offset-plain-leaf",
         "a leaf that reads plain coordinates under a moving_offset map",
         "{parent: q, map: {type: moving_offset, origin: goal, velocity: [0.1, 0.0]}, rmp: {type: goal_attractor}}",
-        "tree.nodes.leaf.rmp: 'goal_attractor' reads plain coordinates but the map gives the output of a "
-        "'moving_offset' map; put a leaf that reads it here, or change the map",
+        (
+            "tree.nodes.leaf.rmp: 'goal_attractor' reads plain coordinates but the map gives the output of a "
+            "'moving_offset' map; put a leaf that reads it here, or change the map"
+        ),
         True,
     ),
 ]:
@@ -2510,12 +2583,10 @@ def markdown_table(messages: dict[str, str]) -> str:
     return "\n".join(lines)
 
 
-def test_readme_documents_every_row():
-    text = (ROOT / "README.md").read_text(encoding="utf-8")
-    assert "## When things go wrong" in text
-    section = text.split("## When things go wrong", 1)[1].split("\n## ", 1)[0]
+def test_the_documentation_lists_every_row():
+    page, section = section_of("# When things go wrong")
     missing = [r.id for r in ROWS if f"| {r.fault.replace('|', chr(92) + '|')} |" not in section]
-    assert not missing, f"README's table lacks rows {missing}; regenerate it with python tests/test_robustness.py"
+    assert not missing, f"{page}'s table lacks rows {missing}; regenerate it with python tests/test_robustness.py"
 
 
 def test_table_rows_are_unique_and_described():

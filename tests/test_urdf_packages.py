@@ -353,10 +353,7 @@ def test_an_srdf_exempts_link_pairs_from_self_collision(fitted, tmp_path):
     srdf.write_text('<robot name="testarm"><disable_collisions link1="link2" link2="link5" reason="Never"/></robot>')
     plain = RobotDescription.model_validate(fitted[0])
     exempt = RobotDescription.model_validate({**fitted[0], "srdf": str(srdf)})
-    links = lambda pairs, d: {
-        frozenset((d.control_points[i - 1].link, d.control_points[j - 1].link))
-        for i, j in pairs
-    }
+    links = lambda pairs, d: {frozenset((d.control_points[i - 1].link, d.control_points[j - 1].link)) for i, j in pairs}
     before, after = links(self_collision_pairs(plain, 2)[0], plain), links(self_collision_pairs(exempt, 2)[0], exempt)
     assert frozenset(("link2", "link5")) in before and before - after == {frozenset(("link2", "link5"))}
     srdf.write_text('<robot name="testarm"><disable_collisions link1="link2" link2="lnk5" reason="Never"/></robot>')

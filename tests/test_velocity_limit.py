@@ -22,7 +22,7 @@ PANDA_LIMITS = torch.tensor([2.175, 2.175, 2.175, 2.175, 2.61, 2.61, 2.61])  # r
 def test_velocity_scaled_joints_divides_by_the_urdfs_limits_or_the_given_ones(gen):
     q, qd = torch.randn(3, 7, generator=gen), torch.randn(3, 7, generator=gen)
     panda = build_map({"type": "velocity_scaled_joints", **PANDA}, 7, {})
-    y, yd, J, c = panda(q, qd)
+    y, yd, _J, c = panda(q, qd)
     torch.testing.assert_close(yd, qd / PANDA_LIMITS)
     torch.testing.assert_close(y, q / PANDA_LIMITS)
     assert float(c.abs().max()) == 0.0

@@ -45,7 +45,7 @@ def test_mlp_stays_positive_for_extreme_outputs(gen):
 
 def test_mlp_init_bias_sets_the_initial_weight(gen):
     w = make("mlp", hidden=[8], init_bias=0.7)
-    val, grad = w(torch.randn(4, 2, generator=gen), aux(4, gen))
+    val, _grad = w(torch.randn(4, 2, generator=gen), aux(4, gen))
     torch.testing.assert_close(val, torch.full((4,), 0.7))
 
 

@@ -385,7 +385,7 @@ def section_batched(compile_: bool) -> None:
             tree.to(dtype)
             args = (q.to(dtype), qd.to(dtype), {k: v.to(dtype) for k, v in aux.items()})
             with torch.no_grad():
-                t = median_time(lambda: tree(*args))
+                t = median_time(lambda args=args: tree(*args))
                 row(
                     "batched",
                     f"eager, {str(dtype)[6:]}, {threads} thread(s)",
@@ -401,7 +401,7 @@ def section_batched(compile_: bool) -> None:
                         warnings.simplefilter("always")
                         tree(*args)
                     failed = any(isinstance(w.message, rmpfusion.core.tree.CompileFallbackWarning) for w in said)
-                    t = median_time(lambda: tree(*args))
+                    t = median_time(lambda args=args: tree(*args))
                     row(
                         "batched",
                         f"torch.compile{' (failed: ran eagerly)' if failed else ''}, {str(dtype)[6:]}, "
@@ -485,13 +485,13 @@ def section_latency(compile_: bool) -> None:
             ("2d2level learner tree", learner.tree, args, None, None),
             ("Franka expert tree (46 nodes)", fr, fargs, 2e-3, 0.3e-3),
         ):
-            t = median_time(lambda: tree(*a))
-            target = dict(target=f"≤ {_fmt_time(eager_target)}", ok=t <= eager_target) if eager_target else {}
+            t = median_time(lambda tree=tree, a=a: tree(*a))
+            target = {"target": f"≤ {_fmt_time(eager_target)}", "ok": t <= eager_target} if eager_target else {}
             row("latency", f"{name}, eager", _fmt_time(t), **target)
             if compile_:
                 ct, t = _compiled_time(tree, a)
                 target = (
-                    dict(target=f"≤ {_fmt_time(compiled_target)}", ok=t <= compiled_target) if compiled_target else {}
+                    {"target": f"≤ {_fmt_time(compiled_target)}", "ok": t <= compiled_target} if compiled_target else {}
                 )
                 row("latency", f"{name}, compiled ({ct:.0f} s)", _fmt_time(t), **target)
     if compile_:
@@ -523,7 +523,7 @@ def _exported_latency(
         t = median_time(lambda: runner(*x))
     compared = {}
     if reference is not None:
-        compared = dict(reference=f"RMPflow numpy {_fmt_time(reference)}", ratio=f"{t / reference:.2f}")
+        compared = {"reference": f"RMPflow numpy {_fmt_time(reference)}", "ratio": f"{t / reference:.2f}"}
     if target is not None:
         compared.update(target=f"≤ {target}", ok=t / reference <= target)
     row("latency", f"{name}, AOTInductor package ({ct:.0f} s, |Δq̈| {err:.0e})", _fmt_time(t), **compared)
@@ -563,7 +563,7 @@ def section_scaling(compile_: bool) -> None:
     for n, B, seed in SCALING_STATES:
         tree, q, qd, a = franka_states(n, B, seed)
         with torch.inference_mode():
-            t = median_time(lambda: tree(q, qd, a), min_time=1.0)
+            t = median_time(lambda tree=tree, q=q, qd=qd, a=a: tree(q, qd, a), min_time=1.0)
             row("scaling", f"{n} obstacle(s), B = {B}, eager", _fmt_time(t), "", "", "")
             if compile_:
                 ct, t = _compiled_time(tree, (q, qd, a))
@@ -750,9 +750,8 @@ def main(argv=None) -> int:
         "platform": platform.platform(),
     }
     try:
-        info["cpu"] = next(
-            line.split(":", 1)[1].strip() for line in open("/proc/cpuinfo") if line.startswith("model name")
-        )
+        cpuinfo = Path("/proc/cpuinfo").read_text().splitlines()
+        info["cpu"] = next(line.split(":", 1)[1].strip() for line in cpuinfo if line.startswith("model name"))
     except (OSError, StopIteration):
         pass
     print("rmpfusion benchmark  " + "  ".join(f"{k}={v}" for k, v in info.items()))

@@ -109,7 +109,8 @@ def read_metrics(path: Path) -> dict:
             "rerun that run (it resumes and writes metrics.json again)"
         ) from None
     if not isinstance(data, dict):
-        raise ValueError(f"{path} holds {type(data).__name__}, not the mapping a metrics.json holds")
+        # ValueError, not TypeError: callers catch ValueError for a bad file, whatever is wrong with it
+        raise ValueError(f"{path} holds {type(data).__name__}, not the mapping a metrics.json holds")  # noqa: TRY004
     return data
 
 

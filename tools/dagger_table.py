@@ -72,9 +72,11 @@ def _lyapunov(r: dict) -> str:
 
 def table(results: dict) -> str:
     rows = [
-        "| learner | method | expert labels | expert calls while acting | validation loss | batch-loss "
-        "| online-loss | online-loss, median | online-loss before first collision | success | collisions "
-        "| V_r monotone | train s |",
+        (
+            "| learner | method | expert labels | expert calls while acting | validation loss | batch-loss "
+            "| online-loss | online-loss, median | online-loss before first collision | success | collisions "
+            "| V_r monotone | train s |"
+        ),
         "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for key, name in LEARNERS.items():

@@ -37,7 +37,7 @@ def config(extra: list[str]):
 
 def curve(run_dir: Path) -> str:
     """The validation cost of the mean policy and the training episodes' cost, from the last checkpoint."""
-    ck = load_checkpoint(sorted((run_dir / "checkpoints" / "rmp").glob("ckpt-*.pt"))[-1])
+    ck = load_checkpoint(max((run_dir / "checkpoints" / "rmp").glob("ckpt-*.pt")))
     train = dict(ck["curve"])
     lines = [
         "| iteration | task cost, validation starts (mean policy) | task cost, training episodes (Gaussian) |",

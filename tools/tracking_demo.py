@@ -103,7 +103,7 @@ def main() -> None:
     args = ap.parse_args()
     torch.set_num_threads(1)
     dt = 0.01
-    steps = int(round(args.seconds / dt))
+    steps = round(args.seconds / dt)
     print(
         f"goal on a circle of radius {args.radius} m at {args.speed} rad/s ({args.radius * args.speed:.3f} m/s); "
         f"end-effector distance to the goal over the last {args.seconds / 2:g} s of {args.seconds:g} s\n"

@@ -32,7 +32,6 @@ from omegaconf import OmegaConf
 from rmpfusion import build_tree
 from rmpfusion.assembly.generated import expand_tree
 from rmpfusion.assembly.weighting import plain_data, tree_with_weights, weights_by_name
-from rmpfusion.pipeline.construct import make_env
 from rmpfusion.pipeline.validate import resolve_and_validate
 from rmpfusion.robots.robot import build_robot
 from rmpfusion.scenes import ObstacleSet, World, set_dims
@@ -64,7 +63,6 @@ def controller():
     with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
         cfg = compose("config", overrides=["experiment=franka"])
     run = resolve_and_validate(cfg)
-    env = make_env(run)
     decl = OmegaConf.to_container(cfg.tree, resolve=True)
     decl["scene"] = {"obstacles": []}  # every obstacle is the world's
     decl["obstacle_sets"] = [s.model_dump(exclude_none=True) for s in SETS]
@@ -124,7 +122,7 @@ def run_demo(compiled: bool = True, seconds: float = 6.0, dt: float = 0.002) -> 
     graphs0 = counters["stats"]["unique_graphs"]
     events, k = schedule(world), 0
     V_prev, rises, clear_w, trace = None, 0, float("inf"), []
-    steps = int(round(seconds / dt))
+    steps = round(seconds / dt)
     for i in range(steps):
         t = i * dt
         while k < len(events) and events[k][0] <= t + 1e-12:
@@ -143,7 +141,7 @@ def run_demo(compiled: bool = True, seconds: float = 6.0, dt: float = 0.002) -> 
         qd = qd + dt / 6 * (k1a + 2 * k2a + 2 * k3a + k4a)
         cw = clearance_to_world(robot, q, world)
         clear_w = min(clear_w, cw)
-        if i % int(round(0.25 / dt)) == 0:
+        if i % round(0.25 / dt) == 0:
             trace.append((round(t, 3), cw, float((tip_of(robot, run, q) - world.goal[0]).norm()), V))
     compiles = counters["stats"]["unique_graphs"] - graphs0 if compiled else None
     return Report(
