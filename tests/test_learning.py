@@ -419,7 +419,7 @@ def test_cosine_schedule_anneals_and_resumes_exactly(tmp_path, small_data):
 
 def _as_before_the_rename(path: Path) -> None:
     """Rewrite a checkpoint as it was written while ``train.lr_final_fraction`` was called ``lr_final``."""
-    from rmpfusion.learn.train import load_checkpoint, save_checkpoint
+    from rmpfusion.learn.checkpoints import load_checkpoint, save_checkpoint
 
     state = load_checkpoint(path)
     payload = {k: v for k, v in state.items() if k not in ("sha256", "format")}
@@ -437,7 +437,7 @@ def test_a_checkpoint_that_stored_lr_final_still_resumes(tmp_path, small_data):
     """``train.lr_final`` was renamed ``lr_final_fraction``: a checkpoint written under the old name resumes to
     the weights of an uninterrupted run, its embedded config still validates (rmpfusion-evaluate-checkpoint),
     and its old value is still compared with the new setting."""
-    from rmpfusion.learn.train import load_checkpoint
+    from rmpfusion.learn.checkpoints import load_checkpoint
     from rmpfusion.pipeline.config import upgrade_run_config
 
     _, _, ds = small_data
@@ -574,7 +574,7 @@ def test_files_stored_before_train_objective_existed_still_resume(tmp_path, smal
     import yaml
 
     from rmpfusion.cli.rundir import RESOLVED, check_same_config
-    from rmpfusion.learn.train import load_checkpoint, save_checkpoint
+    from rmpfusion.learn.checkpoints import load_checkpoint, save_checkpoint
     from rmpfusion.pipeline.config import upgrade_run_config
 
     _, _, ds = small_data
@@ -685,7 +685,7 @@ def test_pipeline_2d2level_structured_and_unstructured(tmp_path):
 def _final_is_a_checksummed_checkpoint(final: Path, last: Path) -> None:
     """``final.pt`` holds the trained learner in the format of every checkpoint: read back through the checksum
     check (an edited weight is refused), with the last checkpoint's weights and the run config."""
-    from rmpfusion.learn.train import CheckpointError, load_checkpoint
+    from rmpfusion.learn.checkpoints import CheckpointError, load_checkpoint
 
     state, ckpt = load_checkpoint(final), load_checkpoint(last)
     assert state["iteration"] == ckpt["iteration"] and state["config"] == ckpt["config"]

@@ -30,7 +30,8 @@ from rmpfusion.core.taskmap import TaskMap
 from rmpfusion.core.tree import NumericalError
 from rmpfusion.envs.demonstrations import Dataset, DatasetError, load_dataset, save_dataset
 from rmpfusion.evaluate.certificate import certify
-from rmpfusion.learn.train import CheckpointError, latest_checkpoint, load_checkpoint, train
+from rmpfusion.learn.checkpoints import CheckpointError, latest_checkpoint, load_checkpoint
+from rmpfusion.learn.train import train
 from rmpfusion.registry import LEAF_RMPS, TASK_MAPS, Params
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -25,7 +25,7 @@ import pytest
 import torch
 import yaml
 
-from rmpfusion.learn.train import latest_checkpoint
+from rmpfusion.learn.checkpoints import latest_checkpoint
 
 REPO = Path(__file__).resolve().parents[1]
 ITERS = 60
