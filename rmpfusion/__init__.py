@@ -4,9 +4,11 @@ Importing the package registers every built-in component, environment and learne
 own package is imported); plugins load on the first registry lookup. docs/architecture.md draws the layers.
 """
 
-from . import envs, learn  # noqa: F401  (the built-in environments and learners register themselves)
-from .assembly import build_tree  # noqa: F401
-from .core import RMPTree, TreeOutput  # noqa: F401
-from .registry import ENVS, LEAF_RMPS, LEARNERS, TASK_MAPS, WEIGHTS  # noqa: F401
+from . import envs, learn  # noqa: F401  (imported to register the built-in environments and learners)
+from .assembly import build_tree
+from .core import RMPTree, TreeOutput
+from .registry import ENVS, LEAF_RMPS, LEARNERS, TASK_MAPS, WEIGHTS
 
 __version__ = "0.1.0"
+
+__all__ = ["ENVS", "LEAF_RMPS", "LEARNERS", "TASK_MAPS", "WEIGHTS", "RMPTree", "TreeOutput", "build_tree"]

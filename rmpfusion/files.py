@@ -132,7 +132,7 @@ def load_error_cause(e: BaseException) -> str:
     if "WeightsUnpickler error:" in msg:
         msg = msg.split("WeightsUnpickler error:", 1)[1]
     lines = [ln.strip() for ln in msg.strip().splitlines() if ln.strip()]
-    first = lines[0] if lines else {EOFError: "the file ends early"}.get(type(e), "no detail")
+    first = lines[0] if lines else ("the file ends early" if type(e) is EOFError else "no detail")
     for cut in (" This is an internal", ". Please use", " was not an allowed global"):
         first = first.split(cut, 1)[0]
     if len(first) > 160:

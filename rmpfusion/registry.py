@@ -11,12 +11,13 @@ examples it is checked on against finite differences (``examples.Example``).
 from __future__ import annotations
 
 import difflib
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from importlib.metadata import entry_points
 from typing import Any, Generic, TypeVar
 
 from pydantic import BaseModel, ConfigDict
+from torch import Tensor
 
 from .examples import Example
 
@@ -30,6 +31,35 @@ class Params(BaseModel):
     is infinite or NaN (a gain or radius of .inf passes ``gt=0`` but means nothing)."""
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+
+#: A tensor holding more numbers than this is shown by its shape in an entry's repr.
+SHOWN_NUMBERS = 12
+
+
+def numbers_repr(values: Mapping[str, object]) -> str:
+    """``name=value, ...``: the ``extra_repr`` of a task map, leaf RMP or weight function, so that ``print(tree)``
+    shows each node's numbers. Python values appear as they were given; a tensor (a buffer, or a learned number's
+    current value) as its numbers to 4 significant digits (a scalar as a float, a small one as a list), or as its
+    shape when it holds more than ``SHOWN_NUMBERS``."""
+    return ", ".join(f"{name}={_shown(value)}" for name, value in values.items())
+
+
+def _shown(value: object) -> str:
+    if not isinstance(value, Tensor):
+        return repr(value)
+    if value.numel() > SHOWN_NUMBERS:
+        return f"tensor(shape={tuple(value.shape)})"
+    return repr(_rounded(value.detach().cpu().tolist()))
+
+
+def _rounded(value: object) -> object:
+    """Floats (nested in lists) to 4 significant digits; integers and booleans as they are."""
+    if isinstance(value, list):
+        return [_rounded(v) for v in value]
+    if isinstance(value, float):
+        return float(f"{value:.4g}")
+    return value
 
 
 class RegistryError(LookupError):
@@ -74,7 +104,8 @@ class Registry(Generic[T]):
     def register(
         self, name: str, params: type[Params] | None = None, examples: Iterable[Example] = ()
     ) -> Callable[[T], T]:
-        """Decorator: register ``obj`` under ``name``; its parameter model is ``params`` or ``obj.Params``.
+        """Decorator: register ``obj`` under ``name``; its parameter model (a ``Params`` subclass) is ``params`` or
+        ``obj.Params``.
 
         ``examples``: the configurations a task map, leaf RMP or weight function is checked on against finite
         differences (``rmpfusion.examples.Example``), declared here so that a plugin ships its own."""
@@ -82,8 +113,11 @@ class Registry(Generic[T]):
 
         def deco(obj: T) -> T:
             model = params if params is not None else getattr(obj, "Params", None)
-            if model is None or not (isinstance(model, type) and issubclass(model, BaseModel)):
-                raise TypeError(f"{self.kind} '{name}' ({_owner_of(obj)}) needs a pydantic Params model")
+            if model is None or not (isinstance(model, type) and issubclass(model, Params)):
+                raise TypeError(
+                    f"{self.kind} '{name}' ({_owner_of(obj)}) needs a Params model: a subclass of "
+                    f"rmpfusion.registry.Params (unknown keys are errors, numbers finite)"
+                )
             wrong = [type(e).__name__ for e in examples if not isinstance(e, Example)]
             if wrong:
                 raise TypeError(

@@ -194,6 +194,7 @@ def test_override_changes_expert_weight():
 BAD = {
     "unknown_type": (["expert.goal.type=rfb"], "expert.goal.type", "did you mean 'rbf'"),
     "unknown_rmp_type": (["tree.nodes.goal.rmp.type=goal_atractor"], "tree.nodes.goal.rmp.type", "goal_attractor"),
+    "type_not_a_name": (["tree.nodes.goal.map.type=[a]"], "tree.nodes.goal.map.type", "unknown task map"),
     "misspelt_key": (["+tree.nodes.goal.rmp.gian=2"], "tree.nodes.goal.rmp.gian", "did you mean 'gain'"),
     "misspelt_top_level": (["+trian.lr=1"], "trian", "did you mean 'train'"),
     "wrong_type": (["train.batch_size=lots"], "train.batch_size", "lots"),

@@ -2,14 +2,17 @@
 (tests/reference_tree.py), in float64 to 1e-12: random trees whose siblings group with a number per member, the
 Franka tree, and plugins' leaves (one that declares how it stacks, with a learned number, and one that does not)."""
 
+import copy
+
 import pytest
 import torch
 from pydantic import Field
 from reference_tree import FIELDS, node_by_node
-from trees import grouping_tree_spec
+from trees import TWO_LEVEL, grouping_tree_spec, two_level_inputs
 
 import rmpfusion
 from rmpfusion.core.gds import GDS
+from rmpfusion.core.groups import Alone
 from rmpfusion.registry import LEAF_RMPS, Params
 
 TOL = 1e-12
@@ -75,6 +78,58 @@ def test_policy_equals_the_full_evaluation_where_only_f_and_m_are_needed():
     q, qd, aux = _inputs(3, 3, 6)
     torch.testing.assert_close(tree.policy(q, qd, aux), node_by_node(tree, q, qd, aux)["qdd"], rtol=TOL, atol=TOL)
     assert not rmpfusion.build_tree(grouping_tree_spec(3)).plan.lean
+
+
+#: Leaves that do not stack (each runs alone as a group of one), with a map each can read.
+UNSTACKED_LEAVES = {
+    "velocity_limit": {"type": "identity"},
+    "moving_goal_attractor": {"type": "moving_offset", "origin": "goal", "velocity": [0.1, -0.2]},
+}
+
+
+@pytest.mark.parametrize("leaf", sorted(UNSTACKED_LEAVES))
+def test_policy_of_constant_weights_with_a_leaf_that_runs_alone_equals_the_full_evaluation(leaf):
+    """Where only f and M are needed, a leaf that does not stack answers them alone (its other fields absent) and
+    ``policy`` still gives the full evaluation's q̈, and the node-by-node one."""
+    spec = {
+        "root": {"name": "x", "dim": 2},
+        "aux": {"goal": 2},
+        "nodes": {
+            "goal": {
+                "parent": "x",
+                "map": {"type": "identity"},
+                "weight": {"type": "constant", "value": 2.0},
+                "rmp": {"type": "goal_attractor"},
+            },
+            "alone": {"parent": "x", "map": UNSTACKED_LEAVES[leaf], "rmp": {"type": leaf}},
+        },
+    }
+    tree = rmpfusion.build_tree(spec)
+    assert tree.plan.lean
+    assert any(isinstance(g.leaf, Alone) for g in tree.plan.groups)  # the case at hand: a leaf run alone
+    q, qd, aux = _inputs(11, 2, 5)
+    aux = {"goal": aux["goal"]}
+    qdd = tree.policy(q, qd, aux)
+    torch.testing.assert_close(qdd, tree(q, qd, aux).qdd, rtol=TOL, atol=TOL)
+    torch.testing.assert_close(qdd, node_by_node(tree, q, qd, aux)["qdd"], rtol=TOL, atol=TOL)
+
+
+@pytest.mark.parametrize("aux_only", [("goal", "obstacles", "o1", "o2"), ("goal", "obstacles", "o1")])
+def test_weights_reading_only_aux_state_across_node_groups_equal_the_node_by_node_computation(aux_only):
+    """Networks that read only aux state (no ∇w, no h_i term) and evaluate as one batch for edges of several node
+    groups: every field as node by node; also where a group's other member (o2) keeps a weight with a gradient."""
+    spec = copy.deepcopy(TWO_LEVEL)
+    for n in aux_only:
+        spec["nodes"][n]["weight"] = {"type": "mlp", "hidden": [4], "aux": ["goal"], "use_config": False}
+    tree = rmpfusion.build_tree(spec)
+    _randomise(tree, 5)
+    shared = [w.edges for w in tree.plan.weights if len(w.edges) > 1]
+    assert shared == [list(aux_only)] and not tree.plan.lean
+    q, qd, aux = two_level_inputs(6, torch.Generator().manual_seed(5))
+    q, qd, aux = q.double(), qd.double(), {k: v.double() for k, v in aux.items()}
+    out = tree(q, qd, aux)
+    assert out.qdd.isfinite().all()
+    _assert_equal(out, node_by_node(tree, q, qd, aux))
 
 
 @pytest.mark.parametrize("n_obstacles", [1, 3])

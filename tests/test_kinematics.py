@@ -1,5 +1,7 @@
 """Panda forward kinematics against pybullet, and the analytic J and J̇ẋ against finite differences / autodiff."""
 
+import re
+
 import numpy as np
 import pytest
 import torch
@@ -81,6 +83,29 @@ def test_parse_errors():
             '<robot name="r"><link name="a"/><link name="b"/>'
             '<joint name="j" type="floating"><parent link="a"/><child link="b"/></joint></robot>'
         )
+
+
+@pytest.mark.parametrize(
+    "link_a, joint, parent, child, message",
+    [
+        ("<link/>", 'name="j"', 'link="a"', 'link="b"', 'URDF <link> has no name="..."'),
+        ('<link name="a"/>', "", 'link="a"', 'link="b"', 'URDF <joint> has no name="..."'),
+        ('<link name="a"/>', 'name="j"', "", 'link="b"', "URDF joint 'j' <parent> has no link=\"...\""),
+        ('<link name="a"/>', 'name="j"', 'link="a"', "", "URDF joint 'j' <child> has no link=\"...\""),
+    ],
+)
+def test_a_link_or_joint_without_the_name_urdf_requires_is_refused_naming_the_element(
+    link_a, joint, parent, child, message
+):
+    """A joint or link without its name, or a joint's parent or child without the link it names, means nothing:
+    the file is refused naming the element, never read with a name of None."""
+    text = (
+        f'<robot name="r">{link_a}<link name="b"/>'
+        f'<joint {joint} type="revolute"><parent {parent}/><child {child}/><axis xyz="0 0 1"/>'
+        '<limit lower="-1" upper="1" effort="1" velocity="1"/></joint></robot>'
+    )
+    with pytest.raises(ValueError, match=re.escape(message)):
+        parse_urdf_string(text)
 
 
 def test_rpy_matches_pybullet():

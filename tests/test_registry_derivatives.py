@@ -28,6 +28,7 @@ from pathlib import Path
 import pytest
 import torch
 from conftest import fd_directional, fd_jacobian
+from pydantic import BaseModel
 
 from rmpfusion.core.gds import GDS, quad
 from rmpfusion.core.taskmap import TaskMap
@@ -138,6 +139,27 @@ def test_examples_must_be_examples():
     with pytest.raises(TypeError, match="examples must be rmpfusion.examples.Example, got dict"):
         reg.register("wrong", examples=[{"gain": 1.0}])(LEAF_RMPS.get("damper").obj)
     assert "wrong" not in reg
+
+
+def test_a_params_model_must_subclass_the_registrys_params():
+    """A plain pydantic model would drop a misspelt key without a word, so an entry whose parameters are one, given
+    to ``register`` or as the class's own ``Params``, is refused naming the base it must subclass."""
+
+    class Loose(BaseModel):
+        gain: float = 1.0
+
+    assert Loose.model_validate({"gian": 2.0}).gain == 1.0  # what registering it would let through
+    reg = Registry("leaf RMP")
+    refused = r"leaf RMP 'loose' \(.*\) needs a Params model: a subclass of rmpfusion\.registry\.Params"
+    with pytest.raises(TypeError, match=refused):
+        reg.register("loose", params=Loose)(LEAF_RMPS.get("damper").obj)
+    with pytest.raises(TypeError, match=refused):
+
+        @reg.register("loose")
+        class LooseLeaf(GDS):
+            Params = Loose
+
+    assert "loose" not in reg
 
 
 def test_the_plugin_example_is_among_the_checked_entries():

@@ -164,6 +164,21 @@ def test_fit_spheres_covers_the_collision_geometry_and_writes_a_description(tmp_
     assert low < 90.0 and "misses" not in said
 
 
+@pytest.mark.parametrize(
+    "tag, given, missing",
+    [("cylinder", 'length="0.4"', "radius"), ("cylinder", 'radius="0.04"', "length"), ("sphere", "", "radius")],
+)
+def test_a_primitive_without_its_size_is_refused_naming_the_link_and_the_attribute(tmp_path, tag, given, missing):
+    """A collision cylinder or sphere lacking a size URDF requires is a ValueError naming the link, the element
+    and the attribute, not a failed conversion of nothing to a number."""
+    from rmpfusion.robots.geometry import link_geometry
+
+    urdf = tmp_path / "arm.urdf"
+    urdf.write_text(ARM_URDF.replace('<cylinder radius="0.04" length="0.4"/>', f"<{tag} {given}/>"))
+    with pytest.raises(ValueError, match=f"link 'upper': <{tag}> has no '{missing}', which URDF requires"):
+        link_geometry(str(urdf))
+
+
 def test_fit_spheres_measures_coverage_on_fresh_samples():
     """Coverage is measured on points the fit never saw: a fit with one small sphere per link cannot score 100 %."""
     from rmpfusion.robots.spheres import covered_by, kmeans

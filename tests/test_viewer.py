@@ -256,6 +256,34 @@ def test_command_draws_a_config_expert_and_unit_weights(tmp_path):
         assert label in html, label
 
 
+def test_command_composes_with_a_config_dir_of_the_users_robot_files(tmp_path):
+    """``--config-dir`` joins the config search path, so ``robot=my_panda`` is found in its robot/ folder and drawn;
+    a folder that is not there, and a run directory (which carries its resolved config), are refused in one line."""
+    (tmp_path / "robot").mkdir()
+    panda = (ROOT / "conf" / "robot" / "panda.yaml").read_text()
+    assert "\nname: panda\n" in panda
+    (tmp_path / "robot" / "my_panda.yaml").write_text(panda.replace("\nname: panda\n", "\nname: my_panda\n"))
+    out = tmp_path / "v.html"
+    r = _view(
+        "--config-dir", str(tmp_path), "experiment=franka", "robot=my_panda", "--horizon", "0.1", "--out", str(out)
+    )
+    assert r.returncode == 0, r.stderr
+    assert "franka (config): my_panda, one test start" in out.read_text()
+    (tmp_path / "not_a_run").mkdir()
+    cases = {
+        ("--config-dir", str(tmp_path / "nowhere"), "experiment=franka"): (
+            f"error: --config-dir {tmp_path / 'nowhere'} is not a folder; give the folder your configs are in"
+        ),
+        ("--config-dir", str(tmp_path), str(tmp_path / "not_a_run")): (
+            "error: --config-dir is for config overrides: a run directory carries its resolved config"
+        ),
+    }
+    for args, message in cases.items():
+        r = _view(*args)
+        assert r.returncode == 2 and message in r.stderr and "Traceback" not in r.stderr, (args, r.stderr)
+        assert len(r.stderr.strip().splitlines()) == 1, r.stderr
+
+
 @pytest.mark.slow
 def test_command_draws_every_snapshot_of_a_trained_run(tmp_path):
     """A tiny Franka run trained for 3 steps: the page holds the expert, the learner at both snapshots (0 and 2)

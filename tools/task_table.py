@@ -81,18 +81,23 @@ def rows(metrics: dict, with_expert: bool) -> list[str]:
     return out
 
 
+def table(runs: dict[str, dict]) -> str:
+    """The markdown table of runs given as {label: metrics}, in that order (the label is the row group's run name:
+    ``tests/test_results.py`` regenerates stored tables from ``results/`` with this function)."""
+    lines = [HEADER, "|" + "---|" * (HEADER.count("|") - 1)]
+    experts: list = []
+    for m in runs.values():
+        expert = next(r for r in m["task_table"] if r["policy"] == "expert")
+        lines += rows(m, with_expert=expert not in experts)
+        experts.append(expert)
+    return "\n".join(lines) + "\n"
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("metrics", nargs="+", type=Path, help="metrics.json of a manipulator run")
     a = ap.parse_args(argv)
-    lines = [HEADER, "|" + "---|" * (HEADER.count("|") - 1)]
-    experts: list = []
-    for path in a.metrics:
-        m = json.loads(path.read_text())
-        expert = next(r for r in m["task_table"] if r["policy"] == "expert")
-        lines += rows(m, with_expert=expert not in experts)
-        experts.append(expert)
-    print("\n".join(lines))
+    print(table({str(path): json.loads(path.read_text()) for path in a.metrics}), end="")
     return 0
 
 

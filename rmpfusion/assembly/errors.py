@@ -121,8 +121,9 @@ def closest(name: str, options: Sequence[str], n: int = 3) -> list[str]:
     """The options a misspelt or habitual ``name`` most likely meant: its usual rmpfusion name first (``HABITS``),
     then those spelt alike."""
     usual = HABITS.get(name.lower())
+    offered = [usual] if usual is not None and usual in options else []
     alike = difflib.get_close_matches(name, list(dict.fromkeys(options)), n=n, cutoff=0.5)
-    return ([usual] if usual in options else []) + [o for o in alike if o != usual][: n - (usual in options)]
+    return offered + [o for o in alike if o != usual][: n - len(offered)]
 
 
 def _unknown_key(e: Mapping[str, Any], model: type | None) -> str:
@@ -178,7 +179,7 @@ def issues_from_pydantic(err: ValidationError, prefix: str, model: type | None =
     return out
 
 
-def allowed_keys_hint(model: type, path: str, issues: list[Issue]) -> list[Issue]:
+def allowed_keys_hint(model: type[BaseModel], path: str, issues: list[Issue]) -> list[Issue]:
     """Append the model's allowed keys to its 'unknown key' issues that do not list them yet."""
     allowed = ", ".join(model.model_fields)
     return [

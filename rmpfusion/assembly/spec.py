@@ -12,9 +12,11 @@ from __future__ import annotations
 
 import difflib
 from collections.abc import Mapping
+from types import GenericAlias
 from typing import Annotated, Any, Literal, Union
 
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Discriminator, Field, Tag, ValidationError, create_model
+from pydantic.config import JsonDict
 from pydantic_core import PydanticCustomError
 
 from ..registry import LEAF_RMPS, TASK_MAPS, WEIGHTS, Params, Registry
@@ -38,7 +40,7 @@ _UNIONS: dict[tuple[int, int, str, str | None], Any] = {}
 
 #: Marks the field a union adds to an entry's model to say which entry a block is (``type``, or ``method`` for
 #: the training block): the union's tag, not one of the entry's parameters (messages never list it as one).
-TAG_FIELD_MARK = {"registry_tag": True}
+TAG_FIELD_MARK: JsonDict = {"registry_tag": True}
 
 
 def spec_model(registry: Registry, name: str, key: str = "type") -> type[Params]:
@@ -47,7 +49,7 @@ def spec_model(registry: Registry, name: str, key: str = "type") -> type[Params]
     entry = registry.get(name)
     cache = (id(entry.params), name, key)
     if cache not in _SPEC_MODELS:
-        _SPEC_MODELS[cache] = create_model(
+        _SPEC_MODELS[cache] = create_model(  # type: ignore[call-overload]  # a field named at run time (``key``)
             f"{entry.params.__name__}Spec",
             __base__=entry.params,
             **{key: (Literal[name], Field(name, json_schema_extra=TAG_FIELD_MARK))},
@@ -93,22 +95,37 @@ def typed_union(registry: Registry, key: str = "type", default: str | None = Non
             )
             return registry_tag(registry, t) if isinstance(t, str) and t in names else None
 
-        union = Union[members] if members else Literal["<nothing registered>"]  # type: ignore[valid-type]
+        # a union of members counted at run time: ``X | Y`` cannot spell it
+        union = Union[members] if members else Literal["<nothing registered>"]  # noqa: UP007
         _UNIONS[cache] = Annotated[
             union,
             _RegistryDiscriminator(
                 tag_of,
                 custom_error_type="registry_type",
                 custom_error_message=f"unknown {registry.kind}",
-                custom_error_context={"registry": registry, "key": key},
+                # pydantic-core's stub allows numbers and strings only; the context carries any object
+                custom_error_context={"registry": registry, "key": key},  # type: ignore[dict-item]
             ),
         ]
     return _UNIONS[cache]
 
 
+class _LoneBlock(BaseModel):
+    """The model a block validated on its own sits in; ``check_typed`` types ``block`` by the registry's union."""
+
+    model_config = ConfigDict(frozen=True)
+    block: Any
+
+
+def name_keyed(values: Any) -> Any:
+    """``dict[str, values]`` for a value type generated at run time (a registry's union), which no static
+    annotation can name."""
+    return GenericAlias(dict, (str, values))
+
+
 def check_typed(spec: Any, registry: Registry, path: str) -> tuple[Any, list[Issue]]:
     """Validate one ``{type: name, **params}`` block on its own; returns (the validated block or None, issues)."""
-    model = create_model("Block", __config__=ConfigDict(frozen=True), block=(typed_union(registry), ...))
+    model = create_model("Block", __base__=_LoneBlock, block=(typed_union(registry), ...))
     try:
         return model.model_validate({"block": spec}).block, []
     except ValidationError as e:
@@ -174,7 +191,9 @@ def weight_field() -> Any:
         return typed
 
     return Annotated[
-        Annotated[typed_union(WEIGHTS), Tag(typed)] | Annotated[SharedWeightRef, Tag(shared)] | Annotated[str, Tag(name)],
+        Annotated[typed_union(WEIGHTS), Tag(typed)]
+        | Annotated[SharedWeightRef, Tag(shared)]
+        | Annotated[str, Tag(name)],
         Discriminator(kind),
         BeforeValidator(_constant_shorthand),
     ]
@@ -212,18 +231,18 @@ def tree_spec_model() -> type[TreeSpec]:
         r.load_plugins()
     key = tuple((id(r), r.version) for r in (TASK_MAPS, WEIGHTS, LEAF_RMPS))
     if key not in _TREE_MODELS:
-        weight = weight_field()
+        weight, leaf_rmp = weight_field(), typed_union(LEAF_RMPS)
         node = create_model(
             "TypedNodeSpec",
             __base__=NodeSpec,
             map=(typed_union(TASK_MAPS), Field(default_factory=lambda: {"type": "identity"}, validate_default=True)),
-            weight=(Union[weight, None], None),
-            rmp=(Union[typed_union(LEAF_RMPS), None], None),
+            weight=(weight | None, None),
+            rmp=(leaf_rmp | None, None),
         )
         _TREE_MODELS[key] = create_model(
             "TypedTreeSpec",
             __base__=TreeSpec,
-            shared_weights=(dict[str, typed_union(WEIGHTS)], Field(default_factory=dict)),
+            shared_weights=(name_keyed(typed_union(WEIGHTS)), Field(default_factory=dict)),
             nodes=(dict[str, node], Field(min_length=1)),
         )
     return _TREE_MODELS[key]

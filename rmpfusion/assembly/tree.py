@@ -2,20 +2,24 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from typing import Any
+from collections.abc import Callable, Mapping
+from typing import Any, TypeVar
 
 import torch
 from torch import nn
 
+from ..core.taskmap import TaskMap
 from ..core.tree import BoundWeight, NodeLabel, RMPTree, TreeLayout, breadth_first
-from ..registry import LEAF_RMPS, TASK_MAPS, WEIGHTS
+from ..core.weight import WeightFunction
+from ..registry import LEAF_RMPS, TASK_MAPS, WEIGHTS, Registry
 from .errors import ConfigError, Issue
 from .leaf_check import leaf_contract_message, leaf_problem
 from .spec import TreeSpec, shared_ref, validate_tree_spec, weight_label
 
+Built = TypeVar("Built")
 
-def _build(registry, block, *args) -> nn.Module:
+
+def _build(registry: Registry[Callable[..., Built]], block: Any, *args: Any) -> Built:
     """The module of a validated block: its entry's class called with the block (its parameter model)."""
     return registry.get(block.type).obj(block, *args)
 
@@ -40,10 +44,10 @@ class _Builder:
         self.leaves_checked: dict[tuple[str, int], str | None] = {}  # (leaf spec, dim) -> its problem, once each
         self.aux = dict(ts.aux)
         self.dims = {ts.root.name: ts.root.dim}
-        self.maps: dict[str, nn.Module] = {}
-        self.weights: dict[str, nn.Module] = {}
+        self.maps: dict[str, TaskMap] = {}
+        self.weights: dict[str, BoundWeight] = {}
         self.rmps: dict[str, nn.Module] = {}
-        self.shared: dict[str, tuple[nn.Module, int]] = {}  # built shared weights and their parent dimension
+        self.shared: dict[str, tuple[WeightFunction, int]] = {}  # built shared weights and their parent dimension
         self.issues: list[Issue] = []
 
     def unused_shared(self) -> None:

@@ -11,6 +11,9 @@ from pydantic import BaseModel
 
 from .errors import ConfigError, Issue
 
+#: A tree spec as the functions here take it: plain data, or validated (a pydantic model, e.g. ``TreeSpec``).
+SpecData = Mapping[str, Any] | BaseModel
+
 
 def plain_data(value: Any) -> Any:
     """A deep, plain-data copy of a spec or block, validated (a pydantic model) or not."""
@@ -19,7 +22,7 @@ def plain_data(value: Any) -> Any:
     return copy.deepcopy(dict(value) if isinstance(value, Mapping) else value)
 
 
-def tree_with_weights(tree_spec: Mapping[str, Any], weights: Mapping[str, Any], where: str = "weights") -> dict:
+def tree_with_weights(tree_spec: SpecData, weights: Mapping[str, Any], where: str = "weights") -> dict:
     """A deep copy of ``tree_spec`` with the named weights in place.
 
     A name is a node (its incoming edge gets that weight spec; ``None`` removes the weight) or an entry of
@@ -57,7 +60,7 @@ def tree_with_weights(tree_spec: Mapping[str, Any], weights: Mapping[str, Any], 
     return spec
 
 
-def weights_by_name(tree_spec: Mapping[str, Any], weights: Mapping[str, Any]) -> dict[str, Any]:
+def weights_by_name(tree_spec: SpecData, weights: Mapping[str, Any]) -> dict[str, Any]:
     """``weights`` (an expert's) with every key that names one of the tree's ``roles`` replaced by the role's members,
     each getting that key's spec; a member also given by its own name keeps that one. Keys that are neither names nor
     roles stay as they are (validation reports them)."""
@@ -74,7 +77,7 @@ def weights_by_name(tree_spec: Mapping[str, Any], weights: Mapping[str, Any]) ->
     return out
 
 
-def own_weights(tree_spec: Mapping[str, Any]) -> list[str]:
+def own_weights(tree_spec: SpecData) -> list[str]:
     """The nodes and shared weights that carry a weight in the tree spec itself (a generator's learnable ones): an
     expert must replace every one, else its tree would keep a randomly initialised network there."""
     spec = plain_data(tree_spec)

@@ -78,7 +78,7 @@ def fail(message: str, code: int = CONFIG_ERROR_EXIT) -> None:
     """Say what went wrong in the user's terms and exit; under ``RMPFUSION_DEBUG=1`` the caller's exception
     propagates instead (see ``debug_enabled``)."""
     if debug_enabled():
-        raise
+        raise  # noqa: PLE0704 - fail is only called while an exception is handled: that one propagates
     print(f"error: {message}", file=sys.stderr)
     sys.exit(code)
 
@@ -141,6 +141,7 @@ def hydra_app(task: Callable[[Any], Any]) -> Callable[[], Any]:
 def plugin_report(e: PluginError) -> str:
     """The plugin's own error and its own frames (where the plugin author must look), not rmpfusion's."""
     cause = e.__cause__
+    assert cause is not None  # the registry raises PluginError from the plugin's own error
     ours = (str(Path(__file__).resolve().parents[1]), "<frozen importlib", os.sep + "importlib" + os.sep)
     frames = [f for f in traceback.extract_tb(cause.__traceback__) if not any(o in f.filename for o in ours)]
     shown = "\n".join(

@@ -5,7 +5,7 @@ checkpoint`` does) and exported with ``torch.export``: a program fixed to the tr
 taking ``(q, q̇, aux entries...)`` for any batch size and returning q̈ (and M, f with ``--with-rmp``). The file is
 checked against the learner before the command ends (every output to 1e-10) and carries its inputs' order and
 sizes (``rmpfusion.json`` inside it). ``--aoti`` also writes an AOTInductor package (compiled code, for a
-control loop in Python or C++; README "Deploying a policy").
+control loop in Python or C++; docs/tutorials/deployment.md).
 
     rmpfusion-export outputs/franka/<time>/checkpoints/rmp/final.pt            # -> rmp-final.pt2 beside it
     python -c "import torch; p = torch.export.load('rmp-final.pt2').module(); print(p(q, qd, *aux))"
@@ -20,8 +20,8 @@ from pathlib import Path
 import torch
 
 from ..files import atomic_path
+from ..learn.checkpoints import CheckpointError, load_checkpoint
 from ..learn.export import METADATA, export_learner, metadata, metadata_text
-from ..learn.train import CheckpointError, load_checkpoint
 from ..pipeline.experiment import prepare
 from ..pipeline.fit import learners
 from ..pipeline.progress import Progress
@@ -47,6 +47,7 @@ def _example(exp, n: int = 4):
 def _check(run_file, learner, q, qd, aux, names, with_rmp: bool) -> float:
     """The largest difference between the written program and the learner on the example states."""
     out = run_file(q, qd, *(aux[n].contiguous() for n in names))
+    expect: tuple[torch.Tensor, ...]
     if with_rmp:
         ref = learner.tree(q, qd, aux)
         expect = (ref.qdd, ref.M, ref.f)
@@ -114,7 +115,7 @@ def _verify(what: str, program, learner, q, qd, aux, names, with_rmp) -> None:
         )
 
 
-def main(argv=None) -> int:
+def main(argv=None) -> int | str | None:
     ap = argparse.ArgumentParser(
         prog="rmpfusion-export", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )

@@ -135,7 +135,10 @@ def _draft_home(args, packages: dict[str, str]) -> list[float]:
     """Mid-range, to validate the description before the spheres exist (a joint the URDF lacks gets 0 here, and
     the description's own check names it with the joints it has)."""
     try:
-        return mid_range(RobotDescription.model_construct(urdf=args.urdf, joints=args.joints, limits={}))
+        # a partial description on purpose (mid_range reads only urdf, joints and limits); pydantic's plugin types
+        # model_construct as if every required field had to be given
+        draft = RobotDescription.model_construct(urdf=args.urdf, joints=args.joints, limits={})  # type: ignore[call-arg]
+        return mid_range(draft)
     except (KeyError, ValueError):
         return [0.0] * len(args.joints)
 

@@ -147,7 +147,7 @@ def evaluate_checkpoint(
 def _figures(exp, test_ds, ro, out: Path, name: str) -> list[Path]:
     """Trajectories and V_r(t) in test environment 0 for planar environments; a render of the first rollout's
     start and end for environments that render (a manipulator)."""
-    q0, qd0, aux0 = test_ds.initial_states()
+    _, _, aux0 = test_ds.initial_states()
     paths: list[Path] = []
     if ro.V is not None:
         paths.append(plot_lyapunov(out / f"lyapunov_{name}.png", ro.times, ro.V, title=f"{name}: $V_r(t)$"))
@@ -177,7 +177,7 @@ def _figures(exp, test_ds, ro, out: Path, name: str) -> list[Path]:
     return paths
 
 
-def main(argv=None) -> int:
+def main(argv=None) -> int | str | None:
     ap = argparse.ArgumentParser(
         prog="rmpfusion-evaluate-checkpoint", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )

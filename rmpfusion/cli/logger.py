@@ -57,7 +57,7 @@ def flat_scalars(tree: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
         key = f"{prefix}{k}"
         if isinstance(v, Mapping):
             out.update(flat_scalars(v, key + "/"))
-        elif isinstance(v, bool) or isinstance(v, str) or isinstance(v, (int, float)) and math.isfinite(v):
+        elif isinstance(v, (bool, str)) or isinstance(v, (int, float)) and math.isfinite(v):
             out[key] = v
     return out
 
@@ -98,19 +98,19 @@ def start(run, run_dir: Path, environment: Mapping[str, Any] | None = None) -> J
     config = {**run.model_dump(mode="json"), "versions": dict(environment or {})}
     # the source commit is in config.versions.git (read from .git); wandb's own git probing is off so no job
     # ever runs git (clusters without it, and no index lock taken in a checkout someone is working in)
-    kwargs = dict(
-        project=lg.project,
-        entity=lg.entity,
-        tags=list(lg.tags),
-        group=lg.group or run.name,
-        name=f"{run.name}-seed{run.seed}",
-        dir=str(run_dir),
-        config=config,
-        id=_run_id(run_dir),
-        resume="allow",
-        reinit=_finish_previous(wandb),
-        settings=wandb.Settings(disable_git=True),
-    )
+    kwargs = {
+        "project": lg.project,
+        "entity": lg.entity,
+        "tags": list(lg.tags),
+        "group": lg.group or run.name,
+        "name": f"{run.name}-seed{run.seed}",
+        "dir": str(run_dir),
+        "config": config,
+        "id": _run_id(run_dir),
+        "resume": "allow",
+        "reinit": _finish_previous(wandb),
+        "settings": wandb.Settings(disable_git=True),
+    }
     try:
         return JobLogger(wandb.init(mode=lg.mode, **kwargs))
     except Exception as e:  # noqa: BLE001 - wandb raises many types for login / network problems

@@ -93,9 +93,10 @@ def _first_job(overrides: list[str], dirs: list[Path]) -> list[str]:
     for o in parsed:
         if o.key_or_group.split("/")[0].split(".")[0] == "hydra" and o.key_or_group != "hydra.searchpath":
             continue
-        if isinstance(o.value(), Glob):
+        value = o.value()
+        if isinstance(value, Glob):
             names = sorted({f.stem for d in dirs for f in (d / o.key_or_group.lstrip("+~")).glob("*.yaml")})
-            chosen = o.value().filter(names)
+            chosen = value.filter(names)
             if chosen:
                 out.append(f"{o.get_key_element()}={chosen[0]}")
             continue
@@ -110,6 +111,7 @@ def _first_job(overrides: list[str], dirs: list[Path]) -> list[str]:
                 )
             out.append(f"{o.get_key_element()}={values[0]}")
         else:
+            assert o.input_line is not None  # the parser keeps every override's text
             out.append(o.input_line)
     return out
 
@@ -160,13 +162,14 @@ def _override_message(
 
 def _inner_key_message(key: str, config: Any) -> str:
     """``train.learning_rate=...``: the block exists, the key in it does not; name the keys it has."""
-    parts, node, where = key.split("."), config, []
+    parts, node = key.split("."), config
+    where: list[str] = []
     for part in parts[:-1]:
         if not hasattr(node, "keys") or part not in node:
             break
         node, where = node[part], where + [part]
     block, missing = ".".join(where), parts[len(where)]
-    options = [str(k) for k in node.keys()] if hasattr(node, "keys") else []
+    options = [str(k) for k in node] if hasattr(node, "keys") else []
     close = closest(missing, options)
     hint = f"did you mean {', '.join(repr(f'{block}.{c}') for c in close)}? " if close else ""
     return (
@@ -219,7 +222,7 @@ def check_command_line(conf_dir: str, argv: list[str]) -> None:
         overrides.append(f"hydra.searchpath=[file://{Path(cmd.config_dir).resolve()}]")
     with initialize_config_dir(config_dir=conf_dir, version_base="1.3"):
         base = functools.cache(lambda: compose("config"))  # the base config: only for messages
-        _compose(overrides, groups, dirs, lambda: list(base().keys()), base)
+        _compose(overrides, groups, dirs, lambda: [str(k) for k in base()], base)
 
 
 def _compose(

@@ -13,6 +13,7 @@ import contextlib
 import datetime as _dt
 import errno
 import logging
+import math
 import os
 import platform
 import re
@@ -70,7 +71,7 @@ def config_diff(old: Any, new: Any, path: str = "") -> list[tuple[str, Any, Any]
             else:
                 out += config_diff(old[k], new[k], sub)
         return out
-    same = old == new or (isinstance(old, float) and isinstance(new, float) and old != old and new != new)  # NaN
+    same = old == new or (isinstance(old, float) and isinstance(new, float) and math.isnan(old) and math.isnan(new))
     return [] if same else [(path, old, new)]
 
 
@@ -88,7 +89,7 @@ def check_same_config(resolved: Mapping[str, Any], run_dir: Path) -> None:
     try:
         old = yaml.safe_load(saved.read_text())
         if not isinstance(old, Mapping):
-            raise ValueError("not a mapping")
+            raise TypeError("not a mapping")
     except Exception as e:
         raise RunDirError(
             f"{run_dir} holds a run whose saved configuration {saved} is unreadable "
@@ -129,8 +130,10 @@ class HydraFiles:
             shutil.copy2(f, keep / f.name)
 
     def restore(self) -> bool:
-        keep = self.dir / "accepted" if self.dir is not None else None
-        if keep is None or not keep.is_dir():
+        if self.dir is None:
+            return False
+        keep = self.dir / "accepted"
+        if not keep.is_dir():
             return False
         for f in self._files():
             if not (keep / f.name).exists():
@@ -216,7 +219,7 @@ def environment(threads: int | None = None) -> dict[str, Any]:
     """What produced a run: interpreter, package versions, source commit, machine and threads."""
     import torch
 
-    packages = {}
+    packages: dict[str, str | None] = {}
     for name in DISTRIBUTIONS:
         try:
             packages[name] = metadata.version(name)
@@ -316,7 +319,7 @@ class JobLog:
 
 def job_log_handlers(run_dir: Path) -> list[logging.Handler]:
     """The file handlers of the root logger that write into ``run_dir`` (Hydra's job logging)."""
-    out = []
+    out: list[logging.Handler] = []
     here = Path(run_dir).resolve()
     for h in logging.getLogger().handlers:
         if isinstance(h, logging.FileHandler) and Path(h.baseFilename).resolve().parent == here:

@@ -2,6 +2,7 @@
 
     rmpfusion-view outputs/franka/<time>          # a trained run: the expert and every learner snapshot
     rmpfusion-view experiment=franka              # a config: the expert and the same tree with unit weights
+    rmpfusion-view --config-dir my_configs experiment=reach robot=my_arm   # a robot file of your own
 
 For a run directory, the environment and the learners are rebuilt from the run's checkpoints (which carry the
 resolved config), each snapshot training kept is loaded into its learner, and every policy is rolled out from
@@ -20,10 +21,11 @@ import torch
 
 from ..assembly.errors import ConfigError
 from ..envs.demonstrations import DatasetError
+from ..envs.manipulator import Manipulator
 from ..learn.checkpoints import CheckpointError, latest_checkpoint, load_checkpoint
 from ..learn.loop import load_snapshot
 from ..pipeline.collect import SPLIT_SEED_OFFSET
-from ..pipeline.config import RunConfig, upgrade_run_config
+from ..pipeline.config import DataConfig, RunConfig, upgrade_run_config
 from ..pipeline.construct import build_unit_weights
 from ..pipeline.experiment import Experiment, prepare
 from ..pipeline.fit import learners
@@ -71,15 +73,20 @@ def _run_config_of_directory(run_dir: Path) -> tuple[RunConfig, dict[str, Path]]
     return run, newest
 
 
-def _run_config_of_overrides(overrides: list[str]) -> RunConfig:
-    """The config Hydra composes from ``overrides`` over conf/, validated as every command validates it."""
+def _run_config_of_overrides(overrides: list[str], config_dir: Path | None = None) -> RunConfig:
+    """The config Hydra composes from ``overrides`` over conf/, validated as every command validates it.
+    ``config_dir`` joins the search path as Hydra's ``--config-dir`` does for the other commands (a robot file of
+    the user's own, ``robot=my_arm`` from ``<config_dir>/robot/my_arm.yaml``)."""
     from hydra import compose, initialize_config_dir
     from hydra.errors import HydraException
     from omegaconf.errors import OmegaConfBaseException
 
+    if config_dir is not None and not config_dir.is_dir():
+        raise ViewError(f"--config-dir {config_dir} is not a folder; give the folder your configs are in")
+    search = [f"hydra.searchpath=[file://{config_dir.resolve()}]"] if config_dir is not None else []
     try:
         with initialize_config_dir(config_dir=conf_dir(), version_base="1.3"):
-            cfg = compose(config_name="config", overrides=overrides)
+            cfg = compose(config_name="config", overrides=[*overrides, *search])
     except (HydraException, OmegaConfBaseException) as e:
         raise ViewError(f"the overrides {' '.join(overrides)} do not compose: {one_line(e)}") from None
     return resolve_and_validate(cfg)
@@ -93,6 +100,18 @@ def _check_manipulator(run: RunConfig) -> None:
         )
 
 
+def _record_interval(run: RunConfig) -> float:
+    """Seconds between the recorded points of a rollout: the demonstrations' ``data.interval``. Recorded
+    demonstrations (``data.source: recorded``) have no such spacing and no expert to roll out, so such a run is
+    refused in words."""
+    if not isinstance(run.data, DataConfig):
+        raise ViewError(
+            f"experiment '{run.name}' learns from recorded demonstrations (data.source=recorded), which have no "
+            "expert to roll out; its figures are the run's figures/"
+        )
+    return run.data.interval
+
+
 # ------------------------------------------------------------------------------------------------ the rollouts
 def _test_start(exp: Experiment):
     """One start of the test split's distribution: the test environments' scene, drawn from the test seed."""
@@ -104,7 +123,7 @@ def _test_start(exp: Experiment):
 def _roll(exp: Experiment, policy, start, label: str) -> tuple[PolicyTrack, torch.Tensor]:
     q0, qd0, aux0 = start
     exp.say.say(f"view: rolling out {label}")
-    ro = exp.env.rollout(policy, q0, qd0, aux0, horizon=exp.horizon, record_every=exp.run.data.interval)
+    ro = exp.env.rollout(policy, q0, qd0, aux0, horizon=exp.horizon, record_every=_record_interval(exp.run))
     return PolicyTrack(label, ro.q[:, 0]), ro.times
 
 
@@ -130,8 +149,8 @@ def _learner_policies(exp: Experiment, checkpoints: dict[str, Path]) -> list[tup
 def _viewing(run: RunConfig, horizon: float | None) -> RunConfig:
     """``run`` as the viewer rolls it out: on the CPU, uncompiled (a few rollouts never repay torch.compile's
     minutes), for ``horizon`` seconds (default the run's evaluation horizon) rounded to whole records."""
-    interval = run.data.interval
-    ev = {"compile": False}
+    interval = _record_interval(run)
+    ev: dict[str, bool | float] = {"compile": False}
     if horizon is not None:
         if not horizon > 0:
             raise ViewError(f"--horizon {horizon}: give a positive number of seconds")
@@ -153,16 +172,21 @@ def view_input(run: RunConfig, run_dir: Path | None, checkpoints: dict[str, Path
     for label, policy in policies:
         track, times = _roll(exp, policy, start, label)
         tracks.append(track)
-    scene = run.env.test_scene or run.env.scene
+    assert times is not None  # the expert is always rolled out
+    # the environment's parameters, not the config's: a laid-out task (env.reach_layout) places and sizes the
+    # obstacles from the arm's kinematics when the environment is built, and the rollouts ran in that scene
+    assert isinstance(exp.env, Manipulator)  # _check_manipulator found the 'manipulator' environment
+    params = exp.env.params
+    scene = params.test_scene or params.scene
     aux0 = {k: v[0] for k, v in start[2].items()}
     source = run_dir if run_dir is not None else "config"
     return ViewerInput(
-        robot=run.env.robot,
+        robot=params.robot,
         scene=scene,
         aux=aux0,
         times=times,
         tracks=tracks,
-        title=f"{run.name} ({source}): {run.env.robot.name}, one test start",
+        title=f"{run.name} ({source}): {params.robot.name}, one test start",
     )
 
 
@@ -177,6 +201,12 @@ def _parse(argv) -> argparse.Namespace:
         type=Path,
         default=None,
         help="the HTML file (default: <run directory>/viewer.html, or viewer-<experiment>.html here)",
+    )
+    ap.add_argument(
+        "--config-dir",
+        type=Path,
+        default=None,
+        help="a folder of configs added to rmpfusion's (your robot files), as the other commands' --config-dir",
     )
     ap.add_argument("--force", action="store_true", help="replace the output file if it exists")
     ap.add_argument("--frames", type=int, default=40, help="at most this many time-slider frames (default 40)")
@@ -201,6 +231,7 @@ def view(
     frames: int = 40,
     horizon: float | None = None,
     progress: bool = True,
+    config_dir: Path | None = None,
 ) -> Path:
     """Write the page for ``target`` (a run directory, or overrides); returns its path."""
     say = Progress(progress)
@@ -209,12 +240,14 @@ def view(
     if not is_directory and (odd := [t for t in target if "=" not in t]):
         raise ViewError(f"{' '.join(odd)}: give one run directory, or config overrides written key=value")
     if is_directory:
+        if config_dir is not None:
+            raise ViewError("--config-dir is for config overrides: a run directory carries its resolved config")
         run_dir = Path(target[0])
         run, checkpoints = _run_config_of_directory(run_dir)
         out = out or run_dir / "viewer.html"
     else:
         run_dir, checkpoints = None, None
-        run = _run_config_of_overrides(target)
+        run = _run_config_of_overrides(target, config_dir)
         out = out or Path(f"viewer-{run.name}.html")
     _refuse_existing(out, force)
     if frames < 2:
@@ -230,7 +263,7 @@ def view(
 def main(argv=None) -> int:
     a = _parse(argv)
     try:
-        view(a.target, a.out, a.force, a.frames, a.horizon)
+        view(a.target, a.out, a.force, a.frames, a.horizon, config_dir=a.config_dir)
     except (ViewError, CheckpointError, DatasetError, ConfigError, RegistryError) as e:
         print(f"error: {one_line(e) if not isinstance(e, ConfigError) else e}", file=sys.stderr)
         return 2

@@ -1,7 +1,21 @@
 """RMP-algebra* and the RMP-tree*: the math every experiment composes."""
 
-from .algebra import Edge, NodeRMP, pullback_star, pushforward, resolve  # noqa: F401
-from .gds import GDS, LeafRMP  # noqa: F401
-from .taskmap import TaskMap  # noqa: F401
-from .tree import RMPTree, TreeOutput  # noqa: F401
-from .weight import WeightFunction  # noqa: F401
+from .algebra import Edge, NodeRMP, pullback_star, pushforward, resolve
+from .gds import GDS, LeafRMP
+from .taskmap import TaskMap
+from .tree import RMPTree, TreeOutput
+from .weight import WeightFunction
+
+__all__ = [
+    "GDS",
+    "Edge",
+    "LeafRMP",
+    "NodeRMP",
+    "RMPTree",
+    "TaskMap",
+    "TreeOutput",
+    "WeightFunction",
+    "pullback_star",
+    "pushforward",
+    "resolve",
+]

@@ -7,7 +7,7 @@ the curvature term c = J̇ẋ is (B, n). Scalars (Phi, L, V, weights) are (B,).
 from __future__ import annotations
 
 import warnings
-from collections.abc import Iterable, MutableMapping
+from collections.abc import Iterable, Iterator, MutableMapping
 from dataclasses import dataclass, fields
 from typing import NamedTuple
 
@@ -37,8 +37,23 @@ class NodeRMP:
         monitors V (``RMPTree.policy``)."""
         return cls(f, M, None, None, None, None, None)
 
-    def items(self):
+    @classmethod
+    def of(cls, values: Iterable[Tensor | None]) -> NodeRMP:
+        """An RMP from its fields in declaration order, as ``items`` gives them; f and M are always present."""
+        f, M, *rest = values
+        assert f is not None and M is not None, "every RMP carries f and M"
+        return cls(f, M, *rest)
+
+    def items(self) -> Iterator[tuple[str, Tensor | None]]:
         return ((f.name, getattr(self, f.name)) for f in fields(self))
+
+    def monitored(self) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
+        """(G, B, Φ, L, V) of an RMP that carries them: every RMP but a lean one."""
+        G, B, Phi, L, V = self.G, self.B, self.Phi, self.L, self.V
+        assert G is not None and B is not None and Phi is not None and L is not None and V is not None, (
+            "a lean RMP (NodeRMP.lean) has f and M only"
+        )
+        return G, B, Phi, L, V
 
 
 class Edge(NamedTuple):
@@ -118,19 +133,20 @@ def edge_contribution(xd: Tensor, edge: Edge, child: NodeRMP) -> NodeRMP:
     M = pull.matrix(child.M)
     if child.G is None:
         return NodeRMP.lean(f, M)
+    G, B, Phi, L, V = child.monitored()
     if gw is not None:
         # h_i uses the child's G_i and L_i unweighted (paper eq. 6): Jᵀ G_i (J ẋ) = Jᵀ G_i ẏ
-        Gyd = matvec(child.G, yd)
+        Gyd = matvec(G, yd)
         JtGyd = Gyd if identity else _jt(J, Gyd)
-        f = f + child.L[..., None] * gw - (xd * gw).sum(-1, keepdim=True) * JtGyd
+        f = f + L[..., None] * gw - (xd * gw).sum(-1, keepdim=True) * JtGyd
     return NodeRMP(
         f=f,
         M=M,
-        G=pull.matrix(child.G),
-        B=pull.matrix(child.B),
-        Phi=pull.scalar(child.Phi),
-        L=pull.scalar(child.L),
-        V=pull.scalar(child.V),
+        G=pull.matrix(G),
+        B=pull.matrix(B),
+        Phi=pull.scalar(Phi),
+        L=pull.scalar(L),
+        V=pull.scalar(V),
     )
 
 
@@ -138,7 +154,7 @@ def add_rmps(a: NodeRMP | None, b: NodeRMP) -> NodeRMP:
     """Field-wise sum of two RMPs (a None: b); a field either lacks is left out (lean RMPs carry f and M only)."""
     if a is None:
         return b
-    return NodeRMP(*(None if x is None or y is None else x + y for (_, x), (_, y) in zip(a.items(), b.items())))
+    return NodeRMP.of(None if x is None or y is None else x + y for (_, x), (_, y) in zip(a.items(), b.items()))
 
 
 def pullback_star(xd: Tensor, children: Iterable[tuple[Edge, NodeRMP]]) -> NodeRMP:
@@ -146,7 +162,7 @@ def pullback_star(xd: Tensor, children: Iterable[tuple[Edge, NodeRMP]]) -> NodeR
 
     With every weight None (constant 1) this is exactly RMPflow's pullback, plus the carried G, B, Φ, L, V.
     """
-    total = None
+    total: NodeRMP | None = None
     for edge, child in children:
         total = add_rmps(total, edge_contribution(xd, edge, child))
     if total is None:

@@ -34,5 +34,5 @@ def second_directional(fn: Callable[[Tensor], Tensor], x: Tensor, v: Tensor) -> 
 
 def gradient(fn: Callable[[Tensor], Tensor], x: Tensor) -> Tensor:
     """Per-sample gradient (..., m) of a scalar-per-sample fn: (..., m) -> (...)."""
-    out, pull = vjp(fn, x)
+    out, pull = vjp(fn, x)[:2]  # (output, vjp function): torch's return type also covers has_aux's third item
     return pull(torch.ones_like(out))[0]

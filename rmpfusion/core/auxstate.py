@@ -11,12 +11,11 @@ YAML number is rounded at most once, to the dtype the tree computes in.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from typing import Union
 
 import torch
 from torch import Tensor, nn
 
-AuxOrValue = Union[str, float, Sequence[float]]
+AuxOrValue = str | float | Sequence[float]
 AuxDict = Mapping[str, Tensor]
 
 CONSTANT_DTYPE = torch.float64  # what every registered class builds its constants in (build_tree casts after)
@@ -30,6 +29,8 @@ def constant(value) -> Tensor:
 
 class AuxParam(nn.Module):
     """A constant buffer or a reference to an aux entry; ``dim`` is known at build time."""
+
+    const: Tensor | None  # the constant's buffer; None exactly when ``name`` reads an aux entry
 
     def __init__(self, value: AuxOrValue, aux_dims: Mapping[str, int], what: str):
         super().__init__()
@@ -50,6 +51,7 @@ class AuxParam(nn.Module):
     def forward(self, aux: AuxDict | None) -> Tensor:
         """(B, k) for aux, (k,) for a constant: both broadcast against a (B, k) coordinate."""
         if self.name is None:
+            assert self.const is not None, "a parameter without an aux name is a constant"
             return self.const
         if aux is None or self.name not in aux:
             raise KeyError(f"aux state '{self.name}' is required by this tree but was not passed")
@@ -66,7 +68,7 @@ class AuxParam(nn.Module):
         return other
 
     def extra_repr(self) -> str:
-        return f"aux={self.name!r}" if self.name else f"const={self.const.tolist()}"
+        return f"aux={self.name!r}" if self.const is None else f"const={self.const.tolist()}"
 
 
 class StackedAux(nn.Module):
@@ -74,6 +76,9 @@ class StackedAux(nn.Module):
     or constant (docs/math.md §9). Where every member reads the same entry it stays ``(1, B, k)``, and where every
     member has a constant it is ``(G, 1, k)`` (``(1, 1, k)`` if they are all equal): both broadcast against
     ``(G, B, k)`` without copies. The aux entries a group reads are gathered with one ``stack`` and one index."""
+
+    consts: Tensor | None  # the members' constants, stacked; None when every member reads an aux entry
+    index: Tensor | None  # member g's row among [aux entries, constants]; None when the rows are already in order
 
     def __init__(self, params: Sequence[AuxParam]):
         super().__init__()
@@ -84,7 +89,7 @@ class StackedAux(nn.Module):
         self.size = len(params)
         names = [p.name for p in params]
         self.names = list(dict.fromkeys(n for n in names if n is not None))  # each entry read once, in order
-        consts = [p.const for p in params if p.name is None]
+        consts = [p.const for p in params if p.const is not None]  # the members without an aux name
         self.register_buffer("consts", torch.stack(consts) if consts else None, persistent=False)
         if consts and len(consts) == len(params) and len({p.values for p in params}) == 1:
             self.register_buffer("consts", consts[0].unsqueeze(0), persistent=False)
@@ -101,6 +106,7 @@ class StackedAux(nn.Module):
 
     def forward(self, aux: AuxDict | None) -> Tensor:
         if not self.names:  # constants only: (G or 1, 1, k)
+            assert self.consts is not None, "members without aux names all have constants"
             return self.consts.unsqueeze(1)
         if aux is None or any(n not in aux for n in self.names):
             missing = [n for n in self.names if aux is None or n not in aux]

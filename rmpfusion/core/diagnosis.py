@@ -67,7 +67,7 @@ def _first_nonfinite(named) -> str | None:
 
 def bad_input(q: Tensor, qd: Tensor, aux: Mapping[str, Tensor] | None, declared: Sequence[str]) -> Diagnosis | None:
     """A non-finite state or aux entry (only the entries the tree reads can be the cause)."""
-    inputs = [("q", q), ("qd", qd), *((f"aux['{k}']", aux[k]) for k in (aux or {}) if k in declared)]
+    inputs = [("q", q), ("qd", qd), *((f"aux['{k}']", t) for k, t in (aux or {}).items() if k in declared)]
     bad = _first_nonfinite(inputs)
     if bad is None:
         return None

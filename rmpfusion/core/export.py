@@ -18,6 +18,7 @@ from torch import Tensor, nn
 
 from .algebra import lu_solve
 from .passes import evaluate
+from .tree import RMPTree
 
 
 def _solved(a: Tensor, M: Tensor, f: Tensor, good: Tensor) -> Tensor:
@@ -31,7 +32,7 @@ def _pinv_where_singular(a: Tensor, M: Tensor, f: Tensor, good: Tensor) -> Tenso
 class TreeProgram(nn.Module):
     """``forward(q, q̇, *aux)`` with the aux entries in ``aux_names`` order: q̈, or (q̈, M, f) with ``with_rmp``."""
 
-    def __init__(self, tree: nn.Module, aux_names: Sequence[str], with_rmp: bool = False):
+    def __init__(self, tree: RMPTree, aux_names: Sequence[str], with_rmp: bool = False):
         super().__init__()
         self.tree = tree
         self.aux_names = list(aux_names)
@@ -58,11 +59,11 @@ def export_policy(
 
 
 def export_tree(
-    tree: nn.Module, q: Tensor, qd: Tensor, aux: Mapping[str, Tensor], aux_names: Sequence[str], with_rmp: bool = False
+    tree: RMPTree, q: Tensor, qd: Tensor, aux: Mapping[str, Tensor], aux_names: Sequence[str], with_rmp: bool = False
 ) -> torch.export.ExportedProgram:
     """The tree's policy exported for any batch size, traced at the example state (q, q̇, aux) (B ≥ 2, so the batch
     dimension is not specialised to 1). ``aux_names``: the aux entries the program takes, in order."""
     if q.shape[0] < 2:
         raise ValueError("export_tree traces at an example batch of at least 2 states (1 would fix the batch size)")
-    tree.plan  # planned before tracing
+    _ = tree.plan  # planned before tracing
     return export_policy(TreeProgram(tree, aux_names, with_rmp).eval(), q, qd, aux, aux_names)

@@ -17,15 +17,22 @@ from __future__ import annotations
 
 from collections.abc import Callable, Hashable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Generic, Protocol, TypeVar
 
 import torch
 from torch import Tensor, nn
 
 from .algebra import NodeRMP
+from .gds import LeafRMP
 from .layout import TreeLayout, levels
+from .stacking import Stackable
+from .taskmap import TaskMap
+from .weight import BoundWeight
 
 ROOT = -1  # the source id of the root's state
+
+M = TypeVar("M", bound=nn.Module)
+S = TypeVar("S", bound=Stackable)
 
 
 def _unsqueezed(out: Any) -> Any:
@@ -33,28 +40,37 @@ def _unsqueezed(out: Any) -> Any:
     if isinstance(out, Tensor):
         return out.unsqueeze(0)
     if isinstance(out, NodeRMP):
-        return NodeRMP(*(v.unsqueeze(0) for _, v in out.items()))
+        return NodeRMP.of(None if v is None else v.unsqueeze(0) for _, v in out.items())  # a lean one stays lean
     if isinstance(out, tuple):
         return tuple(_unsqueezed(o) for o in out)
     return out
 
 
-class Alone:
+class Alone(Generic[M]):
     """A module that runs on its own, seen as a group of one: inputs ``(1, B, ...)`` go in as ``(B, ...)`` and
     its outputs come back ``(1, B, ...)``. Not an ``nn.Module``: the tree already owns the module."""
 
-    def __init__(self, module: nn.Module):
+    def __init__(self, module: M):
         self.module = module
 
     def __call__(self, *args: Any) -> Any:
         return _unsqueezed(self.module(*(a[0] if isinstance(a, Tensor) else a for a in args)))
 
-    def force(self, y: Tensor, yd: Tensor) -> NodeRMP:
+    def force(self: Alone[LeafRMP], y: Tensor, yd: Tensor) -> NodeRMP:
         """A leaf's natural form only (``LeafRMP.force``)."""
         return _unsqueezed(self.module.force(y[0], yd[0]))
 
 
-def stacked(modules: Sequence[nn.Module], like: Tensor) -> Callable:
+class LeafGroup(Protocol):
+    """What pullback* calls on a node group's leaves, each ``(G, B, ...)``: their RMPs, or only their natural
+    forms (``LeafRMP.force``)."""
+
+    def __call__(self, y: Tensor, yd: Tensor) -> NodeRMP: ...
+
+    def force(self, y: Tensor, yd: Tensor) -> NodeRMP: ...
+
+
+def stacked(modules: Sequence[S], like: Tensor) -> Alone[S] | S | nn.Module:
     """One callable evaluating every module on ``(G, B, ...)`` inputs (stacked values in ``like``'s dtype and
     device). A single module that stacks takes such inputs itself (its numbers broadcast against any leading
     dimensions); one that does not runs ``Alone``."""
@@ -63,6 +79,11 @@ def stacked(modules: Sequence[nn.Module], like: Tensor) -> Callable:
     if len(modules) == 1:
         return modules[0]
     return type(modules[0]).stacked(modules, like)
+
+
+def stacked_leaves(leaves: Sequence[LeafRMP], like: Tensor) -> LeafGroup:
+    """``stacked`` for leaves, whose groups also answer ``force``: a leaf, a leaf ``Alone``, or a class's group."""
+    return stacked(leaves, like)  # type: ignore[return-value]  # a class's group is a bare nn.Module to mypy
 
 
 @dataclass
@@ -150,7 +171,7 @@ class Group:
     nodes: list[str]
     parent: Rows  # the members' parents' states (one source: the parent group, or the root)
     map: Callable  # (x, ẋ, aux) -> (y, ẏ, J, J̇ẋ), each (G, B, ...)
-    leaf: Callable | None  # (y, ẏ) -> NodeRMP (G, B, ...); None: inner nodes, whose RMP is their children's
+    leaf: LeafGroup | None  # (y, ẏ) -> NodeRMP (G, B, ...); None: inner nodes, whose RMP is their children's
     identity: bool  # J = I: pullback* skips its products
     weights: Rows | None  # the members' weights, in the weight groups' outputs; None: unweighted
     constant_weights: bool  # every member's weight is constant: no ∇w, no h_i
@@ -193,9 +214,9 @@ def _key(module: Any, node: str) -> Hashable:
 
 def plan(
     layout: TreeLayout,
-    maps: Mapping[str, nn.Module],
-    weights: Mapping[str, nn.Module],
-    rmps: Mapping[str, nn.Module],
+    maps: Mapping[str, TaskMap],
+    weights: Mapping[str, BoundWeight],
+    rmps: Mapping[str, LeafRMP],
     like: Tensor,
 ) -> Plan:
     """The tree's node groups, depth by depth, and its weight groups; ``like``: a tensor of the tree's dtype and
@@ -228,7 +249,7 @@ def plan(
                 nodes=run,
                 parent=parent,
                 map=stacked([maps[n] for n in run], like),
-                leaf=None if children[run[0]] else stacked([rmps[n] for n in run], like),
+                leaf=None if children[run[0]] else stacked_leaves([rmps[n] for n in run], like),
                 identity=bool(maps[run[0]].identity_jacobian),
                 weights=Rows.of([at[n] for n in run], wsizes, device) if weighted else None,
                 constant_weights=weighted and bool(weights[run[0]].is_constant),
@@ -237,7 +258,7 @@ def plan(
     return Plan(groups, wgroups)
 
 
-def _weight_groups(layout: TreeLayout, weights: Mapping[str, nn.Module], where, sizes, like) -> list[WeightGroup]:
+def _weight_groups(layout: TreeLayout, weights: Mapping[str, BoundWeight], where, sizes, like) -> list[WeightGroup]:
     buckets: dict[Hashable, list[str]] = {}
     for n in sorted(weights, key=lambda n: where[n]):  # pushforward order
         buckets.setdefault((weights[n].fn.in_dim, _key(weights[n], n)), []).append(n)

@@ -36,7 +36,8 @@ class TreeLayout:
 
 def breadth_first(children: Mapping[str, list[str]], root: str) -> list[str]:
     """Every node below ``root``, parents before children: the pushforward order (reversed: pullback*)."""
-    order, frontier = [], [root]
+    order: list[str] = []
+    frontier = [root]
     while frontier:
         frontier = [c for p in frontier for c in children.get(p, [])]
         order += frontier
@@ -45,7 +46,8 @@ def breadth_first(children: Mapping[str, list[str]], root: str) -> list[str]:
 
 def levels(children: Mapping[str, list[str]], root: str) -> list[list[str]]:
     """The nodes at depth 1, 2, ... below ``root``, each level in breadth-first order."""
-    out, frontier = [], [root]
+    out: list[list[str]] = []
+    frontier = [root]
     while True:
         frontier = [c for p in frontier for c in children.get(p, [])]
         if not frontier:

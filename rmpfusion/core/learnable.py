@@ -20,10 +20,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import torch
 from torch import Tensor, nn
+
+if TYPE_CHECKING:
+    from typing import Self  # Python 3.11; annotations only, which are not evaluated
 
 
 class LearnedFloat(float):
@@ -36,7 +39,7 @@ class LearnedFloat(float):
 
     def __new__(
         cls, init: float, lower: float | None = None, upper: float | None = None, written: dict | None = None
-    ) -> LearnedFloat:
+    ) -> Self:
         out = super().__new__(cls, init)
         out.lower, out.upper, out.written = lower, upper, dict(written or {"learn": True, "init": float(init)})
         return out

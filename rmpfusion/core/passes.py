@@ -9,11 +9,12 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import overload
 
 from torch import Tensor
 
 from .algebra import Edge, NodeRMP, edge_contribution
-from .groups import ROOT, Plan, assemble
+from .groups import ROOT, Plan, Rows, assemble
 
 
 @dataclass
@@ -24,6 +25,14 @@ class Passes:
     edges: list[Edge]
     rmps: list[NodeRMP]
     root: NodeRMP  # (B, ...)
+
+
+@overload
+def _full(t: Tensor, size: int) -> Tensor: ...
+
+
+@overload
+def _full(t: None, size: int) -> None: ...
 
 
 def _full(t: Tensor | None, size: int) -> Tensor | None:
@@ -47,12 +56,24 @@ def _maps(plan: Plan, q: Tensor, qd: Tensor, aux) -> tuple[dict[int, Tensor], di
 
 def _weights(plan: Plan, x: Mapping[int, Tensor], aux) -> tuple[dict[int, Tensor], dict[int, Tensor | None]]:
     """Every weight group evaluated at its edges' parents' configurations."""
-    w, gw = {}, {}
+    w: dict[int, Tensor] = {}
+    gw: dict[int, Tensor | None] = {}
     for k, wg in enumerate(plan.weights):
         xs = wg.inputs.gather(x)
         value, grad = wg.fn(xs, aux)
         w[k], gw[k] = _full(value, len(wg.edges)), _full(grad, len(wg.edges))
     return w, gw
+
+
+def _gradients(rows: Rows, w: Mapping[int, Tensor], gw: Mapping[int, Tensor | None]) -> Tensor | None:
+    """The members' ∇w, gathered as their weights are. A weight reading only aux state has none (∇w = 0, no h_i):
+    None when no member's weight has one, zeros in the place of those missing when some do."""
+    grads = {s: gw[s] for s in rows.sources}
+    given = [g for g in grads.values() if g is not None]
+    if not given:
+        return None
+    dim = given[0].shape[-1]
+    return rows.gather({s: w[s].new_zeros(*w[s].shape, dim) if g is None else g for s, g in grads.items()})
 
 
 def pushforward(plan: Plan, q: Tensor, qd: Tensor, aux: Mapping[str, Tensor] | None):
@@ -65,7 +86,7 @@ def pushforward(plan: Plan, q: Tensor, qd: Tensor, aux: Mapping[str, Tensor] | N
         wi = gwi = None
         if g.weights is not None:
             wi = g.weights.gather(w)
-            gwi = None if g.constant_weights else g.weights.gather(gw)
+            gwi = None if g.constant_weights else _gradients(g.weights, w, gw)
         edges.append(Edge(J=J, c=c, yd=xd[i], w=wi, grad_w=gwi, identity=g.identity))
     return x, xd, edges
 
@@ -74,7 +95,7 @@ def pullback(plan: Plan, x, xd, edges, lean: bool = False) -> Passes:
     """Every group's RMP, deepest groups first: a leaf group's from its leaf, an inner group's from the summed
     terms of its child groups; then the root's. ``lean``: f and M only (``Plan.lean`` trees, unmonitored)."""
     terms: dict[int, list[tuple[int, NodeRMP]]] = {}  # per group (and the root): its members' children's terms
-    rmps: list[NodeRMP | None] = [None] * len(plan.groups)
+    rmps: dict[int, NodeRMP] = {}
     for i in reversed(range(len(plan.groups))):
         g = plan.groups[i]
         if g.leaf is None:
@@ -84,21 +105,23 @@ def pullback(plan: Plan, x, xd, edges, lean: bool = False) -> Passes:
         rmps[i] = rmp
         term = edge_contribution(g.parent.gather(xd), edges[i], rmp)
         first, f = g.parent.scatter_sum(term.f)
-        summed = NodeRMP(f, *(None if v is None else g.parent.scatter_sum(v)[1] for k, v in term.items() if k != "f"))
+        summed = NodeRMP.of(
+            [f, *(None if v is None else g.parent.scatter_sum(v)[1] for k, v in term.items() if k != "f")]
+        )
         terms.setdefault(g.parent.sources[0], []).append((first, summed))
     if ROOT not in terms:
         raise ValueError("the tree has no nodes below its root: pullback* needs at least one child")
     states = [(x[i], xd[i]) for i in range(len(plan.groups))]
-    root = NodeRMP(*(None if v is None else v[0] for _, v in _gathered(terms[ROOT], 1).items()))
-    return Passes(states=states, edges=edges, rmps=rmps, root=root)
+    root = NodeRMP.of(None if v is None else v[0] for _, v in _gathered(terms[ROOT], 1).items())
+    return Passes(states=states, edges=edges, rmps=[rmps[i] for i in range(len(plan.groups))], root=root)
 
 
 def _gathered(pieces: list[tuple[int, NodeRMP]], size: int) -> NodeRMP:
     """A group's RMP from its members' children's terms (``pieces``: each covering rows from its first on)."""
-    fields = {}
+    fields: dict[str, Tensor | None] = {}
     for k, v in pieces[0][1].items():
         fields[k] = None if v is None else assemble([(first, getattr(r, k)) for first, r in pieces], size)
-    return NodeRMP(**fields)
+    return NodeRMP.of(fields.values())
 
 
 def evaluate(plan: Plan, q: Tensor, qd: Tensor, aux: Mapping[str, Tensor] | None, lean: bool = False) -> Passes:

@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import copy
 from collections.abc import Hashable, Sequence
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar, TypeVar
 
 import torch
 from torch import Tensor, nn
@@ -39,8 +39,14 @@ from torch import Tensor, nn
 from .auxstate import AuxParam, StackedAux
 from .learnable import learned_ranges
 
+if TYPE_CHECKING:
+    from typing import Self  # Python 3.11; annotations only, which are not evaluated
 
-def shallow_clone(module: nn.Module) -> nn.Module:
+
+M = TypeVar("M", bound=nn.Module)
+
+
+def shallow_clone(module: M) -> M:
     """A new module object sharing ``module``'s submodules, parameters and buffers, whose own attributes can be
     replaced without touching ``module`` (its registries of parameters, buffers and submodules are copies)."""
     new = object.__new__(type(module))
@@ -82,9 +88,9 @@ def _learned(value: Any) -> bool:
     return isinstance(value, Tensor) and value.requires_grad
 
 
-class Stackable:
-    """Mixin of task maps, weights and leaves: how members of one kind are evaluated as one batch (see the module
-    docstring). ``stack_fields`` None: not stackable (each instance runs alone)."""
+class Stackable(nn.Module):
+    """Base of task maps, weights and leaves (all modules): how members of one kind are evaluated as one batch (see
+    the module docstring). ``stack_fields`` None: not stackable (each instance runs alone)."""
 
     stack_fields: ClassVar[tuple[str, ...] | None] = None
 
@@ -104,7 +110,7 @@ class Stackable:
         return tuple(sorted(learned_ranges(self).items()))
 
     @classmethod
-    def stacked(cls, members: Sequence[Stackable], like: Tensor) -> nn.Module:
+    def stacked(cls, members: Sequence[Self], like: Tensor) -> nn.Module:
         """One module evaluating every member on ``(G, B, ...)`` inputs (member g with member g's numbers), its
         stacked values in ``like``'s dtype and device (the tree's). Members must share ``stack_key``. Learned
         numbers are stacked at each call (``LiveStack``)."""

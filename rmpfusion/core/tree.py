@@ -16,7 +16,7 @@ import types
 import warnings
 from collections import Counter
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypeVar
 
 import torch
 from torch import Tensor, nn
@@ -24,11 +24,21 @@ from torch import Tensor, nn
 from .algebra import Edge, NodeRMP, lu_solve, resolve
 from .auxstate import AuxDict
 from .diagnosis import NumericalError, bad_input, bad_node
+from .gds import LeafRMP
 from .groups import Plan
 from .groups import plan as plan_tree
 from .layout import NodeLabel, TreeLayout, breadth_first  # noqa: F401  (re-exported: assembly/ and tests use them here)
 from .passes import Passes, evaluate
-from .weight import BoundWeight  # noqa: F401  (re-exported)
+from .taskmap import TaskMap
+from .weight import BoundWeight
+
+M = TypeVar("M", bound=nn.Module)
+
+# The root's RMP (f, M, G, B, Φ, L, V; G to V None when lean), its LU-solved acceleration and whether that solve is
+# good for every sample: what the (compiled) evaluation of a tree returns.
+RootTuple = tuple[
+    Tensor, Tensor, Tensor | None, Tensor | None, Tensor | None, Tensor | None, Tensor | None, Tensor, Tensor
+]
 
 
 @dataclass
@@ -60,6 +70,15 @@ def _forget_groups(module: RMPTree, incompatible_keys) -> None:
     module._plan = None
 
 
+def _of_kind(modules: nn.ModuleDict, kind: type[M]) -> dict[str, M]:
+    """A tree's modules of one kind (task maps, bound weights, leaves: ``assembly/`` builds them so), by node."""
+    out: dict[str, M] = {}
+    for name, module in modules.items():
+        assert isinstance(module, kind), f"node '{name}' holds a {type(module).__name__}, not a {kind.__name__}"
+        out[name] = module
+    return out
+
+
 class RMPTree(nn.Module):
     """An RMP-tree*: ``tree(q, qd, aux)`` returns the root's qdd, f, M, G, B, Phi, V (and L)."""
 
@@ -85,7 +104,7 @@ class RMPTree(nn.Module):
         self._plan: Plan | None = None  # planned on first use; again after .to() or a loaded state dict
         self.register_load_state_dict_post_hook(_forget_groups)
         self._compiled = None  # the torch.compile'd _root_rmp, built on first use after compile()
-        self._compile_args: tuple | None = None
+        self._compile_args: tuple[bool | None, dict[str, Any]] | None = None  # (dynamic, options) once compiled
         self._dtype_cache: tuple | None = None  # (dtype,) once known; see _dtype
 
     @property
@@ -93,7 +112,8 @@ class RMPTree(nn.Module):
         """Which nodes and weights evaluate together (``core/groups.py``), for the tree's current device and dtype."""
         if self._plan is None:
             like = torch.empty(0, dtype=self._dtype() or torch.float64, device=self.device)
-            self._plan = plan_tree(self.layout, self.maps, self.weights, self.rmps, like)
+            maps, weights = _of_kind(self.maps, TaskMap), _of_kind(self.weights, BoundWeight)
+            self._plan = plan_tree(self.layout, maps, weights, _of_kind(self.rmps, LeafRMP), like)
         return self._plan
 
     def _normalise_aux(
@@ -136,23 +156,27 @@ class RMPTree(nn.Module):
                 f"q and qd are {q.dtype} and {qd.dtype} but the tree computes in {dtype}; convert the "
                 f"state (q.to({dtype})) or the tree (tree.to({q.dtype}))"
             )
-        self.plan  # planned before any compiled code runs
+        _ = self.plan  # planned before any compiled code runs
         return self._normalise_aux(aux, q.shape[0], q.dtype)
 
     def forward(self, q: Tensor, qd: Tensor, aux: AuxDict | None = None, return_nodes: bool = False) -> TreeOutput:
         aux = self._inputs(q, qd, aux)
-        nodes, ok = None, False  # ok: the LU solve succeeded with a finite result for every sample
+        nodes = None
+        ok: Tensor | bool = False  # the LU solve succeeded with a finite result for every sample
+        qdd: Tensor | None = None
         if return_nodes:
             passes = evaluate(self.plan, q, qd, aux)
             r, nodes = passes.root, self._per_node(passes)
-            qdd = None
         else:
-            *fields, qdd, ok = self._root_rmp_maybe_compiled(q, qd, aux, False)
-            r = NodeRMP(*fields)
+            f, M, G, B, Phi, L, V, qdd, ok = self._root_rmp_maybe_compiled(q, qd, aux, False)
+            r = NodeRMP(f, M, G, B, Phi, L, V)
         qdd = self._resolved(q, qd, aux, r, qdd, ok)
-        return TreeOutput(qdd=qdd, f=r.f, M=r.M, G=r.G, B=r.B, Phi=r.Phi, V=r.V, L=r.L, nodes=nodes)
+        G, B, Phi, L, V = r.monitored()
+        return TreeOutput(qdd=qdd, f=r.f, M=r.M, G=G, B=B, Phi=Phi, V=V, L=L, nodes=nodes)
 
-    def _resolved(self, q, qd, aux, r: NodeRMP, qdd: Tensor | None, ok) -> Tensor:
+    def _resolved(
+        self, q: Tensor, qd: Tensor, aux: AuxDict | None, r: NodeRMP, qdd: Tensor | None, ok: Tensor | bool
+    ) -> Tensor:
         """q̈: the LU answer when it is good for every sample, else resolve's (pseudo-inverse where M is singular);
         a non-finite answer raises NumericalError naming where it came from."""
         if self.resolve_method == "solve" and qdd is not None and bool(ok):
@@ -182,7 +206,9 @@ class RMPTree(nn.Module):
 
     def _per_node(self, passes: Passes) -> dict[str, dict[str, Any]]:
         """Each node's state, edge and RMP (the root's RMP under the root's name), taken from its group's rows."""
-        state, edges, rmp = {}, {}, {}
+        state: dict[str, tuple[Tensor, Tensor]] = {}
+        edges: dict[str, Edge] = {}
+        rmp: dict[str, NodeRMP] = {}
         for g, (y, yd), e, r in zip(self.plan.groups, passes.states, passes.edges, passes.rmps):
             for n, s in g.slots.items():
                 state[n] = (y[s], yd[s])
@@ -194,18 +220,19 @@ class RMPTree(nn.Module):
                     grad_w=None if e.grad_w is None else e.grad_w[s],
                     identity=e.identity,
                 )
-                rmp[n] = NodeRMP(*(v[s] for _, v in r.items()))
+                rmp[n] = NodeRMP.of(None if v is None else v[s] for _, v in r.items())
         rmp[self.root_name] = passes.root
         return {"state": state, "edge": edges, "rmp": rmp}
 
-    def _root_rmp(self, q: Tensor, qd: Tensor, aux: dict[str, Tensor] | None, lean: bool) -> tuple[Tensor, ...]:
+    def _root_rmp(self, q: Tensor, qd: Tensor, aux: dict[str, Tensor] | None, lean: bool) -> RootTuple:
         """The root's RMP, its LU-solved acceleration and whether that solve is good for every sample, as a
         plain tuple of tensors: the pure tensor program that ``compile`` hands to torch.compile."""
+        assert self._plan is not None, "planned by _inputs before any evaluation"
         r = evaluate(self._plan, q, qd, aux, lean).root
         a, good = lu_solve(r.M, r.f)
         return r.f, r.M, r.G, r.B, r.Phi, r.L, r.V, a, good.all()
 
-    def compile(
+    def compile(  # type: ignore[override]  # not nn.Module.compile: compiles the evaluation, with its own options
         self,
         dynamic: bool | None = None,
         options: dict[str, Any] | None = None,
@@ -251,9 +278,7 @@ class RMPTree(nn.Module):
             self._compiled = torch.compile(types.MethodType(fn, self), dynamic=dynamic, options=options)
         return self._compiled
 
-    def _root_rmp_maybe_compiled(
-        self, q: Tensor, qd: Tensor, aux: dict[str, Tensor] | None, lean: bool
-    ) -> tuple[Tensor, ...]:
+    def _root_rmp_maybe_compiled(self, q: Tensor, qd: Tensor, aux: dict[str, Tensor] | None, lean: bool) -> RootTuple:
         """``_root_rmp`` through the compiled code when the tree is compiled. A construct torch.compile cannot
         trace never crashes the tree: with a symbolic batch size (forward-mode autodiff, e.g. a leaf whose
         curvature is derived by ``torch.func.jvp``) the tree compiles again per batch size; if that fails too it
@@ -266,6 +291,7 @@ class RMPTree(nn.Module):
         return self._root_rmp(q, qd, aux, lean)
 
     def _fall_back(self, error: Exception) -> None:
+        assert self._compile_args is not None, "only a compiled tree falls back"
         dynamic, options = self._compile_args
         reason = _compile_failure(error)
         if dynamic is not False:
@@ -310,6 +336,7 @@ class RMPTree(nn.Module):
                 out = self.forward(q, qd, aux, return_nodes=True)
         finally:
             self.check_finite = was
+        assert out.nodes is not None, "asked for with return_nodes"
         return bad_node(self.layout, self.order, out.nodes, out.qdd, q, qd)
 
     def policy(self, q: Tensor, qd: Tensor, aux: AuxDict | None = None) -> Tensor:

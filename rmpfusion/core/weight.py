@@ -42,7 +42,7 @@ class WeightFunction(Stackable, nn.Module):
         view = shallow_clone(self)
         for name in self.stack_fields or ():
             p = getattr(self, name)
-            if isinstance(p, AuxParam) and p.name in bind:
+            if isinstance(p, AuxParam) and p.name is not None and p.name in bind:
                 object.__setattr__(view, name, p.renamed(bind[p.name]))
                 view.__dict__["_modules"].pop(name, None)
         return view
@@ -51,7 +51,7 @@ class WeightFunction(Stackable, nn.Module):
 class BoundWeight(Stackable, nn.Module):
     """A (possibly shared) weight function as seen from one edge: aux inputs renamed by ``bind``."""
 
-    def __init__(self, fn: nn.Module, bind: Mapping[str, str] | None = None):
+    def __init__(self, fn: WeightFunction, bind: Mapping[str, str] | None = None):
         super().__init__()
         self.fn = fn
         self.bind = dict(bind or {})

@@ -1,17 +1,37 @@
 """Environments; importing this package registers them in ``rmpfusion.registry.ENVS``."""
 
-from . import manipulator_tree  # noqa: F401  (registers the tree generator fig1b)
-from .demonstrations import Dataset, DatasetError, collect, dataset_meta, load_dataset, save_dataset  # noqa: F401
-from .manipulator import Manipulator  # noqa: F401
-from .particle2d import Particle2D  # noqa: F401
+from . import manipulator_tree  # noqa: F401  (imported to register the tree generator fig1b)
+from .demonstrations import Dataset, DatasetError, collect, dataset_meta, load_dataset, save_dataset
+from .manipulator import Manipulator
+from .particle2d import Particle2D
 from .protocol import (
     DifferentiableRollouts,
     Env,
     HasRatioMetrics,
     HasTaskMetrics,
-    PlanarWorkspace,  # noqa: F401
+    PlanarWorkspace,
     Renders,
     RenderSettings,
     TimeVaryingAux,
 )
-from .rollout import Rollout  # noqa: F401
+from .rollout import Rollout
+
+__all__ = [
+    "Dataset",
+    "DatasetError",
+    "DifferentiableRollouts",
+    "Env",
+    "HasRatioMetrics",
+    "HasTaskMetrics",
+    "Manipulator",
+    "Particle2D",
+    "PlanarWorkspace",
+    "RenderSettings",
+    "Renders",
+    "Rollout",
+    "TimeVaryingAux",
+    "collect",
+    "dataset_meta",
+    "load_dataset",
+    "save_dataset",
+]

@@ -4,7 +4,7 @@ monitoring quantities, sampling by seed, rejection sampling."""
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from typing import Any
+from typing import Any, Protocol
 
 import torch
 from torch import Tensor
@@ -99,8 +99,8 @@ def time_grid(horizon: float, record_every: float, dt: float, step: str = "dt") 
     Records and the horizon must fall on the step grid: rounding them silently would record other times than
     asked and compare rollouts of different lengths.
     """
-    n_steps = int(round(horizon / dt))
-    every = int(round(record_every / dt))
+    n_steps = round(horizon / dt)
+    every = round(record_every / dt)
     if every < 1 or abs(every * dt - record_every) > 1e-9 * max(1.0, record_every):
         raise ValueError(f"record_every={record_every} must be a positive multiple of {step}={dt}")
     if abs(n_steps * dt - horizon) > 1e-9 * max(1.0, horizon):
@@ -171,11 +171,27 @@ def redraw_until_ok(
     return vals
 
 
+class _SamplesStates(Protocol):
+    """What ``SeededSampling`` needs of the environment it is mixed into (``Env``'s two sampling steps)."""
+
+    def sample_envs(
+        self, n_envs: int, generator: torch.Generator | None = None, split: str = "train"
+    ) -> dict[str, Tensor]: ...
+
+    def sample_initial_states(
+        self, envs_aux: Mapping[str, Tensor], n_per_env: int, generator: torch.Generator | None = None
+    ) -> tuple[Tensor, Tensor, dict[str, Tensor]]: ...
+
+
 class SeededSampling:
     """Mixin: environments and initial states in one call, from a seed or a generator."""
 
     def sample(
-        self, n_envs: int, n_per_env: int, seed: int | None = None, generator: torch.Generator | None = None
+        self: _SamplesStates,
+        n_envs: int,
+        n_per_env: int,
+        seed: int | None = None,
+        generator: torch.Generator | None = None,
     ) -> tuple[Tensor, Tensor, dict[str, Tensor]]:
         if generator is None and seed is not None:
             generator = torch.Generator().manual_seed(seed)

@@ -161,7 +161,7 @@ def collect(
     envs = env.sample_envs(n_envs, generator)
     q0, qd0, aux = env.sample_initial_states(envs, n_traj, generator)
     ro = env.rollout(expert, q0, qd0, aux, horizon=(n_points - 1) * interval, record_every=interval, progress=progress)
-    T, B, d = ro.q.shape
+    T, B, _ = ro.q.shape
     if T != n_points:
         raise RuntimeError(f"expert rollout recorded {T} points, expected {n_points}")
 

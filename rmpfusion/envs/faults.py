@@ -106,7 +106,7 @@ def _nan_rows(out: Any, bad: list[int], B: int):
 
     if torch.is_tensor(out):
         return nanned(out)
-    if dataclasses.is_dataclass(out):
+    if dataclasses.is_dataclass(out) and not isinstance(out, type):
         return dataclasses.replace(
             out,
             **{

@@ -21,6 +21,8 @@ from pydantic import Field, field_validator
 
 from ..assembly.weighting import tree_with_weights as with_weights  # noqa: F401  (expert configs: node or shared-weight names)
 from ..core.auxstate import AuxOrValue
+from ..core.tree import RMPTree
+from ..core.weight import BoundWeight
 from ..maps.kinematics import Chain
 from ..maps.orientation import check_direction
 from ..maps.robot import Vector3
@@ -428,7 +430,7 @@ def manipulator_tree_spec(
     return fig1b(ManipulatorTreeParams.model_validate(given))
 
 
-def copy_weights(src: torch.nn.Module, dst: torch.nn.Module) -> list[str]:
+def copy_weights(src: RMPTree, dst: RMPTree) -> list[str]:
     """Copy weight-function parameters from tree ``src`` into tree ``dst`` by node / shared-weight name.
 
     A tree trained with one obstacle thus runs with several: ``dst``'s extra obstacle edges use the same
@@ -441,7 +443,10 @@ def copy_weights(src: torch.nn.Module, dst: torch.nn.Module) -> list[str]:
             dst.shared[name].load_state_dict(mod.state_dict())
             copied.append(name)
     for name, bw in src.weights.items():
+        assert isinstance(bw, BoundWeight)  # the assembly binds every edge's weight function
         if name in dst.weights and not any(bw.fn is s for s in src.shared.values()):
-            dst.weights[name].fn.load_state_dict(bw.fn.state_dict())
+            into = dst.weights[name]
+            assert isinstance(into, BoundWeight)
+            into.fn.load_state_dict(bw.fn.state_dict())
             copied.append(name)
     return copied

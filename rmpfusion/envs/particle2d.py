@@ -106,6 +106,7 @@ class Particle2D(ComputesOnDevice, SeededSampling):
         @field_validator("obstacle_across")
         @classmethod
         def _range(cls, v: Range, info: ValidationInfo) -> Range:
+            assert info.field_name is not None  # a field validator is always called for its field
             _check_range(info.field_name, v)
             return v
 
@@ -244,6 +245,7 @@ class Particle2D(ComputesOnDevice, SeededSampling):
         the records), ``final_distance`` to the goal, ``min_clearance`` (over every integration step, < 0 inside
         an obstacle), ``collided`` and ``success`` (at the goal at the end, never inside an obstacle)."""
         d = rollout.goal_distance
+        assert d is not None  # this environment's rollouts record the goal distance
         near = d <= self.params.goal_tolerance
         first = torch.where(
             near.any(0), near.double().argmax(0), torch.full_like(near[0], len(rollout.times) - 1, dtype=torch.long)
@@ -407,13 +409,11 @@ class Particle2D(ComputesOnDevice, SeededSampling):
             a = None
             if k % every == 0:
                 a, V, D = evaluate_policy(policy, q, qd, aux)
-                (
-                    qs.append(q),
-                    qds.append(qd),
-                    qdds.append(a),
-                    ts.append(k * dt),
-                    dists.append(self.goal_distance(q, aux)),
-                )
+                qs.append(q)
+                qds.append(qd)
+                qdds.append(a)
+                ts.append(k * dt)
+                dists.append(self.goal_distance(q, aux))
                 if V is not None:
                     Vs.append(V)
                     if D is not None:

@@ -6,14 +6,30 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Protocol, TypeVar
 
 import torch
-from torch import Tensor, nn
+from torch import Tensor
 
 from ..envs.protocol import HasRatioMetrics, HasTaskMetrics, TimeVaryingAux
 from ..envs.rollout import Rollout
 from .lyapunov import lyapunov_monotone, max_relative_increase
+
+
+class RolloutLearner(Protocol):
+    """What ``evaluate_learner`` needs of a learner (an ``rmpfusion.learn.Learner``; this layer does not import
+    that one): its ``policy`` to roll out, and the module's training mode to switch off meanwhile."""
+
+    training: bool
+
+    def policy(self, q: Tensor, qd: Tensor, aux: Mapping[str, Tensor] | None = None) -> object: ...
+
+    def eval(self) -> object: ...
+
+    def train(self, mode: bool = True) -> object: ...
+
+
+LearnerT = TypeVar("LearnerT", bound=RolloutLearner)
 
 
 @dataclass
@@ -59,7 +75,7 @@ def online_loss(
     monitor at no extra policy evaluations; the loss still uses only the ``interval`` records.
     """
     fine = record_every or interval
-    stride = int(round(interval / fine))
+    stride = round(interval / fine)
     if stride < 1 or abs(stride * fine - interval) > 1e-9 * max(1.0, interval):
         raise ValueError(f"record_every={record_every} must divide interval={interval}")
     ro = env.rollout(policy, q0, qd0, aux, horizon=horizon, record_every=fine, progress=progress)
@@ -130,7 +146,7 @@ def rollout_rates(ro: Rollout, rtol: float = 1e-6, atol: float = 1e-9, with_lyap
 
 
 def evaluate_learner(
-    learner: nn.Module,
+    learner: LearnerT,
     expert: Callable,
     env,
     test_data,
@@ -141,7 +157,7 @@ def evaluate_learner(
     record_every: float | None = None,
     progress: Callable | None = None,
     *,
-    loss: Callable[[nn.Module, Any], float],
+    loss: Callable[[LearnerT, Any], float],
 ) -> tuple[dict[str, float], OnlineResult]:
     """All metrics of one learner (a ``rmpfusion.learn.Learner``) as a flat dict of floats, plus the online
     rollout (for figures).

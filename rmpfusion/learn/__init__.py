@@ -8,10 +8,23 @@ Importing this package registers the learners, objectives, optimisers and traini
 (``rmpfusion.pipeline``) is imported on demand because it pulls in plotting.
 """
 
-from . import learners, methods  # noqa: F401  (registration side effects)
-from .learner import Learner  # noqa: F401
-from .learners import build_learner, build_order  # noqa: F401
-from .objectives import Objective, dataset_loss  # noqa: F401
-from .rmp_learner import RMPLearner  # noqa: F401
-from .train import TrainResult, train  # noqa: F401
-from .unstructured import UnstructuredLearner, width_for_parameters  # noqa: F401
+from . import learners, methods  # noqa: F401  (imported to register the built-in learners and training methods)
+from .learner import Learner
+from .learners import build_learner, build_order
+from .objectives import Objective, dataset_loss
+from .rmp_learner import RMPLearner
+from .train import TrainResult, train
+from .unstructured import UnstructuredLearner, width_for_parameters
+
+__all__ = [
+    "Learner",
+    "Objective",
+    "RMPLearner",
+    "TrainResult",
+    "UnstructuredLearner",
+    "build_learner",
+    "build_order",
+    "dataset_loss",
+    "train",
+    "width_for_parameters",
+]

@@ -16,6 +16,7 @@ import torch
 from torch import Tensor, nn
 
 from ..core.export import TreeProgram, export_policy, export_tree
+from ..core.tree import RMPTree
 from ..scenes.sets import ObstacleSet, with_slots
 from .learner import Learner
 
@@ -59,7 +60,7 @@ class SetsProgram(nn.Module):
     present is an input (the masks), not part of the traced graph."""
 
     def __init__(
-        self, tree: nn.Module, sets: Sequence[ObstacleSet], input_names: Sequence[str], tree_aux_names: Sequence[str]
+        self, tree: RMPTree, sets: Sequence[ObstacleSet], input_names: Sequence[str], tree_aux_names: Sequence[str]
     ):
         super().__init__()
         self.sets = list(sets)
@@ -73,7 +74,7 @@ class SetsProgram(nn.Module):
 
 
 def export_with_sets(
-    tree: nn.Module, sets: Sequence[ObstacleSet], q: Tensor, qd: Tensor, inputs: Mapping[str, Tensor]
+    tree: RMPTree, sets: Sequence[ObstacleSet], q: Tensor, qd: Tensor, inputs: Mapping[str, Tensor]
 ) -> torch.export.ExportedProgram:
     """A tree holding obstacle sets exported for any obstacles present (0 … N_max of each set): the program takes
     ``inputs`` (``World.set_aux()``: the goal, the set tensors and masks) in their order, at the example's batch size
@@ -83,7 +84,7 @@ def export_with_sets(
     set_level = {n for s in sets for n in s.set_dims()}  # the sets' own tensors: the program makes slots of them
     tree_names = [n for n in with_slots(list(sets), inputs) if n not in set_level]
     program = SetsProgram(tree, sets, names, tree_names).eval()
-    tree.plan  # planned before tracing
+    _ = tree.plan  # planned before tracing
     entries = tuple(inputs[n].expand(q.shape[0], *inputs[n].shape[1:]).contiguous() for n in names)
     with torch.no_grad():
         return torch.export.export(program, (q, qd, *entries))

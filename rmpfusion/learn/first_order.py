@@ -34,7 +34,7 @@ from .learner import Learner
 
 
 @LEARNERS.register("first_order")
-class FirstOrderLearner(Learner):
+class FirstOrderLearner(Learner["FirstOrderLearner.Params"]):
     """ẋ = −r·scale·J_ψ⁻¹ψ((x − goal)/scale), tracked by q̈ = k_v(f − q̇) + (∂f/∂q)q̇."""
 
     class Params(Params):

@@ -10,32 +10,34 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from collections.abc import Mapping
-from typing import Any
+from typing import Any, Generic, TypeVar
 
 from torch import Tensor, nn
 
 from ..core.tree import RMPTree, TreeOutput
 from ..registry import Params
 
+P = TypeVar("P", bound=Params)
 
-class Learner(nn.Module, ABC):
+
+class Learner(nn.Module, ABC, Generic[P]):
     """A learner of behavior cloning: a module (q, q̇, aux) -> q̈ built from its config block.
 
-    Subclasses register with ``LEARNERS`` and carry a ``Params`` model of their block; ``build_learner``
+    Subclasses register with ``LEARNERS`` and carry a ``Params`` model of their block (``P``); ``build_learner``
     validates the block and calls ``from_params``.
     """
 
     @classmethod
     def from_params(
         cls,
-        params: Params,
+        params: P,
         tree_spec: Mapping[str, Any] | None,
         aux_dims: Mapping[str, int],
         dim: int,
         expert: Mapping[str, Any] | None = None,
         built: Mapping[str, Learner] | None = None,
         where: str = "learners",
-    ) -> Learner:
+    ) -> Learner[P]:
         """Build from a validated block. ``built`` holds the learners built before this one (by name), for a
         learner sized after another; ``where`` is the block's config path, for errors."""
         return cls(params, tree_spec, aux_dims, dim, expert=expert)
@@ -66,7 +68,7 @@ class Learner(nn.Module, ABC):
         reported at every evaluated snapshot. None by default."""
         return {}
 
-    def compile(self) -> Learner:
+    def compile(self) -> Learner:  # type: ignore[override]  # not nn.Module.compile: compiles the tree, returns self
         """Route the learner's tree through torch.compile (same numbers, fused kernels); calling it again keeps
         the compiled tree. A learner without a tree is left eager: a plain network gains little from it."""
         tree = self.tree

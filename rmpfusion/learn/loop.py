@@ -17,7 +17,7 @@ from abc import ABC, abstractmethod
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import torch
 from torch import nn
@@ -117,7 +117,10 @@ def state_copy(model: nn.Module) -> dict[str, torch.Tensor]:
     return {k: v.detach().clone() for k, v in model.state_dict().items()}
 
 
-def load_snapshot(model: nn.Module, state: Mapping[str, torch.Tensor]) -> nn.Module:
+M = TypeVar("M", bound=nn.Module)
+
+
+def load_snapshot(model: M, state: Mapping[str, torch.Tensor]) -> M:
     """A copy of ``model`` holding a snapshot's weights (the original is left as it is)."""
     m = copy.deepcopy(model)
     m.load_state_dict(dict(state))

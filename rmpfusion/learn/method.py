@@ -12,7 +12,7 @@ from abc import ABC, abstractmethod
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Generic, TypeVar
 
 import torch
 from torch import nn
@@ -24,6 +24,8 @@ from .config import TrainParams
 from .loop import Loop, Steps, TrainResult, run
 from .objectives import module_device
 from .optimizers import make_optimizer
+
+P = TypeVar("P", bound=TrainParams)
 
 
 class MethodContextError(ValueError):
@@ -78,18 +80,18 @@ class MethodContext:
             self.say(message)
 
 
-class TrainingMethod(ABC):
+class TrainingMethod(ABC, Generic[P]):
     """A way of training a learner. Subclasses register with ``TRAIN_METHODS`` with a ``Params`` model (a
-    ``TrainParams``) and supply their ``Steps``; the loop around them (schedule, curves, snapshots,
+    ``TrainParams``, ``P``) and supply their ``Steps``; the loop around them (schedule, curves, snapshots,
     checkpoints, signals, resume) is shared (``learn/loop.py``)."""
 
     Params: type[TrainParams] = TrainParams
 
-    def __init__(self, params: TrainParams):
+    def __init__(self, params: P):
         self.params = params
 
     @classmethod
-    def requirements(cls, params: TrainParams, env: Env, train_trajectories: int) -> list[tuple[str, str]]:
+    def requirements(cls, params: P, env: Env, train_trajectories: int) -> list[tuple[str, str]]:
         """What the method needs of the run that it lacks, as (config path, message) pairs (none by default):
         checked when the config is validated, before anything runs. ``env`` is the run's environment,
         ``train_trajectories`` the number of demonstrations the training split will hold."""

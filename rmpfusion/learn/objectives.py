@@ -14,7 +14,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from ..registry import OBJECTIVES, Params
+from .. import registry
+from ..registry import OBJECTIVES
 
 if TYPE_CHECKING:
     from ..envs.demonstrations import Dataset
@@ -23,7 +24,7 @@ if TYPE_CHECKING:
 class Objective(ABC):
     """A loss between predicted and expert accelerations, both (B, d)."""
 
-    class Params(Params):
+    class Params(registry.Params):  # registry.Params: this class takes its base's name
         pass
 
     def __init__(self, params: Params | None = None):

@@ -9,7 +9,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from pydantic import Field
-from torch import Tensor
+from torch import Tensor, nn
 
 from ..assembly.errors import ConfigError, Issue
 from ..assembly.tree import build_tree
@@ -28,7 +28,7 @@ def _default_weight() -> dict:
 
 
 @LEARNERS.register("rmp")
-class RMPLearner(Learner):
+class RMPLearner(Learner["RMPLearner.Params"]):
     """learner-rmp: the given tree with a (fresh, randomly initialised) neural weight on each learned edge."""
 
     class Params(Params):
@@ -62,6 +62,7 @@ class RMPLearner(Learner):
         built=None,
         where: str = "learners.rmp",
     ) -> RMPLearner:
+        assert tree_spec is not None, "learner-rmp puts its weights on a tree"
         return cls(params, tree_spec, aux_dims, dim, expert=expert, where=where)
 
     def __init__(
@@ -93,14 +94,18 @@ class RMPLearner(Learner):
             with_leaves(tree_spec, params.leaves, f"{where}.leaves"), per_edge, where=f"{where}.edges"
         )
         self.edges = edges
-        # registered as the submodule "tree" (state_dict keys tree.…); read back through the ``tree`` property
-        self.tree = build_tree(spec, aux_dims=dict(aux_dims), weight_paths={e: f"{where}.weights" for e in edges})
+        tree = build_tree(spec, aux_dims=dict(aux_dims), weight_paths={e: f"{where}.weights" for e in edges})
+        # registered as the submodule "tree" (state_dict keys tree.…) by nn.Module's __setattr__, as ``self.tree =``
+        # would; read back through the ``tree`` property
+        nn.Module.__setattr__(self, "tree", tree)
         if self.tree.dim != dim:
             raise ValueError(f"the tree's root has dimension {self.tree.dim} but the environment has {dim}")
 
     @property
     def tree(self) -> RMPTree:
-        return self._modules["tree"]
+        tree = self._modules["tree"]
+        assert isinstance(tree, RMPTree), "set once, by __init__"
+        return tree
 
     @staticmethod
     def default_edges(tree_spec: Mapping[str, Any], expert: Mapping[str, Any] | None) -> list[str]:

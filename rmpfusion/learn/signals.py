@@ -6,7 +6,10 @@ from __future__ import annotations
 import signal
 import sys
 import threading
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from typing import Self  # Python 3.11; annotations only, which are not evaluated
 
 
 class StopOnSignal:
@@ -20,11 +23,11 @@ class StopOnSignal:
     SIGNALS = (signal.SIGTERM, signal.SIGINT)
     CHAINED = tuple(getattr(signal, n) for n in ("SIGUSR1", "SIGUSR2") if hasattr(signal, n))
 
-    def __init__(self):
+    def __init__(self) -> None:
         self.signum: int | None = None
         self._old: dict[int, Any] = {}
 
-    def __enter__(self) -> StopOnSignal:
+    def __enter__(self) -> Self:
         if threading.current_thread() is threading.main_thread():
             for s in self.SIGNALS + self.CHAINED:
                 old = signal.getsignal(s)
@@ -46,6 +49,7 @@ class StopOnSignal:
 
     def stop(self, where: str) -> None:
         signum, self.signum = self.signum, None
+        assert signum is not None, "stop is called only after a signal arrived"
         name = signal.Signals(signum).name
         old = self._old.get(signum, signal.SIG_DFL)
         print(f"rmpfusion: {name} received; {where}", file=sys.stderr, flush=True)

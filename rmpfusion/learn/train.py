@@ -1,7 +1,7 @@
 """Behavior cloning on a dataset, as a function: ``train(model, data, cfg, seed, ...)``, the method ``bc`` of
 ``TRAIN_METHODS`` without the rest of a pipeline. The loop it runs (checkpoints, signals, resume) is
-``learn/loop.py``; the checkpoint format ``learn/checkpoints.py``; both are re-exported here, where callers have
-always found them."""
+``learn/loop.py`` (``TrainResult``, ``learning_rate``: re-exported here); the checkpoint format and its readers are
+``learn/checkpoints.py``."""
 
 from __future__ import annotations
 
@@ -13,13 +13,12 @@ from typing import Any
 from torch import nn
 
 from ..envs.demonstrations import Dataset
-from .checkpoints import (
-    checkpoint_checksum,  # noqa: F401
-)
 from .config import TrainConfig
-from .loop import TrainResult, learning_rate, load_snapshot  # noqa: F401
+from .loop import TrainResult, learning_rate
 from .method import MethodContext
 from .methods.bc import BehaviorCloning
+
+__all__ = ["TrainConfig", "TrainResult", "learning_rate", "train"]
 
 
 def train(

@@ -5,24 +5,26 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
+from itertools import pairwise
 from typing import Any, Literal
 
 import torch
 from pydantic import Field, field_validator
 from torch import Tensor, nn
 
+from .. import registry
 from ..core.tree import RMPTree
 from ..core.weight import aux_features
-from ..registry import LEARNERS, Params
+from ..registry import LEARNERS
 from ..weights.neural import ACTIVATIONS, hidden_widths
 from .learner import Learner
 
 
 @LEARNERS.register("unstructured")
-class UnstructuredLearner(Learner):
+class UnstructuredLearner(Learner["UnstructuredLearner.Params"]):
     """learner-un: a fully connected network [q, q̇, aux] -> q̈ with no stability or safety structure."""
 
-    class Params(Params):
+    class Params(registry.Params):  # registry.Params: this class takes its base's name
         hidden: list[int] = Field(
             default_factory=lambda: [64, 64],
             min_length=1,
@@ -65,7 +67,7 @@ class UnstructuredLearner(Learner):
         sizes = [n_in, *hidden]
         layers: list[nn.Module] = []
         # float64 whatever torch's default dtype: one seed draws one set of initial weights
-        for a, b in zip(sizes[:-1], sizes[1:]):
+        for a, b in pairwise(sizes):
             layers += [nn.Linear(a, b, dtype=torch.float64), ACTIVATIONS[params.activation].module()]
         layers.append(nn.Linear(sizes[-1], dim, dtype=torch.float64))
         self.net = nn.Sequential(*layers)
@@ -110,14 +112,14 @@ class UnstructuredLearner(Learner):
         """The hidden widths, which ``match_parameters_of`` chooses at build time."""
         return {"hidden": list(self.hidden)}
 
-    def compile(self) -> UnstructuredLearner:
+    def compile(self) -> UnstructuredLearner:  # type: ignore[override]  # as Learner.compile
         """Nothing to do: there is no tree to compile, and a small MLP gains little from torch.compile."""
         return self
 
 
 def mlp_parameters(n_in: int, n_out: int, widths: list[int]) -> int:
     sizes = [n_in, *widths, n_out]
-    return sum(a * b + b for a, b in zip(sizes[:-1], sizes[1:]))
+    return sum(a * b + b for a, b in pairwise(sizes))
 
 
 def width_for_parameters(target: int, n_in: int, n_out: int, depth: int) -> int:

@@ -4,7 +4,7 @@ constants broadcast against the samples, so maps of one type under one parent gr
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any, Literal
+from typing import Any, Literal, TypeVar
 
 import torch
 from pydantic import Field, field_validator
@@ -15,7 +15,7 @@ from ..core.auxstate import CONSTANT_DTYPE, AuxOrValue, AuxParam, constant
 from ..core.stacking import shallow_clone
 from ..core.taskmap import TaskMap
 from ..examples import AuxInput, Example
-from ..registry import TASK_MAPS, Params
+from ..registry import TASK_MAPS, Params, numbers_repr
 
 
 def _eye(n: int, x: Tensor) -> Tensor:
@@ -23,7 +23,10 @@ def _eye(n: int, x: Tensor) -> Tensor:
     return torch.eye(n, dtype=x.dtype, device=x.device).expand(*x.shape[:-1], n, n)
 
 
-def _coordinates(v: int | list[int], key: str) -> int | list[int]:
+Coordinates = TypeVar("Coordinates", bound=int | list[int])
+
+
+def _coordinates(v: Coordinates, key: str) -> Coordinates:
     """Refuse negative coordinate numbers: a config means the parent's coordinate k, never Python's x[-k]."""
     bad = [i for i in ([v] if isinstance(v, int) else v) if i < 0]
     if bad:
@@ -53,6 +56,9 @@ class Identity(TaskMap):
 
     def psi(self, x, aux):
         return x
+
+    def extra_repr(self) -> str:
+        return numbers_repr({"in_dim": self.in_dim, "out_dim": self.out_dim})
 
 
 @TASK_MAPS.register(
@@ -84,11 +90,16 @@ class Offset(TaskMap):
     def forward(self, x, xd, aux=None):
         return self.psi(x, aux), xd, _eye(self.in_dim, x), torch.zeros_like(x)
 
+    def extra_repr(self) -> str:
+        return numbers_repr({"in_dim": self.in_dim, "out_dim": self.out_dim})
+
 
 class _Affine(TaskMap):
     """y = A x + b with constant A (n, m) and b (n,): J = A, J̇ẋ = 0."""
 
     stack_fields = ("A", "b")
+    A: Tensor  # buffers: the matrix (n, m)
+    b: Tensor  # and the bias (n,)
 
     def _set(self, A: Tensor, b: Tensor, persistent: bool = True) -> None:
         self.out_dim = A.shape[0]
@@ -102,6 +113,9 @@ class _Affine(TaskMap):
         y = self.psi(x, aux)
         J = self.A.expand(*y.shape[:-1], *self.A.shape[-2:])
         return y, matvec(self.A, xd), J, torch.zeros_like(y)
+
+    def extra_repr(self) -> str:
+        return numbers_repr({"in_dim": self.in_dim, "out_dim": self.out_dim, "matrix": self.A, "bias": self.b})
 
 
 @TASK_MAPS.register(
@@ -146,6 +160,10 @@ class Select(Linear):
         A[torch.arange(len(params.indices)), torch.tensor(params.indices)] = 1.0
         super().__init__(Linear.Params(matrix=A.tolist()), in_dim, aux_dims)
 
+    def extra_repr(self) -> str:
+        indices = self.A.argmax(-1).tolist()  # the one 1 of each row
+        return numbers_repr({"in_dim": self.in_dim, "out_dim": self.out_dim, "indices": indices})
+
 
 @TASK_MAPS.register(
     "joint_limit",
@@ -159,6 +177,9 @@ class JointLimit(_Affine):
 
     ``limit`` holds one value per selected joint; ``joints`` selects them (default: all).
     """
+
+    idx: Tensor  # buffers: the selected joints (long)
+    limit: Tensor  # and their limits
 
     class Params(Params):
         side: Literal["upper", "lower"]
@@ -190,6 +211,12 @@ class JointLimit(_Affine):
         self.register_buffer("S", S)
         # y = sign·(x[idx] − limit) = S x − sign·limit: the affine map, exactly (S has one ±1 a row)
         self._set(S, -self.sign * lim, persistent=False)
+
+    def extra_repr(self) -> str:
+        side = "upper" if self.sign < 0 else "lower"
+        return numbers_repr(
+            {"in_dim": self.in_dim, "out_dim": self.out_dim, "side": side, "joints": self.idx, "limit": self.limit}
+        )
 
 
 class MapSpec(Params):
@@ -267,6 +294,9 @@ class Compose(TaskMap):
                 c = (Jk @ c.unsqueeze(-1)).squeeze(-1) + ck
                 J = Jk @ J
         return x, xd, J, c
+
+    def extra_repr(self) -> str:
+        return numbers_repr({"in_dim": self.in_dim, "out_dim": self.out_dim})
 
 
 def build_map(spec: Mapping[str, Any], in_dim: int, aux_dims: Mapping[str, int], where: str = "map") -> TaskMap:

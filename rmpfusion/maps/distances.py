@@ -14,7 +14,7 @@ from ..core.algebra import matvec
 from ..core.auxstate import CONSTANT_DTYPE, AuxOrValue, AuxParam, constant
 from ..core.taskmap import TaskMap
 from ..examples import AuxInput, Example
-from ..registry import TASK_MAPS, Params
+from ..registry import TASK_MAPS, Params, numbers_repr
 
 
 def _radial(d: Tensor, dd: Tensor, scale: Tensor | float):
@@ -96,6 +96,9 @@ class SphereDistance(TaskMap):
         y = r / R - 1.0 if self.normalized else r - R
         return y, (j * xd).sum(-1, keepdim=True), j.unsqueeze(-2), c
 
+    def extra_repr(self) -> str:
+        return numbers_repr({"in_dim": self.in_dim, "out_dim": self.out_dim, "normalized": self.normalized})
+
 
 @TASK_MAPS.register(
     "cylinder_distance",
@@ -105,6 +108,7 @@ class CylinderDistance(TaskMap):
     """Distance to an infinite cylinder with a given axis through ``center``: ``|P(y−c)| − R``."""
 
     stack_fields = ("center", "radius", "P")
+    P: Tensor  # buffer: I − aaᵀ, the projection across the unit axis a
 
     class Params(Params):
         center: AuxOrValue
@@ -147,6 +151,9 @@ class CylinderDistance(TaskMap):
         j = matvec(P, j)  # chain through the projection
         return r - self.radius(aux), (j * xd).sum(-1, keepdim=True), j.unsqueeze(-2), c
 
+    def extra_repr(self) -> str:
+        return numbers_repr({"in_dim": self.in_dim, "out_dim": self.out_dim, "projection": self.P})
+
 
 @TASK_MAPS.register(
     "box_distance", examples=[Example({"center": [0.0, 0.0, 0.0], "half_extents": [0.5, 1.0, 0.25]}, 3, scale=3.0)]
@@ -184,3 +191,6 @@ class BoxDistance(TaskMap):
         outside = q.clamp(min=0).norm(dim=-1, keepdim=True)
         inside = q.max(dim=-1, keepdim=True).values.clamp(max=0)
         return outside + inside
+
+    def extra_repr(self) -> str:
+        return numbers_repr({"in_dim": self.in_dim, "out_dim": self.out_dim})

@@ -13,10 +13,11 @@ from typing import Annotated
 
 import torch
 from pydantic import Field
+from torch import Tensor
 
 from ..core.auxstate import CONSTANT_DTYPE
 from ..examples import Example
-from ..registry import TASK_MAPS
+from ..registry import TASK_MAPS, numbers_repr
 from .basic import Linear
 from .kinematics import KUKA_IIWA, PANDA_ARM, joint_limit_states, robot_chain
 from .robot import RobotParams
@@ -31,6 +32,8 @@ from .robot import RobotParams
 )
 class VelocityScaledJoints(Linear):
     """y = q ⊘ v̄: each actuated joint divided by its velocity limit (the URDF's, unless ``velocity_limit`` is given)."""
+
+    velocity_limit: Tensor  # buffer: v̄, per actuated joint
 
     class Params(RobotParams):
         velocity_limit: list[Annotated[float, Field(gt=0)]] | None = Field(
@@ -58,3 +61,6 @@ class VelocityScaledJoints(Linear):
         scale = torch.diag(1.0 / torch.tensor(limits, dtype=CONSTANT_DTYPE))
         super().__init__(Linear.Params(matrix=scale.tolist()), in_dim, aux_dims)
         self.register_buffer("velocity_limit", torch.tensor(limits, dtype=CONSTANT_DTYPE))
+
+    def extra_repr(self) -> str:
+        return numbers_repr({"in_dim": self.in_dim, "out_dim": self.out_dim, "velocity_limit": self.velocity_limit})

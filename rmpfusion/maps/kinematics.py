@@ -10,6 +10,7 @@ from __future__ import annotations
 import difflib
 import math
 from collections.abc import Mapping, Sequence
+from typing import TypedDict
 
 import torch
 from pydantic import Field
@@ -18,7 +19,7 @@ from torch import Tensor, nn
 from ..core.algebra import matvec
 from ..core.taskmap import TaskMap
 from ..examples import Example, StateSampler
-from ..registry import TASK_MAPS, Params
+from ..registry import TASK_MAPS, Params, numbers_repr
 from .robot import RobotParams
 from .urdf import URDFModel, parse_urdf, resolve_urdf_path
 
@@ -64,6 +65,34 @@ class Chain(nn.Module):
     then one product per joint down the tree. Every kinematic point of a robot reads that one pass.
     """
 
+    # buffers (float64 unless said), registered in __init__: the joints' origins and rotation terms (K joints) ...
+    origin_R: Tensor
+    origin_p: Tensor
+    origin_axis: Tensor
+    rot_sin: Tensor
+    rot_cos: Tensor
+    # ... the actuated joints' limits, in their order ...
+    lower: Tensor
+    upper: Tensor
+    velocity_limit: Tensor
+    # ... and what one pass (``frames``) reads
+    mount: Tensor
+    gain: Tensor
+    bias: Tensor
+    mix: Tensor | None  # None unless some joint follows another (mimic)
+    axis_local: Tensor
+    T0: Tensor
+    T_sin: Tensor
+    T_cos: Tensor
+    T_slide: Tensor
+    q_of_joint: Tensor  # long
+    turns: Tensor
+    slides: Tensor
+    actuated_joints: Tensor  # long
+    actuated_turns: Tensor  # bool
+    actuated_q: Tensor  # long
+    columns: Tensor | None  # long; None when the URDF's order is the configuration's
+
     def __init__(self, model: URDFModel, actuated: Sequence[str] | None = None, mount: Tensor | None = None):
         super().__init__()
         self.model = model
@@ -81,11 +110,11 @@ class Chain(nn.Module):
         if len(set(actuated)) != len(actuated):
             raise ValueError(f"actuated joints contain duplicates: {actuated}")
         for name in actuated:
-            leader = model.joint(name).mimic
-            if leader is not None:
+            mimic = model.joint(name).mimic
+            if mimic is not None:
                 raise ValueError(
-                    f"joint '{name}' of URDF '{model.name}' mimics '{leader.leader}' (it follows that "
-                    f"joint): list '{leader.leader}' among the actuated joints instead of '{name}'"
+                    f"joint '{name}' of URDF '{model.name}' mimics '{mimic.leader}' (it follows that "
+                    f"joint): list '{mimic.leader}' among the actuated joints instead of '{name}'"
                 )
         self.actuated: tuple[str, ...] = tuple(actuated)
         self.dof = len(actuated)
@@ -273,6 +302,9 @@ class Chain(nn.Module):
     def forward(self, q: Tensor) -> dict[str, Pose]:
         return self.forward_kinematics(q)
 
+    def extra_repr(self) -> str:
+        return numbers_repr({"robot": self.model.name, "dof": self.dof, "links": len(self._links)})
+
 
 def _driver(model: URDFModel, joint, actuated: Sequence[str]) -> tuple[str | None, float, float]:
     """(the actuated joint that moves ``joint`` or None, gain, bias): ``joint``'s value is gain · q_leader + bias,
@@ -304,18 +336,31 @@ def robot_chain(p: RobotParams, in_dim: int, what: str) -> Chain:
     return chain
 
 
+class _RobotURDF(TypedDict):
+    urdf: str
+
+
+class RobotSpec(_RobotURDF, total=False):
+    """A robot as a map's parameters name it: its ``urdf`` and, optionally, its actuated ``joints``."""
+
+    joints: list[str]
+
+
 #: The robots the examples of the maps on a joint space are checked on (``rmpfusion.examples``): pybullet_data's
 #: Panda arm (its fingers frozen) and KUKA iiwa, as a map's ``urdf`` and ``joints``.
-PANDA_ARM = {"urdf": "pkg://pybullet_data/franka_panda/panda.urdf", "joints": [f"panda_joint{i}" for i in range(1, 8)]}
-KUKA_IIWA = {"urdf": "pkg://pybullet_data/kuka_iiwa/model.urdf"}
+PANDA_ARM: RobotSpec = {
+    "urdf": "pkg://pybullet_data/franka_panda/panda.urdf",
+    "joints": [f"panda_joint{i}" for i in range(1, 8)],
+}
+KUKA_IIWA: RobotSpec = {"urdf": "pkg://pybullet_data/kuka_iiwa/model.urdf"}
 
 
-def joint_limit_states(robot: Mapping[str, object]) -> StateSampler:
+def joint_limit_states(robot: RobotSpec) -> StateSampler:
     """Examples' states of a robot (``{"urdf": ..., "joints": ...}``): q uniform inside its joint limits, q̇ ~ N(0, I).
     The URDF is read when states are drawn, never when the example is declared (at import)."""
 
     def states(gen: torch.Generator, n: int, dim: int) -> tuple[Tensor, Tensor]:
-        lo, hi = Chain(parse_urdf(str(robot["urdf"])), robot.get("joints")).joint_limits()
+        lo, hi = Chain(parse_urdf(robot["urdf"]), robot.get("joints")).joint_limits()
         return lo + torch.rand(n, dim, generator=gen) * (hi - lo), torch.randn(n, dim, generator=gen)
 
     return states
@@ -343,6 +388,11 @@ class ForwardKinematics(TaskMap):
     """
 
     stack_fields = ("link_mask", "offset", "moved_by")
+    select: Tensor  # buffers: path joint -> configuration index (one-hot rows),
+    revolute: Tensor  # whether each path joint turns (bool),
+    offset: Tensor  # the point in the link frame (3,),
+    link_mask: Tensor  # the link among every link (one-hot),
+    moved_by: Tensor  # and the actuated joints (URDF order) that move it (1.0 or 0.0)
 
     class Params(RobotParams):
         link: str
@@ -374,6 +424,9 @@ class ForwardKinematics(TaskMap):
 
     def link_names(self) -> list[str]:
         return self.chain.link_names()
+
+    def extra_repr(self) -> str:
+        return numbers_repr({"in_dim": self.in_dim, "out_dim": self.out_dim, "link": self.link, "offset": self.offset})
 
     def joint_limits(self) -> tuple[Tensor, Tensor]:
         return self.chain.joint_limits()

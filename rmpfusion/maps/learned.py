@@ -16,6 +16,7 @@ that scale before any leaf or learned map sees them.
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Mapping
 from typing import Literal
 
@@ -27,7 +28,7 @@ from ..core.auxstate import CONSTANT_DTYPE, AuxOrValue, AuxParam, constant
 from ..core.jet import SMOOTH, Jet, exp3, tanh3
 from ..core.taskmap import TaskMap
 from ..examples import AuxInput, Example
-from ..registry import TASK_MAPS, Params
+from ..registry import TASK_MAPS, Params, numbers_repr
 
 
 def coupling_masks(dim: int, layers: int) -> list[Tensor]:
@@ -41,13 +42,17 @@ class Coupling(nn.Module):
     """x_b ↦ x_b ⊙ exp(s(x_a)) + t(x_a) on the coordinates ``~keep``, x_a = x[keep] unchanged; evaluated on a
     ``Jet`` (``core/jet.py``), so y, J and J̇ẋ come out of one pass."""
 
+    kept: Tensor  # buffers (long): the coordinates kept,
+    moved: Tensor  # those transformed,
+    order: Tensor  # and where [kept, moved] go back to
+
     def __init__(self, keep: Tensor, hidden: tuple[int, ...], activation: str, scale_bound: float):
         super().__init__()
         self.register_buffer("kept", keep.nonzero().flatten(), persistent=False)
         self.register_buffer("moved", (~keep).nonzero().flatten(), persistent=False)
         self.register_buffer("order", torch.cat([self.kept, self.moved]).argsort(), persistent=False)
         widths = (len(self.kept), *hidden)
-        self.hidden = nn.ModuleList(nn.Linear(a, b, dtype=CONSTANT_DTYPE) for a, b in zip(widths[:-1], widths[1:]))
+        self.hidden = nn.ModuleList(nn.Linear(a, b, dtype=CONSTANT_DTYPE) for a, b in itertools.pairwise(widths))
         self.head = nn.Linear(widths[-1], 2 * len(self.moved), dtype=CONSTANT_DTYPE)
         self.activation = SMOOTH[activation]
         self.scale_bound = scale_bound
@@ -61,6 +66,7 @@ class Coupling(nn.Module):
         """(s, t) of the kept coordinates: the log-scale and the shift of the moved ones."""
         h = a
         for layer in self.hidden:
+            assert isinstance(layer, nn.Linear)
             h = h.affine(layer.weight, layer.bias).pointwise(self.activation)
         out = h.affine(self.head.weight, self.head.bias)
         n = len(self.moved)
@@ -79,6 +85,9 @@ class Coupling(nn.Module):
         s, t = self.scale_shift(Jet(a, zero, torch.zeros_like(a), torch.zeros_like(a)))
         b = (y[..., self.moved] - t.value) * torch.exp(-s.value)
         return torch.cat([a, b], -1)[..., self.order]
+
+    def extra_repr(self) -> str:
+        return numbers_repr({"kept": self.kept, "moved": self.moved, "scale_bound": self.scale_bound})
 
 
 @TASK_MAPS.register(
@@ -133,17 +142,18 @@ class Diffeomorphism(TaskMap):
                 f"coordinates to transform the others); the parent has {in_dim}"
             )
         self.out_dim = in_dim
-        self.layers = nn.ModuleList(
+        couplings = [
             Coupling(keep, tuple(params.hidden), params.activation, params.scale_bound)
             for keep in coupling_masks(in_dim, params.layers)
-        )
+        ]
+        self.layers = nn.ModuleList(couplings)
         self.origin = (
             AuxParam(params.origin, self.aux_dims, "diffeomorphism.origin") if params.origin is not None else None
         )
         if self.origin is not None and self.origin.dim != in_dim:
             raise ValueError(f"diffeomorphism.origin has dimension {self.origin.dim} but the parent space has {in_dim}")
         with torch.no_grad():
-            for layer in self.layers:
+            for layer in couplings:
                 nn.init.normal_(layer.head.weight, std=params.init_std)
                 nn.init.normal_(layer.head.bias, std=params.init_std)
 
@@ -154,6 +164,7 @@ class Diffeomorphism(TaskMap):
         return x
 
     def _origin_image(self, x: Tensor, aux) -> Tensor:
+        assert self.origin is not None, "only a map given an origin shifts by its image"
         origin = self.origin(aux).to(x).expand_as(x)
         return self.flow(Jet.seed(origin, torch.zeros_like(origin))).value
 
@@ -176,8 +187,12 @@ class Diffeomorphism(TaskMap):
         if self.origin is not None:
             y = y + self._origin_image(y, aux)
         for layer in reversed(self.layers):
+            assert isinstance(layer, Coupling)
             y = layer.inverse(y)
         return y
+
+    def extra_repr(self) -> str:
+        return numbers_repr({"in_dim": self.in_dim, "out_dim": self.out_dim, "layers": len(self.layers)})
 
 
 @TASK_MAPS.register(
@@ -185,6 +200,9 @@ class Diffeomorphism(TaskMap):
 )
 class Normalize(TaskMap):
     """y = (x − shift) / scale: constants (a number for every coordinate, or one per coordinate)."""
+
+    shift: Tensor  # buffers, one number per coordinate
+    scale: Tensor
 
     class Params(Params):
         shift: float | tuple[float, ...] = Field(0.0, description="subtracted first (e.g. the demonstrations' goal)")
@@ -214,3 +232,6 @@ class Normalize(TaskMap):
         inv = 1.0 / self.scale.to(x)
         J = torch.diag_embed(inv.expand_as(x))
         return self.psi(x, aux), xd * inv, J, torch.zeros_like(x)
+
+    def extra_repr(self) -> str:
+        return numbers_repr({"in_dim": self.in_dim, "out_dim": self.out_dim, "shift": self.shift, "scale": self.scale})

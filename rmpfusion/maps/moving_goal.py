@@ -15,7 +15,7 @@ import torch
 from ..core.auxstate import AuxOrValue, AuxParam
 from ..core.taskmap import TaskMap
 from ..examples import AuxInput, Example
-from ..registry import TASK_MAPS, Params
+from ..registry import TASK_MAPS, Params, numbers_repr
 
 
 @TASK_MAPS.register(
@@ -57,3 +57,6 @@ class MovingOffset(TaskMap):
         eye = torch.eye(n, dtype=x.dtype, device=x.device)
         J = torch.cat([eye, torch.zeros_like(eye)], 0).expand(B, 2 * n, n)
         return self.psi(x, aux), torch.cat([xd, torch.zeros_like(xd)], -1), J, x.new_zeros(B, 2 * n)
+
+    def extra_repr(self) -> str:
+        return numbers_repr({"in_dim": self.in_dim, "out_dim": self.out_dim})

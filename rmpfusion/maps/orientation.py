@@ -28,7 +28,7 @@ from torch import Tensor
 from ..core.auxstate import AuxOrValue, AuxParam, constant
 from ..core.taskmap import TaskMap
 from ..examples import AuxInput, Example
-from ..registry import TASK_MAPS
+from ..registry import TASK_MAPS, numbers_repr
 from .kinematics import KUKA_IIWA, PANDA_ARM, joint_limit_states, robot_chain
 from .robot import RobotParams, Vector3, path_joints
 
@@ -140,6 +140,9 @@ class LinkOrientation(TaskMap):
     """
 
     what = "link_orientation"
+    path_q: Tensor  # buffers: the configuration index of each actuated joint on the link's path,
+    revolute: Tensor  # whether it turns (bool),
+    axes: Tensor  # and the link's unit axes (k, 3)
 
     class Params(_Orientation):
         axes: list[Vector3] = Field(
@@ -189,12 +192,13 @@ class LinkOrientation(TaskMap):
                 f"ax{'is' if k == 1 else 'es'} needs {want}; declare the aux entry with {want} numbers or "
                 f"change target_format"
             )
-        if target.name is None:
+        if target.const is not None:  # a constant (None: an aux entry)
             _check_constant_target(target.const, fmt, k, self.what)
         return target
 
     def target_directions(self, aux, batch: int, like: Tensor) -> Tensor:
         """The k target directions (B, k, 3): R* a_k for a rotation, the given directions normalised for ``axes``."""
+        assert self.target is not None, "only a map given a target has target directions"
         t = self.target(aux).to(like)
         t = t.expand(batch, -1) if t.dim() == 1 else t
         if self.target_format == "axes":
@@ -232,6 +236,17 @@ class LinkOrientation(TaskMap):
 
     def curvature(self, x, xd, aux=None, J=None):
         return self.forward(x, xd, aux)[3]
+
+    def extra_repr(self) -> str:
+        return numbers_repr(
+            {
+                "in_dim": self.in_dim,
+                "out_dim": self.out_dim,
+                "link": self.link,
+                "axes": self.axes,
+                "target_format": self.target_format,
+            }
+        )
 
 
 def _check_constant_target(t: Tensor, fmt: str, k: int, what: str) -> None:

@@ -24,7 +24,7 @@ from ..core.auxstate import CONSTANT_DTYPE
 from ..core.stacking import shallow_clone, spread, stack_values
 from ..core.taskmap import TaskMap
 from ..examples import Example
-from ..registry import TASK_MAPS, Params
+from ..registry import TASK_MAPS, Params, numbers_repr
 from .distances import _radial
 from .kinematics import KUKA_IIWA, PANDA_ARM, Chain, ForwardKinematics, joint_limit_states, robot_chain
 from .robot import RobotParams, Vector3, rigid_body_of
@@ -186,6 +186,9 @@ class LinkSphereDistance(TaskMap):
 
     def curvature(self, x, xd, aux=None, J=None):
         return self.forward(x, xd, aux)[3]
+
+    def extra_repr(self) -> str:
+        return numbers_repr({"in_dim": self.in_dim, "out_dim": self.out_dim, "radii": self.radii})
 
 
 def _centres(a: Sequence[ForwardKinematics], b: Sequence[ForwardKinematics]):

@@ -18,6 +18,7 @@ infinity or NaN ever enters the values or their gradients (docs/math.md §13).
 from __future__ import annotations
 
 from collections.abc import Mapping
+from typing import ClassVar
 
 import torch
 from pydantic import Field, field_validator
@@ -26,7 +27,7 @@ from torch import Tensor
 from ..core.auxstate import AuxOrValue, AuxParam, constant
 from ..core.taskmap import TaskMap
 from ..examples import AuxInput, Example
-from ..registry import TASK_MAPS, Params
+from ..registry import TASK_MAPS, Params, numbers_repr
 from .distances import _positive_radius, _radial, _values
 
 Measure = tuple[Tensor, Tensor, Tensor]  # distance (B, 1), gradient (B, 3), d²d[v, v] (B, 1)
@@ -96,7 +97,8 @@ class ObstacleDistance(TaskMap):
     tree evaluate as one group, each member reading its own obstacle's aux state."""
 
     Params = ShapeParams
-    stack_fields = ("center", "velocity", "present")
+    stack_fields: ClassVar[tuple[str, ...]] = ("center", "velocity", "present")
+    registered: ClassVar[str]  # the name each shape registers under, which its messages use
 
     def stack_settings(self) -> tuple:
         # static and moving obstacles compute different rates; masked and unmasked ones different outputs
@@ -157,7 +159,12 @@ class ObstacleDistance(TaskMap):
             regular = (
                 torch.isfinite(d) & torch.isfinite(c) & torch.isfinite(g).all(-1, keepdim=True) & (_dot(g, g) > 0.25)
             )
+        assert self.present is not None, "only a masked map (given present) asks whether it acts"
         return (self.present(aux) > 0.5) & regular
+
+    def extra_repr(self) -> str:
+        """The dimensions: every number of the shape (centre, size, pose) is an ``AuxParam``, shown below them."""
+        return numbers_repr({"in_dim": self.in_dim, "out_dim": self.out_dim})
 
 
 # The examples are static obstacles (no velocity: ẏ = Jẋ); tests/test_scenes.py checks moving ones in time.
@@ -403,6 +410,7 @@ class PlaneDistance(TaskMap):
     """nᵀx − h: the height of the point above a plane with unit normal n (a table top, the floor)."""
 
     stack_fields = ("n", "height")
+    n: Tensor  # buffer: the unit normal
 
     class Params(Params):
         normal: list[float] = Field([0.0, 0.0, 1.0], min_length=1, description="the plane's normal (normalised)")
@@ -441,3 +449,6 @@ class PlaneDistance(TaskMap):
         y = self.psi(x, aux)
         J = self.n.unsqueeze(-2).expand(*y.shape[:-1], 1, self.in_dim)
         return y, (xd * self.n).sum(-1, keepdim=True), J, torch.zeros_like(y)
+
+    def extra_repr(self) -> str:
+        return numbers_repr({"in_dim": self.in_dim, "out_dim": self.out_dim, "normal": self.n})

@@ -117,8 +117,17 @@ def _origin(el: ET.Element | None) -> tuple[Vec3, Vec3]:
     return _vec(o.get("xyz"), (0.0, 0.0, 0.0), "origin xyz"), _vec(o.get("rpy"), (0.0, 0.0, 0.0), "origin rpy")
 
 
+def _required(el: ET.Element, key: str, what: str) -> str:
+    """An attribute the URDF format requires (a joint's or link's name, the link a joint's parent names): without it
+    the element means nothing, so the file is refused rather than read with a name of None."""
+    value = el.get(key)
+    if value is None:
+        raise ValueError(f'URDF {what} has no {key}="..."')
+    return value
+
+
 def _parse_joint(el: ET.Element) -> Joint:
-    name, jtype = el.get("name"), el.get("type")
+    name, jtype = _required(el, "name", "<joint>"), el.get("type")
     if jtype not in JOINT_TYPES:
         raise ValueError(f"URDF joint '{name}': type '{jtype}' is not supported (supported: {', '.join(JOINT_TYPES)})")
     parent, child = el.find("parent"), el.find("child")
@@ -133,7 +142,11 @@ def _parse_joint(el: ET.Element) -> Joint:
             raise ValueError(f"URDF joint '{name}' has a zero axis")
         axis = (axis[0] / n, axis[1] / n, axis[2] / n)
     lim = el.find("limit")
-    get = lambda k, d: d if lim is None or lim.get(k) is None else float(lim.get(k))
+
+    def get(key: str, default: float) -> float:
+        value = None if lim is None else lim.get(key)
+        return default if value is None else float(value)
+
     lower, upper = -math.inf, math.inf
     if jtype in ("revolute", "prismatic"):
         lower, upper = get("lower", -math.inf), get("upper", math.inf)
@@ -145,8 +158,8 @@ def _parse_joint(el: ET.Element) -> Joint:
     return Joint(
         name=name,
         type=jtype,
-        parent=parent.get("link"),
-        child=child.get("link"),
+        parent=_required(parent, "link", f"joint '{name}' <parent>"),
+        child=_required(child, "link", f"joint '{name}' <child>"),
         xyz=xyz,
         rpy=rpy,
         axis=axis,
@@ -162,9 +175,10 @@ def _mimic(el: ET.Element, name: str, jtype: str) -> Mimic | None:
     m = el.find("mimic")
     if m is None or jtype == "fixed":
         return None
-    if not m.get("joint"):
+    leader = m.get("joint")
+    if not leader:
         raise ValueError(f"URDF joint '{name}': <mimic> needs joint=\"<the joint it follows>\"")
-    return Mimic(m.get("joint"), float(m.get("multiplier", 1.0)), float(m.get("offset", 0.0)))
+    return Mimic(leader, float(m.get("multiplier", 1.0)), float(m.get("offset", 0.0)))
 
 
 def parse_urdf_string(text: str) -> URDFModel:
@@ -180,7 +194,8 @@ def parse_urdf_string(text: str) -> URDFModel:
     links = {}
     for el in root_el.findall("link"):
         xyz, rpy = _origin(el.find("inertial"))
-        links[el.get("name")] = Link(el.get("name"), xyz, rpy)
+        name = _required(el, "name", "<link>")
+        links[name] = Link(name, xyz, rpy)
     joints = [_parse_joint(el) for el in root_el.findall("joint")]
     by_child: dict[str, Joint] = {}
     for j in joints:

@@ -106,7 +106,8 @@ def _crossing(env, ds: Dataset) -> dict:
 def check_task(exp: Experiment, splits: Splits) -> list[str]:
     """Say, before any training, how the task was laid out, whether its obstacle is in the way of the reaches, and
     whether the expert reached the validation goals; returns the warnings (also printed)."""
-    env, say, warnings = exp.env, exp.say.say, []
+    env, say = exp.env, exp.say.say
+    warnings: list[str] = []
     if not isinstance(env, Reaches):
         return warnings
     layout = env.describe_task()
@@ -146,7 +147,7 @@ def load_or_collect(exp: Experiment, split: str) -> tuple[Dataset, dict]:
     ``val`` is drawn like ``train`` (the training environments' distribution, for Franka the training obstacle
     placement) from its own seed: the split settings are chosen on, never trained on.
     """
-    d, h = exp.run.data, data_hash(exp.run, split)
+    d, h = exp.expert_data, data_hash(exp.run, split)
     cache = Path(d.cache_dir) if d.cache_dir else exp.dir / "data"
     path = cache / f"{split}-{h[:16]}.pt"
     meta = {"seed": exp.run.seed, "config_hash": h, "split": split}
@@ -189,11 +190,11 @@ def load_or_collect(exp: Experiment, split: str) -> tuple[Dataset, dict]:
 def collect(exp: Experiment, splits: tuple[str, ...] | None = None) -> Splits:
     """Every split the run uses (or those named): the one place that decides the splits, for
     ``rmpfusion-run`` and the stage commands alike."""
-    names = splits or (("train", "test", "val") if exp.run.data.val_envs else ("train", "test"))
+    names = splits or (("train", "test", "val") if exp.expert_data.val_envs else ("train", "test"))
     t0 = time.time()
     loaded = {s: load_or_collect(exp, s) for s in names}
     exp.timing["data_s"] = time.time() - t0
-    splits = Splits({s: ds for s, (ds, _) in loaded.items()}, {s: info for s, (_, info) in loaded.items()})
-    if "train" in splits.info:
-        check_task(exp, splits)
-    return splits
+    collected = Splits({s: ds for s, (ds, _) in loaded.items()}, {s: info for s, (_, info) in loaded.items()})
+    if "train" in collected.info:
+        check_task(exp, collected)
+    return collected

@@ -27,10 +27,10 @@ from pydantic import (
 from pydantic_core import InitErrorDetails, PydanticCustomError
 
 from ..assembly.errors import TAG_SEPARATOR
-from ..assembly.spec import TreeSpec, TypedBlock, tree_spec_model, typed_union, weight_field
+from ..assembly.spec import TreeSpec, TypedBlock, name_keyed, tree_spec_model, typed_union, weight_field
 from ..envs.common import time_grid
 from ..learn import methods  # noqa: F401  (the built-in training methods register themselves)
-from ..learn.config import DEFAULT_METHOD, RENAMED_KEYS, TrainConfig, TrainParams, _renamed, upgrade_train_config  # noqa: F401
+from ..learn.config import DEFAULT_METHOD, RENAMED_KEYS, TrainParams, _renamed, upgrade_train_config
 from ..registry import ENVS, LEAF_RMPS, LEARNERS, TASK_MAPS, TRAIN_METHODS, WEIGHTS
 
 
@@ -201,12 +201,29 @@ def train_union() -> Any:
     return typed_union(TRAIN_METHODS, key="method", default=DEFAULT_METHOD)
 
 
+def method_of(train: TrainParams) -> str:
+    """The TRAIN_METHODS name a validated training block is for: the entry whose parameter model typed it, the
+    nearest in its class's ancestry (validation types a block by a model derived from the entry's; a method's model
+    may derive from another's, as DAgger's from behavior cloning's; a plugin's need not carry a ``method`` field)."""
+    ancestry = type(train).__mro__
+    owners = sorted((ancestry.index(e.params), e.name) for e in TRAIN_METHODS.entries() if e.params in ancestry)
+    if not owners:
+        raise TypeError(f"{type(train).__name__} is the parameter model of no registered training method")
+    return owners[0][1]
+
+
+class _TrainBlock(BaseModel):
+    """The model a training block is validated in on its own; ``_typed_train`` types ``train`` by its method."""
+
+    train: Any
+
+
 def _typed_train(value: Any) -> Any:
     """The static ``RunConfig``'s training block, typed by its method's entry at validation time (so a plugin's
     method is known once its plugin loads); ``run_config_model`` types it the same way with error locations."""
     if isinstance(value, TrainParams):
         return value
-    block = create_model("TrainBlock", train=(train_union(), ...))
+    block = create_model("TrainBlock", __base__=_TrainBlock, train=(train_union(), ...))
     return block.model_validate({"train": value if value is not None else {}}).train
 
 
@@ -278,7 +295,7 @@ class RunConfig(_Frozen):
         raise ValueError(f"{v!r} is not a device torch knows{hint} (devices: cpu, cuda, cuda:<index>)")
 
     @model_validator(mode="after")
-    def _across_blocks(self):
+    def _across_blocks(self) -> RunConfig:
         """Checks that need two blocks at once, each reported at the key to change (all of them together)."""
         found: list[InitErrorDetails] = []
 
@@ -335,26 +352,30 @@ class RunConfig(_Frozen):
 
     def _recorded_issues(self) -> list[InitErrorDetails]:
         """Recorded demonstrations have no expert: an expert block, or a method that queries one, is refused."""
-        issues = []
+        issues: list[tuple[str | tuple[str, ...], Any, str]] = []
         if self.expert:
             issues.append(
                 (
                     "expert",
                     dict(self.expert),
-                    "recorded demonstrations (data.source=recorded) have no expert "
-                    "tree: remove the expert block; the tree with every weight 1 is reported as the untrained "
-                    "reference",
+                    (
+                        "recorded demonstrations (data.source=recorded) have no expert "
+                        "tree: remove the expert block; the tree with every weight 1 is reported as the untrained "
+                        "reference"
+                    ),
                 )
             )
-        method = self.train.method if isinstance(self.train, TrainParams) else None
+        method = method_of(self.train) if isinstance(self.train, TrainParams) else None
         if method not in (None, "bc"):
             issues.append(
                 (
                     ("train", "method"),
                     method,
-                    f"train.method={method} needs an expert or the environment's "
-                    "task cost, which recorded demonstrations do not give; use train.method=bc (behavior "
-                    "cloning on the recorded accelerations)",
+                    (
+                        f"train.method={method} needs an expert or the environment's "
+                        "task cost, which recorded demonstrations do not give; use train.method=bc (behavior "
+                        "cloning on the recorded accelerations)"
+                    ),
                 )
             )
         return [
@@ -370,7 +391,10 @@ class RunConfig(_Frozen):
         """Why a rollout on the step ``dt`` (set by ``key``) would never end, or None: its longest rollout (the
         demonstrations', the evaluation's, a training method's) must take at most ``MAX_ROLLOUT_STEPS`` steps."""
         horizons = [
-            (self.data.points * self.data.interval, "data.points × data.interval"),
+            (
+                self.data.points * self.data.interval if isinstance(self.data, DataConfig) else None,
+                "data.points × data.interval",
+            ),
             (self.eval.horizon, "eval.horizon"),
             (getattr(self.train, "horizon", None), "train.horizon"),
         ]
@@ -416,8 +440,8 @@ def run_config_model() -> type[RunConfig]:
             __base__=RunConfig,
             env=(typed_union(ENVS), ...),
             tree=(tree_spec_model(), Field(description="the tree spec without learned weights")),
-            expert=(dict[str, weight_field()], Field(default_factory=dict)),
-            learners=(dict[str, typed_union(LEARNERS)], Field(default_factory=dict)),
+            expert=(name_keyed(weight_field()), Field(default_factory=dict)),
+            learners=(name_keyed(typed_union(LEARNERS)), Field(default_factory=dict)),
             train=(train_union(), Field(default_factory=dict, validate_default=True)),
         )
     return _RUN_MODELS[key]

@@ -58,7 +58,7 @@ def _evaluate_tree(
     when given) for environments that have them."""
     exp.say.say(f"eval: {label}")
     q0, qd0, aux0 = test.initial_states()
-    ev, d = exp.run.eval, exp.run.data
+    ev, d = exp.run.eval, exp.expert_data
     online = online_loss(
         tree,
         exp.expert_at(),
@@ -72,7 +72,7 @@ def _evaluate_tree(
         exp.say.bar(f"rollout {label}"),
     )
     ro = online.rollout
-    metrics = rollout_rates(ro, ev.lyapunov_rtol, ev.lyapunov_atol)
+    metrics: dict[str, Any] = rollout_rates(ro, ev.lyapunov_rtol, ev.lyapunov_atol)
     if online_losses:
         metrics.update(online.metrics())
     stage = None
@@ -108,6 +108,7 @@ class WeightReport:
     along one test trajectory for the figure."""
 
     def __init__(self, exp: Experiment, model: Learner, test: Dataset):
+        assert model.tree is not None, "a weight report is made of a learner that is a tree"
         self.edges = learned_edges(model.tree)
         self.states = (test.q, test.qd, test.aux)
         self.along = test.traj_id == test.traj_id[0]  # the first test trajectory
@@ -125,6 +126,7 @@ class WeightReport:
         return {e: w[self.along] for e, w in self.expert.items()}
 
     def snapshot(self, label: str, model: Learner) -> dict:
+        assert model.tree is not None, "a snapshot of the learner the report was made of"
         values = edge_weights(model.tree, *self.states, self.edges)
         self.traces[label] = {e: w[self.along] for e, w in values.items()}
         return summarize_weights(values)
@@ -151,8 +153,8 @@ class _SnapshotEvaluator:
         self.plot_idx = exp.environment_0(splits.test)[0]
 
     def with_task(self, met: dict, ro, it: int, out: LearnerEval) -> dict:
-        if self.expert.stage is None:
-            return met
+        if self.expert.stage is None or not isinstance(self.exp.env, HasTaskMetrics):
+            return met  # the expert has task metrics exactly when the environment does
         ev = self.exp.run.eval
         label = f"learner-{it}" if len(self.exp.run.learners) == 1 else f"{self.name}-{it}"  # the paper's names
         st = task_stage(
@@ -177,7 +179,7 @@ class _SnapshotEvaluator:
             exp.env,
             self.splits.test,
             exp.horizon,
-            exp.run.data.interval,
+            exp.expert_data.interval,
             ev.lyapunov_rtol,
             ev.lyapunov_atol,
             exp.fine_interval,
@@ -220,6 +222,7 @@ def certificate(model: Learner, rollout, aux) -> dict:
     """Theorem 2's premises and identity checked at every record of the trained tree's test rollouts
     (``evaluate/certificate.py``): positive weights, positive-definite M_r, dV_r/dt = −q̇ᵀB_r q̇ ≤ 0. What a
     trained tree (learned weights, learnable leaf parameters) must still satisfy; the failing records counted."""
+    assert model.tree is not None, "only a learner that is a tree has a certificate"
     d = certify_rollout(model.tree, rollout, aux).as_dict()
     return {**d, "failing_states": len(d["failing_states"]), "non_finite_states": len(d["non_finite_states"])}
 

@@ -18,7 +18,7 @@ from ..core.tree import RMPTree
 from ..envs.common import on_device
 from ..envs.demonstrations import Dataset
 from ..envs.protocol import ComputesOn, Env
-from .config import RunConfig
+from .config import DataConfig, RecordedDataConfig, RunConfig
 from .construct import build_expert, make_env
 from .progress import Progress
 from .validate import typed
@@ -55,17 +55,32 @@ class Experiment:
         return self.run.model_dump()
 
     @property
+    def expert_data(self) -> DataConfig:
+        """``data`` of a run on the expert's demonstrations, which the collect and evaluate stages read; a run on
+        recorded demonstrations has stages of its own (``pipeline/recorded.py``) that never ask for it."""
+        assert isinstance(self.run.data, DataConfig), "a run on recorded demonstrations has no expert's data"
+        return self.run.data
+
+    @property
+    def recorded_data(self) -> RecordedDataConfig:
+        """``data`` of a run on recorded demonstrations, which that run's stages (``pipeline/recorded.py``) read."""
+        assert isinstance(self.run.data, RecordedDataConfig), "a run on the expert's demonstrations has no recordings"
+        return self.run.data
+
+    @property
     def horizon(self) -> float:
         """Seconds each evaluation rollout lasts: ``eval.horizon``, default the demonstrations' length."""
-        d = self.run.data
-        return self.run.eval.horizon if self.run.eval.horizon is not None else d.points * d.interval
+        if self.run.eval.horizon is not None:
+            return self.run.eval.horizon
+        d = self.expert_data
+        return d.points * d.interval
 
     @property
     def fine_interval(self) -> float:
         """A recording interval dividing ``data.interval`` ~10x finer on the env's step grid: smooth figures and
         a stricter Lyapunov monitor than the demonstrations' spacing."""
-        interval = self.run.data.interval
-        steps = int(round(interval / self.env.dt))
+        interval = self.expert_data.interval
+        steps = round(interval / self.env.dt)
         for n in (10, 8, 5, 4, 2):
             if steps % n == 0:
                 return interval / n
@@ -75,7 +90,7 @@ class Experiment:
         """Test environment 0, the one figures draw: the indices of its initial states (they are
         environment-major), those states, and its aux as a one-row batch."""
         q0, qd0, aux0 = test.initial_states()
-        idx = torch.arange(min(self.run.data.test_trajectories, q0.shape[0]))
+        idx = torch.arange(min(self.expert_data.test_trajectories, q0.shape[0]))
         return idx, q0[idx], qd0[idx], {k: v[:1] for k, v in aux0.items()}
 
     def learner_seed(self, name: str) -> int:

@@ -20,6 +20,7 @@ from ..learn.loop import TrainResult
 from ..learn.method import MethodContext, TrainingMethod
 from ..registry import TRAIN_METHODS
 from .collect import Splits
+from .config import RecordedDataConfig
 from .construct import build_learners
 from .experiment import COMPILING, Experiment
 
@@ -74,15 +75,15 @@ def method(exp: Experiment) -> TrainingMethod:
 def context(exp: Experiment, name: str, splits: Splits) -> MethodContext:
     """What a training method may use for learner ``name``: the splits, the environment, the expert, the
     demonstrations' recording grid, its checkpoint directory, progress and logging."""
-    d = exp.run.data
-    recorded = d.source == "recorded"  # no expert, and demonstrations of their own lengths
+    # the expert's demonstrations on their grid, or None for recorded ones: no expert, and lengths of their own
+    grid = None if isinstance(exp.run.data, RecordedDataConfig) else exp.run.data
     return MethodContext(
         data=dict(splits.data),
         seed=exp.learner_seed(name) + 1,
         env=exp.env,
-        expert=None if recorded else exp.expert,
-        interval=None if recorded else d.interval,
-        points=None if recorded else d.points,
+        expert=None if grid is None else exp.expert,
+        interval=None if grid is None else grid.interval,
+        points=None if grid is None else grid.points,
         checkpoint_dir=exp.dir / "checkpoints" / name,
         run_config=exp.config,
         progress=exp.say.bar(f"train {name}"),

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import sys
 import time
 from collections.abc import Callable
@@ -37,7 +38,7 @@ class Progress:
         width = 24
         filled = int(width * done / total)
         bar = "#" * filled + "." * (width - filled)
-        eta_s = self._clock(eta) if eta == eta else "--:--"
+        eta_s = "--:--" if math.isnan(eta) else self._clock(eta)
         return f"{label} [{bar}] {done}/{total} {100 * done / total:3.0f}%  {rate:.1f}/s  elapsed {self._clock(elapsed)}  eta {eta_s}"
 
     def bar(self, label: str) -> Callable[[int, int], None]:

@@ -22,11 +22,13 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
 
 from ..envs.demonstrations import Dataset, load_dataset, save_dataset
+from ..envs.rollout import Rollout
 from ..evaluate.lyapunov import lyapunov_monotone
 from ..evaluate.reproduction import dtw_distance, swept_error_area
 from ..files import atomic_write_json
@@ -73,7 +75,7 @@ def _dataset(
 ) -> tuple[Dataset, dict]:
     """The split's dataset, from the cache when the files (``files``: their content hash) and settings are the
     same, else made and cached."""
-    d = exp.run.data
+    d = exp.recorded_data
     h = _cache_key(exp, files, split, members)
     path = (Path(d.cache_dir) if d.cache_dir else exp.dir / "data") / f"{split}-{h[:16]}.pt"
     meta = {"seed": exp.run.seed, "config_hash": h, "split": split}
@@ -142,12 +144,13 @@ class Batch:
 
 
 def evaluation_batch(exp: Experiment, demos: dict[str, list[States]], every_demo: list[States]) -> Batch:
-    d, dt = exp.run.data, exp.env.dt
-    held = {k: demos[k] for k in ("test", "val") if k in demos}
+    d, dt = exp.recorded_data, exp.env.dt
+    held: dict[str, list[States]] = {k: demos[k] for k in ("test", "val") if k in demos}
     q0 = [s.q[0] for v in held.values() for s in v]
     qd0 = [s.qd[0] for v in held.values() for s in v]
     goals = [s.goal for v in held.values() for s in v]
-    index, at = {}, 0
+    index: dict[str, slice] = {}
+    at = 0
     for k, v in held.items():
         index[k], at = slice(at, at + len(v)), at + len(v)
     grid = grid_starts(every_demo, d)
@@ -172,7 +175,7 @@ def reproduction(batch: Batch, ro, split: str, tolerance: float) -> dict:
     """DTW per sample and swept error area over each demonstration's duration, the distance to the goal at the
     horizon, the time to within ``tolerance``: the mean over the split's demonstrations and each one's own."""
     path, dist = ro.q.numpy(), ro.goal_distance.numpy()
-    per = []
+    per: list[dict[str, Any]] = []
     for n, demo in zip(range(batch.index[split].start, batch.index[split].stop), batch.demos[split]):
         T = len(demo.t)
         within = np.flatnonzero(dist[:, n] <= tolerance)
@@ -218,9 +221,9 @@ def convergence(batch: Batch, ro, d, rtol: float, atol: float, dt: float) -> dic
     return out
 
 
-def evaluate_policy(exp: Experiment, label: str, policy: Callable, batch: Batch) -> tuple[dict, object]:
+def evaluate_policy(exp: Experiment, label: str, policy: Callable, batch: Batch) -> tuple[dict, Rollout]:
     """One policy on the evaluation batch: reproduction of the held-out demonstrations, convergence from the grid."""
-    d, ev = exp.run.data, exp.run.eval
+    d, ev = exp.recorded_data, exp.run.eval
     ro = exp.env.rollout(
         policy, batch.q0, batch.qd0, batch.aux, batch.horizon, exp.env.dt, progress=exp.say.bar(f"rollout {label}")
     )
@@ -251,7 +254,8 @@ def evaluate_policy(exp: Experiment, label: str, policy: Callable, batch: Batch)
 def evaluate_recorded(exp: Experiment, fitted: dict, batch: Batch) -> tuple[dict, dict]:
     """The configured tree (every weight 1) and every learner at every training snapshot; the results and the
     final rollout of each policy (for the figures)."""
-    res, rollouts = {"learners": {}}, {}
+    res: dict[str, Any] = {"learners": {}}
+    rollouts: dict[str, Rollout] = {}
     res[TREE], rollouts[f"{TREE} (every weight 1)"] = evaluate_policy(exp, TREE, exp.expert_at(), batch)
     for name, f in fitted.items():
         model = f.model.to(torch.float64)

@@ -151,10 +151,10 @@ def task_table(expert: StageResult, stages: list[StageResult], ratio_keys) -> li
         for k, v in st.summary.items():
             row[k] = {"mean": v["mean"], "std": v["std"]}
         collided = st.per_trajectory.get("collided")
-        row["collisions"] = int(round(float(collided.sum()))) if collided is not None else None
+        row["collisions"] = round(float(collided.sum())) if collided is not None else None
         close, clearance = st.per_trajectory.get("close_pass"), st.per_trajectory.get("min_clearance")
         if close is not None:
-            row["close_passes"] = int(round(float(close.sum())))
+            row["close_passes"] = round(float(close.sum()))
         if clearance is not None and clearance.numel():
             # beside min_clearance's mean ± std: the closest any rollout came, and the (lower) median rollout's
             row["clearance"] = {"least": float(clearance.min()), "median": float(clearance.median())}
@@ -205,7 +205,7 @@ def report(
     if expert.stage is not None:
         keys = exp.env.ratio_metrics if isinstance(exp.env, HasRatioMetrics) else ()
         stages = [st for ev in evals.values() for st in ev.task_stages]
-        if expert.unit is not None:
+        if expert.unit is not None and expert.unit.stage is not None:  # it has one when the expert has
             stages.insert(0, expert.unit.stage)
         metrics["task_table"] = clean(task_table(expert.stage, stages, keys))
     if exp.run.eval.figures:  # the numbers first: a figure that cannot be written (a full disk) loses no result

@@ -15,7 +15,7 @@ keys and names that stored configs still carry, ``construct.py`` builds the expe
 from __future__ import annotations
 
 import difflib
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
 import torch
@@ -39,7 +39,7 @@ from .migrate import renamed_issues, retired_issues
 _AUX_LIST_KEYS = ("aux",)
 
 
-def _listing(names: Sequence[str], limit: int = 12) -> str:
+def _listing(names: Iterable[str], limit: int = 12) -> str:
     names = list(names)
     more = f", ... ({len(names) - limit} more)" if len(names) > limit else ""
     return ", ".join(names[:limit]) + more
@@ -50,13 +50,21 @@ def _close(name: str, options: Sequence[str]) -> str:
     return f"did you mean {', '.join(map(repr, close))}? " if close else ""
 
 
+def _run_data(container: object) -> dict[str, Any]:
+    """The plain container of a resolved config: a dict, as every DictConfig's is. Its keys are the names a YAML
+    author wrote; one that is not a string is the schema's to refuse, by its path."""
+    assert isinstance(container, dict)
+    return container
+
+
 def _to_container(cfg: DictConfig | Mapping[str, Any]) -> dict[str, Any]:
     if not isinstance(cfg, DictConfig):
-        return OmegaConf.to_container(OmegaConf.create(dict(cfg)), resolve=True)  # a deep, plain copy
+        return _run_data(OmegaConf.to_container(OmegaConf.create(dict(cfg)), resolve=True))  # a deep, plain copy
     if "hydra" in cfg:  # Hydra's own node (composed with return_hydra_config) is not the experiment's
-        cfg = OmegaConf.masked_copy(cfg, [k for k in cfg if k != "hydra"])
+        # omegaconf's annotation says string keys; it keeps whichever keys of the config it is given
+        cfg = OmegaConf.masked_copy(cfg, [k for k in cfg if k != "hydra"])  # type: ignore[misc]
     try:
-        return OmegaConf.to_container(cfg, resolve=True, throw_on_missing=True)
+        return _run_data(OmegaConf.to_container(cfg, resolve=True, throw_on_missing=True))
     except OmegaConfBaseException as e:
         key = getattr(e, "full_key", None) or "<config>"
         raise ConfigError([Issue(str(key), f"cannot resolve: {getattr(e, 'msg', None) or e}")]) from None
@@ -137,7 +145,7 @@ def typed(run: RunConfig) -> RunConfig:
 def _make_env(data: Mapping[str, Any]) -> tuple[Any, list[Issue]]:
     """The config's environment (None if it cannot be made: its problems are reported by the schema, or here
     when creating it fails)."""
-    block, issues = check_typed(data.get("env"), ENVS, "env")
+    block, _ = check_typed(data.get("env"), ENVS, "env")
     if block is None:
         return None, []
     try:
@@ -246,8 +254,8 @@ def _aux_refs(block: Any, registry: Registry, path: str) -> list[tuple[str, str]
     found other problems, so every problem is reported at once)."""
     if isinstance(block, BaseModel):
         block = block.model_dump()
-    if not isinstance(block, Mapping) or block.get("type") not in registry:
-        return []
+    if not isinstance(block, Mapping) or not isinstance(block.get("type"), str) or block["type"] not in registry:
+        return []  # no entry to read (a type that is no name, e.g. a list, is the schema's to report)
     fields = registry.get(block["type"]).params.model_fields
     out = []
     for key, value in block.items():
@@ -344,7 +352,7 @@ def resolve_and_validate(cfg: DictConfig | Mapping[str, Any]) -> RunConfig:
     aux_dims = dict(env.aux_dims()) if env is not None else None
     issues += env_issues
     if aux_dims is not None:
-        issues += _aux_issues(data, _mapping(data.get("env")).get("type"), aux_dims)
+        issues += _aux_issues(data, str(_mapping(data.get("env")).get("type")), aux_dims)
     try:
         run = parse_run_config(data)
     except ConfigError as e:

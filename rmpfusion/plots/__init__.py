@@ -1,6 +1,6 @@
 """Figures as PNG files, drawn off-screen on matplotlib Figures (no pyplot: importing them never picks a backend)."""
 
-from .figures import (  # noqa: F401
+from .figures import (
     plot_learning_curves,
     plot_lyapunov,
     plot_progression,
@@ -8,3 +8,12 @@ from .figures import (  # noqa: F401
     plot_weights,
     save_figure,
 )
+
+__all__ = [
+    "plot_learning_curves",
+    "plot_lyapunov",
+    "plot_progression",
+    "plot_trajectories",
+    "plot_weights",
+    "save_figure",
+]

@@ -11,6 +11,7 @@ from __future__ import annotations
 import os
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import Literal
 
 import matplotlib
 import numpy as np
@@ -41,7 +42,9 @@ TITLE_SIZE = 10
 LEGEND_SIZE = 8
 
 
-def subplots(*grid, figsize: tuple[float, float], layout: str | None = None, **kwargs):
+def subplots(
+    *grid, figsize: tuple[float, float], layout: Literal["constrained", "compressed", "tight"] | None = None, **kwargs
+):
     """A figure and its axes, drawn off-screen: a ``Figure`` renders to a file without pyplot, so importing
     the plots never selects a matplotlib backend for the whole process (an interactive session keeps its own).
     ``layout="constrained"`` makes room for titles, labels and figure legends outside the axes."""
@@ -420,7 +423,7 @@ def _draw_weights(times, expert, learned, title: str = "") -> Figure:
 
 
 def plot_weights(
-    path, times, expert: Mapping[str, Sequence], learned: Mapping[str, Mapping[str, Sequence]], title: str = ""
+    path, times, expert: Mapping[str, torch.Tensor], learned: Mapping[str, Mapping[str, torch.Tensor]], title: str = ""
 ) -> Path:
     """One panel per learned edge: the expert's weight (thick dashed black, on top) and each learner snapshot's
     weight (coloured) at the same states along a test trajectory, on a log scale when the weights span a decade.

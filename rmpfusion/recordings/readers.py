@@ -90,22 +90,20 @@ def read_csv(
         key = line[index[demo_column]].strip() if demo_column else ""
         groups.setdefault(key, []).append(r)
     scale = unit_scale(units, source)
+
+    def numbers(rows: list[int], names: Sequence[str]) -> np.ndarray:
+        """The cells of ``rows`` in the columns ``names`` as numbers; one that is not a number names its place."""
+        return np.array([[_float(body[r][index[c]], source, r + 2, c) for c in names] for r in rows], dtype=np.float64)
+
     out = []
     for key, rows in groups.items():
-        numbers = lambda names: np.array(
-            [
-                [_float(body[r][index[c]], source, r + 2, c) for c in names]
-                for r in rows
-            ],
-            dtype=np.float64,
-        )
         label = f"{source} [{demo_column}={key}]" if demo_column else source
         kwargs = {
-            "t": numbers([time_column])[:, 0],
-            "pos": numbers(columns),
-            "vel": numbers(velocity_columns) if velocity_columns else None,
+            "t": numbers(rows, [time_column])[:, 0],
+            "pos": numbers(rows, columns),
+            "vel": numbers(rows, velocity_columns) if velocity_columns else None,
         }
-        aux = {name: numbers(cs)[0] for name, cs in aux_columns.items()}
+        aux = {name: numbers(rows, cs)[0] for name, cs in aux_columns.items()}
         out.append(
             Recording(
                 **_scaled(kwargs, scale), aux=aux, source=label, columns=tuple(columns), rows=np.asarray(rows) + 2
@@ -211,6 +209,7 @@ def read_hdf5(
                     raise RecordingError(f"{label}: no dataset {time_key!r}")
                 t = np.asarray(demo[time_key], dtype=np.float64).reshape(-1)
             else:
+                assert rate is not None  # one of the two is given (checked above)
                 t = np.arange(pos.shape[0]) / float(rate)
             cols = (
                 tuple(columns)

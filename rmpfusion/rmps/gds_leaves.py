@@ -9,6 +9,8 @@ with their numbers stacked (``core/stacking.py``); on its own a leaf computes wi
 
 from __future__ import annotations
 
+from typing import Protocol
+
 import torch
 from pydantic import Field, model_validator
 from torch import Tensor
@@ -16,7 +18,7 @@ from torch import Tensor
 from ..core.gds import GDS
 from ..core.stacking import spread
 from ..examples import Example
-from ..registry import LEAF_RMPS
+from ..registry import LEAF_RMPS, numbers_repr
 from .learnable import LeafParams
 from .potentials import soft_norm, soft_norm_grad
 
@@ -27,12 +29,25 @@ def _eye_like(y: Tensor) -> Tensor:
     return torch.eye(n, dtype=y.dtype, device=y.device).expand(*y.shape[:-1], n, n)
 
 
+class RadialMetricParams(Protocol):
+    """The numbers of a radial metric and its damping, which the ``Params`` of every ``RadialMetricAttractor`` have."""
+
+    @property
+    def eta(self) -> float: ...
+    @property
+    def w_u(self) -> float: ...
+    @property
+    def w_l(self) -> float: ...
+    @property
+    def sigma(self) -> float: ...
+
+
 class RadialMetricAttractor(GDS):
     """An attractor to the origin of its space with metric G = w(|y|)·I, w = (w_u − w_l)·exp(−|y|²/2σ²) + w_l
     (constant when w_u = w_l), and damping B = η·G; subclasses choose the potential Φ(y) (``potential`` and
     ``potential_grad``) and list their numbers in ``stack_fields``."""
 
-    def __init__(self, params: LeafParams, dim: int):
+    def __init__(self, params: RadialMetricParams, dim: int):
         super().__init__(dim)
         self.eta, self.w_u, self.w_l, self.sigma = params.eta, params.w_u, params.w_l, params.sigma
 
@@ -113,6 +128,19 @@ class GoalAttractor(RadialMetricAttractor):
 
     def potential_grad(self, y):
         return spread(self.gain, 1) * soft_norm_grad(y, self.alpha)
+
+    def extra_repr(self) -> str:
+        return numbers_repr(
+            {
+                "dim": self.dim,
+                "gain": self.gain,
+                "alpha": self.alpha,
+                "eta": self.eta,
+                "w_u": self.w_u,
+                "w_l": self.w_l,
+                "sigma": self.sigma,
+            }
+        )
 
 
 class Barrier1D(GDS):
@@ -210,6 +238,19 @@ class Barrier1D(GDS):
             xi[..., None],
         )
 
+    def extra_repr(self) -> str:
+        return numbers_repr(
+            {
+                "dim": self.dim,
+                "r_w": self.r_w,
+                "sigma": self.sigma,
+                "epsilon": self.epsilon,
+                "alpha": self.alpha,
+                "eta": self.eta,
+                "min_distance": self.min_distance,
+            }
+        )
+
 
 def barrier_states(gen: torch.Generator, n: int, dim: int) -> tuple[Tensor, Tensor]:
     """Examples' states of a barrier: distances inside its support (and inside the obstacle), approaching and
@@ -285,6 +326,9 @@ class Damper(GDS):
     def stack_key(self):
         return (Damper, self.stack_settings(), self.learned_signature())  # identity metric: a damper, undamped
 
+    def extra_repr(self) -> str:
+        return numbers_repr({"dim": self.dim, "w": self.w, "eta": self.eta})
+
 
 @LEAF_RMPS.register("identity_metric", examples=[Example({}, 3)])
 class IdentityMetric(Damper):
@@ -295,3 +339,6 @@ class IdentityMetric(Damper):
 
     def __init__(self, params: Params, dim: int):
         super().__init__(Damper.Params(w=params.scale, eta=0.0), dim)
+
+    def extra_repr(self) -> str:
+        return numbers_repr({"dim": self.dim, "scale": self.w})

@@ -13,7 +13,7 @@ of the tree, kept inside that range (``core/learnable.py``), so the leaf stays t
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any
+from typing import Any, SupportsFloat
 
 import annotated_types
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_serializer, model_validator
@@ -38,10 +38,17 @@ def field_range(field: FieldInfo) -> tuple[float | None, float | None]:
     lower = upper = None
     for m in field.metadata:
         if isinstance(m, (annotated_types.Gt, annotated_types.Ge)):
-            lower = float(m.gt if isinstance(m, annotated_types.Gt) else m.ge)
+            lower = _bound(m.gt if isinstance(m, annotated_types.Gt) else m.ge)
         if isinstance(m, (annotated_types.Lt, annotated_types.Le)):
-            upper = float(m.lt if isinstance(m, annotated_types.Lt) else m.le)
+            upper = _bound(m.lt if isinstance(m, annotated_types.Lt) else m.le)
     return lower, upper
+
+
+def _bound(value: object) -> float:
+    """A field's bound as a number (a number's field is bounded by numbers)."""
+    if not isinstance(value, SupportsFloat):
+        raise TypeError(f"a learnable number's field is bounded by a number, not {value!r}")
+    return float(value)
 
 
 def _narrowed(name: str, field: FieldInfo, spec: LearnSpec) -> tuple[float | None, float | None]:

@@ -16,9 +16,10 @@ from __future__ import annotations
 import torch
 from pydantic import Field
 
+from .. import registry
 from ..core.gds import GDS
 from ..examples import Example
-from ..registry import LEAF_RMPS, Params
+from ..registry import LEAF_RMPS, numbers_repr
 from .potentials import soft_norm, soft_norm_grad
 
 
@@ -31,7 +32,7 @@ class MovingGoalAttractor(GDS):
 
     coordinates = "moving_offset"  # the tree builder puts it under a moving_offset map only
 
-    class Params(Params):
+    class Params(registry.Params):  # registry.Params: this class takes its base's name
         gain: float = Field(1.0, gt=0, description="potential gain: the pull towards the goal is at most gain")
         alpha: float = Field(1.0, gt=0, description="softness: 1/alpha is the distance where the pull saturates")
         eta: float = Field(2.0, ge=0, description="damping of the velocity relative to the goal, per unit metric")
@@ -68,3 +69,6 @@ class MovingGoalAttractor(GDS):
 
     def curvature(self, y, yd):
         return torch.zeros(y.shape[0], self.dim, self.dim, dtype=y.dtype, device=y.device), torch.zeros_like(yd)
+
+    def extra_repr(self) -> str:
+        return numbers_repr({"dim": self.dim, "gain": self.gain, "alpha": self.alpha, "eta": self.eta, "w": self.w})

@@ -6,7 +6,7 @@ from pydantic import Field
 
 from ..core.stacking import spread
 from ..examples import Example
-from ..registry import LEAF_RMPS
+from ..registry import LEAF_RMPS, numbers_repr
 from .gds_leaves import RadialMetricAttractor
 from .learnable import LeafParams
 
@@ -46,3 +46,8 @@ class OrientationAttractor(RadialMetricAttractor):
 
     def potential_grad(self, y):
         return spread(self.gain, 1) * y
+
+    def extra_repr(self) -> str:
+        return numbers_repr(
+            {"dim": self.dim, "gain": self.gain, "eta": self.eta, "w_u": self.w_u, "w_l": self.w_l, "sigma": self.sigma}
+        )

@@ -15,7 +15,7 @@ from ..core.algebra import NodeRMP
 from ..core.gds import LeafRMP
 from ..core.stacking import spread
 from ..examples import Example
-from ..registry import LEAF_RMPS
+from ..registry import LEAF_RMPS, numbers_repr
 from .learnable import LeafParams
 from .potentials import logcosh, radial_integral
 
@@ -67,6 +67,9 @@ class RMPflowCollisionAvoidance(LeafRMP):
         K = 0.5 * xd**2 * g
         as_mat = lambda s: s[..., None, None]
         return NodeRMP(f=f[..., None], M=as_mat(M), G=as_mat(g), B=as_mat(self.eta * g), Phi=Phi, L=K - Phi, V=K + Phi)
+
+    def extra_repr(self) -> str:
+        return numbers_repr({"dim": self.dim, "epsilon": self.epsilon, "alpha": self.alpha, "eta": self.eta})
 
 
 @LEAF_RMPS.register(
@@ -135,6 +138,20 @@ class RMPflowGoalAttractor(LeafRMP):
         f, G, *_ = self._natural(y, yd)
         return NodeRMP.lean(f, G)  # no quadrature: Φ is only for L and V
 
+    def extra_repr(self) -> str:
+        return numbers_repr(
+            {
+                "dim": self.dim,
+                "w_u": self.w_u,
+                "w_l": self.w_l,
+                "sigma": self.sigma,
+                "alpha": self.alpha,
+                "eta": self.eta,
+                "gain": self.gain,
+                "tol": self.tol,
+            }
+        )
+
 
 @LEAF_RMPS.register("rmpflow_damper", examples=[Example({"w": 2.0, "eta": 0.5}, 3)])
 class RMPflowDamper(LeafRMP):
@@ -159,3 +176,6 @@ class RMPflowDamper(LeafRMP):
         return NodeRMP(
             f=-spread(self.eta * self.w, 1) * yd, M=G, G=G, B=spread(self.eta * self.w, 2) * eye, Phi=Phi, L=K, V=K
         )
+
+    def extra_repr(self) -> str:
+        return numbers_repr({"dim": self.dim, "w": self.w, "eta": self.eta})

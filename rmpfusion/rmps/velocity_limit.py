@@ -23,7 +23,7 @@ from torch import Tensor
 from ..core.auxstate import constant
 from ..core.gds import GDS
 from ..examples import Example, StateSampler
-from ..registry import LEAF_RMPS, Params
+from ..registry import LEAF_RMPS, Params, numbers_repr
 
 
 def band_metric(r: Tensor, r_linear: float) -> tuple[Tensor, Tensor]:
@@ -70,6 +70,9 @@ def band_states(limit: tuple[float, ...] = (1.0,), onset: float = 0.8, linear_fr
 class VelocityLimit(GDS):
     """Keeps |ẏ_i| below ``limit`` (per coordinate, or one for all): G = diag(w·φ(r_i)), B = η·G, Φ = 0 (module
     docstring); on ``velocity_scaled_joints`` with limit 1 it caps every joint at its URDF velocity limit."""
+
+    limit: Tensor  # buffers, per coordinate: the limit L_i,
+    band: Tensor  # and the width of its band, (1 − onset)·L_i
 
     class Params(Params):
         limit: float | list[float] = Field(
@@ -143,4 +146,16 @@ class VelocityLimit(GDS):
             torch.zeros_like(y),
             torch.diag_embed(half_v_dg),
             torch.zeros_like(yd),
+        )
+
+    def extra_repr(self) -> str:
+        return numbers_repr(
+            {
+                "dim": self.dim,
+                "limit": self.limit,
+                "onset": self.onset,
+                "w": self.w,
+                "eta": self.eta,
+                "linear_from": self.linear_from,
+            }
         )

@@ -1,4 +1,6 @@
 """Robot descriptions (conf/robot/) and the robots built from them; importing registers the ``urdf`` kind."""
 
-from .description import ControlPoint, EndEffector, RobotDescription  # noqa: F401
-from .robot import RobotField, URDFRobot, build_robot  # noqa: F401
+from .description import ControlPoint, EndEffector, RobotDescription
+from .robot import RobotField, URDFRobot, build_robot  # importing it registers the ``urdf`` kind
+
+__all__ = ["ControlPoint", "EndEffector", "RobotDescription", "RobotField", "URDFRobot", "build_robot"]

@@ -170,7 +170,7 @@ class RobotDescription(Params):
             root = ET.parse(path).getroot()
         except (OSError, ET.ParseError) as e:
             raise ValueError(f"srdf {self.srdf}: cannot be read ({' '.join(str(e).split())})") from None
-        pairs = {(d.get("link1"), d.get("link2")) for d in root.iter("disable_collisions")}
+        pairs = {(d.get("link1", ""), d.get("link2", "")) for d in root.iter("disable_collisions")}
         return pairs | {(b, a) for a, b in pairs}
 
     def _check_home(self) -> None:

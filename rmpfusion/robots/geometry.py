@@ -28,6 +28,14 @@ def _floats(text: str | None, default: list[float]) -> list[float]:
     return default if text is None else [float(v) for v in text.split()]
 
 
+def _required(element: ET.Element, key: str, link: str) -> str:
+    """An attribute URDF requires of an element (a cylinder's radius): a URDF without it is named, with the link."""
+    value = element.get(key)
+    if value is None:
+        raise ValueError(f"link {link!r}: <{element.tag}> has no {key!r}, which URDF requires")
+    return value
+
+
 def _read_mesh(path: str, link: str):
     import trimesh
 
@@ -46,7 +54,7 @@ def _read_mesh(path: str, link: str):
     return m
 
 
-def _element_mesh(geometry: ET.Element, link: str, urdf_path: str, packages: Mapping[str, str] | None):
+def _element_mesh(geometry: ET.Element, link: str, urdf_path: str, packages: Mapping[str, str | None] | None):
     import trimesh
 
     mesh, box, cyl, sph = (geometry.find(t) for t in ("mesh", "box", "cylinder", "sphere"))
@@ -57,20 +65,22 @@ def _element_mesh(geometry: ET.Element, link: str, urdf_path: str, packages: Map
     if box is not None:
         return trimesh.creation.box(extents=_floats(box.get("size"), [0.0, 0.0, 0.0]))
     if cyl is not None:
-        return trimesh.creation.cylinder(radius=float(cyl.get("radius")), height=float(cyl.get("length")))
+        return trimesh.creation.cylinder(
+            radius=float(_required(cyl, "radius", link)), height=float(_required(cyl, "length", link))
+        )
     if sph is not None:
-        return trimesh.creation.icosphere(radius=float(sph.get("radius")))
+        return trimesh.creation.icosphere(radius=float(_required(sph, "radius", link)))
     return None
 
 
-def _link_mesh(link: ET.Element, kind: str, urdf_path: str, packages: Mapping[str, str] | None):
+def _link_mesh(link: ET.Element, kind: str, urdf_path: str, packages: Mapping[str, str | None] | None):
     """One link's ``kind`` (collision or visual) geometry as one mesh in its frame, or None without any."""
     import trimesh
 
     parts = []
     for element in link.findall(kind):
         geometry = element.find("geometry")
-        m = None if geometry is None else _element_mesh(geometry, link.get("name"), urdf_path, packages)
+        m = None if geometry is None else _element_mesh(geometry, link.get("name", ""), urdf_path, packages)
         if m is None:
             continue
         o = element.find("origin")
@@ -90,14 +100,17 @@ class LinkGeometry:
 
 
 def link_geometry(
-    urdf: str, links: Sequence[str] | None = None, packages: Mapping[str, str] | None = None, use_visual: bool = True
+    urdf: str,
+    links: Sequence[str] | None = None,
+    packages: Mapping[str, str | None] | None = None,
+    use_visual: bool = True,
 ) -> LinkGeometry:
     """The collision geometry of ``links`` (default: every link), read from their meshes only; a link with none
     takes its visual geometry when ``use_visual``. Links with neither are left out."""
     path = resolve_urdf_path(urdf)
     out = LinkGeometry()
     for link in ET.parse(path).getroot().findall("link"):
-        name = link.get("name")
+        name = link.get("name", "")
         if links is not None and name not in links:
             continue
         m = _link_mesh(link, "collision", path, packages)
@@ -113,17 +126,17 @@ def link_geometry(
 def links_with_geometry(urdf: str) -> dict[str, str]:
     """Link -> ``collision`` or ``visual``: which geometry each link that has some would be covered with, read
     from the URDF alone (no mesh file opened)."""
-    out = {}
+    out: dict[str, str] = {}
     for link in ET.parse(resolve_urdf_path(urdf)).getroot().findall("link"):
         for kind in ("collision", "visual"):
-            if any(e.find("geometry") is not None and len(e.find("geometry")) for e in link.findall(kind)):
-                out[link.get("name")] = kind
+            if any((g := e.find("geometry")) is not None and len(g) for e in link.findall(kind)):
+                out[link.get("name", "")] = kind
                 break
     return out
 
 
 def collision_meshes(
-    urdf: str, links: Sequence[str] | None = None, packages: Mapping[str, str] | None = None
+    urdf: str, links: Sequence[str] | None = None, packages: Mapping[str, str | None] | None = None
 ) -> dict[str, object]:
     """Link name -> its collision geometry (else its visual geometry) as one trimesh mesh in the link's frame."""
     return link_geometry(urdf, links, packages).meshes

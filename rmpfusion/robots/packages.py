@@ -170,7 +170,7 @@ def package_names(urdf: str) -> list[str]:
 
 def link_meshes(root: ET.Element) -> list[tuple[str, ET.Element]]:
     """(link name, <mesh> element) of every mesh of every link, visuals and collisions."""
-    return [(link.get("name"), mesh) for link in root.findall("link") for mesh in link.iter("mesh")]
+    return [(link.get("name", ""), mesh) for link in root.findall("link") for mesh in link.iter("mesh")]
 
 
 def cache_dir() -> Path:

@@ -54,7 +54,7 @@ def kmeans(points: np.ndarray, k: int, seed: int, iterations: int = 50) -> np.nd
 def covered_by(points: np.ndarray, centers: np.ndarray, radii: np.ndarray) -> np.ndarray:
     """(n,) whether each point lies inside (or on) some sphere."""
     d = torch.cdist(torch.as_tensor(points), torch.as_tensor(centers)).numpy()
-    return (d <= radii[None, :] + 1e-12).any(1)
+    return np.any(d <= radii[None, :] + 1e-12, axis=1)
 
 
 def overshoot(centers: np.ndarray, radii: np.ndarray, surface: np.ndarray, per_sphere: int = 400) -> np.ndarray:

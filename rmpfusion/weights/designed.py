@@ -4,15 +4,17 @@ broadcast against the samples, so weights of one type stack (``core/stacking.py`
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from typing import ClassVar
 
 import torch
 from pydantic import Field, field_validator
 from torch import Tensor
 
+from .. import registry
 from ..core.auxstate import AuxOrValue, AuxParam
 from ..core.weight import WeightFunction
 from ..examples import AuxInput, Example
-from ..registry import WEIGHTS, Params
+from ..registry import WEIGHTS, numbers_repr
 
 
 @WEIGHTS.register("constant", examples=[Example({"value": 2.5}, 2)])
@@ -22,7 +24,7 @@ class Constant(WeightFunction):
     is_constant = True
     stack_fields = ("c",)
 
-    class Params(Params):
+    class Params(registry.Params):  # registry.Params: this class takes its base's name
         value: float = Field(1.0, description="> 0: positive weights keep the policy Lyapunov-stable (Theorem 2)")
 
         @field_validator("value")
@@ -45,8 +47,11 @@ class Constant(WeightFunction):
     def forward(self, x, aux=None):
         return self.value(x, aux), None
 
+    def extra_repr(self) -> str:
+        return numbers_repr({"in_dim": self.in_dim, "value": self.c})
 
-class _Range(Params):
+
+class _Range(registry.Params):
     low: float = Field(gt=0, description="weight far from the feature's switching point")
     high: float = Field(gt=0)
 
@@ -66,7 +71,7 @@ def _surface_radius(v: AuxOrValue) -> AuxOrValue:
 class _DistanceWeight(WeightFunction):
     """Base for weights of the distance d = |x − center| − radius (center/radius constant or aux)."""
 
-    stack_fields = ("center", "radius", "low", "high")
+    stack_fields: ClassVar[tuple[str, ...]] = ("center", "radius", "low", "high")
 
     def __init__(self, params, in_dim: int, aux_dims: Mapping[str, int] | None = None):
         super().__init__(in_dim, aux_dims)
@@ -129,6 +134,9 @@ class RBF(_DistanceWeight):
         e = torch.exp(-(d**2) / (2 * self.sigma**2))
         return e, -d / self.sigma**2 * e
 
+    def extra_repr(self) -> str:
+        return numbers_repr({"in_dim": self.in_dim, "low": self.low, "high": self.high, "sigma": self.sigma})
+
 
 @WEIGHTS.register(
     "logistic",
@@ -183,3 +191,14 @@ class Logistic(_DistanceWeight):
     def shape(self, d):
         s = torch.sigmoid(self.k * (d - self.d0))
         return s, self.k * s * (1 - s)
+
+    def extra_repr(self) -> str:
+        return numbers_repr(
+            {
+                "in_dim": self.in_dim,
+                "low": self.low,
+                "high": self.high,
+                "steepness": self.k,
+                "switch_distance": self.d0,
+            }
+        )

@@ -10,6 +10,7 @@ a single network is the case D = 1.
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
@@ -24,7 +25,7 @@ from ..core.auxstate import CONSTANT_DTYPE, AuxDict, AuxParam, StackedAux
 from ..core.stacking import shallow_clone
 from ..core.weight import WeightFunction, aux_features
 from ..examples import AuxInput, Example
-from ..registry import WEIGHTS, Params
+from ..registry import WEIGHTS, Params, numbers_repr
 
 
 def _tanh(z: Tensor) -> tuple[Tensor, Tensor]:
@@ -144,15 +145,16 @@ class MLPWeight(WeightFunction):
             raise ValueError("mlp weight has no inputs: set use_config or list aux features")
         sizes = [n_in, *p.hidden, 1]
         # float64 like every constant (init_bias exact; one seed, one network, whatever torch's default dtype)
-        self.layers = nn.ModuleList(nn.Linear(a, b, dtype=CONSTANT_DTYPE) for a, b in zip(sizes[:-1], sizes[1:]))
+        linears = [nn.Linear(a, b, dtype=CONSTANT_DTYPE) for a, b in itertools.pairwise(sizes)]
+        self.layers = nn.ModuleList(linears)
         self.act = ACTIVATIONS[p.activation].with_derivative
         self.activation = p.activation
         self.positivity, self.floor = p.positivity, p.floor
         if p.init_bias is not None:
             target = max(p.init_bias - p.floor, 1e-6)
             b = math.log(target) if p.positivity == "exp" else math.log(math.expm1(target))
-            nn.init.zeros_(self.layers[-1].weight)
-            nn.init.constant_(self.layers[-1].bias, b)
+            nn.init.zeros_(linears[-1].weight)
+            nn.init.constant_(linears[-1].bias, b)
 
     def stack_key(self):
         """Networks of one architecture reading inputs of the same sizes evaluate as one batch."""
@@ -171,9 +173,13 @@ class MLPWeight(WeightFunction):
     def stacked(cls, members, like: Tensor) -> StackedMLP:
         return StackedMLP(members)
 
+    def linears(self) -> list[nn.Linear]:
+        """The network's layers, input first (every layer is an ``nn.Linear``)."""
+        return [l for l in self.layers if isinstance(l, nn.Linear)]
+
     def layer_parameters(self) -> list[tuple[Tensor, Tensor]]:
         """Each layer's (W (1, out, in), b (1, out)): this network as a stack of one."""
-        return [(l.weight.unsqueeze(0), l.bias.unsqueeze(0)) for l in self.layers]
+        return [(l.weight.unsqueeze(0), l.bias.unsqueeze(0)) for l in self.linears()]
 
     def forward(self, x: Tensor, aux: AuxDict | None = None):
         lead = x.shape[:-1]  # (B,), or (1, B) as a group of one
@@ -192,6 +198,19 @@ class MLPWeight(WeightFunction):
 
     def value(self, x, aux):
         return self.forward(x, aux)[0]
+
+    def extra_repr(self) -> str:
+        return numbers_repr(
+            {
+                "in_dim": self.in_dim,
+                "use_config": self.use_config,
+                "aux": self.aux_names,
+                "hidden": [l.out_features for l in self.linears()[:-1]],
+                "activation": self.activation,
+                "positivity": self.positivity,
+                "floor": self.floor,
+            }
+        )
 
 
 def mlp_with_gradient(
@@ -229,6 +248,8 @@ class StackedMLP(nn.Module):
     one network contiguous and every network used equally often (the tree plans them so), each edge reading its
     own aux entries. Parameters are read from the members at every call, so gradients reach each network."""
 
+    networks: list[MLPWeight]  # the distinct networks, in member order (not submodules: the members own them)
+
     def __init__(self, members):
         super().__init__()
         first = members[0]
@@ -252,11 +273,8 @@ class StackedMLP(nn.Module):
         h = torch.cat(parts, -1) if len(parts) > 1 else parts[0]
         D = len(self.networks)
         layers = [
-            (
-                torch.stack([net.layers[i].weight for net in self.networks]),
-                torch.stack([net.layers[i].bias for net in self.networks]),
-            )
-            for i in range(len(self.networks[0].layers))
+            (torch.stack([l.weight for l in same_layer]), torch.stack([l.bias for l in same_layer]))
+            for same_layer in zip(*(net.linears() for net in self.networks))
         ]
         w, grad = mlp_with_gradient(
             layers,

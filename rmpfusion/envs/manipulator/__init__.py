@@ -16,5 +16,7 @@ The environment (``env.py``) serves the pipeline's ``Env`` protocol and its capa
 time-varying aux state for moving obstacles (``aux_at``).
 """
 
-from .env import Manipulator  # noqa: F401  (registers "manipulator" in rmpfusion.registry.ENVS)
-from .params import ManipulatorParams  # noqa: F401
+from .env import Manipulator  # importing it registers "manipulator" in rmpfusion.registry.ENVS
+from .params import ManipulatorParams
+
+__all__ = ["Manipulator", "ManipulatorParams"]

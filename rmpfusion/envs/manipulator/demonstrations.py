@@ -24,6 +24,7 @@ def demonstration_lengths(p: ManipulatorParams, ro: Rollout) -> Tensor:
     slower than ``demo_settle_speed``) but at least ``demo_min_duration``; at most the whole rollout.
     Records after an error (NaN) are never kept.
     """
+    assert ro.goal_distance is not None  # every manipulator rollout records its end effector's goal distance
     finite = ro.q.isfinite().all(-1) & ro.qd.isfinite().all(-1)  # (T, B)
     settled = (
         (ro.goal_distance <= p.demo_settle_distance)

@@ -4,6 +4,7 @@ entry points that the rollout modes, demonstrations, metrics and rendering serve
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any, Literal
 
@@ -112,10 +113,8 @@ class Manipulator(ComputesOnDevice, SeededSampling):
         self.close()
 
     def __del__(self):
-        try:
+        with contextlib.suppress(Exception):  # interpreter shutdown
             self.close()
-        except Exception:  # noqa: BLE001 - interpreter shutdown
-            pass
 
     def checker(self) -> _Scene:
         """The pybullet world that checks collisions (opened on first use)."""
@@ -324,7 +323,7 @@ class Manipulator(ComputesOnDevice, SeededSampling):
     def render_settings(self) -> RenderSettings:
         p = self.params
         return RenderSettings(
-            size=tuple(p.render_size), times=tuple(p.render_times), gif_fps=p.gif_fps, trajectory=p.render_trajectory
+            size=p.render_size, times=tuple(p.render_times), gif_fps=p.gif_fps, trajectory=p.render_trajectory
         )
 
     def render(

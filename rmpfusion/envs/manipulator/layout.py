@@ -38,7 +38,7 @@ from pydantic import Field, field_validator
 
 from ...registry import Params
 from ...robots.home import ground_check
-from ...scenes import Ground, Scene
+from ...scenes import Cylinder, Ground, Scene
 
 _SEED = 12345
 _SAMPLES = 4096
@@ -135,7 +135,9 @@ class Derived:
     startable: float  # of the layout's own reaches, those whose start and goal are clear of the cylinder
 
     def describe(self) -> str:
-        c, r = self.scene.obstacles[0].center, self.scene.obstacles[0].radius
+        cylinder, test_cylinder = self.scene.obstacles[0], self.test_scene.obstacles[0]
+        assert isinstance(cylinder, Cylinder) and isinstance(test_cylinder, Cylinder)  # what derive places
+        c, r = cylinder.center, cylinder.radius
         f = lambda v: "(" + ", ".join(f"{a:.3f}" for a in v) + ")"
         lean = (
             ""
@@ -145,7 +147,7 @@ class Derived:
         return (
             f"reach layout: reach {self.reach:.3f} m; {lean}starts' end effector around {f(self.start_point)}, goals "
             f"around {f(self.goal_point)}; a standing cylinder of radius {r:.3f} m at {f(c[:2])} (test: "
-            f"{f(self.test_scene.obstacles[0].center[:2])}, radius {self.test_scene.obstacles[0].radius:.3f} m); "
+            f"{f(test_cylinder.center[:2])}, radius {test_cylinder.radius:.3f} m); "
             f"{self.crossing:.0%} of the layout's own reaches cross it ({self.startable:.0%} may start)"
         )
 
@@ -158,6 +160,12 @@ class Clearances:
     goal: float  # the goal this far from it
     end_effector: float  # the end effector's control sphere: a straight reach closer than this crosses
     fixed_extent: float  # the links no joint moves (the base) reach this far horizontally from the base's axis
+
+
+def _point(v: torch.Tensor) -> tuple[float, float, float]:
+    """A point (3,) as plain floats."""
+    x, y, z = (float(a) for a in v)
+    return x, y, z
 
 
 def derive(
@@ -197,7 +205,8 @@ def derive(
     G = base + _turned(side * layout.turn) @ (S - base)
     _check_reachable(G, c.clamp(lo, hi), reach, robot)
     h = layout.goal_half_width * reach
-    goal_region = tuple((float(v) - h, float(v) + h) for v in G)
+    gx, gy, gz = _point(G)
+    goal_region = ((gx - h, gx + h), (gy - h, gy + h), (gz - h, gz + h))
     goals = G + h * (2 * torch.rand(_REACHES, 3, generator=g, dtype=torch.float64) - 1)
     top = max(float(S[2]), float(G[2])) + layout.obstacle_top * reach
     xy, radius, crossing, startable = _place_cylinder(robot, starts, ee, goals, S, G, base, reach, layout, clear)
@@ -215,8 +224,8 @@ def derive(
     j = layout.jitter * reach
     return Derived(
         reach=reach,
-        start_point=tuple(map(float, S)),
-        goal_point=tuple(map(float, G)),
+        start_point=_point(S),
+        goal_point=_point(G),
         goal_region=goal_region,
         scene=post(xy, radius),
         test_scene=post(test_xy, layout.test_widen * radius),

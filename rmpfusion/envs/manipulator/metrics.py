@@ -29,6 +29,13 @@ def task_metrics(ro: Rollout, dtype: torch.dtype) -> dict[str, Tensor]:
     ``CLOSE_PASS``). A rollout ended by an error gets NaN
     execution metrics.
     """
+    assert (  # the execution records every manipulator rollout carries (None only for other environments)
+        ro.time_to_goal is not None
+        and ro.goal_distance is not None
+        and ro.cspace_length is not None
+        and ro.ee_length is not None
+        and ro.end_goal_distance is not None
+    )
     timeout = float(ro.times[-1])
     failed = torch.tensor([e is not None for e in ro.error])
     time = torch.where(ro.reached, ro.time_to_goal, torch.full_like(ro.time_to_goal, timeout))

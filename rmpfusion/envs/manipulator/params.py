@@ -23,7 +23,7 @@ def _per_joint(name: str, v: tuple[float, ...] | float, info: ValidationInfo) ->
     n = len(robot.joints) if robot is not None else None
     if isinstance(v, (int, float)):
         return (float(v),) * (n or 1)
-    if n is not None and len(v) != n:
+    if robot is not None and len(v) != n:
         raise ValueError(
             f"{name} needs one value per actuated joint ({n}: {', '.join(robot.joints)}); given {len(v)}: {list(v)}"
         )
@@ -111,6 +111,7 @@ class ManipulatorParams(Params):
     def _half_widths(cls, v: tuple[float, ...] | float, info: ValidationInfo):
         if info.field_name == "start_spread":
             v = _per_joint("start_spread", v, info)
+        assert not isinstance(v, float)  # obstacle_jitter is a Vec3, and start_spread one value per joint by now
         if not all(x >= 0 for x in v):
             raise ValueError(
                 f"{info.field_name} must be ≥ 0 in every entry (each is the half-width of a uniform "

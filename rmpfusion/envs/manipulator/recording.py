@@ -18,8 +18,13 @@ if TYPE_CHECKING:
 class Recorder:
     """Records at the record times; samples that died get NaN rows."""
 
-    def __init__(self):
-        self.t, self.q, self.qd, self.qdd, self.V, self.D = [], [], [], [], [], []
+    def __init__(self) -> None:
+        self.t: list[float] = []
+        self.q: list[Tensor] = []
+        self.qd: list[Tensor] = []
+        self.qdd: list[Tensor] = []
+        self.V: list[Tensor] = []
+        self.D: list[Tensor] = []
         self.alive: list[Tensor] = []
 
     def add(self, t, q, qd, a, V, D, alive, monitor=None):
@@ -59,7 +64,7 @@ class GoalTracker:
     §4.2: an execution ends on reaching the goal or at the time-out): configuration-space and end-effector
     path lengths and the goal distance where it ended."""
 
-    def __init__(self, B, dtype):
+    def __init__(self, B: int, dtype: torch.dtype) -> None:
         self.reached = torch.zeros(B, dtype=torch.bool)
         self.time = torch.full((B,), float("nan"), dtype=dtype)
         self.cspace_length = torch.zeros(B, dtype=dtype)

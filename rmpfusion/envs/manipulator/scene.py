@@ -8,6 +8,7 @@ environment (and the package) imports without it.
 
 from __future__ import annotations
 
+import contextlib
 import math
 from collections.abc import Mapping
 
@@ -195,10 +196,8 @@ class _Scene:
         return worst
 
     def close(self) -> None:
-        try:
+        with contextlib.suppress(Exception):  # already gone
             self.p.disconnect(physicsClientId=self.cid)
-        except Exception:  # noqa: BLE001 - already gone
-            pass
 
 
 #: pybullet link index -> highest lowest point, of the links the ground check counts, per (URDF, actuated joints,

@@ -99,15 +99,16 @@ class _Worlds:
     def kill(self, b: int, reason: str) -> None:
         self.alive[b] = False
         self.errors[b] = reason
-        if self.scenes[b] is not None:
-            self.scenes[b].close()
+        sc = self.scenes[b]
+        if sc is not None:
+            sc.close()
             self.scenes[b] = None
 
     def read_states(self) -> None:
         """(q, q̇) of every live world into ``q`` and ``qd`` (in place: the policy and the records see them)."""
         p = _pb()
         for b, sc in enumerate(self.scenes):
-            if not self.alive[b]:
+            if not self.alive[b] or sc is None:  # a world that is gone is dead
                 continue
             try:
                 qa, qda = sc.state()
@@ -123,7 +124,7 @@ class _Worlds:
         """One pybullet step of every live world under the torques that realise the accelerations ``a`` at step k."""
         a_np = a.detach().cpu().numpy()
         for b, sc in enumerate(self.scenes):
-            if not self.alive[b]:
+            if not self.alive[b] or sc is None:  # a world that is gone is dead
                 continue
             if not np.isfinite(a_np[b]).all():
                 self.kill(b, self.policy.explain(b, f"non-finite acceleration at t={k * self.env.dt:.4f}s"))
@@ -152,7 +153,7 @@ class _Worlds:
     def move_obstacles(self, aux: Mapping[str, Tensor]) -> None:
         """Every live world's moving obstacles to where ``aux`` (at the current time) has them."""
         for b, sc in enumerate(self.scenes):
-            if self.alive[b]:
+            if self.alive[b] and sc is not None:
                 sc.move_obstacles(self.env.scene, sample_aux(aux, b))
 
     def close(self) -> None:

@@ -2,4 +2,4 @@
 behavior cloning (``bc``), DAgger (``dagger``), analytic policy gradients through the simulator (``apg``) and a
 score-function policy gradient (``pg``)."""
 
-from . import apg, bc, dagger, pg  # noqa: F401
+from . import apg, bc, dagger, pg  # noqa: F401  (importing the modules registers the training methods)

@@ -18,7 +18,7 @@ the price of ignoring how a window's actions change the later windows' cost.
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Any, Literal, Protocol, runtime_checkable
 
 import torch
 from pydantic import Field, model_validator
@@ -80,17 +80,26 @@ class APGParams(TrainParams):
         )
 
 
+@runtime_checkable
+class SimulatedEnv(Env, DifferentiableRollouts, Protocol):
+    """An environment whose rollouts are differentiable (``DifferentiableRollouts``), on any integration step: what
+    APG rolls out in (``APG.requirements`` refuses the others)."""
+
+    def with_step(self, dt: float) -> SimulatedEnv: ...
+
+
 class RolloutCost:
     """The task cost of rollouts of a policy from given starts, window by window; with ``backward`` each window's
     cost is back-propagated as soon as it is known."""
 
-    def __init__(self, env: DifferentiableRollouts, params: APGParams):
+    def __init__(self, env: SimulatedEnv, params: APGParams):
         self.env = env.with_step(params.dt) if params.dt is not None else env
         self.params = params
 
     def __call__(self, policy, q: Tensor, qd: Tensor, aux: dict[str, Tensor], backward: bool) -> dict[str, float]:
         """The mean over the batch of each term of the cost (and ``total``) of one rollout per start."""
-        p, sums = self.params, {}
+        p = self.params
+        sums: dict[str, float] = {}
         for w in range(p.windows):
             ro = self.env.rollout(
                 policy, q, qd, aux, horizon=p.window, record_every=p.record_every, enable_grad=backward
@@ -117,6 +126,7 @@ class APGSteps(Steps):
 
     def __init__(self, model: nn.Module, params: APGParams, ctx: MethodContext, opt, gen: torch.Generator):
         ctx.need("apg", env=ctx.env)
+        assert isinstance(ctx.env, SimulatedEnv), "APG.requirements refuses an environment without gradients"
         self.model, self.params, self.ctx, self.opt, self.gen = model, params, ctx, opt, gen
         self.cost = RolloutCost(ctx.env, params)
         self.starts = ctx.train.initial_states()
@@ -172,7 +182,7 @@ def on_grid(
 
 
 @TRAIN_METHODS.register("apg")
-class APG(TrainingMethod):
+class APG(TrainingMethod[APGParams]):
     """Policy optimisation by back-propagating a task cost through differentiable rollouts."""
 
     Params = APGParams
@@ -183,10 +193,12 @@ class APG(TrainingMethod):
             return [
                 (
                     "train.method",
-                    f"apg back-propagates through rollouts, which the environment "
-                    f"'{type(env).__name__}' does not offer (it is not simulated in torch with a "
-                    "differentiable goal distance and clearance); use method pg, or an environment "
-                    "such as particle2d",
+                    (
+                        f"apg back-propagates through rollouts, which the environment "
+                        f"'{type(env).__name__}' does not offer (it is not simulated in torch with a "
+                        "differentiable goal distance and clearance); use method pg, or an environment "
+                        "such as particle2d"
+                    ),
                 )
             ]
         return on_grid(

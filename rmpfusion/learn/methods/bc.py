@@ -57,7 +57,7 @@ class MinibatchSteps(Steps):
 
 
 @TRAIN_METHODS.register("bc")
-class BehaviorCloning(TrainingMethod):
+class BehaviorCloning(TrainingMethod[BCParams]):
     """Behavior cloning from the expert's demonstrations (the paper's method)."""
 
     Params = BCParams

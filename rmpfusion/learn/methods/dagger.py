@@ -38,7 +38,9 @@ from .bc import MinibatchSteps
 class DAggerParams(BCParams):
     """DAgger's rounds and β-mixture beside behavior cloning's minibatch settings."""
 
-    method: Literal["dagger"] = Field("dagger", description="the TRAIN_METHODS entry these settings are for")
+    method: Literal["dagger"] = Field(  # type: ignore[assignment]  # its own name in place of BCParams' "bc"
+        "dagger", description="the TRAIN_METHODS entry these settings are for"
+    )
     rounds: int = Field(5, ge=1, description="aggregation rounds after round 0 (the demonstrations)")
     initial_trajectories: int | None = Field(
         None,
@@ -108,6 +110,8 @@ def _mixture(learner: nn.Module, expert: _Counted, beta: float):
 class DAggerSteps(MinibatchSteps):
     """Behavior cloning's minibatch steps on data that grows at the start of every round."""
 
+    params: DAggerParams
+
     def __init__(self, model: nn.Module, params: DAggerParams, ctx: MethodContext, opt, gen: torch.Generator):
         super().__init__(model, params, ctx, opt, gen)
         ctx.need("dagger", env=ctx.env, expert=ctx.expert, interval=ctx.interval, points=ctx.points)
@@ -139,6 +143,8 @@ class DAggerSteps(MinibatchSteps):
     def _aggregate(self, r: int, it: int) -> None:
         """Round ``r``: roll out the β-mixture, label its records by the expert, add them to the data."""
         p, ctx = self.params, self.ctx
+        env, points, interval = ctx.env, ctx.points, ctx.interval
+        assert env is not None and points is not None and interval is not None, "need() refused a context without them"
         beta = p.beta_at(r)
         n = self.starts[0].shape[0]
         k = p.trajectories_per_round
@@ -147,13 +153,13 @@ class DAggerSteps(MinibatchSteps):
         aux = {a: v[idx] for a, v in self.starts[2].items()}
         acting = _Counted(ctx.expert)
         with torch.no_grad():
-            ro = ctx.env.rollout(
+            ro = env.rollout(
                 _mixture(self.model, acting, beta),
                 q0,
                 qd0,
                 aux,
-                horizon=(ctx.points - 1) * ctx.interval,
-                record_every=ctx.interval,
+                horizon=(points - 1) * interval,
+                record_every=interval,
             )
         new = _labelled(ro, aux, env_id, ctx.expert, first_id=int(self.data.traj_id.max()) + 1)
         self.data = Dataset.concat([self.data, new])
@@ -213,7 +219,7 @@ def _initial(train: Dataset, n: int | None, seed: int) -> Dataset:
 def _labelled(ro, aux: Mapping[str, Tensor], env_id: Tensor, expert, first_id: int) -> Dataset:
     """The expert's q̈ at every finite record of the rollout (a sample the expert cannot evaluate is left out):
     a dataset laid out like demonstrations, trajectory-major."""
-    T, B, d = ro.q.shape
+    T, B, _ = ro.q.shape
     flat = lambda x: x.transpose(0, 1).reshape(B * T, *x.shape[2:])
     q, qd = flat(ro.q), flat(ro.qd)
     rep = {k: v.repeat_interleave(T, dim=0) for k, v in aux.items()}
@@ -239,7 +245,7 @@ def _labelled(ro, aux: Mapping[str, Tensor], env_id: Tensor, expert, first_id: i
 
 
 @TRAIN_METHODS.register("dagger")
-class DAgger(TrainingMethod):
+class DAgger(TrainingMethod[DAggerParams]):
     """DAgger: behavior cloning on data aggregated from the learner's own rollouts, labelled by the expert."""
 
     Params = DAggerParams
@@ -250,9 +256,11 @@ class DAgger(TrainingMethod):
             return [
                 (
                     "train.initial_trajectories",
-                    f"round 0 would draw {params.initial_trajectories} demonstrations but the training split has "
-                    f"{train_trajectories} (data.train_envs × data.train_trajectories); lower it or collect more "
-                    "(a smoke run on data=tiny: train=dagger_smoke)",
+                    (
+                        f"round 0 would draw {params.initial_trajectories} demonstrations but the training split "
+                        f"has {train_trajectories} (data.train_envs × data.train_trajectories); lower it or collect "
+                        "more (a smoke run on data=tiny: train=dagger_smoke)"
+                    ),
                 )
             ]
         return []

@@ -113,7 +113,7 @@ def run_episodes(
         with torch.no_grad():
             mu = mean(q, qd, aux)
         a = mu + sigma * torch.randn(mu.shape, generator=gen, dtype=mu.dtype) if sigma > 0 else mu
-        ro = env.rollout(lambda *_: a, q, qd, aux, horizon=p.decision_interval, record_every=p.decision_interval)
+        ro = env.rollout(_holding(a), q, qd, aux, horizon=p.decision_interval, record_every=p.decision_interval)
         parts = rollout_costs(p.cost, ro, final=d == p.decisions - 1)
         ended = (
             torch.tensor([e is not None for e in ro.error], dtype=torch.bool) if ro.error else torch.zeros_like(live)
@@ -122,7 +122,8 @@ def run_episodes(
         cost = torch.where(ok, total(parts)[0], torch.zeros(()))
         for k, v in parts.items():
             terms[k] = terms.get(k, 0.0) + torch.where(ok, v[0], torch.zeros(()))
-        out["q"].append(q), out["qd"].append(qd), out["a"].append(a), out["c"].append(cost), out["live"].append(live)
+        for key, value in (("q", q), ("qd", qd), ("a", a), ("c", cost), ("live", live)):
+            out[key].append(value)
         q = torch.where(ok[:, None], ro.q[-1], q).detach()
         qd = torch.where(ok[:, None], ro.qd[-1], torch.zeros_like(qd)).detach()
         live = ok
@@ -136,6 +137,11 @@ def run_episodes(
         live=stack["live"],
         terms={k: float(v.mean()) for k, v in terms.items()},
     )
+
+
+def _holding(a: Tensor) -> Callable[..., Tensor]:
+    """The policy that answers ``a`` whatever the state: one decision, held for its interval."""
+    return lambda *_: a
 
 
 def cost_to_go(costs: Tensor) -> Tensor:
@@ -164,6 +170,8 @@ class PGSteps(Steps):
 
     def __init__(self, model: nn.Module, params: PGParams, ctx: MethodContext, opt, gen: torch.Generator):
         ctx.need("pg", env=ctx.env)
+        assert ctx.env is not None, "need refuses a context without one"
+        self.env = ctx.env
         self.model, self.params, self.ctx, self.opt, self.gen = model, params, ctx, opt, gen
         self.starts = ctx.train.initial_states()
         self.val_starts = ctx.val.initial_states() if ctx.val is not None else None
@@ -176,7 +184,7 @@ class PGSteps(Steps):
         q0, qd0, aux = self.starts
         idx = torch.randint(q0.shape[0], (self.params.episodes,), generator=self.gen)
         ep = run_episodes(
-            self.ctx.env,
+            self.env,
             self._mean,
             q0[idx],
             qd0[idx],
@@ -193,7 +201,7 @@ class PGSteps(Steps):
     def held_out(self) -> dict[str, float]:
         if self.val_starts is None:
             return {}
-        ep = run_episodes(self.ctx.env, self._mean, *self.val_starts, self.params, 0.0, None)
+        ep = run_episodes(self.env, self._mean, *self.val_starts, self.params, 0.0, None)
         self.last_val = {**ep.terms, "total": float(ep.costs.sum(0).mean())}
         return {"val": self.last_val["total"]}
 
@@ -202,7 +210,7 @@ class PGSteps(Steps):
 
 
 @TRAIN_METHODS.register("pg")
-class PolicyGradient(TrainingMethod):
+class PolicyGradient(TrainingMethod[PGParams]):
     """REINFORCE with a Gaussian around the tree's acceleration, for simulators without gradients."""
 
     Params = PGParams
