@@ -29,6 +29,7 @@ RANK = {
     "plots": 5,
     "pipeline": 6,
     "cli": 7,
+    "gym": 8,  # Gymnasium environments over experiments composed as the command line composes them
 }
 SIDE_BY_SIDE = {frozenset({"learn", "evaluate"})}
 #: what core/ may import besides itself: the math needs torch and the standard library only
