@@ -168,3 +168,27 @@ def test_one_compiled_controller_serves_a_world_that_changes_while_it_reaches():
     assert r.min_clearance > 0.0, r.trace
     assert r.vr_rises_between_changes == 0, r.trace
     assert r.final_goal_distance < 0.02, r.trace
+
+
+def test_set_distances_measure_present_members_as_the_tree_does_and_absent_ones_at_infinity():
+    """The clearance reported beside a world's rollouts: the registered maps of the sets' slots, checked against
+    the distance to a sphere and to an axis-aligned box computed here; a removed member is infinitely far."""
+    from rmpfusion.scenes.sets import set_distances
+
+    sets = [ObstacleSet(shape="sphere", n_max=3), ObstacleSet(shape="box", n_max=2)]
+    world = World(sets, goal=[0.5, 0.0, 0.4])
+    ball = world.add("sphere", center=[0.5, 0.0, 0.5], radius=0.1)
+    world.add("box", center=[0.0, 0.5, 0.5], half_extents=[0.1, 0.2, 0.1])
+    pts = torch.tensor([[0.5, 0.0, 0.8], [0.0, 0.5, 0.8], [0.3, -0.2, 0.1]], dtype=torch.float64)
+    d = set_distances(sets, world.set_aux(), pts)
+    assert d.shape == (3, 5)
+    sphere = (pts - torch.tensor([0.5, 0.0, 0.5], dtype=torch.float64)).norm(dim=-1) - 0.1
+    outside = (
+        (pts - torch.tensor([0.0, 0.5, 0.5], dtype=torch.float64)).abs()
+        - torch.tensor([0.1, 0.2, 0.1], dtype=torch.float64)
+    ).clamp(min=0)
+    torch.testing.assert_close(d[:, 0], sphere)
+    torch.testing.assert_close(d[:, 3], outside.norm(dim=-1))
+    assert torch.isinf(d[:, [1, 2, 4]]).all()
+    world.remove(ball)
+    assert torch.isinf(set_distances(sets, world.set_aux(), pts)[:, 0]).all()

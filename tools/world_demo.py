@@ -35,6 +35,7 @@ from rmpfusion.assembly.weighting import plain_data, tree_with_weights, weights_
 from rmpfusion.pipeline.validate import resolve_and_validate
 from rmpfusion.robots.robot import build_robot
 from rmpfusion.scenes import ObstacleSet, World, set_dims
+from rmpfusion.scenes.sets import set_distances
 
 SETS = [ObstacleSet(shape="sphere", n_max=4), ObstacleSet(shape="box", n_max=2)]
 GOAL, GOAL_B = [0.45, 0.35, 0.35], [0.45, -0.35, 0.35]
@@ -84,21 +85,12 @@ class Report:
 
 
 def clearance_to_world(robot, q: torch.Tensor, world: World) -> float:
-    """Least distance between a control sphere's surface and an obstacle present (inf if none)."""
+    """Least distance between a control sphere's surface and an obstacle present (inf if none), by the maps the
+    tree measures the sets' members with (``scenes.sets.set_distances``)."""
     centres = robot.sphere_centres(q)[0]
     radii = torch.tensor([cp.radius for cp in robot.params.control_points], dtype=q.dtype)
-    best = float("inf")
-    for oid in world.present():
-        prefix, slot = world.where[oid]
-        c = world.tensors[f"{prefix}_center"][0, slot]
-        if prefix == "spheres":
-            d = (centres - c).norm(dim=-1) - world.tensors["spheres_radius"][0, slot] - radii
-        else:  # an axis-aligned box (the demo's boxes are not turned)
-            h = world.tensors["boxes_half_extents"][0, slot]
-            out = ((centres - c).abs() - h).clamp(min=0).norm(dim=-1)
-            d = out - radii
-        best = min(best, float(d.min()))
-    return best
+    d = set_distances(list(world.sets.values()), world.set_aux(), centres) - radii[:, None]
+    return float(d.min()) if d.numel() else float("inf")
 
 
 def run_demo(compiled: bool = True, seconds: float = 6.0, dt: float = 0.002) -> Report:

@@ -23,7 +23,7 @@ import torch
 from pydantic import Field
 from torch import Tensor
 
-from ..registry import Params
+from ..registry import TASK_MAPS, Params
 from .aux import SHAPE_AUX
 
 #: every shape a controller may meet; a policy allocates a set of each it will meet before it is compiled or exported
@@ -176,3 +176,24 @@ def with_slots(sets: list[ObstacleSet], aux: Mapping[str, Tensor]) -> dict[str, 
     for s in sets:
         out.update(s.slots(aux))
     return out
+
+
+def set_distances(sets: list[ObstacleSet], aux: Mapping[str, Tensor], points: Tensor) -> Tensor:
+    """(n, Σ n_max) signed distance from each point (n, 3) to every member of every set, +inf where a member is
+    absent: measured by the registered maps a tree holding the sets puts under its control points (``slot_map``),
+    so a clearance reported beside a rollout is the distance the tree saw. ``aux`` holds the sets' tensors and
+    masks with one row, or one row per point."""
+    slots = with_slots(sets, aux)
+    n = points.shape[0]
+    rows = {k: (v.expand(n, *v.shape[1:]) if v.shape[0] == 1 else v) for k, v in slots.items()}
+    dims = {k: v.shape[-1] for k, v in rows.items() if v.dim() == 2}
+    cols = []
+    for st in sets:
+        for i in range(1, st.n_max + 1):
+            spec = st.slot_map(i)
+            entry = TASK_MAPS.get(spec["type"])
+            params = entry.validate({key: v for key, v in spec.items() if key != "type"})
+            d = entry.obj(params, 3, dims).to(points.dtype).psi(points, rows)[:, 0]
+            present = rows[st.slot_name(i, "present")][:, 0] > 0.5
+            cols.append(torch.where(present, d, torch.full_like(d, float("inf"))))
+    return torch.stack(cols, -1) if cols else points.new_zeros(n, 0)
