@@ -321,3 +321,17 @@ def test_optuna_sweep_searches_and_reports_the_best_learning_rate(tmp_path):
     best = (tmp_path / "optimization_results.yaml").read_text()
     assert "train.lr" in best and "best_value" in best
     assert len(list(tmp_path.glob("*_2d1level_*train.lr=*/metrics.json"))) == 2  # each trial's values in its name
+
+
+@pytest.mark.parametrize("preset", sorted(p.stem for p in (CONF / "eval").glob("*.yaml")))
+def test_every_eval_preset_lists_every_evaluation_setting(preset):
+    """A setting missing from a preset cannot be overridden without Hydra's ``+`` (``eval.unit_weights=true`` on
+    experiment=franka was refused): every conf/eval preset lists every key of EvalConfig."""
+    import yaml
+
+    from rmpfusion.pipeline.config import EvalConfig
+
+    listed = set(yaml.safe_load((CONF / "eval" / f"{preset}.yaml").read_text()) or {})
+    assert set(EvalConfig.model_fields) <= listed, (
+        f"conf/eval/{preset}.yaml lacks {set(EvalConfig.model_fields) - listed}"
+    )
