@@ -19,6 +19,7 @@ pytest.importorskip("pybullet")
 pytest.importorskip("trimesh")
 pytest.importorskip("collada")
 
+from conftest import CONF
 from robot_package import JOINTS, MOUNT, PACKAGE, random_q, write_package
 
 from rmpfusion.cli import fit_spheres
@@ -373,3 +374,30 @@ def test_the_generated_tree_carries_the_mount_and_no_ground_edge_for_spheres_no_
     assert [cps[i]["link"] for i in still] == ["link1", "link1"]  # the spinning link's two spheres
     grounded = {name.split("_")[0] for name in spec["nodes"] if name.endswith("_ground")}
     assert grounded == {f"cp{i + 1}" for i in range(len(cps)) if i not in still}
+
+
+def test_a_sphere_below_the_ground_in_every_configuration_gets_no_ground_edge():
+    """The UR5 as published (example-robot-data): its upper arm's fitted sphere, 17 cm across beside the shoulder
+    axis, reaches below the table whatever the joints do. A ground barrier there would act at full strength wherever
+    the arm is (the expert reached 3 of 20 validation goals with it): the generated tree gives it no ground edge,
+    while every sphere that can clear the ground keeps one."""
+    import yaml
+
+    from rmpfusion.envs.manipulator_tree import manipulator_tree_spec
+    from rmpfusion.robots.home import (
+        sampled_configurations,
+        sphere_heights,
+        spheres_at_fixed_height,
+        spheres_never_clear_of,
+    )
+
+    data = yaml.safe_load((CONF / "robot" / "ur5.yaml").read_text())  # example-robot-data: the dev extra
+    ur5 = RobotDescription.model_validate(data)
+    lowest = sphere_heights(ur5, sampled_configurations(ur5, 4096, seed=1))  # more samples than the rule takes
+    below = {i for i, top in enumerate(lowest.max(0).values.tolist()) if top < 0.0}
+    never = set(spheres_never_clear_of(ur5))
+    assert never == below and [ur5.control_points[i].link for i in sorted(never)] == ["shoulder_link", "upper_arm_link"]
+    skipped = never | set(spheres_at_fixed_height(ur5))
+    spec = manipulator_tree_spec(data, {"ground": {"height": 0.0}})
+    grounded = {name.split("_")[0] for name in spec["nodes"] if name.endswith("_ground")}
+    assert grounded == {f"cp{i + 1}" for i in range(len(ur5.control_points)) if i not in skipped}

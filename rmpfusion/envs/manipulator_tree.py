@@ -2,7 +2,8 @@
 
 The tree's shape depends on the robot's control points and on the scene's obstacles: every obstacle adds one
 distance node under every control point (and a ground plane one more, for every control point some joint can
-raise or lower: a sphere at a fixed height, on a shoulder that only spins, gets none). Generating the spec keeps those nodes
+raise or lower: a sphere at a fixed height, on a shoulder that only spins, gets none, nor does a sphere beside a
+shoulder axis that reaches below the ground in every configuration). Generating the spec keeps those nodes
 consistent, and lets a tree trained in one scene be rebuilt for another: the obstacle weight on a control point is
 one entry of ``shared_weights`` used by all of that point's obstacle edges, each edge binding the generic aux names
 ``obstacle_center``/``obstacle_radius`` to its own obstacle. The generator is registered as ``fig1b``, so
@@ -32,7 +33,7 @@ from ..rmps.gds_leaves import CollisionAvoidance, Damper, GoalAttractor, Identit
 from ..rmps.orientation import OrientationAttractor
 from ..rmps.velocity_limit import VelocityLimit
 from ..robots import RobotField
-from ..robots.home import spheres_at_fixed_height
+from ..robots.home import spheres_at_fixed_height, spheres_never_clear_of
 from ..robots.robot import build_robot
 from ..scenes import ObstacleSet, Scene, obstacle_map, scene_aux_dims, set_dims
 from ..weights.neural import MLPWeight
@@ -310,9 +311,15 @@ def fig1b(p: ManipulatorTreeParams) -> dict[str, Any]:
             "rmp": _entry(p, "joint_limit_rmp"),
         }
     shared: dict[str, Any] = {"ground": _entry(p, "ground_weight")} if p.scene.ground is not None else {}
-    still = set(spheres_at_fixed_height(r)) if p.scene.ground is not None else set()  # no joint lowers them
+    # no ground edge where it could never act (no joint lowers the sphere) or would always act at full strength
+    # (the sphere is below the ground in every configuration): robots/home.py samples both
+    no_ground = (
+        set(spheres_at_fixed_height(r)) | set(spheres_never_clear_of(r, float(p.scene.ground.height)))
+        if p.scene.ground is not None
+        else set()
+    )
     for i, cp in enumerate(r.control_points, start=1):
-        more, weights = _control_point_nodes(p, i, cp, ground=i - 1 not in still)
+        more, weights = _control_point_nodes(p, i, cp, ground=i - 1 not in no_ground)
         nodes.update(more)
         shared.update(weights)
     nodes["damper"] = {"parent": "q", "map": {"type": "identity"}, "rmp": _entry(p, "damper_rmp")}

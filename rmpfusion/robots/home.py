@@ -54,6 +54,16 @@ def spheres_at_fixed_height(robot: RobotDescription) -> list[int]:
     return [i for i, s in enumerate(still.tolist()) if s]
 
 
+def spheres_never_clear_of(robot: RobotDescription, ground: float = 0.0) -> list[int]:
+    """Indices (from 0) of the control spheres that reach below ``ground`` in every configuration (sampled): a
+    sphere beside a shoulder axis, coarser than the link it covers. A ground barrier on one would act at full
+    strength wherever the arm is, holding the whole arm back for a contact the link itself never makes."""
+    if not robot.control_points:
+        return []
+    lowest = sphere_heights(robot, sampled_configurations(robot))
+    return [i for i, top in enumerate(lowest.max(0).values.tolist()) if top < ground]
+
+
 def ground_check(robot: RobotDescription, ground: float = 0.0, clearance: float = 0.05, seed: int = 0):
     """A function of configurations (B, dof) -> (B,) bool: every control sphere that can move up or down is
     ``clearance`` above the ground or, if it can never rise that far (beside a shoulder axis), as high as it can get
