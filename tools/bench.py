@@ -4,7 +4,7 @@ by side with its reference in the same process, so the ratios hold whatever else
 a target say whether it is met.
 
     python tools/bench.py                 # the whole table (~10 min on 2 cores, most of it torch.compile)
-    python tools/bench.py --only latency  # one section: latency, compile, scaling, batched, train, cuda, robots, memory
+    python tools/bench.py --only latency  # one section: latency, compile, scaling, sets, batched, train, cuda, robots, memory
     python tools/bench.py --no-compile    # eager only
 
 Sections:
@@ -575,6 +575,51 @@ def section_scaling(compile_: bool) -> None:
         row("scaling", "100 obstacles / 1, B = 1, compiled", f"{r:.2f}", "", "", "≤ 3", r <= 3)
 
 
+#: (N_max, batch, seed) of the obstacle-set rows: one sphere set of N_max members, every member present
+SET_STATES = tuple((n, B, B) for n in (1, 100) for B in (1, 1024))
+
+
+def franka_set_states(n_max: int, batch: int, seed: int):
+    """(tree, q, q̇, aux): the Franka expert on the Panda's tree with one sphere set of ``n_max`` members (the run-time
+    world's tree: tools/world_demo.py), every member present, 3 cm spheres in a slab beyond the goals (x 0.9–1.1 m,
+    clear of the arm's starts), and ``batch`` start states of experiment=franka's sampler."""
+    from world_demo import controller
+
+    from rmpfusion.scenes import ObstacleSet, World
+
+    sets = [ObstacleSet(shape="sphere", n_max=n_max)]
+    tree, _, _ = controller(sets)
+    world = World(sets, goal=[0.45, 0.35, 0.35])
+    g = torch.Generator().manual_seed(seed)
+    lo, hi = torch.tensor([0.9, -0.6, 0.1]), torch.tensor([1.1, 0.6, 0.8])
+    for _ in range(n_max):
+        world.add("sphere", center=(lo + (hi - lo) * torch.rand(3, generator=g)).tolist(), radius=0.03)
+    _, q, qd, _ = franka_states(1, batch, seed)
+    aux = {k: v.expand(batch, *v.shape[1:]) for k, v in world.aux().items()}
+    return tree, q, qd, aux
+
+
+def section_sets(compile_: bool) -> None:
+    print("\nFranka tree with a run-time obstacle set of N_max = 1 and 100 spheres (every member present): one tree")
+    print("and one compile serve any count from 0 to N_max; how the cost grows with N_max")
+    times: dict[tuple[int, int, str], float] = {}
+    for n, B, seed in SET_STATES:
+        tree, q, qd, a = franka_set_states(n, B, seed)
+        with torch.inference_mode():
+            t = median_time(lambda tree=tree, q=q, qd=qd, a=a: tree(q, qd, a), min_time=1.0)
+            times[n, B, "eager"] = t
+            row("sets", f"N_max = {n}, B = {B}, eager", _fmt_time(t), "", "", "")
+            if compile_:
+                ct, t = _compiled_time(tree, (q, qd, a))
+                times[n, B, "compiled"] = t
+                row("sets", f"N_max = {n}, B = {B}, compiled ({ct:.0f} s)", _fmt_time(t))
+    mode = "compiled" if compile_ else "eager"
+    r1 = times[100, 1, mode] / times[1, 1, mode]
+    row("sets", f"N_max 100 / 1, B = 1, {mode}", f"{r1:.2f}", "", "", "≤ 3", r1 <= 3)
+    rb = times[100, 1024, mode] / times[1, 1024, mode]
+    row("sets", f"N_max 100 / 1, B = 1024, {mode}", f"{rb:.2f}", "", "", "≤ 5", rb <= 5)
+
+
 def section_cuda(compile_: bool) -> None:
     if not torch.cuda.is_available():
         print("\ncuda: no CUDA device on this machine (section skipped)")
@@ -727,6 +772,7 @@ SECTIONS = {
     "latency": section_latency,
     "compile": section_compile,
     "scaling": section_scaling,
+    "sets": section_sets,
     "cuda": section_cuda,
     "robots": section_robots,
 }

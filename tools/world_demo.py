@@ -57,19 +57,19 @@ def schedule(world: World) -> list[tuple[float, callable]]:
     ]
 
 
-def controller():
+def controller(sets: list[ObstacleSet] = SETS):
     """The expert of experiment=franka (its weights by role) on the Panda's Fig. 1b tree generated with the obstacle
-    sets and no fixed obstacle, and the robot. The environment does not yet provide the sets (their bodies in
+    ``sets`` and no fixed obstacle, and the robot. The environment does not yet provide the sets (their bodies in
     pybullet are future work), so the tree is built from the run's tree declaration here."""
     with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
         cfg = compose("config", overrides=["experiment=franka"])
     run = resolve_and_validate(cfg)
     decl = OmegaConf.to_container(cfg.tree, resolve=True)
     decl["scene"] = {"obstacles": []}  # every obstacle is the world's
-    decl["obstacle_sets"] = [s.model_dump(exclude_none=True) for s in SETS]
+    decl["obstacle_sets"] = [s.model_dump(exclude_none=True) for s in sets]
     spec = expand_tree(decl)
     expert = weights_by_name(spec, {k: plain_data(v) for k, v in run.expert.items()})
-    tree = build_tree(tree_with_weights(spec, expert, where="expert"), aux_dims={"goal": 3, **set_dims(SETS)}).double()
+    tree = build_tree(tree_with_weights(spec, expert, where="expert"), aux_dims={"goal": 3, **set_dims(sets)}).double()
     return tree, build_robot(run.env.robot), run
 
 
