@@ -7,6 +7,8 @@ editable install; see ``_common.conf_dir``). It is looked up when read, so impor
 
 from ._common import conf_dir
 
+__all__ = ["CONF_DIR"]  # the console scripts are the package's interface; CONF_DIR is looked up when read
+
 
 def __getattr__(name: str):
     if name == "CONF_DIR":

@@ -3,3 +3,5 @@ behavior cloning (``bc``), DAgger (``dagger``), analytic policy gradients throug
 score-function policy gradient (``pg``)."""
 
 from . import apg, bc, dagger, pg  # noqa: F401  (importing the modules registers the training methods)
+
+__all__: list[str] = []  # nothing to import from here: the methods are reached through TRAIN_METHODS
