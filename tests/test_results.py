@@ -21,13 +21,14 @@ sys.path.insert(0, str(ROOT / "tools"))
 import compare_metrics
 import lasa_table
 import reproduce_2d
+import task_table
 
 MARKER = re.compile(r"^<!-- results table: (\S+) -->$")
 TABLES = yaml.safe_load((RESULTS / "tables.yaml").read_text(encoding="utf-8"))
 RUNS = yaml.safe_load((RESULTS / "runs.yaml").read_text(encoding="utf-8"))
 
 #: the table tools, by the name tables.yaml gives them: {row label: metrics} -> the table's markdown
-TOOLS = {"reproduce_2d": reproduce_2d.table, "lasa_table": lasa_table.table_of}
+TOOLS = {"reproduce_2d": reproduce_2d.table, "lasa_table": lasa_table.table_of, "task_table": task_table.table}
 
 
 def _marked() -> dict[str, tuple[str, int, str]]:
