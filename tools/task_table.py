@@ -47,7 +47,8 @@ def _clearance(c: dict | None) -> str:
     return "–" if not c else f"{1000 * c['least']:.1f} / {1000 * c['median']:.1f}"
 
 
-def rows(metrics: dict, with_expert: bool) -> list[str]:
+def rows(metrics: dict, with_expert: bool, label: str | None = None) -> list[str]:
+    """The table's lines of one run, labelled ``label`` (default the run's name)."""
     out = []
     for r in metrics["task_table"]:
         if r["policy"] == "expert" and not with_expert:
@@ -63,7 +64,7 @@ def rows(metrics: dict, with_expert: bool) -> list[str]:
         out.append(
             " | ".join(
                 [
-                    f"| {metrics['name']}",
+                    f"| {label or metrics['name']}",
                     r["policy"],
                     _pm(r.get("time")),
                     f"{round(r['reached']['mean'] * n)} / {n}",
@@ -82,13 +83,13 @@ def rows(metrics: dict, with_expert: bool) -> list[str]:
 
 
 def table(runs: dict[str, dict]) -> str:
-    """The markdown table of runs given as {label: metrics}, in that order (the label is the row group's run name:
-    ``tests/test_results.py`` regenerates stored tables from ``results/`` with this function)."""
+    """The markdown table of runs given as {label: metrics}, in that order, each run's rows labelled with its key
+    (``tests/test_results.py`` regenerates stored tables from ``results/`` with this function)."""
     lines = [HEADER, "|" + "---|" * (HEADER.count("|") - 1)]
     experts: list = []
-    for m in runs.values():
+    for label, m in runs.items():
         expert = next(r for r in m["task_table"] if r["policy"] == "expert")
-        lines += rows(m, with_expert=expert not in experts)
+        lines += rows(m, with_expert=expert not in experts, label=label)
         experts.append(expert)
     return "\n".join(lines) + "\n"
 
@@ -97,7 +98,10 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("metrics", nargs="+", type=Path, help="metrics.json of a manipulator run")
     a = ap.parse_args(argv)
-    print(table({str(path): json.loads(path.read_text()) for path in a.metrics}), end="")
+    metrics = [json.loads(path.read_text()) for path in a.metrics]
+    names = [m["name"] for m in metrics]
+    labels = [f"{m['name']} (seed {m['seed']})" if names.count(m["name"]) > 1 else m["name"] for m in metrics]
+    print(table(dict(zip(labels, metrics, strict=True))), end="")
     return 0
 
 
