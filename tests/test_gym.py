@@ -173,3 +173,28 @@ def test_one_stable_baselines3_ppo_iteration_on_the_particle(tmp_path, request):
     model.save(tmp_path / "ppo")
     action, _ = sb3.PPO.load(tmp_path / "ppo", device="cpu").predict(env.reset(seed=0)[0], deterministic=True)
     assert env.action_space.contains(action.astype(np.float32))
+
+
+@pytest.mark.slow
+def test_a_moving_obstacle_is_observed_where_it_is_now():
+    """franka_three_obstacles' sphere moves at 0.1 m/s: after three decisions of 0.1 s the observation shows it
+    3 cm further along its path (the environment's aux_at), and nothing else of the scene moved."""
+    env = RMPfusionEnv(build_task("franka_three_obstacles"))
+    try:
+        task = env.task
+        obs0, _ = env.reset(seed=0)
+        for _ in range(3):
+            obs, *_ = env.step(np.zeros(task.env.dim, dtype=np.float32))
+        q0, qd0, aux0 = env._state
+        expected = task.env.aux_at(aux0, 0.3)
+        now = task.observe(q0, qd0, expected)[0].numpy()
+        start = 2 * task.env.dim
+        np.testing.assert_allclose(obs[start:], now[start:], atol=1e-6)
+        moved = np.flatnonzero(~np.isclose(obs0[start:], obs[start:], atol=1e-7))
+        dims = task.env.aux_dims()
+        offsets = np.cumsum([0] + [dims[n] for n in task.aux_names])
+        names = {task.aux_names[int(np.searchsorted(offsets, i, side="right")) - 1] for i in moved}
+        assert names == {"obstacle2_center"}
+        assert float(np.linalg.norm(obs[start:] - obs0[start:])) == pytest.approx(0.03, abs=1e-6)
+    finally:
+        env.close()
