@@ -76,25 +76,16 @@ def plugin_site(tmp_path_factory) -> Path:
     virtualenv stay as they are); the commands that use the plugin get this directory on PYTHONPATH."""
     root = tmp_path_factory.mktemp("plugin")
     shutil.copytree(PLUGIN_EXAMPLE, root / "src")
-    site = root / "site"
-    subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "pip",
-            "install",
-            "-q",
-            "--no-deps",
-            "--no-build-isolation",
-            "--target",
-            str(site),
-            str(root / "src"),
-        ],
-        check=True,
-        capture_output=True,
-        timeout=300,
-    )
+    site = pip_install_into(root / "src", root / "site")
     assert (site / "hydra_plugins" / "rmpfusion_spring" / "searchpath.py").is_file()
+    return site
+
+
+def pip_install_into(src: Path, site: Path) -> Path:
+    """``pip install src`` into the private folder ``site`` (no dependencies, no build isolation: nothing
+    downloaded), for a test to put on PYTHONPATH; returns ``site``."""
+    cmd = [sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--no-build-isolation", "--target", str(site)]
+    subprocess.run([*cmd, str(src)], check=True, capture_output=True, timeout=300)
     return site
 
 

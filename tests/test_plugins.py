@@ -9,7 +9,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from conftest import TINY, section_of  # and the plugin_site fixture: the example plugin pip-installed
+from conftest import TINY, pip_install_into, section_of  # and the plugin_site fixture: the example plugin pip-installed
 
 
 def _cli(site: Path, *args, timeout=300):
@@ -114,25 +114,7 @@ def readme_plugin_site(tmp_path_factory) -> Path:
         '[project.entry-points."rmpfusion.plugins"]\nmy_spring = "rmpfusion_myspring"\n\n'
         '[tool.setuptools]\npackages = ["rmpfusion_myspring"]\n'
     )
-    site = root / "site"
-    subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "pip",
-            "install",
-            "-q",
-            "--no-deps",
-            "--no-build-isolation",
-            "--target",
-            str(site),
-            str(root / "src"),
-        ],
-        check=True,
-        capture_output=True,
-        timeout=300,
-    )
-    return site
+    return pip_install_into(root / "src", root / "site")
 
 
 @pytest.mark.slow

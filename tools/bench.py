@@ -557,19 +557,26 @@ def section_compile(compile_: bool) -> None:
     row("compile", "Franka expert tree, first call after compile()", f"{s:.1f} s", "", "", "≤ 30 s", s <= 30)
 
 
+def _eager_and_compiled(section: str, label: str, tree, args: tuple, compile_: bool) -> dict[str, float]:
+    """One tree at one batch: its eager row, and its compiled row unless ``compile_`` is off; {mode: seconds}."""
+    out = {}
+    with torch.inference_mode():
+        out["eager"] = median_time(lambda: tree(*args), min_time=1.0)
+        row(section, f"{label}, eager", _fmt_time(out["eager"]), "", "", "")
+        if compile_:
+            ct, out["compiled"] = _compiled_time(tree, args)
+            row(section, f"{label}, compiled ({ct:.0f} s)", _fmt_time(out["compiled"]))
+    return out
+
+
 def section_scaling(compile_: bool) -> None:
     print("\nFranka tree with 1, 10 and 100 obstacles (14 control points each): how the cost grows")
     compiled_b1 = {}
     for n, B, seed in SCALING_STATES:
         tree, q, qd, a = franka_states(n, B, seed)
-        with torch.inference_mode():
-            t = median_time(lambda tree=tree, q=q, qd=qd, a=a: tree(q, qd, a), min_time=1.0)
-            row("scaling", f"{n} obstacle(s), B = {B}, eager", _fmt_time(t), "", "", "")
-            if compile_:
-                ct, t = _compiled_time(tree, (q, qd, a))
-                row("scaling", f"{n} obstacle(s), B = {B}, compiled ({ct:.0f} s)", _fmt_time(t))
-                if B == 1:
-                    compiled_b1[n] = t
+        t = _eager_and_compiled("scaling", f"{n} obstacle(s), B = {B}", tree, (q, qd, a), compile_)
+        if compile_ and B == 1:
+            compiled_b1[n] = t["compiled"]
     if compile_:
         r = compiled_b1[100] / compiled_b1[1]
         row("scaling", "100 obstacles / 1, B = 1, compiled", f"{r:.2f}", "", "", "≤ 3", r <= 3)
@@ -602,21 +609,14 @@ def franka_set_states(n_max: int, batch: int, seed: int):
 def section_sets(compile_: bool) -> None:
     print("\nFranka tree with a run-time obstacle set of N_max = 1 and 100 spheres (every member present): one tree")
     print("and one compile serve any count from 0 to N_max; how the cost grows with N_max")
-    times: dict[tuple[int, int, str], float] = {}
+    times: dict[tuple[int, int], dict[str, float]] = {}
     for n, B, seed in SET_STATES:
         tree, q, qd, a = franka_set_states(n, B, seed)
-        with torch.inference_mode():
-            t = median_time(lambda tree=tree, q=q, qd=qd, a=a: tree(q, qd, a), min_time=1.0)
-            times[n, B, "eager"] = t
-            row("sets", f"N_max = {n}, B = {B}, eager", _fmt_time(t), "", "", "")
-            if compile_:
-                ct, t = _compiled_time(tree, (q, qd, a))
-                times[n, B, "compiled"] = t
-                row("sets", f"N_max = {n}, B = {B}, compiled ({ct:.0f} s)", _fmt_time(t))
+        times[n, B] = _eager_and_compiled("sets", f"N_max = {n}, B = {B}", tree, (q, qd, a), compile_)
     mode = "compiled" if compile_ else "eager"
-    r1 = times[100, 1, mode] / times[1, 1, mode]
+    r1 = times[100, 1][mode] / times[1, 1][mode]
     row("sets", f"N_max 100 / 1, B = 1, {mode}", f"{r1:.2f}", "", "", "≤ 3", r1 <= 3)
-    rb = times[100, 1024, mode] / times[1, 1024, mode]
+    rb = times[100, 1024][mode] / times[1, 1024][mode]
     row("sets", f"N_max 100 / 1, B = 1024, {mode}", f"{rb:.2f}", "", "", "≤ 5", rb <= 5)
 
 

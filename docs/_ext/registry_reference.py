@@ -14,6 +14,7 @@ from __future__ import annotations
 import importlib
 import inspect
 import re
+import types
 import typing
 from pathlib import Path
 from typing import Any
@@ -54,7 +55,7 @@ def _type_name(annotation: Any) -> str:
         return _type_name(typing.get_args(annotation)[0])
     if origin is not None:
         args = [_type_name(a) for a in typing.get_args(annotation)]
-        if origin in (typing.Union, getattr(__import__("types"), "UnionType", typing.Union)):
+        if origin in (typing.Union, types.UnionType):
             return " | ".join(args)
         name = getattr(origin, "__name__", str(origin))
         return f"{name}[{', '.join(args)}]" if args else name
@@ -103,10 +104,6 @@ def _summary(obj: Any) -> str:
     return " ".join(doc.split("\n\n")[0].split())
 
 
-def _where(obj: Any) -> str:
-    return f"{getattr(obj, '__module__', '?')}.{getattr(obj, '__qualname__', getattr(obj, '__name__', '?'))}"
-
-
 def registry_page(attribute: str, registry: Any) -> str:
     lines = [
         f"# {registry.kind[0].upper()}{registry.kind[1:]}s (`{attribute}`)",
@@ -116,9 +113,7 @@ def registry_page(attribute: str, registry: Any) -> str:
         "",
     ]
     for entry in sorted(registry.entries(), key=lambda e: e.name):
-        where = _where(entry.obj)
-        by = "" if entry.owner == where else f", registered by `{entry.owner}`"
-        lines += [f"## {entry.name}", "", f"`{where}`{by}.", ""]
+        lines += [f"## {entry.name}", "", f"`{entry.owner}`.", ""]  # the class or function the name registers
         summary = _summary(entry.obj)
         if summary:
             lines += [_cell(summary), ""]

@@ -68,6 +68,16 @@ def conf_dir() -> str:
 INTERRUPTED_EXIT = 130
 
 
+def compose_config(overrides: list[str], config_dir: Path | None = None) -> Any:
+    """conf/config.yaml composed with ``overrides`` as the commands compose it, outside a Hydra app (neither resolved
+    nor validated); ``config_dir`` joins the search path as Hydra's ``--config-dir`` does (a user's robot files)."""
+    from hydra import compose, initialize_config_dir
+
+    search = [f"hydra.searchpath=[file://{config_dir.resolve()}]"] if config_dir is not None else []
+    with initialize_config_dir(config_dir=conf_dir(), version_base="1.3"):
+        return compose(config_name="config", overrides=[*overrides, *search])
+
+
 def debug_enabled() -> bool:
     """``RMPFUSION_DEBUG=1``: full tracebacks instead of the one- or two-line answers, for someone debugging
     rmpfusion or a plugin (it also sets Hydra's ``HYDRA_FULL_ERROR=1`` for Hydra's own errors)."""

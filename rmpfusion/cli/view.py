@@ -33,7 +33,7 @@ from ..pipeline.progress import Progress
 from ..pipeline.validate import parse_run_config, resolve_and_validate
 from ..plots.viewer import PolicyTrack, ViewerInput, viewer_figure, write_viewer
 from ..registry import RegistryError
-from ._common import conf_dir, one_line
+from ._common import compose_config, one_line
 from .rundir import RESOLVED
 
 
@@ -74,19 +74,15 @@ def _run_config_of_directory(run_dir: Path) -> tuple[RunConfig, dict[str, Path]]
 
 
 def _run_config_of_overrides(overrides: list[str], config_dir: Path | None = None) -> RunConfig:
-    """The config Hydra composes from ``overrides`` over conf/, validated as every command validates it.
-    ``config_dir`` joins the search path as Hydra's ``--config-dir`` does for the other commands (a robot file of
-    the user's own, ``robot=my_arm`` from ``<config_dir>/robot/my_arm.yaml``)."""
-    from hydra import compose, initialize_config_dir
+    """The config Hydra composes from ``overrides`` over conf/ (and ``config_dir``, a robot file of the user's own:
+    ``robot=my_arm`` from ``<config_dir>/robot/my_arm.yaml``), validated as every command validates it."""
     from hydra.errors import HydraException
     from omegaconf.errors import OmegaConfBaseException
 
     if config_dir is not None and not config_dir.is_dir():
         raise ViewError(f"--config-dir {config_dir} is not a folder; give the folder your configs are in")
-    search = [f"hydra.searchpath=[file://{config_dir.resolve()}]"] if config_dir is not None else []
     try:
-        with initialize_config_dir(config_dir=conf_dir(), version_base="1.3"):
-            cfg = compose(config_name="config", overrides=[*overrides, *search])
+        cfg = compose_config(overrides, config_dir)
     except (HydraException, OmegaConfBaseException) as e:
         raise ViewError(f"the overrides {' '.join(overrides)} do not compose: {one_line(e)}") from None
     return resolve_and_validate(cfg)

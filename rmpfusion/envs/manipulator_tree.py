@@ -33,7 +33,7 @@ from ..rmps.gds_leaves import CollisionAvoidance, Damper, GoalAttractor, Identit
 from ..rmps.orientation import OrientationAttractor
 from ..rmps.velocity_limit import VelocityLimit
 from ..robots import RobotField
-from ..robots.home import spheres_at_fixed_height, spheres_never_clear_of
+from ..robots.home import spheres_without_ground_edge
 from ..robots.robot import build_robot
 from ..scenes import ObstacleSet, Scene, obstacle_map, scene_aux_dims, set_dims
 from ..weights.neural import MLPWeight
@@ -313,11 +313,7 @@ def fig1b(p: ManipulatorTreeParams) -> dict[str, Any]:
     shared: dict[str, Any] = {"ground": _entry(p, "ground_weight")} if p.scene.ground is not None else {}
     # no ground edge where it could never act (no joint lowers the sphere) or would always act at full strength
     # (the sphere is below the ground in every configuration): robots/home.py samples both
-    no_ground = (
-        set(spheres_at_fixed_height(r)) | set(spheres_never_clear_of(r, float(p.scene.ground.height)))
-        if p.scene.ground is not None
-        else set()
-    )
+    no_ground = spheres_without_ground_edge(r, float(p.scene.ground.height)) if p.scene.ground is not None else set()
     for i, cp in enumerate(r.control_points, start=1):
         more, weights = _control_point_nodes(p, i, cp, ground=i - 1 not in no_ground)
         nodes.update(more)

@@ -14,12 +14,13 @@ from typing import Literal
 import torch
 from torch import Tensor
 
-from ..cli._common import conf_dir
+from ..cli._common import compose_config
 from ..core.tree import RMPTree
 from ..envs.protocol import Env
 from ..learn.task_cost import TaskCost
 from ..pipeline.config import DataConfig, RunConfig
 from ..pipeline.construct import build_expert, build_unit_weights, make_env
+from ..pipeline.experiment import evaluation_horizon
 from ..pipeline.validate import resolve_and_validate
 
 Base = Literal["unit_weights", "expert", "none"]
@@ -67,11 +68,7 @@ class GymTask:
 
 def compose_run(experiment: str, overrides: Sequence[str] = ()) -> RunConfig:
     """The validated run config of ``experiment=<experiment>`` with ``overrides``, as ``rmpfusion-run`` composes it."""
-    from hydra import compose, initialize_config_dir
-
-    with initialize_config_dir(config_dir=conf_dir(), version_base="1.3"):
-        cfg = compose(config_name="config", overrides=[f"experiment={experiment}", *overrides])
-    return resolve_and_validate(cfg)
+    return resolve_and_validate(compose_config([f"experiment={experiment}", *overrides]))
 
 
 def build_task(
@@ -91,7 +88,7 @@ def build_task(
     if not isinstance(run.data, DataConfig):
         raise TaskError(f"experiment '{experiment}' learns from recorded demonstrations: it has no simulated task")
     env = make_env(run)
-    horizon = horizon if horizon is not None else run.eval.horizon or run.data.points * run.data.interval
+    horizon = horizon if horizon is not None else evaluation_horizon(run.eval, run.data)
     steps = decision_interval / env.dt
     if not decision_interval > 0 or abs(steps - round(steps)) > 1e-6 * steps:
         raise TaskError(

@@ -18,13 +18,18 @@ from ..core.tree import RMPTree
 from ..envs.common import on_device
 from ..envs.demonstrations import Dataset
 from ..envs.protocol import ComputesOn, Env
-from .config import DataConfig, RecordedDataConfig, RunConfig
+from .config import DataConfig, EvalConfig, RecordedDataConfig, RunConfig
 from .construct import build_expert, make_env
 from .progress import Progress
 from .validate import typed
 
 #: metrics.json's and the logger's sink for scalar metrics: ``log({"iteration": i, "<name>/<key>": value})``
 Log = Callable[[dict[str, float]], Any]
+
+
+def evaluation_horizon(ev: EvalConfig, data: DataConfig) -> float:
+    """Seconds an evaluation rollout lasts: ``eval.horizon``, default the demonstrations' length."""
+    return ev.horizon if ev.horizon is not None else data.points * data.interval
 
 
 @dataclass
@@ -69,11 +74,8 @@ class Experiment:
 
     @property
     def horizon(self) -> float:
-        """Seconds each evaluation rollout lasts: ``eval.horizon``, default the demonstrations' length."""
-        if self.run.eval.horizon is not None:
-            return self.run.eval.horizon
-        d = self.expert_data
-        return d.points * d.interval
+        """Seconds each evaluation rollout lasts (``evaluation_horizon``)."""
+        return evaluation_horizon(self.run.eval, self.expert_data)
 
     @property
     def fine_interval(self) -> float:

@@ -47,11 +47,7 @@ def sampled_configurations(robot: RobotDescription, n: int = SAMPLES, seed: int 
 def spheres_at_fixed_height(robot: RobotDescription) -> list[int]:
     """Indices (from 0) of the control spheres whose height no joint changes (sampled): a ground barrier on one of
     them could never act, and one that starts below the ground would stay there."""
-    if not robot.control_points:
-        return []
-    heights = sphere_heights(robot, sampled_configurations(robot))
-    still = (heights.max(0).values - heights.min(0).values) <= STILL
-    return [i for i, s in enumerate(still.tolist()) if s]
+    return sorted(spheres_without_ground_edge(robot, ground=-math.inf))
 
 
 def spheres_never_clear_of(robot: RobotDescription, ground: float = 0.0) -> list[int]:
@@ -60,8 +56,25 @@ def spheres_never_clear_of(robot: RobotDescription, ground: float = 0.0) -> list
     strength wherever the arm is, holding the whole arm back for a contact the link itself never makes."""
     if not robot.control_points:
         return []
-    lowest = sphere_heights(robot, sampled_configurations(robot))
-    return [i for i, top in enumerate(lowest.max(0).values.tolist()) if top < ground]
+    return _below(_sampled_heights(robot), ground)
+
+
+def spheres_without_ground_edge(robot: RobotDescription, ground: float = 0.0) -> set[int]:
+    """The spheres a tree gives no ground edge, from one sampling of their heights: those no joint raises or lowers
+    (``spheres_at_fixed_height``) and those below ``ground`` everywhere (``spheres_never_clear_of``)."""
+    if not robot.control_points:
+        return set()
+    heights = _sampled_heights(robot)
+    still = (heights.max(0).values - heights.min(0).values) <= STILL
+    return {i for i, s in enumerate(still.tolist()) if s} | set(_below(heights, ground))
+
+
+def _sampled_heights(robot: RobotDescription) -> torch.Tensor:
+    return sphere_heights(robot, sampled_configurations(robot))
+
+
+def _below(heights: torch.Tensor, ground: float) -> list[int]:
+    return [i for i, top in enumerate(heights.max(0).values.tolist()) if top < ground]
 
 
 def ground_check(robot: RobotDescription, ground: float = 0.0, clearance: float = 0.05, seed: int = 0):
