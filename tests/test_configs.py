@@ -49,6 +49,8 @@ def _overrides_for(group: str, option: str) -> list[str]:
             return [f"experiment={exp}"]
     if group == "robot":  # any robot: an experiment whose starts are drawn around the robot's own home
         return ["experiment=reach", f"robot={option}"]
+    if group == "sim":  # any simulator: the Panda experiment in it
+        return ["experiment=franka", f"sim={option}"]
     if group == "scene":  # any scene: the Panda experiment's goals with it
         return ["experiment=franka", f"scene={option}", f"scene@env.test_scene={option}"]
     return [f"{group}={option}"]
@@ -78,6 +80,7 @@ def test_every_group_file_is_listed():
         "logger",
         "sweep",
         "launcher",
+        "sim",
     } <= groups
 
 
@@ -87,6 +90,8 @@ def test_every_config_file_composes_validates_builds(group, option):
     run = resolve_and_validate(cfg)
     _env, expert, learners = build_all(run)
     assert expert.dim == run.tree.root.dim and learners
+    if group == "sim":
+        assert _env.params.sim.type == option and type(_env.checker().sim).__name__.lower().startswith(option)
     if group == "sweep":
         assert cfg.hydra.sweeper.params, "a sweep recipe must set hydra.sweeper.params"
     if group == "launcher":

@@ -22,14 +22,15 @@ RANK = {
     "assembly": 2,
     "robots": 2,
     "scenes": 2,
-    "recordings": 3,
-    "envs": 3,
-    "learn": 4,
-    "evaluate": 4,
-    "plots": 5,
-    "pipeline": 6,
-    "cli": 7,
-    "gym": 8,  # Gymnasium environments over experiments composed as the command line composes them
+    "recordings": 4,
+    "sims": 3,  # simulator backends (pybullet, MuJoCo) behind one protocol
+    "envs": 4,
+    "learn": 5,
+    "evaluate": 5,
+    "plots": 6,
+    "pipeline": 7,
+    "cli": 8,
+    "gym": 9,  # Gymnasium environments over experiments composed as the command line composes them
 }
 SIDE_BY_SIDE = {frozenset({"learn", "evaluate"})}
 #: what core/ may import besides itself: the math needs torch and the standard library only

@@ -39,7 +39,12 @@ def test_kinematics_agree_with_pybullet(name):
     r = build_robot(RobotDescription.model_validate(robot(name)))
     cid = pybullet.connect(pybullet.DIRECT)
     try:
-        body, arm, _ = r.load_into(pybullet, cid)
+        body = pybullet.loadURDF(r.urdf_path, *r.base_pose(), useFixedBase=True, physicsClientId=cid)
+        index = {
+            pybullet.getJointInfo(body, i, physicsClientId=cid)[1].decode(): i
+            for i in range(pybullet.getNumJoints(body, physicsClientId=cid))
+        }
+        arm = [index[j] for j in r.params.joints]
         links = {pybullet.getJointInfo(body, i, physicsClientId=cid)[12].decode(): i for i in arm}
         g = torch.Generator().manual_seed(0)
         lo, hi = r.lower.clamp(min=-math.pi), r.upper.clamp(max=math.pi)
@@ -220,11 +225,11 @@ def test_published_arms_find_starts_above_a_table(name):
 
 
 def test_every_environment_setting_is_listed_in_conf_env_manipulator():
-    """So each is set as env.<key>=<value>, never +env.<key>; robot and scene come from their groups."""
+    """So each is set as env.<key>=<value>, never +env.<key>; robot, scene and sim come from their groups."""
     from rmpfusion.envs.manipulator import ManipulatorParams
 
     listed = set(yaml.safe_load((CONF / "env" / "manipulator.yaml").read_text()))
-    assert set(ManipulatorParams.model_fields) - {"robot", "scene"} <= listed - {"type"}
+    assert set(ManipulatorParams.model_fields) - {"robot", "scene", "sim"} <= listed - {"type"}
     from rmpfusion.cli.preflight import check_command_line
 
     check_command_line(

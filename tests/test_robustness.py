@@ -923,12 +923,12 @@ def _recording_scenes(monkeypatch) -> list:
 
     scenes = []
 
-    class Recording(fr._Scene):
+    class Recording(fr.TaskWorld):
         def __init__(self, *a, **kw):
             super().__init__(*a, **kw)
             scenes.append(self)
 
-    monkeypatch.setattr(fr, "_Scene", Recording)
+    monkeypatch.setattr(fr, "TaskWorld", Recording)
     return scenes
 
 
@@ -938,7 +938,7 @@ def _recording_scenes(monkeypatch) -> list:
     "torque mode, B = 2: the policy disconnects sample 1's pybullet client at its 3rd call",
     "sample 1 ends with a recorded reason, sample 0 completes",
     needs=("pybullet",),
-    shows="error[1] = 'pybullet error at t=0.0333s: Not connected to physics server.'; sample 0 completes (error[0] = None)",
+    shows="error[1] = 'simulator error at t=0.0333s: pybullet: Not connected to physics server.'; sample 0 completes (error[0] = None)",
 )
 def _disconnect(tmp_path, monkeypatch):
     import pybullet
@@ -950,13 +950,13 @@ def _disconnect(tmp_path, monkeypatch):
     def policy(q, qd, a):
         calls.append(1)
         if len(calls) == 3:
-            pybullet.disconnect(physicsClientId=scenes[1].cid)
+            pybullet.disconnect(physicsClientId=scenes[1].sim.cid)
         return damping(q, qd, a)
 
     with torch.no_grad():
         r = env.rollout(policy, q0, qd0, aux, horizon=0.2, record_every=0.05, mode="torque")
     env.close()
-    return check_isolated(r, r"pybullet error at t=0\.0333s: .*[Nn]ot connected")
+    return check_isolated(r, r"simulator error at t=0\.0333s: pybullet: .*[Nn]ot connected")
 
 
 @row(
@@ -965,7 +965,7 @@ def _disconnect(tmp_path, monkeypatch):
     "torque mode, B = 2: stepSimulation raises for sample 1 at t = 0.05 s",
     "sample 1 ends with a recorded reason, sample 0 completes",
     needs=("pybullet",),
-    shows="error[1] = 'pybullet error at t=0.0500s: simulated step failure'; sample 0 completes (error[0] = None)",
+    shows="error[1] = 'simulator error at t=0.0500s: pybullet: simulated step failure'; sample 0 completes (error[0] = None)",
 )
 def _step_fails(tmp_path, monkeypatch):
     import pybullet
@@ -975,7 +975,7 @@ def _step_fails(tmp_path, monkeypatch):
     real, steps = pybullet.stepSimulation, []
 
     def step(*a, **kw):
-        if kw.get("physicsClientId") == scenes[1].cid:
+        if kw.get("physicsClientId") == scenes[1].sim.cid:
             steps.append(1)
             if len(steps) == 4:
                 raise pybullet.error("simulated step failure")
@@ -985,7 +985,7 @@ def _step_fails(tmp_path, monkeypatch):
     with torch.no_grad():
         r = env.rollout(damping, q0, qd0, aux, horizon=0.2, record_every=0.05, mode="torque")
     env.close()
-    return check_isolated(r, r"pybullet error at t=0\.0500s: simulated step failure")
+    return check_isolated(r, r"simulator error at t=0\.0500s: pybullet: simulated step failure")
 
 
 def _tree_fault_row(mode: str):

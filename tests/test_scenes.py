@@ -14,11 +14,13 @@ pybullet = pytest.importorskip("pybullet")
 from manipulators import franka_env, robot
 
 import rmpfusion
-from rmpfusion.envs.manipulator.scene import _quaternion_of, _quaternion_z_to, sample_aux
+from rmpfusion.envs.manipulator.worlds import sample_aux
 from rmpfusion.envs.manipulator_tree import manipulator_tree_spec, with_weights
 from rmpfusion.evaluate.metrics import rollout_rates, task_stage
 from rmpfusion.registry import TASK_MAPS
 from rmpfusion.scenes import Scene, aux_at, distances, scene_aux
+from rmpfusion.sims.obstacles import rotation_z_to
+from rmpfusion.sims.pybullet_backend import quaternion_of
 
 F64 = torch.float64
 EVERY_SHAPE = {
@@ -41,11 +43,11 @@ def _pybullet_bodies(scene: Scene, a: dict) -> list[int]:
             col, q = pybullet.createCollisionShape(pybullet.GEOM_SPHERE, radius=r), [0, 0, 0, 1]
         elif o.type == "box":
             col = pybullet.createCollisionShape(pybullet.GEOM_BOX, halfExtents=a[pre + "half_extents"].tolist())
-            q = _quaternion_of(a[pre + "rotation"].reshape(3, 3))
+            q = quaternion_of(a[pre + "rotation"].reshape(3, 3))
         else:
             half = float(a[pre + ("half_height" if o.type == "cylinder" else "half_length")][0])
             shape = pybullet.GEOM_CYLINDER if o.type == "cylinder" else pybullet.GEOM_CAPSULE
-            col, q = pybullet.createCollisionShape(shape, radius=r, height=2 * half), _quaternion_z_to(a[pre + "axis"])
+            col, q = pybullet.createCollisionShape(shape, radius=r, height=2 * half), quaternion_of(rotation_z_to(a[pre + "axis"]))
         bodies.append(pybullet.createMultiBody(0, col, -1, a[pre + "center"].tolist(), q))
     return bodies
 

@@ -102,26 +102,21 @@ def test_package_search_order_and_resolved_copy(package, tmp_path, monkeypatch):
 def test_kinematics_with_a_mount_and_a_mimic_joint_agree_with_pybullet(fitted):
     """Every link's world position: rmpfusion's chain (mount, mimic follower) against pybullet's (the resolved copy
     loaded at the mount, the follower driven), at random configurations."""
-    import pybullet as p
-
-    from rmpfusion.envs.manipulator.scene import _Scene
+    from rmpfusion.envs.manipulator.worlds import TaskWorld
+    from rmpfusion.sims import SimulatorParams, WorldSettings
 
     robot = build_robot(RobotDescription.model_validate(fitted[0]))
-    world = _Scene(robot)
+    world = TaskWorld(robot, WorldSettings(), SimulatorParams(type="pybullet"))
     try:
-        names = {
-            p.getJointInfo(world.robot, i, physicsClientId=world.cid)[12].decode(): i
-            for i in range(p.getNumJoints(world.robot, physicsClientId=world.cid))
-        }
         worst = 0.0
         for q in random_q(8, seed=1):
             world.reset(q)
             fk = robot.chain.forward_kinematics(torch.tensor(q[None]))
-            for link, i in names.items():
-                theirs = p.getLinkState(world.robot, i, computeForwardKinematics=True, physicsClientId=world.cid)[4]
-                worst = max(worst, float(np.abs(fk[link][1][0].numpy() - np.array(theirs)).max()))
+            for link, (position, _) in world.sim.link_frames().items():
+                worst = max(worst, float(np.abs(fk[link][1][0].numpy() - position).max()))
         assert worst < 1e-6, worst
-        finger = p.getJointState(world.robot, names["link6"], physicsClientId=world.cid)[0]
+        held = world.sim.state()[0][robot.dof :]
+        finger = held[robot.held_joints().index("finger")]  # the joint that turns link6
         assert finger == pytest.approx(0.5 * q[4] + 0.1)  # the follower where its <mimic> puts it
     finally:
         world.close()
@@ -164,13 +159,7 @@ def test_start_sampling_ignores_a_link_that_no_joint_can_lower(fitted):
     )
     try:
         world = env.checker()
-        import pybullet as p
-
-        index = {
-            p.getJointInfo(world.robot, i, physicsClientId=world.cid)[12].decode(): i
-            for i in range(p.getNumJoints(world.robot, physicsClientId=world.cid))
-        }
-        assert index["link1"] not in world.ground_reach and index["link2"] in world.ground_reach
+        assert "link1" not in world.ground_reach and "link2" in world.ground_reach
         g = torch.Generator().manual_seed(0)
         q0, _, aux = env.sample_initial_states(env.sample_envs(2, g), 2, g)
         assert q0.shape == (4, 5) and bool((env.start_margin(q0, aux) >= 0).all())

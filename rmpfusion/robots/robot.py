@@ -3,8 +3,8 @@
 A robot block is ``{type: <kind>, ...}`` like every other registry-typed block (``type`` defaults to ``urdf``, the
 built-in kind: a fixed-base arm described by a URDF and ``RobotDescription``). A plugin adds a kind by registering
 a class with ``rmpfusion.registry.ROBOTS`` whose ``Params`` subclasses ``RobotDescription`` (so every consumer
-finds the fields it reads) and whose constructor takes those params; it may override how the robot is loaded into
-a simulator (``envs/manipulator/scene.py`` calls ``load_into``).
+finds the fields it reads) and whose constructor takes those params. A robot carries no simulator code: simulators
+load its resolved URDF (``urdf_path``) at its mount (``base_pose``), ``rmpfusion/sims/``.
 """
 
 from __future__ import annotations
@@ -98,7 +98,7 @@ class URDFRobot:
         return np.array(index, dtype=int), np.array(gain), np.array(bias)
 
     def base_pose(self) -> tuple[list[float], list[float]]:
-        """(position, pybullet quaternion x y z w) of the base in the world: the ``mount``."""
+        """(position, quaternion x y z w) of the base in the world: the ``mount``."""
         if self.params.mount is None:
             return [0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]
         r, p_, y = self.params.mount.rpy
@@ -117,24 +117,6 @@ class URDFRobot:
             cr * cp * cy + sr * sp * sy,
         ]
         return list(self.params.mount.xyz), quaternion
-
-    def load_into(self, p: Any, cid: int) -> tuple[int, list[int], list[int]]:
-        """Load the robot into pybullet world ``cid`` on a fixed base at its mount: (body, pybullet indices of the
-        actuated joints in configuration order, indices of the held joints)."""
-        position, orientation = self.base_pose()
-        body = p.loadURDF(
-            self.urdf_path,
-            position,
-            orientation,
-            useFixedBase=True,
-            flags=p.URDF_USE_INERTIA_FROM_FILE,
-            physicsClientId=cid,
-        )
-        index = {
-            p.getJointInfo(body, i, physicsClientId=cid)[1].decode(): i
-            for i in range(p.getNumJoints(body, physicsClientId=cid))
-        }
-        return body, [index[j] for j in self.params.joints], [index[j] for j in self.held_joints()]
 
 
 def _robot_block(value: Any) -> Any:

@@ -15,6 +15,7 @@ from torch import Tensor
 from ...registry import ENVS
 from ...robots import build_robot
 from ...scenes import Scene, aux_at, distances, same_layout, scene_aux, scene_aux_dims
+from ...sims import Images
 from ..common import (
     DTYPES,
     ComputesOnDevice,
@@ -34,7 +35,7 @@ from .layout import Clearances, Derived, derive
 from .metrics import RATIO_METRICS, task_metrics
 from .params import ManipulatorParams
 from .paths import end_effector_radius, path_clearance
-from .scene import HelperWorlds, _Scene, fixed_links_extent, sample_aux
+from .worlds import HelperWorlds, TaskWorld, fixed_links_extent, sample_aux
 from .torque import rollout_torque
 
 
@@ -52,7 +53,7 @@ class Manipulator(ComputesOnDevice, SeededSampling):
             params = self.Params.model_validate({**params.model_dump(), **overrides})
         self.dtype = DTYPES[params.dtype]
         self.robot = build_robot(params.robot)
-        self.worlds = HelperWorlds(self.robot, params.gravity)
+        self.worlds = HelperWorlds(self.robot, params.gravity, params.sim)
         self.layout = (
             None
             if params.reach_layout is None
@@ -65,7 +66,7 @@ class Manipulator(ComputesOnDevice, SeededSampling):
                     start=params.start_clearance,
                     goal=params.goal_clearance,
                     end_effector=end_effector_radius(self.robot),
-                    fixed_extent=fixed_links_extent(self.worlds.checker(), self.robot),
+                    fixed_extent=fixed_links_extent(self.worlds.checker().sim, self.robot),
                 ),
                 centre_given=params.nominal_q is not None,
             )
@@ -91,7 +92,7 @@ class Manipulator(ComputesOnDevice, SeededSampling):
 
     @property
     def dt(self) -> float:
-        """The pybullet / integration step, 1/control_rate (s)."""
+        """The simulator / integration step, 1/control_rate (s)."""
         return 1.0 / self.params.control_rate
 
     def aux_dims(self) -> dict[str, int]:
@@ -103,7 +104,7 @@ class Manipulator(ComputesOnDevice, SeededSampling):
         return aux_at(self.scene, aux, torch.as_tensor(t, dtype=self.dtype)) if self.moving else dict(aux)
 
     def close(self) -> None:
-        """Disconnect the helper pybullet worlds (collision checking, rendering)."""
+        """Close the helper simulated worlds (collision checking, rendering)."""
         self.worlds.close()
 
     def __enter__(self):
@@ -116,8 +117,8 @@ class Manipulator(ComputesOnDevice, SeededSampling):
         with contextlib.suppress(Exception):  # interpreter shutdown
             self.close()
 
-    def checker(self) -> _Scene:
-        """The pybullet world that checks collisions (opened on first use)."""
+    def checker(self) -> TaskWorld:
+        """The simulated world that checks collisions (opened on first use)."""
         return self.worlds.checker()
 
     # ------------------------------------------------------------------ geometry
@@ -126,7 +127,7 @@ class Manipulator(ComputesOnDevice, SeededSampling):
         return self.robot.ee_position(q)
 
     def clearance(self, q: Tensor, aux: Mapping[str, Tensor]) -> Tensor:
-        """(B,) pybullet distance from the robot to the nearest obstacle (≤ 0: collision; capped at clearance_query)."""
+        """(B,) simulator distance from the robot to the nearest obstacle (≤ 0: collision; capped at clearance_query)."""
         sc = self.checker()
         out = []
         for b in range(q.shape[0]):
@@ -138,7 +139,7 @@ class Manipulator(ComputesOnDevice, SeededSampling):
     def start_margin(self, q: Tensor, aux: Mapping[str, Tensor]) -> Tensor:
         """(B,) how far each configuration is from a fit start (≥ 0: it is one): ``start_clearance`` from every
         obstacle and from the ground, counting only links some joint can raise or lower, each asked for no more
-        height than it can reach (``_Scene.start_margin``)."""
+        height than it can reach (``TaskWorld.start_margin``)."""
         sc, p = self.checker(), self.params
         out = []
         for b in range(q.shape[0]):
@@ -224,7 +225,7 @@ class Manipulator(ComputesOnDevice, SeededSampling):
         self, envs_aux: Mapping[str, Tensor], n_per_env: int, generator: torch.Generator | None = None
     ) -> tuple[Tensor, Tensor, dict[str, Tensor]]:
         """(q0, q̇0, aux) for n_envs·n_per_env samples, environment-major; starts are redrawn until they
-        lie ``joint_margin`` inside the limits and clear every obstacle by ``start_clearance`` in pybullet."""
+        lie ``joint_margin`` inside the limits and clear every obstacle by ``start_clearance`` in the simulator."""
         p = self.params
         aux = {k: v.repeat_interleave(n_per_env, dim=0) for k, v in envs_aux.items()}
         n = aux["goal"].shape[0]
@@ -243,7 +244,7 @@ class Manipulator(ComputesOnDevice, SeededSampling):
         def ok(v, a):
             far = (self.ee_position(v[0]) - a["goal"]).norm(dim=-1) >= p.min_start_goal_distance
             good = far.clone()
-            if bool(far.any()):  # pybullet only for the candidates that pass the cheap test
+            if bool(far.any()):  # the simulator only for the candidates that pass the cheap test
                 idx = far.nonzero().flatten()
                 good[idx] = self.start_margin(v[0][idx], {k: x[idx] for k, x in a.items()}) >= 0.0
             return good
@@ -335,8 +336,20 @@ class Manipulator(ComputesOnDevice, SeededSampling):
         sample: int = 0,
     ) -> np.ndarray:
         """(height, width, 3) uint8 image of the robot at ``q`` in environment ``aux[sample]``, rendered
-        headless by pybullet's tiny renderer, for figures and animations."""
-        return rendering.render(self, q, aux, width, height, sample)
+        offscreen by the simulator, for figures and animations (``images`` for depth and segmentation too)."""
+        return rendering.images(self, q, aux, width, height, sample).rgb
+
+    def images(
+        self,
+        q: Tensor | Sequence[float],
+        aux: Mapping[str, Tensor],
+        width: int = 320,
+        height: int = 240,
+        sample: int = 0,
+    ) -> Images:
+        """Colour, depth (m) and segmentation of the robot at ``q`` in environment ``aux[sample]``, through the
+        camera of ``env.camera`` (``rmpfusion.sims.Images``)."""
+        return rendering.images(self, q, aux, width, height, sample)
 
     def project(self, points, width: int = 320, height: int = 240) -> np.ndarray:
         """(N, 2) pixel coordinates (column, row) of world points (N, 3) in ``render``'s image, to draw paths on it."""

@@ -1,5 +1,5 @@
 """Kinematic mode: the closed loop q̈ = π(q, q̇, aux) integrated in torch for the whole batch at once (fast, for
-data collection), then every integration step replayed in pybullet to find collisions after the fact."""
+data collection), then every integration step replayed in the simulator (``env.sim``) to find collisions after the fact."""
 
 from __future__ import annotations
 
@@ -13,7 +13,8 @@ from ..common import evaluate_policy, qdd_of, rk4, semi_implicit_euler
 from ..faults import IsolatingPolicy
 from ..rollout import Rollout
 from .recording import GoalTracker, Recorder, finish
-from .scene import _pb, sample_aux
+from ...sims import SimulationError
+from .worlds import sample_aux
 
 if TYPE_CHECKING:
     from .env import Manipulator
@@ -46,7 +47,7 @@ def _integrate(env: Manipulator, policy: IsolatingPolicy, q0, qd0, aux, n_steps,
     q, qd = q0.clone(), qd0.clone()
     alive = torch.ones(B, dtype=torch.bool)
     rec = Recorder()
-    path = [q.detach().clone()]  # every integration step, replayed in pybullet for collisions
+    path = [q.detach().clone()]  # every integration step, replayed in the simulator for collisions
     goal_hit = GoalTracker(B, env.dtype)
     goal_hit.update(0.0, env.ee_position(q), aux["goal"], p.goal_tolerance, alive, q)
     euler = p.integrator == "semi_implicit_euler"
@@ -82,7 +83,7 @@ def _replay_collisions(
     env: Manipulator, Q: Tensor, aux, n_steps: int, death: list[int], errors: list[str | None]
 ) -> tuple[Tensor, Tensor]:
     """(smallest clearance, first collision time) of every sample from its configurations Q (n_steps+1, B, dof) up
-    to the step it died at, by pybullet's closest points in the env's collision world (moving obstacles where they
+    to the step it died at, by the simulator's closest points in the env's collision world (moving obstacles where they
     were at each step)."""
     dt, B, query = env.dt, Q.shape[1], float(env.params.clearance_query)
     min_clear = torch.full((B,), query, dtype=env.dtype)
@@ -101,7 +102,7 @@ def _replay_collisions(
                 min_clear[b] = min(float(min_clear[b]), sc.clearance(env.params.clearance_query))
                 if min_clear[b] <= 0.0 and first_hit[b].isinf():
                     first_hit[b] = k * dt
-        except _pb().error as e:
-            errors[b] = f"pybullet error during collision check: {e}"
+        except SimulationError as e:
+            errors[b] = f"simulator error during collision check: {e}"
             env.worlds.discard_checker()  # a broken world is not reused
     return min_clear, first_hit

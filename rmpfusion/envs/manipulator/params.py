@@ -11,6 +11,7 @@ from pydantic import Field, ValidationInfo, field_validator, model_validator
 from ...registry import Params
 from ...robots import RobotField
 from ...scenes import Scene, same_layout
+from ...sims import SimField, SimulatorParams
 from .layout import ReachLayout
 
 Vec3 = tuple[float, float, float]
@@ -31,16 +32,21 @@ def _per_joint(name: str, v: tuple[float, ...] | float, info: ValidationInfo) ->
 
 
 class ManipulatorParams(Params):
-    gui: bool = Field(False, description="open pybullet's GUI for the first torque-mode world (else DIRECT)")
+    sim: SimField = Field(
+        default_factory=SimulatorParams,
+        description="the simulator rollouts, collision checks and renders run in (conf/sim/: pybullet, mujoco, a "
+        "plugin's)",
+    )
+    gui: bool = Field(False, description="show the first torque-mode world in the simulator's window")
     mode: Literal["torque", "kinematic"] = Field(
-        "kinematic", description="how rollouts run policies (evaluation); torque = pybullet, computed torque"
+        "kinematic", description="how rollouts run policies (evaluation); torque = the simulator, computed torque"
     )
     collect_mode: Literal["torque", "kinematic"] = Field(
         "kinematic", description="how the expert's demonstrations are rolled out (kinematic: batched, fast)"
     )
-    control_rate: float = Field(240.0, gt=0, description="Hz; the pybullet/integration step is 1/control_rate")
+    control_rate: float = Field(240.0, gt=0, description="Hz; the simulator/integration step is 1/control_rate")
     integrator: Literal["semi_implicit_euler", "rk4"] = Field(
-        "semi_implicit_euler", description="kinematic mode; semi-implicit Euler is what pybullet uses"
+        "semi_implicit_euler", description="kinematic mode; semi-implicit Euler is what pybullet and MuJoCo use"
     )
     gravity: float = -9.81
     robot: RobotField = Field(description="the robot description (conf/robot/<name>.yaml)")
@@ -74,7 +80,7 @@ class ManipulatorParams(Params):
         0.3, description="± uniform per joint (rad): one value for every joint, or one per joint"
     )
     start_speed: float = Field(0.0, ge=0, description="initial joint speeds ~ uniform in ±start_speed")
-    start_clearance: float = Field(0.05, ge=0, description="min pybullet clearance of the start configuration")
+    start_clearance: float = Field(0.05, ge=0, description="min simulator clearance of the start configuration")
     joint_margin: float = Field(0.05, ge=0, description="starts stay this far inside the URDF limits (rad)")
     goal_tolerance: float = Field(0.05, gt=0)
     clearance_query: float = Field(0.3, gt=0, description="distances beyond this are not resolved")
@@ -96,7 +102,7 @@ class ManipulatorParams(Params):
     dtype: Literal["float64", "float32"] = "float64"
 
     def integration_step(self) -> tuple[float, str]:
-        """(seconds, the key that sets it) of the step rollouts integrate and pybullet steps on: a run config's
+        """(seconds, the key that sets it) of the step rollouts integrate and the simulator steps on: a run config's
         recording interval and horizon are checked against it before anything runs (``time_grid`` at rollout time)."""
         return 1.0 / self.control_rate, "1/env.control_rate"
 

@@ -1,6 +1,6 @@
-"""Torque mode: every sample has its own pybullet world, and the policy's acceleration becomes joint torques by
-computed-torque control (pybullet's inverse dynamics, default velocity motors disabled). The simulated robot is
-then the paper's feedback-linearised system, integrated by pybullet itself."""
+"""Torque mode: every sample has its own simulated world (``env.sim``: pybullet, MuJoCo, a plugin's), and the
+policy's acceleration becomes joint torques by computed-torque control (the simulator's own inverse dynamics). The
+simulated robot is then the paper's feedback-linearised system, integrated by the simulator itself."""
 
 from __future__ import annotations
 
@@ -15,7 +15,8 @@ from ..common import evaluate_policy
 from ..faults import IsolatingPolicy
 from ..rollout import Rollout
 from .recording import GoalTracker, Recorder, finish
-from .scene import _pb, _Scene, sample_aux
+from ...sims import SimulationError, WorldSettings
+from .worlds import TaskWorld, sample_aux
 
 if TYPE_CHECKING:
     from .env import Manipulator
@@ -31,7 +32,7 @@ def rollout_torque(
     every: int,
     monitor: Callable[..., Any] | None,
 ) -> Rollout:
-    """``n_steps`` pybullet steps recorded every ``every`` steps; a sample whose world fails (a pybullet error)
+    """``n_steps`` simulator steps recorded every ``every`` steps; a sample whose world fails (a simulator error)
     or whose policy answers a non-finite acceleration ends there with its reason, the others go on."""
     dt = env.dt
     policy = IsolatingPolicy(policy)  # a sample whose evaluation raises gets NaN, the others go on
@@ -61,7 +62,7 @@ def rollout_torque(
 
 
 class _Worlds:
-    """The batch's pybullet worlds, one a sample, and what each has seen: its state (q, q̇ of the actuated joints,
+    """The batch's simulated worlds, one a sample, and what each has seen: its state (q, q̇ of the actuated joints,
     the held joints' apart), whether it is still alive and why not, its smallest clearance and first collision time."""
 
     def __init__(self, env: Manipulator, policy: IsolatingPolicy, q0: Tensor, qd0: Tensor):
@@ -69,7 +70,7 @@ class _Worlds:
         self.env, self.policy, self.q0, self.qd0 = env, policy, q0, qd0
         self.errors: list[str | None] = [None] * B
         self.alive = torch.ones(B, dtype=torch.bool)
-        self.scenes: list[_Scene | None] = []
+        self.scenes: list[TaskWorld | None] = []
         self.min_clear = torch.full((B,), float(env.params.clearance_query), dtype=env.dtype)
         self.first_hit = torch.full((B,), float("inf"), dtype=env.dtype)
         self.q, self.qd = q0.clone(), qd0.clone()
@@ -79,21 +80,21 @@ class _Worlds:
 
     def open(self, aux: Mapping[str, Tensor]) -> None:
         """A world per sample at its initial state (the GUI, if asked for, shows sample 0)."""
-        p, env = _pb(), self.env
+        env = self.env
         gui = env.params.gui
         for b in range(self.q0.shape[0]):
             try:
-                sc = _Scene(env.robot, gui=gui and b == 0, gravity=env.params.gravity)
-                sc.set_env(env.scene, sample_aux(aux, b), visual=gui and b == 0)
-                p.setTimeStep(env.dt, physicsClientId=sc.cid)
+                settings = WorldSettings(gravity=env.params.gravity, timestep=env.dt, gui=gui and b == 0)
+                sc = TaskWorld(env.robot, settings, env.params.sim)
+                sc.set_env(env.scene, sample_aux(aux, b))
                 sc.reset(self.q0[b].cpu().numpy(), self.qd0[b].cpu().numpy())
                 self.scenes.append(sc)
                 self.min_clear[b] = sc.clearance(env.params.clearance_query)
                 if self.min_clear[b] <= 0.0:
                     self.first_hit[b] = 0.0
-            except p.error as e:
+            except SimulationError as e:
                 self.scenes.append(None)
-                self.errors[b] = f"pybullet error at setup: {e}"
+                self.errors[b] = f"simulator error at setup: {e}"
                 self.alive[b] = False
 
     def kill(self, b: int, reason: str) -> None:
@@ -106,14 +107,13 @@ class _Worlds:
 
     def read_states(self) -> None:
         """(q, q̇) of every live world into ``q`` and ``qd`` (in place: the policy and the records see them)."""
-        p = _pb()
         for b, sc in enumerate(self.scenes):
             if not self.alive[b] or sc is None:  # a world that is gone is dead
                 continue
             try:
-                qa, qda = sc.state()
-            except p.error as e:
-                self.kill(b, f"pybullet error reading state: {e}")
+                qa, qda = sc.sim.state()
+            except SimulationError as e:
+                self.kill(b, f"simulator error reading state: {e}")
                 continue
             n = self.env.dim
             self.q[b] = torch.as_tensor(qa[:n], dtype=self.env.dtype)
@@ -121,7 +121,7 @@ class _Worlds:
             self.fingers[b], self.finger_v[b] = qa[n:], qda[n:]
 
     def step(self, a: Tensor, k: int) -> None:
-        """One pybullet step of every live world under the torques that realise the accelerations ``a`` at step k."""
+        """One simulator step of every live world under the torques that realise the accelerations ``a`` at step k."""
         a_np = a.detach().cpu().numpy()
         for b, sc in enumerate(self.scenes):
             if not self.alive[b] or sc is None:  # a world that is gone is dead
@@ -131,21 +131,19 @@ class _Worlds:
                 continue
             try:
                 self._step_one(b, sc, a_np[b], k)
-            except _pb().error as e:
-                self.kill(b, f"pybullet error at t={k * self.env.dt:.4f}s: {e}")
+            except SimulationError as e:
+                self.kill(b, f"simulator error at t={k * self.env.dt:.4f}s: {e}")
 
-    def _step_one(self, b: int, sc: _Scene, a: np.ndarray, k: int) -> None:
-        p, dt = _pb(), self.env.dt
+    def _step_one(self, b: int, sc: TaskWorld, a: np.ndarray, k: int) -> None:
+        dt = self.env.dt
         gains = self.env.robot.params.held_joint_gains
         index, gain, bias = sc.held_drive  # mimic joints follow their leaders; the others are held where they are
         q, qd = self.q[b].cpu().numpy(), self.qd[b].cpu().numpy()
         target, target_v = gain * q[index] + bias, gain * qd[index]
         acc_f = gain * a[index] - gains.kp * (self.fingers[b] - target) - gains.kd * (self.finger_v[b] - target_v)
-        qs = self.q[b].tolist() + self.fingers[b].tolist()
-        vs = self.qd[b].tolist() + self.finger_v[b].tolist()
-        tau = p.calculateInverseDynamics(sc.robot, qs, vs, a.tolist() + acc_f.tolist(), physicsClientId=sc.cid)
-        p.setJointMotorControlArray(sc.robot, sc.joints, p.TORQUE_CONTROL, forces=list(tau), physicsClientId=sc.cid)
-        p.stepSimulation(physicsClientId=sc.cid)
+        qs = np.concatenate([q, self.fingers[b]])
+        vs = np.concatenate([qd, self.finger_v[b]])
+        sc.sim.step(sc.sim.inverse_dynamics(qs, vs, np.concatenate([a, acc_f])))
         self.min_clear[b] = min(float(self.min_clear[b]), sc.clearance(self.env.params.clearance_query))
         if self.min_clear[b] <= 0.0 and self.first_hit[b].isinf():
             self.first_hit[b] = (k + 1) * dt

@@ -1,0 +1,30 @@
+"""Simulators as backends: the protocol every engine serves (``protocol.py``), the camera they render through,
+the obstacles they build from a scene, the ``sim:`` block that picks one, and the built-in backends (pybullet,
+MuJoCo), each importing its engine only when a world opens. Importing registers the built-ins."""
+
+from .camera import Camera
+from .config import DEFAULT_SIMULATOR, SimField, SimulatorParams, open_world
+from .mujoco_backend import MuJoCoWorld  # importing it registers "mujoco"
+from .obstacles import obstacles_of
+from .protocol import BACKGROUND, GOAL_MARKER, GROUND, ROBOT, Images, Obstacle, SimulationError, World, WorldSettings
+from .pybullet_backend import PyBulletWorld  # importing it registers "pybullet"
+
+__all__ = [
+    "BACKGROUND",
+    "DEFAULT_SIMULATOR",
+    "GOAL_MARKER",
+    "GROUND",
+    "ROBOT",
+    "Camera",
+    "Images",
+    "MuJoCoWorld",
+    "Obstacle",
+    "PyBulletWorld",
+    "SimField",
+    "SimulationError",
+    "SimulatorParams",
+    "World",
+    "WorldSettings",
+    "obstacles_of",
+    "open_world",
+]

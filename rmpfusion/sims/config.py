@@ -1,0 +1,62 @@
+"""The ``sim:`` block of an environment's config: ``{type: <simulator>, ...}``, validated by the named backend's
+own parameter model (``rmpfusion.registry.SIMULATORS``), looked up when the config is validated so a plugin's
+simulator is found like a built-in one; and opening a world from it."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Annotated, Any
+
+from pydantic import BeforeValidator, Field, SerializeAsAny, ValidationError
+from pydantic_core import PydanticCustomError
+
+from ..registry import SIMULATORS, Params, RegistryError
+from ..robots import URDFRobot
+from .protocol import World, WorldSettings
+
+DEFAULT_SIMULATOR = "pybullet"
+
+
+class SimulatorParams(Params):
+    """Base of every backend's parameter model: ``type`` names the backend (conf/sim/)."""
+
+    type: str = Field(DEFAULT_SIMULATOR, description="the simulator backend (rmpfusion.registry.SIMULATORS)")
+
+
+def _sim_block(value: Any) -> Any:
+    """Validate a ``sim`` block by its backend's own model (a bare name is ``{type: name}``)."""
+    if isinstance(value, SimulatorParams):
+        return value
+    if isinstance(value, str):
+        value = {"type": value}
+    if not isinstance(value, Mapping):
+        _refuse(f"sim is a simulator's block {{type: <name>, ...}} (conf/sim/), given {value!r}")
+    kind = value.get("type", DEFAULT_SIMULATOR)
+    try:
+        entry = SIMULATORS.get(kind)
+    except RegistryError as e:
+        _refuse(f"type: {e}")
+    try:
+        return entry.params.model_validate({**value, "type": kind})
+    except ValidationError as e:
+        _refuse(
+            "; ".join(
+                (f"{'.'.join(map(str, err['loc']))}: " if err["loc"] else "") + err["msg"].removeprefix("Value error, ")
+                for err in e.errors()
+            )
+        )
+
+
+def _refuse(message: str):
+    raise PydanticCustomError("simulator", "{message}", {"message": message})
+
+
+#: A field holding a simulator block, validated by the backend it names.
+SimField = Annotated[SerializeAsAny[SimulatorParams], BeforeValidator(_sim_block)]
+
+
+def open_world(robot: URDFRobot, settings: WorldSettings, params: SimulatorParams) -> World:
+    """A new world of the backend ``params`` names."""
+    world = SIMULATORS.get(params.type).obj(robot, settings, params)
+    assert isinstance(world, World), f"simulator '{params.type}' must subclass rmpfusion.sims.World"
+    return world
