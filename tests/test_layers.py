@@ -152,3 +152,39 @@ def test_importing_the_package_chooses_no_plotting_backend():
     )
     assert r.returncode == 0, r.stderr  # and no conf/ lookup at import either: RMPFUSION_CONF points nowhere
     assert r.stdout.strip() == "False"
+
+
+#: simulator engines: only their backends in rmpfusion/sims/ import them, so the task (sampling, rollouts, collisions,
+#: metrics, figures) runs in any simulator the protocol serves, a plugin's included
+SIMULATOR_MODULES = {"pybullet", "pybullet_data", "mujoco"}
+
+
+def simulator_imports(module: str, source: str) -> list[str]:
+    """Every import of a simulator engine in ``module`` (anywhere in it, functions included), one line each; none for
+    the backends in rmpfusion/sims/."""
+    if module.startswith("rmpfusion.sims."):
+        return []
+    found = []
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.Import):
+            names = [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom) and node.level == 0:
+            names = [node.module or ""]
+        else:
+            continue
+        found += [f"{module}:{node.lineno} imports {n}" for n in names if n.split(".")[0] in SIMULATOR_MODULES]
+    return found
+
+
+def test_only_the_simulator_backends_import_a_simulator():
+    found = [v for module, source, _ in _sources() for v in simulator_imports(module, source)]
+    assert not found, "\n".join(found)
+
+
+def test_the_simulator_check_sees_an_import_inside_a_function():
+    source = "import math\n\ndef f():\n    from mujoco import MjModel\n    import pybullet as p\n    return p\n"
+    assert simulator_imports("rmpfusion.envs.manipulator.torque", source) == [
+        "rmpfusion.envs.manipulator.torque:4 imports mujoco",
+        "rmpfusion.envs.manipulator.torque:5 imports pybullet",
+    ]
+    assert simulator_imports("rmpfusion.sims.pybullet_backend", source) == []

@@ -47,7 +47,10 @@ def _pybullet_bodies(scene: Scene, a: dict) -> list[int]:
         else:
             half = float(a[pre + ("half_height" if o.type == "cylinder" else "half_length")][0])
             shape = pybullet.GEOM_CYLINDER if o.type == "cylinder" else pybullet.GEOM_CAPSULE
-            col, q = pybullet.createCollisionShape(shape, radius=r, height=2 * half), quaternion_of(rotation_z_to(a[pre + "axis"]))
+            col, q = (
+                pybullet.createCollisionShape(shape, radius=r, height=2 * half),
+                quaternion_of(rotation_z_to(a[pre + "axis"])),
+            )
         bodies.append(pybullet.createMultiBody(0, col, -1, a[pre + "center"].tolist(), q))
     return bodies
 

@@ -3,10 +3,10 @@ the obstacles they build from a scene, the ``sim:`` block that picks one, and th
 MuJoCo), each importing its engine only when a world opens. Importing registers the built-ins."""
 
 from .camera import Camera
-from .config import DEFAULT_SIMULATOR, SimField, SimulatorParams, open_world
+from .config import DEFAULT_SIMULATOR, SimField, SimulatorParams, has_window, open_world
 from .mujoco_backend import MuJoCoWorld  # importing it registers "mujoco"
 from .obstacles import obstacles_of
-from .protocol import BACKGROUND, GOAL_MARKER, GROUND, ROBOT, Images, Obstacle, SimulationError, World, WorldSettings
+from .protocol import BACKGROUND, GOAL_MARKER, GROUND, ROBOT, Images, Obstacle, SimulationError, SimWorld, WorldSettings
 from .pybullet_backend import PyBulletWorld  # importing it registers "pybullet"
 
 __all__ = [
@@ -21,10 +21,11 @@ __all__ = [
     "Obstacle",
     "PyBulletWorld",
     "SimField",
+    "SimWorld",
     "SimulationError",
     "SimulatorParams",
-    "World",
     "WorldSettings",
+    "has_window",
     "obstacles_of",
     "open_world",
 ]

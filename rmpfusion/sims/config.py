@@ -12,7 +12,7 @@ from pydantic_core import PydanticCustomError
 
 from ..registry import SIMULATORS, Params, RegistryError
 from ..robots import URDFRobot
-from .protocol import World, WorldSettings
+from .protocol import SimWorld, WorldSettings
 
 DEFAULT_SIMULATOR = "pybullet"
 
@@ -55,8 +55,13 @@ def _refuse(message: str):
 SimField = Annotated[SerializeAsAny[SimulatorParams], BeforeValidator(_sim_block)]
 
 
-def open_world(robot: URDFRobot, settings: WorldSettings, params: SimulatorParams) -> World:
+def has_window(params: SimulatorParams) -> bool:
+    """Whether the backend ``params`` names can show a world in a window."""
+    return bool(SIMULATORS.get(params.type).obj.has_window)
+
+
+def open_world(robot: URDFRobot, settings: WorldSettings, params: SimulatorParams) -> SimWorld:
     """A new world of the backend ``params`` names."""
     world = SIMULATORS.get(params.type).obj(robot, settings, params)
-    assert isinstance(world, World), f"simulator '{params.type}' must subclass rmpfusion.sims.World"
+    assert isinstance(world, SimWorld), f"simulator '{params.type}' must subclass rmpfusion.sims.SimWorld"
     return world

@@ -18,7 +18,6 @@ from collections.abc import Sequence
 from typing import Any, Literal
 
 import numpy as np
-
 from pydantic import Field
 
 from ..registry import SIMULATORS
@@ -35,7 +34,7 @@ from .protocol import (
     Obstacle,
     ShapeKind,
     SimulationError,
-    World,
+    SimWorld,
     WorldSettings,
 )
 
@@ -46,10 +45,14 @@ _GOAL_RGBA = [1.0, 0.6, 0.0, 1]
 _ROBOT_RGBA = [0.75, 0.75, 0.78, 1]
 
 
+if "MUJOCO_GL" not in os.environ and not os.environ.get("DISPLAY"):
+    # MuJoCo picks its OpenGL platform when it is imported: with no display to open a window on, offscreen through
+    # EGL (set MUJOCO_GL yourself, before mujoco is imported, for another)
+    os.environ["MUJOCO_GL"] = "egl"
+
+
 def _mujoco() -> Any:
-    """The mujoco module, imported when a world opens; offscreen rendering through EGL unless MUJOCO_GL says
-    otherwise (there is no display to open a window on)."""
-    os.environ.setdefault("MUJOCO_GL", "egl")
+    """The mujoco module, imported when a world opens."""
     try:
         import mujoco  # when a world opens: the package imports without MuJoCo
     except ImportError as e:
@@ -88,18 +91,16 @@ def _size(o: Obstacle) -> tuple[list[float], float, list[float]]:
 
 
 @SIMULATORS.register("mujoco")
-class MuJoCoWorld(World):
+class MuJoCoWorld(SimWorld):
     """One MuJoCo model and its data; the model is recompiled only when the obstacles' shapes change."""
 
     Params = MuJoCoParams
 
     def __init__(self, robot: URDFRobot, settings: WorldSettings, params: MuJoCoParams | None = None):
-        super().__init__(robot, settings, params or MuJoCoParams(type="mujoco"))
+        self.options = params or MuJoCoParams(type="mujoco")
+        super().__init__(robot, settings, self.options)
         if settings.gui:
-            raise SimulationError(
-                "sim=mujoco opens no window (env.gui=true): run it headless, or view a model with python -m "
-                "mujoco.viewer"
-            )
+            raise SimulationError("sim=mujoco opens no window (env.gui=true): run it headless")
         self.mj = _mujoco()
         self.kinds: tuple[ShapeKind, ...] = ()
         self.ground_height: float | None = None
@@ -116,7 +117,7 @@ class MuJoCoWorld(World):
             raise SimulationError(f"mujoco: could not compile {robot.urdf_path}: {e}") from e
         spec.option.timestep = self.settings.timestep
         spec.option.gravity = [0.0, 0.0, self.settings.gravity]
-        spec.option.integrator = getattr(mj.mjtIntegrator, f"mjINT_{self.params.integrator.upper()}")
+        spec.option.integrator = getattr(mj.mjtIntegrator, f"mjINT_{self.options.integrator.upper()}")
         spec.visual.global_.fovy = 60.0
         spec.visual.headlight.ambient = [0.4, 0.4, 0.4]
         spec.visual.headlight.diffuse = [0.6, 0.6, 0.6]
@@ -126,11 +127,19 @@ class MuJoCoWorld(World):
         world = spec.worldbody
         world.add_light(pos=[0.0, 0.0, 3.0], dir=[0.0, 0.0, -1.0], type=mj.mjtLightType.mjLIGHT_DIRECTIONAL)
         world.add_geom(
-            name="rmpfusion_ground", type=mj.mjtGeom.mjGEOM_PLANE, size=[0, 0, 1], rgba=_GROUND_RGBA,
-            contype=WORLD_CONTYPE, conaffinity=WORLD_CONAFFINITY,
+            name="rmpfusion_ground",
+            type=mj.mjtGeom.mjGEOM_PLANE,
+            size=[0, 0, 1],
+            rgba=_GROUND_RGBA,
+            contype=WORLD_CONTYPE,
+            conaffinity=WORLD_CONAFFINITY,
         )
         world.add_geom(
-            name="rmpfusion_floor", type=mj.mjtGeom.mjGEOM_PLANE, size=[0, 0, 1], rgba=_FLOOR_RGBA, contype=0,
+            name="rmpfusion_floor",
+            type=mj.mjtGeom.mjGEOM_PLANE,
+            size=[0, 0, 1],
+            rgba=_FLOOR_RGBA,
+            contype=0,
             conaffinity=0,
         )
         marker = world.add_body(name="rmpfusion_goal", mocap=True)
@@ -138,8 +147,12 @@ class MuJoCoWorld(World):
         for k, kind in enumerate(self.kinds):
             body = world.add_body(name=f"rmpfusion_obstacle{k}", mocap=True)
             body.add_geom(
-                name=f"rmpfusion_obstacle{k}", type=getattr(mj.mjtGeom, _KIND[kind]), size=[0.01, 0.01, 0.01],
-                rgba=_OBSTACLE_RGBA, contype=WORLD_CONTYPE, conaffinity=WORLD_CONAFFINITY,
+                name=f"rmpfusion_obstacle{k}",
+                type=getattr(mj.mjtGeom, _KIND[kind]),
+                size=[0.01, 0.01, 0.01],
+                rgba=_OBSTACLE_RGBA,
+                contype=WORLD_CONTYPE,
+                conaffinity=WORLD_CONAFFINITY,
             )
         old = getattr(self, "data", None)
         self.model = spec.compile()
@@ -184,7 +197,9 @@ class MuJoCoWorld(World):
             m.body_mocapid[self._id("mjOBJ_BODY", f"rmpfusion_obstacle{k}")] for k in range(len(self.kinds))
         ]
         robot_bodies = {
-            i for i in range(1, m.nbody) if not (mj.mj_id2name(m, mj.mjtObj.mjOBJ_BODY, i) or "").startswith("rmpfusion_")
+            i
+            for i in range(1, m.nbody)
+            if not (mj.mj_id2name(m, mj.mjtObj.mjOBJ_BODY, i) or "").startswith("rmpfusion_")
         }
         self.body_names = {i: mj.mj_id2name(m, mj.mjtObj.mjOBJ_BODY, i) for i in sorted(robot_bodies)}
         self.robot_geoms = [g for g in range(m.ngeom) if m.geom_bodyid[g] in robot_bodies]
@@ -337,7 +352,8 @@ class MuJoCoWorld(World):
             except Exception as e:
                 raise SimulationError(
                     f"mujoco: no offscreen rendering ({e}); MUJOCO_GL={os.environ.get('MUJOCO_GL')} needs libEGL "
-                    "(Debian: libegl1), or set MUJOCO_GL=osmesa with libosmesa6"
+                    "(Debian: libegl1), or MUJOCO_GL=osmesa libosmesa6; MuJoCo reads MUJOCO_GL when it is first "
+                    "imported: set it before that"
                 ) from e
         return self._renderers[(width, height)]
 

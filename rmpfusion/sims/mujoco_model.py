@@ -37,8 +37,8 @@ PART_SHARE, MAX_PARTS = 1e-3, 32
 def mesh_parts(path: str, scale: tuple[float, float, float]) -> list[str]:
     """Binary STL files, one per connected part of the mesh at ``path`` scaled by ``scale`` (``PART_SHARE``,
     ``MAX_PARTS``; cached under ``$RMPFUSION_CACHE/mujoco`` by the file's content, the scale and these rules)."""
-    data = Path(path).read_bytes()
-    key = hashlib.sha256(data + repr((tuple(scale), PART_SHARE, MAX_PARTS)).encode()).hexdigest()[:16]
+    source = Path(path).read_bytes()
+    key = hashlib.sha256(source + repr((tuple(scale), PART_SHARE, MAX_PARTS)).encode()).hexdigest()[:16]
     folder = cache_dir().parent / "mujoco" / key
     done = folder / "parts.txt"
     if done.is_file():
@@ -46,6 +46,7 @@ def mesh_parts(path: str, scale: tuple[float, float, float]) -> list[str]:
     import trimesh  # the mesh reader rmpfusion-fit-spheres uses too
 
     mesh = trimesh.load(path, force="mesh", process=True)
+    assert isinstance(mesh, trimesh.Trimesh)  # force="mesh" concatenates a scene into one
     mesh.apply_scale(np.asarray(scale, dtype=float))
     mesh.merge_vertices(merge_tex=True, merge_norm=True)  # faces that share a corner are one part, whatever its UVs
     with np.errstate(invalid="ignore", divide="ignore"):  # a flat piece has no centre of mass
@@ -56,16 +57,20 @@ def mesh_parts(path: str, scale: tuple[float, float, float]) -> list[str]:
     names = []
     for i, part in enumerate(parts):
         name = f"part{i}.stl"
-        atomic_write_bytes(folder / name, part.export(file_type="stl"))
+        data = part.export(file_type="stl")
+        assert isinstance(data, bytes)  # STL is written binary
+        atomic_write_bytes(folder / name, data)
         names.append(name)
     atomic_write_bytes(done, " ".join(names).encode())
     return [str(folder / name) for name in names]
 
 
 def _volume(part) -> float:
+    from scipy.spatial import QhullError  # trimesh hulls with scipy's qhull
+
     try:
         return float(part.convex_hull.volume)
-    except Exception:  # qhull refuses a flat or degenerate piece
+    except QhullError:  # a flat or degenerate piece
         return 0.0
 
 

@@ -32,9 +32,9 @@ def obstacles_of(scene: Scene, a: Mapping[str, np.ndarray]) -> list[Obstacle]:
         if o.type == "sphere":
             out.append(Obstacle("sphere", centre, radius=radius))
         elif o.type == "box":
-            half = tuple(float(h) for h in a[pre + "half_extents"])
-            out.append(Obstacle("box", centre, np.reshape(a[pre + "rotation"], (3, 3)), half_extents=half))  # type: ignore[arg-type]  # three half extents
+            hx, hy, hz = (float(h) for h in a[pre + "half_extents"])
+            out.append(Obstacle("box", centre, np.reshape(a[pre + "rotation"], (3, 3)), half_extents=(hx, hy, hz)))
         else:
-            half = float(a[pre + ("half_height" if o.type == "cylinder" else "half_length")][0])
-            out.append(Obstacle(o.type, centre, rotation_z_to(a[pre + "axis"]), radius=radius, half_length=half))
+            length = float(a[pre + ("half_height" if o.type == "cylinder" else "half_length")][0])
+            out.append(Obstacle(o.type, centre, rotation_z_to(a[pre + "axis"]), radius=radius, half_length=length))
     return out

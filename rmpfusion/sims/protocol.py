@@ -1,6 +1,6 @@
 """The simulator protocol: what rmpfusion asks of a physics engine, and nothing more.
 
-A ``World`` holds one robot (loaded from its resolved URDF on a fixed base at its mount), the obstacles of a scene
+A ``SimWorld`` holds one robot (loaded from its resolved URDF on a fixed base at its mount), the obstacles of a scene
 as preallocated slots, a ground plane and a goal marker. The task (sampling starts, rollouts, collisions, metrics,
 figures) talks to simulators through this class alone, so pybullet, MuJoCo and a plugin's engine are
 interchangeable (``sim: {type: <name>}`` in the environment's config, ``rmpfusion.registry.SIMULATORS``).
@@ -15,11 +15,11 @@ from __future__ import annotations
 from abc import ABC, abstractmethod
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import ClassVar, Literal
 
 import numpy as np
 
-from ..registry import Params
+from ..registry import Params as ParameterModel
 from ..robots import URDFRobot
 from .camera import Camera
 
@@ -72,13 +72,15 @@ class WorldSettings:
     pictures: bool = False
 
 
-class World(ABC):
+class SimWorld(ABC):
     """One simulated world. Subclasses register with ``rmpfusion.registry.SIMULATORS`` and take
     ``(robot, settings, params)``, ``params`` being their own ``Params`` model (``sim:`` block of the config)."""
 
-    Params: type[Params]
+    Params: type[ParameterModel]
+    #: whether ``settings.gui`` can show the world in a window (checked when an environment's config is validated)
+    has_window: ClassVar[bool] = False
 
-    def __init__(self, robot: URDFRobot, settings: WorldSettings, params: Params):
+    def __init__(self, robot: URDFRobot, settings: WorldSettings, params: ParameterModel):
         self.robot, self.settings, self.params = robot, settings, params
 
     # ---------------------------------------------------------------- the scene

@@ -13,11 +13,11 @@ from typing import Any, TypeVar
 
 import numpy as np
 
-from ..registry import SIMULATORS, Params
+from ..registry import SIMULATORS
 from ..robots import URDFRobot
 from .camera import FAR, Camera, linear_depth
 from .config import SimulatorParams
-from .protocol import BACKGROUND, GOAL_MARKER, GROUND, ROBOT, Images, Obstacle, SimulationError, World, WorldSettings
+from .protocol import BACKGROUND, GOAL_MARKER, GROUND, ROBOT, Images, Obstacle, SimulationError, SimWorld, WorldSettings
 
 _OBSTACLE_COLOUR = [0.8, 0.2, 0.2, 1]
 _GROUND_COLOUR = [0.85, 0.85, 0.8, 1]
@@ -59,12 +59,13 @@ class PyBulletParams(SimulatorParams):
 
 
 @SIMULATORS.register("pybullet")
-class PyBulletWorld(World):
+class PyBulletWorld(SimWorld):
     """One pybullet physics client (DIRECT, or the GUI when ``settings.gui``)."""
 
     Params = PyBulletParams
+    has_window = True
 
-    def __init__(self, robot: URDFRobot, settings: WorldSettings, params: Params | None = None):
+    def __init__(self, robot: URDFRobot, settings: WorldSettings, params: PyBulletParams | None = None):
         super().__init__(robot, settings, params or PyBulletParams())
         p = self.p = _pybullet()
         self.cid = p.connect(p.GUI if settings.gui else p.DIRECT)
@@ -96,7 +97,11 @@ class PyBulletWorld(World):
         p, cid, robot = self.p, self.cid, self.robot
         position, orientation = robot.base_pose()
         self.body = p.loadURDF(
-            robot.urdf_path, position, orientation, useFixedBase=True, flags=p.URDF_USE_INERTIA_FROM_FILE,
+            robot.urdf_path,
+            position,
+            orientation,
+            useFixedBase=True,
+            flags=p.URDF_USE_INERTIA_FROM_FILE,
             physicsClientId=cid,
         )
         n = p.getNumJoints(self.body, physicsClientId=cid)
@@ -106,9 +111,7 @@ class PyBulletWorld(World):
         self.link_index[p.getBodyInfo(self.body, physicsClientId=cid)[0].decode()] = -1
         self.joints = [joint_index[j] for j in (*robot.params.joints, *robot.held_joints())]
         for j in range(-1, n):
-            p.changeDynamics(
-                self.body, j, linearDamping=0.0, angularDamping=0.0, jointDamping=0.0, physicsClientId=cid
-            )
+            p.changeDynamics(self.body, j, linearDamping=0.0, angularDamping=0.0, jointDamping=0.0, physicsClientId=cid)
         p.setJointMotorControlArray(
             self.body, self.joints, p.VELOCITY_CONTROL, forces=[0.0] * len(self.joints), physicsClientId=cid
         )
@@ -193,7 +196,10 @@ class PyBulletWorld(World):
     @_engine_errors
     def inverse_dynamics(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
         tau = self.p.calculateInverseDynamics(
-            self.body, np.asarray(q).tolist(), np.asarray(qd).tolist(), np.asarray(qdd).tolist(),
+            self.body,
+            np.asarray(q).tolist(),
+            np.asarray(qd).tolist(),
+            np.asarray(qdd).tolist(),
             physicsClientId=self.cid,
         )
         return np.asarray(tau, dtype=float)
@@ -236,7 +242,9 @@ class PyBulletWorld(World):
                 inverse = p.invertTransform(offset, offset_orientation)
                 position, orientation = p.multiplyTransforms(com, com_orientation, *inverse)
             else:
-                position, orientation = p.getLinkState(self.body, i, computeForwardKinematics=True, physicsClientId=cid)[4:6]
+                position, orientation = p.getLinkState(
+                    self.body, i, computeForwardKinematics=True, physicsClientId=cid
+                )[4:6]
             R = np.array(p.getMatrixFromQuaternion(orientation), dtype=float).reshape(3, 3)
             out[name] = (np.array(position, dtype=float), R)
         return out
@@ -259,7 +267,9 @@ class PyBulletWorld(World):
         rgba = np.asarray(img[2], dtype=np.uint8).reshape(height, width, 4)
         depth = linear_depth(np.asarray(img[3], dtype=float).reshape(height, width))
         depth[depth >= FAR] = np.inf
-        return Images(np.ascontiguousarray(rgba[..., :3]), depth, self._labels(np.asarray(img[4]).reshape(height, width)))
+        return Images(
+            np.ascontiguousarray(rgba[..., :3]), depth, self._labels(np.asarray(img[4]).reshape(height, width))
+        )
 
     def _labels(self, bodies: np.ndarray) -> np.ndarray:
         """pybullet's body ids per pixel as the protocol's segmentation labels."""

@@ -35,8 +35,8 @@ from .layout import Clearances, Derived, derive
 from .metrics import RATIO_METRICS, task_metrics
 from .params import ManipulatorParams
 from .paths import end_effector_radius, path_clearance
-from .worlds import HelperWorlds, TaskWorld, fixed_links_extent, sample_aux
 from .torque import rollout_torque
+from .worlds import HelperWorlds, TaskWorld, fixed_links_extent, sample_aux
 
 
 @ENVS.register("manipulator")

@@ -9,11 +9,11 @@ from typing import TYPE_CHECKING, Any
 import torch
 from torch import Tensor
 
+from ...sims import SimulationError
 from ..common import evaluate_policy, qdd_of, rk4, semi_implicit_euler
 from ..faults import IsolatingPolicy
 from ..rollout import Rollout
 from .recording import GoalTracker, Recorder, finish
-from ...sims import SimulationError
 from .worlds import sample_aux
 
 if TYPE_CHECKING:

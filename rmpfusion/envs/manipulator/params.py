@@ -11,7 +11,7 @@ from pydantic import Field, ValidationInfo, field_validator, model_validator
 from ...registry import Params
 from ...robots import RobotField
 from ...scenes import Scene, same_layout
-from ...sims import SimField, SimulatorParams
+from ...sims import SimField, SimulatorParams, has_window
 from .layout import ReachLayout
 
 Vec3 = tuple[float, float, float]
@@ -105,6 +105,14 @@ class ManipulatorParams(Params):
         """(seconds, the key that sets it) of the step rollouts integrate and the simulator steps on: a run config's
         recording interval and horizon are checked against it before anything runs (``time_grid`` at rollout time)."""
         return 1.0 / self.control_rate, "1/env.control_rate"
+
+    @model_validator(mode="after")
+    def _a_window_needs_a_simulator_with_one(self):
+        if self.gui and not has_window(self.sim):
+            raise ValueError(
+                f"gui: sim '{self.sim.type}' has no window to show a world in; set env.gui=false or sim=pybullet"
+            )
+        return self
 
     @model_validator(mode="after")
     def _test_scene_fits_the_tree(self):

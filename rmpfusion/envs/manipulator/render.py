@@ -24,7 +24,7 @@ CameraSetting = tuple[float, float, float, Vec3]  # distance, yaw, pitch (deg), 
 def camera_of(setting: CameraSetting) -> Camera:
     """The camera of ``ManipulatorParams.camera``."""
     distance, yaw, pitch, target = setting
-    return Camera(distance, yaw, pitch, tuple(target))
+    return Camera(distance, yaw, pitch, (target[0], target[1], target[2]))
 
 
 def images(

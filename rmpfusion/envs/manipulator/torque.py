@@ -11,11 +11,11 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from ...sims import SimulationError, WorldSettings
 from ..common import evaluate_policy
 from ..faults import IsolatingPolicy
 from ..rollout import Rollout
 from .recording import GoalTracker, Recorder, finish
-from ...sims import SimulationError, WorldSettings
 from .worlds import TaskWorld, sample_aux
 
 if TYPE_CHECKING:

@@ -1,7 +1,7 @@
 """The manipulator task's side of a simulated world: a scene placed from one sample's aux state, the robot's held
 joints driven with its actuated ones, and the clearance that defines collision in both rollout modes.
 
-Everything here talks to the simulator through ``rmpfusion.sims.World`` alone (pybullet, MuJoCo or a plugin's,
+Everything here talks to the simulator through ``rmpfusion.sims.SimWorld`` alone (pybullet, MuJoCo or a plugin's,
 ``env.sim``); obstacles are built from a sample's aux state (``scenes/aux.py``), the same numbers the tree reads,
 so what the tree avoids and what the simulator collides with are one geometry.
 """
@@ -15,7 +15,7 @@ from torch import Tensor
 
 from ...robots import URDFRobot
 from ...scenes import Scene
-from ...sims import SimulatorParams, World, WorldSettings, obstacles_of, open_world
+from ...sims import SimulatorParams, SimWorld, WorldSettings, obstacles_of, open_world
 
 
 def sample_aux(aux: Mapping[str, Tensor], b: int) -> dict[str, np.ndarray]:
@@ -94,7 +94,7 @@ _GROUND_LINKS: dict[tuple, dict[str, float]] = {}
 GROUND_SAMPLES, GROUND_TOLERANCE = 64, 1e-5
 
 
-def links_that_can_touch_the_ground(world: World, robot: URDFRobot, sim: SimulatorParams) -> dict[str, float]:
+def links_that_can_touch_the_ground(world: SimWorld, robot: URDFRobot, sim: SimulatorParams) -> dict[str, float]:
     """``ground_links`` of the robot, found once per (simulator, robot) in a process."""
     key = (sim.model_dump_json(), robot.urdf_path, tuple(robot.params.joints), repr(robot.params.mount))
     if key not in _GROUND_LINKS:
@@ -102,7 +102,7 @@ def links_that_can_touch_the_ground(world: World, robot: URDFRobot, sim: Simulat
     return _GROUND_LINKS[key]
 
 
-def ground_links(world: World, robot: URDFRobot, samples: int = GROUND_SAMPLES, seed: int = 0) -> dict[str, float]:
+def ground_links(world: SimWorld, robot: URDFRobot, samples: int = GROUND_SAMPLES, seed: int = 0) -> dict[str, float]:
     """Link name -> the highest its lowest point gets (m, world), of the links whose lowest point (of their
     collision shapes' bounding boxes) changes height by more than GROUND_TOLERANCE over ``samples`` configurations
     drawn uniformly within the joints' limits (a continuous joint over one turn). A link no joint can raise or lower
@@ -120,12 +120,10 @@ def ground_links(world: World, robot: URDFRobot, samples: int = GROUND_SAMPLES, 
         for link, (low, _) in world.link_boxes().items():
             if robot.moves(link):
                 lowest.setdefault(link, []).append(float(low[2]))
-    return {
-        link: max(zs) for link, zs in lowest.items() if max(zs) - min(zs) > GROUND_TOLERANCE
-    }
+    return {link: max(zs) for link, zs in lowest.items() if max(zs) - min(zs) > GROUND_TOLERANCE}
 
 
-def fixed_links_extent(world: World, robot: URDFRobot) -> float:
+def fixed_links_extent(world: SimWorld, robot: URDFRobot) -> float:
     """How far (m) the links no actuated joint moves (the base and what is welded to it) reach horizontally from
     the base's vertical axis: the corners of their collision shapes' bounding boxes. An obstacle nearer than this
     (plus a start's clearance) leaves no start clear of it, whatever the joints do."""
