@@ -45,10 +45,6 @@ def _robot(name: str) -> URDFRobot:
     return build_robot(RobotDescription.model_validate(robot(name)))
 
 
-def _world(r: URDFRobot, sim: str, **settings) -> SimWorld:
-    return open_world(r, WorldSettings(**settings), SimulatorParams.model_validate({"type": sim}).model_copy())
-
-
 def _params(sim: str) -> SimulatorParams:
     return SIMULATORS.get(sim).params.model_validate({"type": sim})
 

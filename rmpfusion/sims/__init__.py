@@ -4,6 +4,7 @@ MuJoCo), each importing its engine only when a world opens. Importing registers 
 
 from .camera import Camera
 from .config import DEFAULT_SIMULATOR, SimField, SimulatorParams, has_window, open_world
+from .mjcf import MJCFDescription, MJCFRobot  # importing it registers the "mjcf" robot kind
 from .mujoco_backend import MuJoCoWorld  # importing it registers "mujoco"
 from .obstacles import obstacles_of
 from .protocol import BACKGROUND, GOAL_MARKER, GROUND, ROBOT, Images, Obstacle, SimulationError, SimWorld, WorldSettings
@@ -17,6 +18,8 @@ __all__ = [
     "ROBOT",
     "Camera",
     "Images",
+    "MJCFDescription",
+    "MJCFRobot",
     "MuJoCoWorld",
     "Obstacle",
     "PyBulletWorld",

@@ -61,7 +61,10 @@ def has_window(params: SimulatorParams) -> bool:
 
 
 def open_world(robot: URDFRobot, settings: WorldSettings, params: SimulatorParams) -> SimWorld:
-    """A new world of the backend ``params`` names."""
-    world = SIMULATORS.get(params.type).obj(robot, settings, params)
+    """A new world of the backend ``params`` names (given as the base ``SimulatorParams``, validated by the
+    backend's own model: its defaults filled in)."""
+    entry = SIMULATORS.get(params.type)
+    own = params if isinstance(params, entry.params) else entry.validate(params.model_dump())
+    world = entry.obj(robot, settings, own)
     assert isinstance(world, SimWorld), f"simulator '{params.type}' must subclass rmpfusion.sims.SimWorld"
     return world

@@ -51,7 +51,7 @@ if "MUJOCO_GL" not in os.environ and not os.environ.get("DISPLAY"):
     os.environ["MUJOCO_GL"] = "egl"
 
 
-def _mujoco() -> Any:
+def import_mujoco() -> Any:
     """The mujoco module, imported when a world opens."""
     try:
         import mujoco  # when a world opens: the package imports without MuJoCo
@@ -101,7 +101,7 @@ class MuJoCoWorld(SimWorld):
         super().__init__(robot, settings, self.options)
         if settings.gui:
             raise SimulationError("sim=mujoco opens no window (env.gui=true): run it headless")
-        self.mj = _mujoco()
+        self.mj = import_mujoco()
         self.kinds: tuple[ShapeKind, ...] = ()
         self.ground_height: float | None = None
         self._renderers: dict[tuple[int, int], Any] = {}
@@ -311,7 +311,7 @@ class MuJoCoWorld(SimWorld):
         m, d = self.model, self.data
         R, p = d.geom_xmat[g].reshape(3, 3), d.geom_xpos[g]
         mesh = m.geom_dataid[g]
-        if m.geom_type[g] == self.mj.mjtGeom.mjGEOM_MESH and mesh >= 0:
+        if int(m.geom_type[g]) == int(self.mj.mjtGeom.mjGEOM_MESH) and mesh >= 0:
             start, count = m.mesh_vertadr[mesh], m.mesh_vertnum[mesh]
             local = m.mesh_vert[start : start + count]
         else:
@@ -360,7 +360,7 @@ class MuJoCoWorld(SimWorld):
     def _labels(self, ids: np.ndarray, types: np.ndarray) -> np.ndarray:
         """MuJoCo's (object id, object type) per pixel as the protocol's segmentation labels."""
         labels = np.full(ids.shape, BACKGROUND, dtype=int)
-        geom = (types == self.mj.mjtObj.mjOBJ_GEOM) & (ids >= 0)
+        geom = (types == int(self.mj.mjtObj.mjOBJ_GEOM)) & (ids >= 0)
         table = np.full(self.model.ngeom, BACKGROUND, dtype=int)
         table[self.robot_geoms] = ROBOT
         table[[self.ground_geom, self.floor_geom]] = GROUND
