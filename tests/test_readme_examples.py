@@ -255,6 +255,8 @@ def appended(cmd: str, out: Path) -> list[str]:
             "train.log_every=1",
             "train.checkpoint_every=1",
         ]
+    if cmd.startswith("python tools/sim_agreement.py"):
+        return ["--samples", "1"]  # one configuration and state per robot
     if cmd.startswith("python tools/lasa_table.py"):
         return ["--out", str(out), "--", *TINY_RECORDED]
     if cmd.startswith("rmpfusion-run"):

@@ -62,6 +62,22 @@ class Camera:
         ndc = clip[:, :3] / clip[:, 3:4]
         return np.stack([(ndc[:, 0] + 1) / 2 * width, (1 - ndc[:, 1]) / 2 * height], 1)
 
+    def points(self, depth: np.ndarray) -> np.ndarray:
+        """(H, W, 3) world points seen at each pixel's centre of a depth image (H, W) taken through this camera
+        (depth along the optical axis, m); NaN where the depth is not finite (nothing hit). The inverse of
+        ``project`` at that depth."""
+        seen = np.isfinite(depth)
+        depth = np.where(seen, depth, 0.0)
+        height, width = depth.shape
+        cols, rows = np.meshgrid(np.arange(width) + 0.5, np.arange(height) + 0.5)
+        x_ndc, y_ndc = cols / width * 2 - 1, 1 - rows / height * 2
+        P = self.projection_matrix(width, height)
+        camera = np.stack([x_ndc * depth / P[0, 0], y_ndc * depth / P[1, 1], -depth, np.ones_like(depth)], -1)
+        world = camera.reshape(-1, 4) @ np.linalg.inv(self.view_matrix()).T
+        out = world[:, :3].reshape(height, width, 3)
+        out[~seen] = np.nan
+        return out
+
 
 def linear_depth(buffer: np.ndarray) -> np.ndarray:
     """Metric depth (m) from an OpenGL depth buffer in [0, 1] of the ``NEAR``/``FAR`` projection; ``inf`` at the

@@ -35,6 +35,7 @@ from .layout import Clearances, Derived, derive
 from .metrics import RATIO_METRICS, task_metrics
 from .params import ManipulatorParams
 from .paths import end_effector_radius, path_clearance
+from .sensing import cloud_of
 from .torque import rollout_torque
 from .worlds import HelperWorlds, TaskWorld, fixed_links_extent, sample_aux
 
@@ -350,6 +351,20 @@ class Manipulator(ComputesOnDevice, SeededSampling):
         """Colour, depth (m) and segmentation of the robot at ``q`` in environment ``aux[sample]``, through the
         camera of ``env.camera`` (``rmpfusion.sims.Images``)."""
         return rendering.images(self, q, aux, width, height, sample)
+
+    def point_cloud(
+        self,
+        q: Tensor | Sequence[float],
+        aux: Mapping[str, Tensor],
+        sample: int = 0,
+        rng: np.random.Generator | None = None,
+    ) -> Tensor:
+        """(P, 3) world points of the obstacles that ``env.depth_camera`` sees with the robot at ``q`` in environment
+        ``aux[sample]``: its depth image back-projected, the robot's, the ground's and the goal marker's points
+        removed by the simulator's segmentation (``manipulator/sensing.py``)."""
+        c = self.params.depth_camera
+        images = rendering.images(self, q, aux, c.width, c.height, sample, camera=c.camera())
+        return torch.as_tensor(cloud_of(images, c.camera(), c.noise, rng), dtype=self.dtype)
 
     def project(self, points, width: int = 320, height: int = 240) -> np.ndarray:
         """(N, 2) pixel coordinates (column, row) of world points (N, 3) in ``render``'s image, to draw paths on it."""

@@ -13,6 +13,7 @@ from ...robots import RobotField
 from ...scenes import Scene, same_layout
 from ...sims import SimField, SimulatorParams, has_window
 from .layout import ReachLayout
+from .sensing import DepthCameraParams
 
 Vec3 = tuple[float, float, float]
 Range = tuple[float, float]
@@ -99,6 +100,9 @@ class ManipulatorParams(Params):
         "closest to the obstacle",
     )
     gif_fps: float = Field(10.0, gt=0, description="figures: frames per second of the execution GIF (real time)")
+    depth_camera: DepthCameraParams = Field(
+        default_factory=DepthCameraParams, description="the depth camera of point_cloud (pose, resolution, rate, noise)"
+    )
     dtype: Literal["float64", "float32"] = "float64"
 
     def integration_step(self) -> tuple[float, str]:

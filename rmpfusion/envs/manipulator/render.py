@@ -34,15 +34,17 @@ def images(
     width: int = 320,
     height: int = 240,
     sample: int = 0,
+    camera: Camera | None = None,
 ) -> Images:
-    """Colour, depth and segmentation of the robot at ``q`` in environment ``aux[sample]``."""
+    """Colour, depth and segmentation of the robot at ``q`` in environment ``aux[sample]``, through ``camera``
+    (default the figures' camera, ``env.camera``)."""
     q = torch.as_tensor(q, dtype=env.dtype).reshape(-1, env.dim)
     qb = q[min(sample, q.shape[0] - 1)]
     world = env.worlds.renderer()
     aux = {k: torch.as_tensor(v).reshape(-1, torch.as_tensor(v).shape[-1]) for k, v in aux.items()}
     world.set_env(env.scene, sample_aux(aux, sample))
     world.reset(qb.cpu().numpy())
-    return world.sim.render(camera_of(env.params.camera), width, height)
+    return world.sim.render(camera or camera_of(env.params.camera), width, height)
 
 
 def project(setting: CameraSetting, points, width: int = 320, height: int = 240) -> np.ndarray:
