@@ -309,31 +309,30 @@ def test_the_fitted_robot_runs_a_tiny_experiment(config_dir, tmp_path):
     assert (tmp_path / "metrics.json").is_file()
 
 
-def test_a_mimic_joint_follows_its_leader_under_computed_torque(fitted):
-    """In pybullet's torque mode the follower is driven (its leader's acceleration fed forward, PD on the rest) to
-    multiplier · q_leader + offset while the leader swings."""
-    from rmpfusion.envs.faults import IsolatingPolicy
-    from rmpfusion.envs.manipulator import Manipulator
-    from rmpfusion.envs.manipulator.torque import _Worlds
+@pytest.mark.parametrize("sim", ["pybullet", "mujoco"])
+def test_a_mimic_joint_follows_its_leader_under_computed_torque(fitted, sim):
+    """In torque mode the follower is driven (its leader's acceleration fed forward, PD on the rest) to
+    multiplier · q_leader + offset while the leader swings, in either simulator."""
+    pytest.importorskip(sim)
+    from rmpfusion.envs.manipulator.worlds import TaskWorld
+    from rmpfusion.sims import SimulatorParams, WorldSettings
 
-    env = Manipulator(robot=fitted[0], scene={}, mode="torque", control_rate=500.0)
-    q0 = torch.tensor([[0.0, 0.3, 0.05, 0.2, -0.5]], dtype=torch.float64)
-    worlds = _Worlds(env, IsolatingPolicy(lambda q, qd, aux: None), q0, torch.zeros_like(q0))
+    robot = build_robot(RobotDescription.model_validate(fitted[0]))
+    world = TaskWorld(robot, WorldSettings(timestep=0.002), SimulatorParams(type=sim))
     try:
-        worlds.open({"goal": torch.zeros(1, 3, dtype=torch.float64)})
-        worlds.read_states()
-        assert worlds.fingers[0][0] == pytest.approx(0.5 * -0.5 + 0.1)
+        world.reset(np.array([0.0, 0.3, 0.05, 0.2, -0.5]))
+        q, _ = world.sim.state()
+        assert q[5] == pytest.approx(0.5 * -0.5 + 0.1)
         worst = 0.0
         for k in range(250):  # 0.5 s of the thumb accelerating back and forth
-            a = torch.zeros(1, 5, dtype=torch.float64)
-            a[0, 4] = 4.0 * math.cos(8.0 * k * env.dt)
-            worlds.step(a, k)
-            worlds.read_states()
-            worst = max(worst, abs(worlds.fingers[0][0] - (0.5 * float(worlds.q[0, 4]) + 0.1)))
-        assert abs(float(worlds.q[0, 4]) + 0.5) > 0.05 and worst < 1e-3, worst  # it moved, and the finger with it
+            a = np.zeros(5)
+            a[4] = 4.0 * math.cos(8.0 * k * 0.002)
+            world.step_computed_torque(a, robot.params.held_joint_gains)
+            q, _ = world.sim.state()
+            worst = max(worst, abs(q[5] - (0.5 * q[4] + 0.1)))
+        assert abs(q[4] + 0.5) > 0.05 and worst < 1e-3, worst  # it moved, and the finger with it
     finally:
-        worlds.close()
-        env.close()
+        world.close()
 
 
 def test_an_srdf_exempts_link_pairs_from_self_collision(fitted, tmp_path):

@@ -5,9 +5,13 @@ spheres and a box appear in its way, one moves, and they vanish again (rmpfusion
 
     python tools/world_demo.py                 # compiled (torch.compile), 6 s at 500 Hz, prints the report
     python tools/world_demo.py --eager --seconds 2
+    python tools/world_demo.py --sim pybullet  # the arm and the obstacles in a simulator (or --sim mujoco)
 
-The arm is integrated in joint space (RK4 on the tree's q̈, the kinematic model; no simulator), so the clearance is
-the exact distance between the control spheres and the obstacles present. Reported: the compiles counted by
+Without ``--sim`` the arm is integrated in joint space (RK4 on the tree's q̈, the kinematic model), and the clearance
+is the exact distance between the control spheres and the obstacles present. With ``--sim`` the Panda is simulated
+(computed torque at every step, the simulator's own integrator) and every change of the world is mirrored into the
+simulator (bodies appear, move and vanish there: ``rmpfusion.sims.obstacles_of_sets``); the clearance is then the
+simulator's distance between the robot's collision geometry and the bodies present. Reported: the compiles counted by
 torch's dynamo after the first call (0 means no change of the world compiled anything), the least clearance to the
 obstacles present, the end effector's final distance to the goal, and V_r between changes of the world (Theorem 2
 holds while the aux state is constant; at a change V_r may jump).
@@ -32,10 +36,12 @@ from omegaconf import OmegaConf
 from rmpfusion import build_tree
 from rmpfusion.assembly.generated import expand_tree
 from rmpfusion.assembly.weighting import plain_data, tree_with_weights, weights_by_name
+from rmpfusion.envs.manipulator.worlds import TaskWorld
 from rmpfusion.pipeline.validate import resolve_and_validate
 from rmpfusion.robots.robot import build_robot
 from rmpfusion.scenes import ObstacleSet, World, set_dims
 from rmpfusion.scenes.sets import set_distances
+from rmpfusion.sims import SimulatorParams, WorldSettings, obstacles_of_sets
 
 SETS = [ObstacleSet(shape="sphere", n_max=4), ObstacleSet(shape="box", n_max=2)]
 GOAL, GOAL_B = [0.45, 0.35, 0.35], [0.45, -0.35, 0.35]
@@ -93,11 +99,12 @@ def clearance_to_world(robot, q: torch.Tensor, world: World) -> float:
     return float(d.min()) if d.numel() else float("inf")
 
 
-def run_demo(compiled: bool = True, seconds: float = 6.0, dt: float = 0.002) -> Report:
+def run_demo(compiled: bool = True, seconds: float = 6.0, dt: float = 0.002, sim: str | None = None) -> Report:
     from torch._dynamo.utils import counters
 
     tree, robot, run = controller()
     world = World(SETS, goal=GOAL)
+    simulated = None if sim is None else TaskWorld(robot, WorldSettings(timestep=dt), SimulatorParams(type=sim))
     q = torch.tensor([list(run.env.robot.home)], dtype=torch.float64)
     qd = torch.zeros_like(q)
     if compiled:
@@ -115,27 +122,42 @@ def run_demo(compiled: bool = True, seconds: float = 6.0, dt: float = 0.002) -> 
     events, k = schedule(world), 0
     V_prev, rises, clear_w, trace = None, 0, float("inf"), []
     steps = round(seconds / dt)
+    if simulated is not None:
+        simulated.reset(q[0].numpy(), qd[0].numpy())
+        simulated.sim.set_obstacles(obstacles_of_sets(SETS, world.aux()))
     for i in range(steps):
         t = i * dt
         while k < len(events) and events[k][0] <= t + 1e-12:
             events[k][1]()
             k, V_prev = k + 1, None  # the world changed: V_r may jump here
+            if simulated is not None:  # the same change in the simulator: bodies appear, move, vanish
+                simulated.sim.set_obstacles(obstacles_of_sets(SETS, world.aux()))
         with torch.no_grad():
             V = float(tree(q, qd, aux()).V[0])
         if V_prev is not None and V > V_prev * (1 + 1e-6) + 1e-9:
             rises += 1
         V_prev = V
-        k1v, k1a = qd, accel(q, qd)
-        k2v, k2a = qd + 0.5 * dt * k1a, accel(q + 0.5 * dt * k1v, qd + 0.5 * dt * k1a)
-        k3v, k3a = qd + 0.5 * dt * k2a, accel(q + 0.5 * dt * k2v, qd + 0.5 * dt * k2a)
-        k4v, k4a = qd + dt * k3a, accel(q + dt * k3v, qd + dt * k3a)
-        q = q + dt / 6 * (k1v + 2 * k2v + 2 * k3v + k4v)
-        qd = qd + dt / 6 * (k1a + 2 * k2a + 2 * k3a + k4a)
-        cw = clearance_to_world(robot, q, world)
+        if simulated is not None:  # computed torque in the simulator, its own integrator
+            simulated.step_computed_torque(accel(q, qd)[0].numpy(), robot.params.held_joint_gains)
+            qs, qds = simulated.sim.state()
+            # (1, dof) with the strides of a new tensor: the compiled tree is guarded on them
+            q = torch.tensor(qs[: robot.dof], dtype=q.dtype).unsqueeze(0)
+            qd = torch.tensor(qds[: robot.dof], dtype=q.dtype).unsqueeze(0)
+            cw = simulated.sim.obstacle_distance(0.5) if world.present() else float("inf")
+        else:
+            k1v, k1a = qd, accel(q, qd)
+            k2v, k2a = qd + 0.5 * dt * k1a, accel(q + 0.5 * dt * k1v, qd + 0.5 * dt * k1a)
+            k3v, k3a = qd + 0.5 * dt * k2a, accel(q + 0.5 * dt * k2v, qd + 0.5 * dt * k2a)
+            k4v, k4a = qd + dt * k3a, accel(q + dt * k3v, qd + dt * k3a)
+            q = q + dt / 6 * (k1v + 2 * k2v + 2 * k3v + k4v)
+            qd = qd + dt / 6 * (k1a + 2 * k2a + 2 * k3a + k4a)
+            cw = clearance_to_world(robot, q, world)
         clear_w = min(clear_w, cw)
         if i % round(0.25 / dt) == 0:
             trace.append((round(t, 3), cw, float((tip_of(robot, run, q) - world.goal[0]).norm()), V))
     compiles = counters["stats"]["unique_graphs"] - graphs0 if compiled else None
+    if simulated is not None:
+        simulated.close()
     return Report(
         compiles, clear_w, float((tip_of(robot, run, q) - world.goal[0]).norm()), rises, k, time.time() - t0, trace
     )
@@ -154,8 +176,9 @@ def main(argv=None) -> int:
     ap.add_argument("--seconds", type=float, default=6.0)
     ap.add_argument("--dt", type=float, default=0.002)
     ap.add_argument("--trace", action="store_true", help="print the state every 0.25 s")
+    ap.add_argument("--sim", choices=["pybullet", "mujoco"], default=None, help="simulate the arm and the obstacles")
     args = ap.parse_args(argv)
-    r = run_demo(not args.eager, args.seconds, args.dt)
+    r = run_demo(not args.eager, args.seconds, args.dt, args.sim)
     print(
         f"changes of the world: {r.changes}; compiles after the first call: "
         f"{'n/a (eager)' if r.compiles_after_first_call is None else r.compiles_after_first_call}"

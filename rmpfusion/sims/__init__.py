@@ -6,7 +6,7 @@ from .camera import Camera
 from .config import DEFAULT_SIMULATOR, SimField, SimulatorParams, has_window, open_world
 from .mjcf import MJCFDescription, MJCFRobot  # importing it registers the "mjcf" robot kind
 from .mujoco_backend import MuJoCoWorld  # importing it registers "mujoco"
-from .obstacles import obstacles_of
+from .obstacles import obstacles_of, obstacles_of_sets
 from .protocol import BACKGROUND, GOAL_MARKER, GROUND, ROBOT, Images, Obstacle, SimulationError, SimWorld, WorldSettings
 from .pybullet_backend import PyBulletWorld  # importing it registers "pybullet"
 
@@ -30,5 +30,6 @@ __all__ = [
     "WorldSettings",
     "has_window",
     "obstacles_of",
+    "obstacles_of_sets",
     "open_world",
 ]

@@ -74,9 +74,6 @@ class _Worlds:
         self.min_clear = torch.full((B,), float(env.params.clearance_query), dtype=env.dtype)
         self.first_hit = torch.full((B,), float("inf"), dtype=env.dtype)
         self.q, self.qd = q0.clone(), qd0.clone()
-        n_held = len(env.robot.held_joints())
-        self.fingers = [np.zeros(n_held)] * B
-        self.finger_v = [np.zeros(n_held)] * B
 
     def open(self, aux: Mapping[str, Tensor]) -> None:
         """A world per sample at its initial state (the GUI, if asked for, shows sample 0)."""
@@ -118,7 +115,6 @@ class _Worlds:
             n = self.env.dim
             self.q[b] = torch.as_tensor(qa[:n], dtype=self.env.dtype)
             self.qd[b] = torch.as_tensor(qda[:n], dtype=self.env.dtype)
-            self.fingers[b], self.finger_v[b] = qa[n:], qda[n:]
 
     def step(self, a: Tensor, k: int) -> None:
         """One simulator step of every live world under the torques that realise the accelerations ``a`` at step k."""
@@ -136,14 +132,7 @@ class _Worlds:
 
     def _step_one(self, b: int, sc: TaskWorld, a: np.ndarray, k: int) -> None:
         dt = self.env.dt
-        gains = self.env.robot.params.held_joint_gains
-        index, gain, bias = sc.held_drive  # mimic joints follow their leaders; the others are held where they are
-        q, qd = self.q[b].cpu().numpy(), self.qd[b].cpu().numpy()
-        target, target_v = gain * q[index] + bias, gain * qd[index]
-        acc_f = gain * a[index] - gains.kp * (self.fingers[b] - target) - gains.kd * (self.finger_v[b] - target_v)
-        qs = np.concatenate([q, self.fingers[b]])
-        vs = np.concatenate([qd, self.finger_v[b]])
-        sc.sim.step(sc.sim.inverse_dynamics(qs, vs, np.concatenate([a, acc_f])))
+        sc.step_computed_torque(a, self.env.robot.params.held_joint_gains)
         self.min_clear[b] = min(float(self.min_clear[b]), sc.clearance(self.env.params.clearance_query))
         if self.min_clear[b] <= 0.0 and self.first_hit[b].isinf():
             self.first_hit[b] = (k + 1) * dt

@@ -14,6 +14,7 @@ import numpy as np
 from torch import Tensor
 
 from ...robots import URDFRobot
+from ...robots.description import HeldJointGains
 from ...scenes import Scene
 from ...sims import SimulatorParams, SimWorld, WorldSettings, obstacles_of, open_world
 
@@ -61,6 +62,18 @@ class TaskWorld:
         qd = np.zeros(len(q)) if qd is None else np.asarray(qd, dtype=float)
         hq, hqd = self.held_state(q, qd)
         self.sim.reset(np.concatenate([q, hq]), np.concatenate([qd, hqd]))
+
+    def step_computed_torque(self, qdd: np.ndarray, gains: HeldJointGains) -> None:
+        """One simulator step under the torques that realise the actuated joints' accelerations ``qdd`` (computed
+        torque: the simulator's own inverse dynamics at its current state); the held joints get a PD acceleration
+        toward where they follow their leader (mimic) or stay, inside the same inverse dynamics."""
+        q_all, qd_all = self.sim.state()
+        n = len(qdd)
+        q, qd = q_all[:n], qd_all[:n]
+        index, gain, bias = self.held_drive
+        target, target_v = gain * q[index] + bias, gain * qd[index]
+        held = gain * qdd[index] - gains.kp * (q_all[n:] - target) - gains.kd * (qd_all[n:] - target_v)
+        self.sim.step(self.sim.inverse_dynamics(q_all, qd_all, np.concatenate([qdd, held])))
 
     def clearance(self, query: float) -> float:
         """Smallest robot–obstacle distance (the ground counts for the links the joints move), or ``query``
