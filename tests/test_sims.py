@@ -364,3 +364,47 @@ def test_a_plugin_simulator_runs_an_experiment(ideal_simulator, tmp_path, monkey
     assert rows == {"expert", "learner-0", "learner-2"}
     assert opened and sum(w.steps for w in opened) >= 2 * 30  # torque-mode worlds: 2 test starts × 0.5 s at 60 Hz
     assert (tmp_path / "figures" / "task_execution.png").is_file()
+
+
+def test_a_run_time_worlds_bodies_appear_move_and_vanish_in_both_simulators():
+    """``obstacles_of_sets``: the present members of a run-time world (scenes.World) become simulator bodies with
+    the world's numbers; after each change the two simulators measure the same clearance (to their margins), and a
+    removed obstacle no longer counts."""
+    from rmpfusion.scenes import ObstacleSet
+    from rmpfusion.scenes import World as RunTimeWorld
+    from rmpfusion.sims import obstacles_of_sets
+
+    sets = [ObstacleSet(shape="sphere", n_max=3), ObstacleSet(shape="box", n_max=2)]
+    world = RunTimeWorld(sets, goal=[0.5, 0.0, 0.4])
+    r = _robot("panda")
+    sims = [open_world(r, WorldSettings(), _params(s)) for s in SIMS]
+    q = np.array(r.params.home)
+    ee = r.ee_position(torch.tensor(q[None]))[0].numpy()
+    try:
+        for w in sims:
+            w.reset(_full(r, q), np.zeros(r.dof + 2))
+        seen = []
+        for change in (
+            lambda: world.add("sphere", name="ball", center=(ee + [0.25, 0.0, 0.0]).tolist(), radius=0.05),
+            lambda: world.add(
+                "box", name="wall", center=(ee + [0.0, 0.4, 0.0]).tolist(), half_extents=[0.05, 0.05, 0.1]
+            ),
+            lambda: world.move("ball", center=(ee + [0.2, 0.0, 0.0]).tolist()),
+            lambda: world.remove("ball"),
+        ):
+            change()
+            bodies = obstacles_of_sets(sets, world.aux())
+            assert len(bodies) == len(world.present())
+            for w in sims:
+                w.set_obstacles(bodies)
+            seen.append([w.obstacle_distance(0.5) for w in sims])
+        d = np.array(seen)
+        assert np.abs(d[:, 0] - d[:, 1]).max() < 4e-3, d
+        assert d[1, 0] == pytest.approx(d[0, 0], abs=1e-9)  # the wall is farther than the ball
+        assert d[2, 0] < d[1, 0] - 0.03  # the ball moved 5 cm nearer to the hand
+        assert d[3, 0] > d[2, 0] + 0.03  # ... and its removal leaves the wall, farther away
+        ball = obstacles_of_sets(sets, world.aux())
+        assert [o.kind for o in ball] == ["box"] and np.allclose(ball[0].center, ee + [0.0, 0.4, 0.0])
+    finally:
+        for w in sims:
+            w.close()
