@@ -338,7 +338,7 @@ class Manipulator(ComputesOnDevice, SeededSampling):
     ) -> np.ndarray:
         """(height, width, 3) uint8 image of the robot at ``q`` in environment ``aux[sample]``, rendered
         offscreen by the simulator, for figures and animations (``images`` for depth and segmentation too)."""
-        return rendering.images(self, q, aux, width, height, sample).rgb
+        return self.images(q, aux, width, height, sample).rgb
 
     def images(
         self,
@@ -350,7 +350,8 @@ class Manipulator(ComputesOnDevice, SeededSampling):
     ) -> Images:
         """Colour, depth (m) and segmentation of the robot at ``q`` in environment ``aux[sample]``, through the
         camera of ``env.camera`` (``rmpfusion.sims.Images``)."""
-        return rendering.images(self, q, aux, width, height, sample)
+        camera = rendering.camera_of(self.params.camera)
+        return rendering.images(self.worlds.renderer(), self.scene, q, aux, camera, width, height, sample)
 
     def point_cloud(
         self,
@@ -363,7 +364,7 @@ class Manipulator(ComputesOnDevice, SeededSampling):
         ``aux[sample]``: its depth image back-projected, the robot's, the ground's and the goal marker's points
         removed by the simulator's segmentation (``manipulator/sensing.py``)."""
         c = self.params.depth_camera
-        images = rendering.images(self, q, aux, c.width, c.height, sample, camera=c.camera())
+        images = rendering.images(self.worlds.renderer(), self.scene, q, aux, c.camera(), c.width, c.height, sample)
         return torch.as_tensor(cloud_of(images, c.camera(), c.noise, rng), dtype=self.dtype)
 
     def project(self, points, width: int = 320, height: int = 240) -> np.ndarray:

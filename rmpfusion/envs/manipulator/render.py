@@ -5,18 +5,15 @@ them)."""
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
 from torch import Tensor
 
+from ...scenes import Scene
 from ...sims import Camera, Images
 from .params import Vec3
-from .worlds import sample_aux
-
-if TYPE_CHECKING:
-    from .env import Manipulator
+from .worlds import TaskWorld, sample_aux
 
 CameraSetting = tuple[float, float, float, Vec3]  # distance, yaw, pitch (deg), target: ManipulatorParams.camera
 
@@ -28,23 +25,23 @@ def camera_of(setting: CameraSetting) -> Camera:
 
 
 def images(
-    env: Manipulator,
+    world: TaskWorld,
+    scene: Scene,
     q: Tensor | Sequence[float],
     aux: Mapping[str, Tensor],
+    camera: Camera,
     width: int = 320,
     height: int = 240,
     sample: int = 0,
-    camera: Camera | None = None,
 ) -> Images:
-    """Colour, depth and segmentation of the robot at ``q`` in environment ``aux[sample]``, through ``camera``
-    (default the figures' camera, ``env.camera``)."""
-    q = torch.as_tensor(q, dtype=env.dtype).reshape(-1, env.dim)
+    """Colour, depth and segmentation of the robot at ``q`` (one configuration, or one per sample) in environment
+    ``aux[sample]`` of ``scene``, rendered by ``world`` through ``camera``."""
+    q = torch.as_tensor(q, dtype=torch.float64).reshape(-1, world.robot.dof)
     qb = q[min(sample, q.shape[0] - 1)]
-    world = env.worlds.renderer()
     aux = {k: torch.as_tensor(v).reshape(-1, torch.as_tensor(v).shape[-1]) for k, v in aux.items()}
-    world.set_env(env.scene, sample_aux(aux, sample))
+    world.set_env(scene, sample_aux(aux, sample))
     world.reset(qb.cpu().numpy())
-    return world.sim.render(camera or camera_of(env.params.camera), width, height)
+    return world.sim.render(camera, width, height)
 
 
 def project(setting: CameraSetting, points, width: int = 320, height: int = 240) -> np.ndarray:
