@@ -85,3 +85,85 @@ def test_a_cloud_refuses_what_it_cannot_fill():
         assert words in str(err.value)
     with pytest.raises(ValueError, match="voxel must be > 0"):
         voxel_centroids(pts, 0.0)
+
+
+def test_each_control_point_reads_its_k_nearest_points():
+    """``nearest_per_point`` against a brute-force sort: every centre's k nearest points, nearest first; missing
+    returns dropped; a cloud of fewer than k points leaves the rest of the members absent."""
+    from rmpfusion.scenes.clouds import nearest_per_point
+
+    pts = box_surface(300, seed=2)
+    pts[7] = float("nan")
+    centres = torch.tensor([[0.3, 0.0, 0.3], [0.6, 0.2, 0.5], [0.5, -0.3, 0.1]], dtype=torch.float64)
+    members, mask = nearest_per_point(pts, centres, 8)
+    finite = pts[torch.isfinite(pts).all(-1)]
+    for c in range(3):
+        expected = finite[torch.argsort((finite - centres[c]).norm(dim=-1))[:8]]
+        torch.testing.assert_close(members[c], expected)
+    assert mask.eq(1).all()
+    few, few_mask = nearest_per_point(pts[:5], centres, 8)
+    assert few_mask.sum(-1).tolist() == [5.0, 5.0, 5.0] and few[:, 5:].eq(0).all()
+
+
+def _panda_tree(sets: list[ObstacleSet]):
+    import yaml
+
+    from rmpfusion import build_tree
+    from rmpfusion.assembly.generated import expand_tree
+
+    decl = yaml.safe_load(open("conf/tree/fig1b.yaml"))
+    decl.pop("defaults", None)
+    decl.update(
+        robot=yaml.safe_load(open("conf/robot/panda.yaml")),
+        scene={"obstacles": []},
+        obstacle_sets=[s.model_dump() for s in sets],
+    )
+    return build_tree(expand_tree(decl)).double()
+
+
+def test_per_control_point_members_equal_a_shared_set_holding_the_same_points():
+    """A cloud of k points: every control point's k nearest are all of them, so the tree whose control points each
+    read their own k members equals the tree whose control points share one set of those k (f, M, q̈, V to 1e-12);
+    with a larger cloud the two differ (each control point then keeps its own nearest)."""
+    from rmpfusion.envs.manipulator_tree import copy_weights
+    from rmpfusion.robots import RobotDescription, build_robot
+    from rmpfusion.scenes import sets_read, with_slots
+    from rmpfusion.scenes.clouds import nearest_per_point, per_point_aux
+
+    import yaml
+
+    k = 4
+    own = ObstacleSet(shape="sphere", n_max=k, name="points", per_control_point=True)
+    shared = ObstacleSet(shape="sphere", n_max=k, name="points")
+    t_own, t_shared = _panda_tree([own]), _panda_tree([shared])
+    copy_weights(t_own, t_shared)
+    robot = build_robot(RobotDescription.model_validate(yaml.safe_load(open("conf/robot/panda.yaml"))))
+    q = torch.tensor([[0.0, -0.3, 0.0, -2.2, 0.0, 2.0, 0.8]], dtype=torch.float64)
+    qd = torch.full_like(q, 0.1)
+    centres = robot.sphere_centres(q)[0]
+    goal = torch.tensor([[0.5, 0.2, 0.4]], dtype=torch.float64)
+
+    def outputs(pts):
+        members, mask = nearest_per_point(pts, centres, k)
+        a_own = with_slots(sets_read([own], len(centres)), {"goal": goal, **per_point_aux(own, members, mask, 0.03)})
+        a_shared = with_slots(
+            [shared],
+            {
+                "goal": goal,
+                "points_center": pts[:k].unsqueeze(0),
+                "points_radius": torch.full((1, k, 1), 0.03, dtype=torch.float64),
+                "points_mask": torch.ones(1, k, dtype=torch.float64),
+            },
+        )
+        with torch.no_grad():
+            return t_own(q, qd, a_own), t_shared(q, qd, a_shared)
+
+    near_arm = centres[3] + torch.tensor([[0.1, 0.0, 0.0], [0.0, 0.12, 0.0], [0.0, 0.0, 0.15], [0.1, 0.1, 0.0]])
+    a, b = outputs(near_arm)
+    for x, y in ((a.f, b.f), (a.M, b.M), (a.qdd, b.qdd), (a.V, b.V)):
+        torch.testing.assert_close(x, y, rtol=1e-12, atol=1e-12)
+    more = torch.cat([near_arm, centres[8:9] + torch.tensor([[0.08, 0.0, 0.0]])])
+    a, b = outputs(more)
+    assert (a.qdd - b.qdd).abs().max() > 1e-6
+    with pytest.raises(ValueError, match="members per control point"):
+        with_slots([own], {"goal": goal})

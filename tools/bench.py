@@ -4,7 +4,7 @@ by side with its reference in the same process, so the ratios hold whatever else
 a target say whether it is met.
 
     python tools/bench.py                 # the whole table (~10 min on 2 cores, most of it torch.compile)
-    python tools/bench.py --only latency  # one section: latency, compile, scaling, sets, batched, train, cuda, robots, memory
+    python tools/bench.py --only latency  # one section: latency, compile, scaling, sets, clouds, batched, train, cuda, robots, memory
     python tools/bench.py --no-compile    # eager only
 
 Sections:
@@ -620,6 +620,73 @@ def section_sets(compile_: bool) -> None:
     row("sets", f"N_max 100 / 1, B = 1024, {mode}", f"{rb:.2f}", "", "", "≤ 5", rb <= 5)
 
 
+#: the cloud row: points sampled on the faces of a box beyond the goals, members per control point
+CLOUD_POINTS, CLOUD_K = 1000, 8
+
+
+def franka_cloud_step(seed: int = 0):
+    """(tree, sensing as a function of q, q, q̇): the Franka expert on the Panda's tree whose control points each read
+    their own ``CLOUD_K`` nearest points of a ``CLOUD_POINTS``-point cloud (3 cm spheres); sensing selects them
+    (``nearest_per_point`` from the control spheres' centres) and makes the tree's slot entries."""
+    from world_demo import controller
+
+    from rmpfusion.robots.robot import build_robot
+    from rmpfusion.scenes import ObstacleSet, sets_read, with_slots
+    from rmpfusion.scenes.clouds import nearest_per_point, per_point_aux
+
+    cloud_set = ObstacleSet(shape="sphere", n_max=CLOUD_K, name="points", per_control_point=True)
+    tree, _, run = controller([cloud_set])
+    robot = build_robot(run.env.robot)
+    read = sets_read([cloud_set], len(run.env.robot.control_points))
+    g = torch.Generator().manual_seed(seed)
+    u = torch.rand(CLOUD_POINTS, 3, generator=g, dtype=torch.float64) * 2 - 1
+    u[torch.arange(CLOUD_POINTS), torch.randint(0, 3, (CLOUD_POINTS,), generator=g)] = 1.0
+    cloud = u * torch.tensor([0.1, 0.3, 0.3], dtype=torch.float64) + torch.tensor([0.95, 0.0, 0.4], dtype=torch.float64)
+    goal = torch.tensor([[0.45, 0.35, 0.35]], dtype=torch.float64)
+    _, q, qd, _ = franka_states(1, 1, seed)
+
+    def sense(q):
+        members, mask = nearest_per_point(cloud, robot.sphere_centres(q)[0], CLOUD_K)
+        return with_slots(read, {"goal": goal, **per_point_aux(cloud_set, members, mask, 0.03)})
+
+    return tree, sense, q, qd
+
+
+def section_clouds(compile_: bool) -> None:
+    print(f"\nFranka tree whose control points each read their {CLOUD_K} nearest points of a {CLOUD_POINTS}-point cloud")
+    print("(a step = selecting them and making the slots, then the tree), against the tree of one fixed obstacle")
+    one, q1, qd1, a1 = franka_states(1, 1, 1)
+    tree, sense, q, qd = franka_cloud_step()
+    with torch.inference_mode():
+        aux = sense(q)
+        times = {
+            "1 obstacle": median_time(lambda: one(q1, qd1, a1), min_time=1.0),
+            "cloud: sensing": median_time(lambda: sense(q), min_time=1.0),
+            "cloud: tree": median_time(lambda: tree(q, qd, aux), min_time=1.0),
+        }
+    mode = "eager"
+    if compile_:  # each compiled as a controller would: the tree with a fixed structure, sensing as one function
+        one.compile(dynamic=False, fixed_structure=True, vectorize=False)
+        tree.compile(dynamic=False, fixed_structure=True, vectorize=False)
+        sense = torch.compile(sense, dynamic=False)
+        with torch.inference_mode():
+            one(q1, qd1, a1), tree(q, qd, sense(q))
+            times = {
+                "1 obstacle": median_time(lambda: one(q1, qd1, a1)),
+                "cloud: sensing": median_time(lambda: sense(q)),
+                "cloud: tree": median_time(lambda: tree(q, qd, aux)),
+            }
+        one.uncompile()
+        tree.uncompile()
+        mode = "compiled"
+    for what, t in times.items():
+        row("clouds", f"{what}, B = 1, {mode}", _fmt_time(t))
+    tree_ratio = times["cloud: tree"] / times["1 obstacle"]
+    row("clouds", f"cloud tree alone / 1 obstacle, B = 1, {mode}", f"{tree_ratio:.2f}")
+    r = (times["cloud: sensing"] + times["cloud: tree"]) / times["1 obstacle"]
+    row("clouds", f"cloud step (k = {CLOUD_K}) / 1 obstacle, B = 1, {mode}", f"{r:.2f}", "", "", "≤ 5", r <= 5)
+
+
 def section_cuda(compile_: bool) -> None:
     if not torch.cuda.is_available():
         print("\ncuda: no CUDA device on this machine (section skipped)")
@@ -773,6 +840,7 @@ SECTIONS = {
     "compile": section_compile,
     "scaling": section_scaling,
     "sets": section_sets,
+    "clouds": section_clouds,
     "cuda": section_cuda,
     "robots": section_robots,
 }

@@ -39,7 +39,7 @@ from rmpfusion.assembly.weighting import plain_data, tree_with_weights, weights_
 from rmpfusion.envs.manipulator.worlds import TaskWorld
 from rmpfusion.pipeline.validate import resolve_and_validate
 from rmpfusion.robots.robot import build_robot
-from rmpfusion.scenes import ObstacleSet, World, set_dims
+from rmpfusion.scenes import ObstacleSet, World, set_dims, sets_read
 from rmpfusion.scenes.sets import set_distances
 from rmpfusion.sims import SimulatorParams, WorldSettings, obstacles_of_sets
 
@@ -75,7 +75,8 @@ def controller(sets: list[ObstacleSet] = SETS):
     decl["obstacle_sets"] = [s.model_dump(exclude_none=True) for s in sets]
     spec = expand_tree(decl)
     expert = weights_by_name(spec, {k: plain_data(v) for k, v in run.expert.items()})
-    tree = build_tree(tree_with_weights(spec, expert, where="expert"), aux_dims={"goal": 3, **set_dims(sets)}).double()
+    read = sets_read(sets, len(run.env.robot.control_points))  # a per-control-point set once per control point
+    tree = build_tree(tree_with_weights(spec, expert, where="expert"), aux_dims={"goal": 3, **set_dims(read)}).double()
     return tree, build_robot(run.env.robot), run
 
 

@@ -35,7 +35,7 @@ from ..rmps.velocity_limit import VelocityLimit
 from ..robots import RobotField
 from ..robots.home import spheres_without_ground_edge
 from ..robots.robot import build_robot
-from ..scenes import ObstacleSet, Scene, obstacle_map, scene_aux_dims, set_dims
+from ..scenes import ObstacleSet, Scene, obstacle_map, scene_aux_dims, set_dims, sets_read
 from ..weights.neural import MLPWeight
 
 # Leaf parameters tuned for metre/radian scales of an arm; all GDSs, so Theorem 2 holds for any weights.
@@ -250,8 +250,8 @@ def _control_point_nodes(p: ManipulatorTreeParams, i: int, cp, ground: bool) -> 
     name, scene = f"cp{i}", p.scene
     nodes: dict[str, Any] = {name: {"parent": "q", "map": _point(p, cp.link, cp.offset)}}
     shared = {f"{name}_obstacle": _entry(p, "obstacle_weight")} if has_obstacles(p) else {}
-    for s in p.obstacle_sets:  # one slot per member: masked, so an absent member contributes exactly nothing
-        for j in range(1, s.n_max + 1):
+    for s in (o.for_control_point(i) for o in p.obstacle_sets):  # one slot per member: masked, so an absent
+        for j in range(1, s.n_max + 1):  # member contributes exactly nothing
             nodes[f"{name}_{s.prefix}{j}"] = {
                 "parent": name,
                 "map": _surface(s.slot_map(j), cp.radius),
@@ -291,7 +291,11 @@ def fig1b(p: ManipulatorTreeParams) -> dict[str, Any]:
     identity metric carry no weight, as in the paper.
     """
     r = p.robot
-    aux: dict[str, int] = {"goal": 3, **scene_aux_dims(p.scene), **set_dims(p.obstacle_sets)}
+    aux: dict[str, int] = {
+        "goal": 3,
+        **scene_aux_dims(p.scene),
+        **set_dims(sets_read(p.obstacle_sets, len(r.control_points))),
+    }
     if has_obstacles(p):  # generic names the shared obstacle weights read; every edge binds them to its own obstacle
         aux["obstacle_center"] = 3
         aux["obstacle_radius"] = 1
@@ -324,7 +328,11 @@ def fig1b(p: ManipulatorTreeParams) -> dict[str, Any]:
     n_limits, n_obs = len(r.finite_limits()), len(p.scene.obstacles)
     ground = " and the ground" if p.scene.ground is not None else ""
     if p.obstacle_sets:
-        ground += " and run-time obstacle sets (" + ", ".join(f"{s.prefix}: {s.n_max}" for s in p.obstacle_sets) + ")"
+        ground += (
+            " and run-time obstacle sets ("
+            + ", ".join(f"{s.prefix}: {s.n_max}{' per control point' * s.per_control_point}" for s in p.obstacle_sets)
+            + ")"
+        )
     return {
         "description": (
             f"{r.name} (paper Fig. 1b): end-effector attractor, {n_limits} joint-limit barriers, "

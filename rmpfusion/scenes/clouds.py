@@ -7,6 +7,9 @@ diagonal, √3/2·voxel, and the sensor's noise, so the spheres cover the surfac
 are occupied than the set has members, the members kept are the cubes nearest to ``near`` (e.g. the control
 spheres' centres: what can be hit first), ties broken by the cube's index, so the choice is deterministic.
 
+Or, per control point (``ObstacleSet.per_control_point``): every control point's own members are the ``k`` points of
+the cloud nearest to its centre (``nearest_per_point``); no binning, so a small ``k`` serves a dense cloud.
+
 What Theorem 2 promises: between two clouds the members are fixed aux state and V_r does not rise. When a new
 cloud replaces the members (or the kept cubes switch as the arm moves), the aux state jumps, and V_r may jump with
 it, as at any change of the world (docs/math.md §13).
@@ -16,6 +19,8 @@ from __future__ import annotations
 
 import torch
 from torch import Tensor
+
+from .sets import ObstacleSet
 
 
 def voxel_centroids(points: Tensor, voxel: float) -> Tensor:
@@ -53,3 +58,36 @@ def cloud_members(points: Tensor, voxel: float, n_max: int, near: Tensor | None 
     centres[: kept.shape[0]] = kept
     mask[: kept.shape[0]] = 1.0
     return centres, mask
+
+
+def nearest_per_point(points: Tensor, centres: Tensor, k: int) -> tuple[Tensor, Tensor]:
+    """For every centre (C, 3), the ``k`` points of the cloud (P, 3) nearest to it, nearest first, as members
+    (C, k, 3) and their mask (C, k): fewer than ``k`` finite points leave the last members absent. Non-finite points
+    (missing returns) are dropped first. A partial selection (``torch.topk``), not a sort of the whole cloud: where
+    two points tie at the k-th distance, which one is kept is topk's (deterministic) choice."""
+    if k < 1:
+        raise ValueError(f"k must be ≥ 1 (the members each control point reads); given {k}")
+    points = points[torch.isfinite(points).all(-1)]
+    C, found = centres.shape[0], min(k, points.shape[0])
+    members = points.new_zeros(C, k, 3)
+    mask = points.new_zeros(C, k)
+    if found:
+        distance = torch.cdist(centres.to(points), points)
+        order = torch.topk(distance, found, dim=-1, largest=False, sorted=True).indices
+        members[:, :found] = points[order]
+        mask[:, :found] = 1.0
+    return members, mask
+
+
+def per_point_aux(obstacle_set: ObstacleSet, members: Tensor, mask: Tensor, radius: float) -> dict[str, Tensor]:
+    """The aux of a per-control-point sphere set for one sample: control point i's members ``members[i - 1]``
+    (C, k, 3) with ``radius``, as ``cp<i>_<prefix>_center`` (1, k, 3), ``_radius`` (1, k, 1) and ``_mask`` (1, k)."""
+    if not obstacle_set.per_control_point or obstacle_set.shape != "sphere":
+        raise ValueError(f"set '{obstacle_set.prefix}' must be a sphere set with per_control_point: true")
+    out = {}
+    for i in range(1, members.shape[0] + 1):
+        p = obstacle_set.for_control_point(i).prefix
+        out[f"{p}_center"] = members[i - 1].unsqueeze(0)
+        out[f"{p}_radius"] = members.new_full((1, members.shape[1], 1), radius)
+        out[f"{p}_mask"] = mask[i - 1].unsqueeze(0)
+    return out

@@ -75,10 +75,22 @@ class ObstacleSet(Params):
         pattern=r"^[A-Za-z_][A-Za-z0-9_]*[A-Za-z_]$",
         description="prefix of its aux entries; default: the shape's plural, e.g. 'spheres'",
     )
+    per_control_point: bool = Field(
+        False,
+        description="every control point reads n_max members of its own (aux prefix cp<i>_<prefix>: e.g. the k "
+        "nearest points of a cloud, scenes/clouds.py::nearest_per_point) instead of one set all of them share",
+    )
 
     @property
     def prefix(self) -> str:
         return self.name or ("boxes" if self.shape == "box" else f"{self.shape}s")
+
+    def for_control_point(self, i: int) -> ObstacleSet:
+        """The set control point ``i`` (from 1) reads: this one, or its own copy ``cp<i>_<prefix>`` when every
+        control point has members of its own."""
+        if not self.per_control_point:
+            return self
+        return self.model_copy(update={"name": f"cp{i}_{self.prefix}", "per_control_point": False})
 
     def fields(self) -> dict[str, int]:
         """Field name -> dimension k of the member's ``(B, N_max, k)`` tensor."""
@@ -121,6 +133,11 @@ class ObstacleSet(Params):
 
     def slots(self, aux: Mapping[str, Tensor]) -> dict[str, Tensor]:
         """The slot entries of this set from its ``(B, N_max, k)`` tensors and mask: absent members parked first."""
+        if self.per_control_point:
+            raise ValueError(
+                f"obstacle set '{self.prefix}' has members per control point: make the slots of each control point's "
+                f"own set, sets_read(sets, number of control points)"
+            )
         if f"{self.prefix}_mask" not in aux:
             raise KeyError(
                 f"obstacle set '{self.prefix}' needs aux '{self.prefix}_mask' of shape (B, {self.n_max}): "
@@ -139,11 +156,10 @@ class ObstacleSet(Params):
             self._check(name, t, (self.n_max, k))
             dtype = t.dtype
             safe = torch.where(present.unsqueeze(-1), t, t.new_tensor(PARKED[f]))
-            for i in range(1, self.n_max + 1):
-                out[self.slot_name(i, f)] = safe[:, i - 1]
-        on = present.to(dtype)
-        for i in range(1, self.n_max + 1):
-            out[self.slot_name(i, "present")] = on[:, i - 1 : i]
+            for i, member in enumerate(safe.unbind(1), start=1):  # one call for every member's view
+                out[self.slot_name(i, f)] = member
+        for i, on in enumerate(present.to(dtype).split(1, dim=1), start=1):
+            out[self.slot_name(i, "present")] = on
         return out
 
     def _check(self, name: str, t: Tensor, shape: tuple[int, ...]) -> None:
@@ -158,6 +174,15 @@ def every_shape(n_max: int, moving: bool = False) -> list[ObstacleSet]:
     """One set of every shape a controller may meet, each of ``n_max`` members: what a policy allocates up front
     (an exported policy cannot add a shape later)."""
     return [ObstacleSet(shape=s, n_max=n_max, moving=moving) for s in SET_SHAPES]
+
+
+def sets_read(sets: list[ObstacleSet], n_control_points: int) -> list[ObstacleSet]:
+    """The sets a tree's ``n_control_points`` control points read: a shared set once, a per-control-point set once
+    per control point (``ObstacleSet.for_control_point``)."""
+    out: list[ObstacleSet] = []
+    for s in sets:
+        out += [s.for_control_point(i) for i in range(1, n_control_points + 1)] if s.per_control_point else [s]
+    return out
 
 
 def set_dims(sets: list[ObstacleSet]) -> dict[str, int]:
