@@ -1,6 +1,7 @@
 """Shared test helpers: float64 everywhere, finite differences, wandb never online, composed configs and the
 example plugin installed."""
 
+import functools
 import os
 import shutil
 import subprocess
@@ -158,3 +159,27 @@ def assert_energy_identity(tree, q, qd, aux, eps: float = 1e-6, rtol: float = 1e
         rate = (tree(q + eps * qd, qd + eps * o.qdd, aux).V - tree(q - eps * qd, qd - eps * o.qdd, aux).V) / (2 * eps)
     expect = -torch.einsum("bi,bij,bj->b", qd, o.B, qd)
     torch.testing.assert_close(rate, expect, rtol=rtol, atol=rtol * float(expect.abs().max() + 1e-3))
+
+
+@functools.cache
+def mujoco_renders() -> str | None:
+    """Why MuJoCo cannot render offscreen here (None when it can): it needs the mujoco package and an OpenGL
+    platform, EGL by default (Debian's libegl1; .ci/run installs it), in a process of its own so that a missing
+    library is a message, not a crash."""
+    code = (
+        "import rmpfusion.sims, mujoco\n"
+        "m = mujoco.MjModel.from_xml_string('<mujoco><worldbody><geom size=\".1\"/></worldbody></mujoco>')\n"
+        "mujoco.Renderer(m, 8, 8).render()\n"
+    )
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    if r.returncode == 0:
+        return None
+    last = (r.stderr.strip().splitlines() or ["no message"])[-1]
+    return f"MuJoCo cannot render offscreen on this machine (MUJOCO_GL=egl needs libegl1): {last}"
+
+
+def needs_mujoco_rendering():
+    """Skip, saying why, where MuJoCo cannot render offscreen."""
+    reason = mujoco_renders()
+    if reason is not None:
+        pytest.skip(reason)

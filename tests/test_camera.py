@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
+from conftest import needs_mujoco_rendering
 from manipulators import robot
 
 from rmpfusion.envs.manipulator.sensing import DepthCameraParams, cloud_of
@@ -52,6 +53,8 @@ def test_the_cloud_lies_on_the_obstacles_and_not_on_the_robot(sim):
     """The Panda in view beside a sphere and a cylinder on the ground: every cloud point within 1.5 cm of an obstacle's
     surface (pybullet's tessellated spheres sit up to 1.4 cm inside), both obstacles seen, and the robot's pixels in
     the image but none of them in the cloud."""
+    if sim == "mujoco":
+        needs_mujoco_rendering()
     r = build_robot(RobotDescription.model_validate(robot("panda")))
     world = open_world(r, WorldSettings(pictures=True), SimulatorParams(type=sim))
     try:
@@ -76,6 +79,7 @@ def test_the_cloud_lies_on_the_obstacles_and_not_on_the_robot(sim):
 
 
 def test_depth_noise_is_seeded_and_scales_the_error():
+    needs_mujoco_rendering()
     r = build_robot(RobotDescription.model_validate(robot("panda")))
     world = open_world(r, WorldSettings(pictures=True), SimulatorParams(type="mujoco"))
     try:

@@ -8,6 +8,7 @@ import math
 
 import pytest
 import torch
+from conftest import ROOT
 
 from rmpfusion.scenes import ObstacleSet, World, WorldError
 from rmpfusion.scenes.clouds import cloud_members, keep_nearest, voxel_centroids
@@ -111,10 +112,10 @@ def _panda_tree(sets: list[ObstacleSet]):
     from rmpfusion import build_tree
     from rmpfusion.assembly.generated import expand_tree
 
-    decl = yaml.safe_load(open("conf/tree/fig1b.yaml"))
+    decl = yaml.safe_load((ROOT / "conf/tree/fig1b.yaml").read_text())
     decl.pop("defaults", None)
     decl.update(
-        robot=yaml.safe_load(open("conf/robot/panda.yaml")),
+        robot=yaml.safe_load((ROOT / "conf/robot/panda.yaml").read_text()),
         scene={"obstacles": []},
         obstacle_sets=[s.model_dump() for s in sets],
     )
@@ -125,19 +126,19 @@ def test_per_control_point_members_equal_a_shared_set_holding_the_same_points():
     """A cloud of k points: every control point's k nearest are all of them, so the tree whose control points each
     read their own k members equals the tree whose control points share one set of those k (f, M, q̈, V to 1e-12);
     with a larger cloud the two differ (each control point then keeps its own nearest)."""
+    import yaml
+
     from rmpfusion.envs.manipulator_tree import copy_weights
     from rmpfusion.robots import RobotDescription, build_robot
     from rmpfusion.scenes import sets_read, with_slots
     from rmpfusion.scenes.clouds import nearest_per_point, per_point_aux
-
-    import yaml
 
     k = 4
     own = ObstacleSet(shape="sphere", n_max=k, name="points", per_control_point=True)
     shared = ObstacleSet(shape="sphere", n_max=k, name="points")
     t_own, t_shared = _panda_tree([own]), _panda_tree([shared])
     copy_weights(t_own, t_shared)
-    robot = build_robot(RobotDescription.model_validate(yaml.safe_load(open("conf/robot/panda.yaml"))))
+    robot = build_robot(RobotDescription.model_validate(yaml.safe_load((ROOT / "conf/robot/panda.yaml").read_text())))
     q = torch.tensor([[0.0, -0.3, 0.0, -2.2, 0.0, 2.0, 0.8]], dtype=torch.float64)
     qd = torch.full_like(q, 0.1)
     centres = robot.sphere_centres(q)[0]

@@ -166,3 +166,47 @@ def test_a_learner_without_a_tree_exports_its_policy(tmp_path):
     (qdd,) = _run_elsewhere(tmp_path / "un.pt2", (q[:1], qd[:1], *(aux[n][:1] for n in names)), tmp_path)
     with torch.no_grad():
         assert (qdd - learner(q[:1], qd[:1], {k: v[:1] for k, v in aux.items()})).abs().max() <= 1e-10
+
+
+@pytest.fixture(scope="module")
+def tiny_franka_run(tmp_path_factory):
+    """A finished tiny Franka run (one fixed cylinder): its final checkpoint."""
+    run_dir = tmp_path_factory.mktemp("franka")
+    r = subprocess.run(
+        [sys.executable, "-m", "rmpfusion.cli.run", "experiment=franka", "data=tiny", "train=tiny", "eval=fast",
+         "eval.figures=false", "logger=disabled", f"hydra.run.dir={run_dir}"],
+        capture_output=True, text=True, timeout=1800,
+    )  # fmt: skip
+    assert r.returncode == 0, r.stderr[-3000:]
+    return run_dir / "checkpoints" / "rmp" / "final.pt"
+
+
+@pytest.mark.slow
+def test_a_learner_trained_among_fixed_obstacles_exports_for_run_time_sets(tiny_franka_run, tiny_run, tmp_path):
+    """``rmpfusion-export --set``: the Franka learner (trained with one cylinder) written once for a sphere set and a
+    box set; the loaded program runs any world (members appear, move, vanish) and answers an obstacle in the way;
+    what cannot be exported this way is refused with a message."""
+    from rmpfusion.cli.export import main
+    from rmpfusion.scenes import ObstacleSet, World
+
+    out = tmp_path / "sets.pt2"
+    assert main([str(tiny_franka_run), "--set", "sphere:3", "--set", "box:2", "--out", str(out)]) == 0
+    extra = {METADATA: ""}
+    program = torch.export.load(out, extra_files=extra).module()
+    meta = json.loads(extra[METADATA])
+    assert [s["shape"] for s in meta["sets"]] == ["sphere", "box"] and meta["inputs"][2].startswith("goal ")
+    world = World([ObstacleSet(shape="sphere", n_max=3), ObstacleSet(shape="box", n_max=2)], goal=[0.55, -0.3, 0.4])
+    q = torch.tensor([[0.8, -0.3, 0.0, -2.2, 0.0, 2.0, 0.785]], dtype=torch.float64)
+    qd = torch.zeros_like(q)
+    empty = program(q, qd, *world.set_aux().values())
+    world.add("sphere", name="ball", center=[0.45, 0.15, 0.45], radius=0.08)
+    with_ball = program(q, qd, *world.set_aux().values())
+    world.add("box", center=[0.3, -0.4, 0.3], half_extents=[0.05, 0.1, 0.2])
+    world.move("ball", center=[0.5, 0.1, 0.5])
+    world.remove("ball")
+    later = program(q, qd, *world.set_aux().values())
+    assert all(t.isfinite().all() for t in (empty, with_ball, later))
+    assert (with_ball - empty).abs().max() > 1e-6  # the ball near the arm changes the command
+    assert main([str(tiny_run), "--set", "sphere:3", "--out", str(tmp_path / "2d.pt2")]) == 2  # no control points
+    assert main([str(tiny_franka_run), "--set", "torus:3"]) == 2
+    assert main([str(tiny_franka_run), "--set", "sphere:3", "--with-rmp"]) == 2

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import torch
 import yaml
-from conftest import compose_cfg
+from conftest import compose_cfg, needs_mujoco_rendering
 from manipulators import CONF, franka_env, robot
 
 from rmpfusion.registry import SIMULATORS
@@ -154,6 +154,8 @@ def test_signed_distances_agree_across_simulators(kind):
 def test_renders_show_the_scene_where_the_camera_projects_it(sim):
     """Colour, depth and segmentation through one camera: the goal marker, an obstacle and the robot are labelled
     where ``Camera.project`` puts them, at the depth the geometry gives (to 2 cm)."""
+    if sim == "mujoco":
+        needs_mujoco_rendering()
     r = _robot("panda")
     world = open_world(r, WorldSettings(pictures=True), _params(sim))
     try:

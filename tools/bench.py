@@ -653,7 +653,9 @@ def franka_cloud_step(seed: int = 0):
 
 
 def section_clouds(compile_: bool) -> None:
-    print(f"\nFranka tree whose control points each read their {CLOUD_K} nearest points of a {CLOUD_POINTS}-point cloud")
+    print(
+        f"\nFranka tree whose control points each read their {CLOUD_K} nearest points of a {CLOUD_POINTS}-point cloud"
+    )
     print("(a step = selecting them and making the slots, then the tree), against the tree of one fixed obstacle")
     one, q1, qd1, a1 = franka_states(1, 1, 1)
     tree, sense, q, qd = franka_cloud_step()

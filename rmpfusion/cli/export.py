@@ -9,6 +9,12 @@ control loop in Python or C++; docs/tutorials/deployment.md).
 
     rmpfusion-export outputs/franka/<time>/checkpoints/rmp/final.pt            # -> rmp-final.pt2 beside it
     python -c "import torch; p = torch.export.load('rmp-final.pt2').module(); print(p(q, qd, *aux))"
+
+``--set SHAPE:N`` (repeatable; ``SHAPE:N:per-control-point`` for N members of each control point's own) exports a
+learner trained among a scene's fixed obstacles as a controller for a world that changes at run time: its tree's
+obstacle edges give way to run-time obstacle sets under the same shared weights
+(``envs/manipulator_tree.py::with_obstacle_sets``), and the program takes the goal and every set's tensors and mask
+(``rmpfusion.scenes.World.set_aux``; names and shapes in ``rmpfusion.json``), for one state at a time.
 """
 
 from __future__ import annotations
@@ -18,13 +24,19 @@ import sys
 from pathlib import Path
 
 import torch
+from pydantic import ValidationError
 
+from ..assembly.weighting import plain_data
+from ..envs.manipulator_tree import copy_weights, with_obstacle_sets
 from ..files import atomic_path
 from ..learn.checkpoints import CheckpointError, load_checkpoint
-from ..learn.export import METADATA, export_learner, metadata, metadata_text
+from ..learn.export import METADATA, export_learner, export_with_sets, metadata, metadata_text
+from ..learn.learners import build_learner
 from ..pipeline.experiment import prepare
 from ..pipeline.fit import learners
 from ..pipeline.progress import Progress
+from ..scenes import ObstacleSet, set_dims, sets_read, with_slots
+from ..scenes.sets import PARKED
 from ._common import user_errors_exit
 from .from_checkpoint import _load, _not_a_checkpoint
 
@@ -55,6 +67,87 @@ def _check(run_file, learner, q, qd, aux, names, with_rmp: bool) -> float:
         expect = (learner(q, qd, aux),)
     got = out if isinstance(out, (tuple, list)) else (out,)
     return max(float((a - b).abs().max()) for a, b in zip(got, expect))
+
+
+def parse_set(text: str) -> ObstacleSet:
+    """``SHAPE:N`` or ``SHAPE:N:per-control-point`` as an obstacle set; a malformed one is a ValueError saying how."""
+    parts = text.split(":")
+    if len(parts) not in (2, 3) or not parts[1].isdigit() or (len(parts) == 3 and parts[2] != "per-control-point"):
+        raise ValueError(f"--set {text}: write SHAPE:N or SHAPE:N:per-control-point, e.g. --set sphere:32")
+    try:
+        return ObstacleSet.model_validate(
+            {"shape": parts[0], "n_max": int(parts[1]), "per_control_point": len(parts) == 3}
+        )
+    except ValidationError as e:
+        reasons = "; ".join(f"{'.'.join(map(str, err['loc']))}: {err['msg']}" for err in e.errors())
+        raise ValueError(f"--set {text}: {reasons}") from None
+
+
+def _set_inputs(read: list[ObstacleSet], goal: torch.Tensor) -> dict[str, torch.Tensor]:
+    """The goal and every set's tensors and mask for one state: members present every other slot, placed 0.3 m
+    beyond the goal and apart, the rest of each member's fields at the parked obstacle's values."""
+    inputs = {"goal": goal[:1]}
+    for s in read:
+        for f, k in s.fields().items():
+            value = torch.tensor(PARKED[f], dtype=torch.float64).expand(1, s.n_max, k).clone()
+            if f == "center":
+                value = goal[:1, None, :] + torch.tensor([0.3, 0.0, 0.3]) + 0.05 * torch.arange(s.n_max)[None, :, None]
+            inputs[f"{s.prefix}_{f}"] = value.to(torch.float64)
+        inputs[f"{s.prefix}_mask"] = (torch.arange(s.n_max) % 2 == 0).to(torch.float64)[None]
+    return inputs
+
+
+def export_with_run_time_sets(
+    path: Path, sets: list[ObstacleSet], out: Path | None = None, force: bool = False
+) -> Path:
+    """Write the learner in checkpoint ``path`` as a program over run-time obstacle ``sets`` (see the module
+    docstring), checked against the eager tree before the command ends."""
+    if (what := _not_a_checkpoint(path)) is not None:
+        raise CheckpointError(what)
+    state, run, name = _load(path)
+    out = out or path.parent / f"{name}-{path.stem}-sets.pt2"
+    if out.exists() and not force:
+        raise ExportError(f"{out} exists; choose another --out or pass --force to replace it")
+    torch.set_num_threads(1)
+    run = run.model_copy(update={"device": "cpu"})
+    exp = prepare(run, path.parents[2] if len(path.parents) > 2 else path.parent, Progress(False))
+    trained = learners(exp)[name]
+    load_checkpoint(path, trained)
+    trained.load_state_dict(state["model"])
+    if trained.tree is None:
+        raise ExportError("--set needs a learner whose policy is an RMP tree (its obstacle edges take the sets)")
+    spec = with_obstacle_sets(run.tree.model_dump(), sets)
+    read = sets_read(sets, sum(1 for n in spec["nodes"] if n.startswith("cp") and n[2:].isdigit()))
+    expert = {k: plain_data(w) for k, w in run.expert.items()}
+    aux_dims = {"goal": 3, **set_dims(read)}
+    learner = build_learner(run.learners[name].model_dump(), spec, aux_dims, run.tree.root.dim, expert=expert)
+    tree = learner.tree
+    assert tree is not None  # built on the tree spec, as the trained learner was
+    copy_weights(trained.tree, tree)
+    tree.to(torch.float64).eval()
+    q, qd, aux = _example(exp, n=1)
+    inputs = _set_inputs(read, aux["goal"].to(torch.float64))
+    program = export_with_sets(tree, read, q, qd, inputs)
+    meta = metadata(
+        {"goal": 3}, ["goal"], exp.env.dim, torch.float64, False, learner=name, checkpoint=str(path),
+        iteration=int(state.get("iteration", -1)), experiment=run.name,
+    )  # fmt: skip
+    meta["inputs"] = [f"q (1, {exp.env.dim})", f"qd (1, {exp.env.dim})"] + [
+        f"{n} {tuple(t.shape)}" for n, t in inputs.items()
+    ]
+    meta["sets"] = [s.model_dump() for s in sets]
+    with atomic_path(out, suffix=".pt2") as tmp:
+        torch.export.save(program, tmp, extra_files={METADATA: metadata_text(meta)})
+        loaded = torch.export.load(tmp).module()
+        with torch.no_grad():
+            got = loaded(q, qd, *inputs.values())
+            want = tree(q, qd, with_slots(read, inputs)).qdd
+        err = float((got - want).abs().max())
+        if not err <= TOLERANCE:
+            raise ExportError(
+                f"the exported program differs from the learner by {err:.3g} (more than {TOLERANCE:g}); nothing was written"
+            )
+    return out
 
 
 def export_checkpoint(
@@ -133,10 +226,23 @@ def main(argv=None) -> int | str | None:
         help="also write an AOTInductor package (<out>-aoti.pt2); needs a C++ compiler, takes minutes",
     )
     ap.add_argument("--force", action="store_true", help="replace files that exist")
+    ap.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="SHAPE:N[:per-control-point]",
+        help="export for run-time obstacle sets instead of the scene's fixed obstacles (repeatable)",
+    )
     a = ap.parse_args(argv)
     try:
         with user_errors_exit():
-            written = export_checkpoint(a.checkpoint, a.out, with_rmp=a.with_rmp, aoti=a.aoti, force=a.force)
+            if a.set:
+                if a.with_rmp or a.aoti:
+                    raise ExportError("--set exports q-ddot for one state at a time: leave out --with-rmp and --aoti")
+                sets = [parse_set(t) for t in a.set]
+                written = [export_with_run_time_sets(a.checkpoint, sets, a.out, force=a.force)]
+            else:
+                written = export_checkpoint(a.checkpoint, a.out, with_rmp=a.with_rmp, aoti=a.aoti, force=a.force)
     except (ExportError, ValueError) as e:  # what this command refuses to write (a learner it cannot export)
         print(f"error: {e}", file=sys.stderr)
         return 2

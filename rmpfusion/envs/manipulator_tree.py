@@ -14,6 +14,7 @@ the environment's (``${env.robot}``, ``${env.scene}``), so the two cannot disagr
 from __future__ import annotations
 
 import copy
+import re
 from collections.abc import Mapping
 from typing import Any, Literal
 
@@ -461,3 +462,42 @@ def copy_weights(src: RMPTree, dst: RMPTree) -> list[str]:
             into.fn.load_state_dict(bw.fn.state_dict())
             copied.append(name)
     return copied
+
+
+#: a control point's edge to a scene's fixed obstacle, in a tree the Fig. 1b generator made
+_OBSTACLE_EDGE = re.compile(r"^cp(\d+)_obstacle(\d+)$")
+
+
+def with_obstacle_sets(spec: Mapping[str, Any], sets: list[ObstacleSet]) -> dict[str, Any]:
+    """A Fig. 1b tree spec whose fixed-obstacle edges give way to run-time obstacle sets: every control point's edges
+    to the scene's obstacles (``cp<i>_obstacle<k>``) are replaced by one edge per member of each set (its own members
+    for a per-control-point set), each with the same leaf RMP, control-sphere radius and shared weight (bound to the
+    member), and the aux the fixed obstacles were read from is dropped. A learner trained among fixed obstacles so
+    serves a world that changes at run time: its shared weights keep their names."""
+    out = copy.deepcopy(dict(spec))
+    nodes: dict[str, Any] = out["nodes"]
+    edges: dict[int, list[str]] = {}
+    for name in nodes:
+        if (m := _OBSTACLE_EDGE.match(name)) is not None:
+            edges.setdefault(int(m.group(1)), []).append(name)
+    if not edges:
+        raise ValueError("the tree has no control point → obstacle edges (cp<i>_obstacle<k>) to replace by sets")
+    n_points = sum(1 for n in nodes if re.fullmatch(r"cp\d+", n))
+    for i, names in sorted(edges.items()):
+        template = nodes[names[0]]
+        radius = float(template["map"]["maps"][1]["origin"][0])  # _surface: the distance, then minus the radius
+        for name in names:
+            del nodes[name]
+        for s in (o.for_control_point(i) for o in sets):
+            for j in range(1, s.n_max + 1):
+                nodes[f"cp{i}_{s.prefix}{j}"] = {
+                    "parent": f"cp{i}",
+                    "map": _surface(s.slot_map(j), radius),
+                    "weight": {"shared": template["weight"]["shared"], "bind": s.weight_bind(j)},
+                    "rmp": copy.deepcopy(template["rmp"]),
+                }
+    aux = {k: v for k, v in out["aux"].items() if not re.match(r"^obstacle\d+_", k)}
+    out["aux"] = {**aux, **set_dims(sets_read(sets, n_points))}
+    listed = ", ".join(f"{s.prefix}: {s.n_max}{' per control point' * s.per_control_point}" for s in sets)
+    out["description"] = f"{out.get('description', '')}; fixed obstacles replaced by run-time obstacle sets ({listed})"
+    return out
