@@ -20,6 +20,7 @@ RESULTS = ROOT / "results"
 sys.path.insert(0, str(ROOT / "tools"))
 import compare_metrics
 import lasa_table
+import leaves_table
 import reproduce_2d
 import task_table
 
@@ -28,7 +29,12 @@ TABLES = yaml.safe_load((RESULTS / "tables.yaml").read_text(encoding="utf-8"))
 RUNS = yaml.safe_load((RESULTS / "runs.yaml").read_text(encoding="utf-8"))
 
 #: the table tools, by the name tables.yaml gives them: {row label: metrics} -> the table's markdown
-TOOLS = {"reproduce_2d": reproduce_2d.table, "lasa_table": lasa_table.table_of, "task_table": task_table.table}
+TOOLS = {
+    "reproduce_2d": reproduce_2d.table,
+    "lasa_table": lasa_table.table_of,
+    "task_table": task_table.table,
+    "leaves_table": leaves_table.table,
+}
 
 
 def _marked() -> dict[str, tuple[str, int, str]]:

@@ -1,0 +1,54 @@
+#!/usr/bin/env python
+"""The learnable-leaves table: a run whose learner learns leaf parameters (e.g. experiment=2d1level_leaves) as one
+row per snapshot: the learned goal gain, goal damping and obstacle support, batch-loss, success and the Lyapunov
+monitor, from its metrics.json.
+
+    python tools/leaves_table.py outputs/2d1level_leaves/<time>/metrics.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+#: (column, the learned parameter's name in metrics.json)
+COLUMNS = (("goal gain", "goal.gain"), ("goal damping η", "goal.eta"), ("obstacle support r_w", "obstacle.r_w"))
+
+
+def _learned(snapshot: dict, name: str) -> str:
+    value = snapshot.get("learned_leaf_parameters", {}).get(name)
+    return "–" if value is None else f"{value:.3g}" if abs(value) < 1 else f"{value:.4g}"
+
+
+def table(runs: dict[str, dict], learner: str = "rmp") -> str:
+    """The Markdown table of the (one) run in ``runs`` ({label: metrics}), one row per snapshot of ``learner``."""
+    (metrics,) = runs.values()
+    snapshots = metrics["learners"][learner]["snapshots"]
+    header = ["snapshot", *(c for c, _ in COLUMNS), "batch-loss", "success", "V_r monotone"]
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    for it in sorted(snapshots, key=int):
+        s = snapshots[it]
+        cells = [
+            f"{int(it):,}",
+            *(_learned(s, name) for _, name in COLUMNS),
+            f"{s['batch_loss']:.1e}",
+            f"{100 * s['success']:.0f} %",
+            f"{100 * s['lyapunov_monotone_fraction']:.0f} %",
+        ]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("metrics", type=Path)
+    a = ap.parse_args(argv)
+    m = json.loads(a.metrics.read_text())
+    print(table({m["name"]: m}), end="")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
