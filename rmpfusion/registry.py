@@ -16,7 +16,8 @@ from dataclasses import dataclass
 from importlib.metadata import entry_points
 from typing import Any, Generic, TypeVar
 
-from pydantic import BaseModel, ConfigDict
+from pydantic import BaseModel, ConfigDict, ValidationError
+from pydantic_core import PydanticCustomError
 from torch import Tensor
 
 from .examples import Example
@@ -175,6 +176,25 @@ class Registry(Generic[T]):
         """Remove an entry (tests and interactive sessions that redefine a class)."""
         if self._entries.pop(name, None) is not None:
             self.version += 1
+
+
+def validate_kind(registry: Registry, block: Mapping[str, Any], default: str, error_type: str) -> Params:
+    """A ``{type: name, ...}`` block validated by the named entry's own model, for a field's ``BeforeValidator``
+    (a robot block, a simulator block): an unknown name, or a key its model refuses, is one ``PydanticCustomError``
+    of ``error_type`` whose message names the key (``type: unknown ...``, ``<key>: <reason>; ...``)."""
+    kind = block.get("type", default)
+    try:
+        entry = registry.get(kind)
+    except RegistryError as e:
+        raise PydanticCustomError(error_type, "{message}", {"message": f"type: {e}"}) from None
+    try:
+        return entry.params.model_validate({**block, "type": kind})
+    except ValidationError as e:
+        reasons = "; ".join(
+            (f"{'.'.join(map(str, err['loc']))}: " if err["loc"] else "") + err["msg"].removeprefix("Value error, ")
+            for err in e.errors()
+        )
+        raise PydanticCustomError(error_type, "{message}", {"message": reasons}) from None
 
 
 class PluginLoader:

@@ -56,8 +56,7 @@ def _random_q(r: URDFRobot, n: int, seed: int) -> np.ndarray:
 
 def _full(r: URDFRobot, q: np.ndarray) -> np.ndarray:
     """Every simulated joint at the actuated q, the held ones where the robot holds them."""
-    index, gain, bias = r.held_targets()
-    return np.concatenate([q, gain * q[index] + bias if len(index) else bias])
+    return r.simulated_state(q)[0]
 
 
 # ---------------------------------------------------------------- kinematics and dynamics

@@ -10,7 +10,8 @@ The checkpoint is a learner of experiment=franka (one cylinder in training). Its
 cylinder, a moving sphere, a turned box; the test split's placement):
 
 - **exact**: one node per (control point, obstacle), fed each obstacle's geometry from the scene's aux state;
-- **camera**: no obstacle known in advance; one sphere obstacle set of ``--n-max`` members per control point, filled
+- **camera**: the same tree with its obstacle edges given way to a sphere obstacle set (``learner_over_sets``): no
+  obstacle known in advance; ``--n-max`` members, filled
   from the environment's depth camera (``env.depth_camera``: 160×120, 30 Hz unless overridden) by
   ``scenes/clouds.py``: the cloud binned in ``--voxel`` cubes, one member per occupied cube at its points' centroid
   with radius √3/2·voxel, the cubes nearest to the control spheres kept. Between frames the members are fixed; at a
@@ -40,18 +41,15 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from hydra import compose, initialize_config_dir
-from omegaconf import OmegaConf
 
-from rmpfusion.assembly.weighting import plain_data
 from rmpfusion.envs.manipulator_tree import copy_weights
 from rmpfusion.learn.checkpoints import load_checkpoint
 from rmpfusion.pipeline.collect import SPLIT_SEED_OFFSET
 from rmpfusion.pipeline.config import upgrade_run_config
-from rmpfusion.pipeline.construct import build_learners, make_env
+from rmpfusion.pipeline.construct import build_learners, learner_over_sets, make_env
 from rmpfusion.pipeline.validate import parse_run_config, resolve_and_validate
 from rmpfusion.scenes import ObstacleSet, sets_read, with_slots
 from rmpfusion.scenes.clouds import cloud_members, nearest_per_point, per_point_aux
-from rmpfusion.scenes.sets import set_dims
 
 
 def trained_learner(checkpoint: Path):
@@ -69,21 +67,7 @@ def trained_learner(checkpoint: Path):
 def three_obstacle_run(overrides: list[str]):
     with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
         cfg = compose("config", overrides=["experiment=franka_three_obstacles", *overrides])
-    return resolve_and_validate(cfg), cfg
-
-
-def camera_learner(run, cfg, name: str, sets: list[ObstacleSet]):
-    """The learner's tree generated with the obstacle ``sets`` and no obstacle known in advance."""
-    from rmpfusion.assembly.generated import expand_tree
-    from rmpfusion.learn.learners import build_learner
-
-    decl = OmegaConf.to_container(cfg.tree, resolve=True)
-    decl["scene"] = {"obstacles": [], "ground": decl.get("scene", {}).get("ground")}
-    decl["obstacle_sets"] = [s.model_dump(exclude_none=True) for s in sets]
-    spec = expand_tree(decl)
-    expert = {k: plain_data(w) for k, w in run.expert.items()}
-    aux_dims = {"goal": 3, **set_dims(sets_read(sets, len(run.env.robot.control_points)))}
-    return build_learner(run.learners[name].model_dump(), spec, aux_dims, run.tree.root.dim, expert=expert).double()
+    return resolve_and_validate(cfg)
 
 
 class CameraFed:
@@ -180,7 +164,7 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     torch.set_num_threads(1)
     learner, _, name = trained_learner(a.checkpoint)
-    run3, cfg3 = three_obstacle_run([f"sim={a.sim}", *a.overrides])
+    run3 = three_obstacle_run([f"sim={a.sim}", *a.overrides])
     env = make_env(run3)
     exact = build_learners(run3, env.aux_dims())[name]
     copied = copy_weights(learner.tree, exact.tree)
@@ -188,8 +172,7 @@ def main(argv=None) -> int:
         sets, radius = [ObstacleSet(shape="sphere", n_max=a.n_max, name="points")], math.sqrt(3) / 2 * a.voxel
     else:
         sets, radius = [ObstacleSet(shape="sphere", n_max=a.k, name="points", per_control_point=True)], a.point_radius
-    cam = camera_learner(run3, cfg3, name, sets)
-    copy_weights(learner.tree, cam.tree)
+    cam, _ = learner_over_sets(run3, name, learner, sets)  # the exact tree's obstacle edges, given sets
     g = torch.Generator().manual_seed(a.seed + SPLIT_SEED_OFFSET["test"])
     q0, qd0, aux = env.sample_initial_states(env.sample_envs(1, g, split="test"), a.starts, g)
     dt, record = env.dt, 0.01

@@ -31,8 +31,7 @@ SIMS = ("pybullet", "mujoco")
 
 
 def _full(r: URDFRobot, q: np.ndarray) -> np.ndarray:
-    index, gain, bias = r.held_targets()
-    return np.concatenate([q, gain * q[index] + bias if len(index) else bias])
+    return r.simulated_state(q)[0]
 
 
 def agreement(name: str, samples: int, seed: int = 0) -> dict[str, float]:

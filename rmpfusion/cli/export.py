@@ -26,16 +26,14 @@ from pathlib import Path
 import torch
 from pydantic import ValidationError
 
-from ..assembly.weighting import plain_data
-from ..envs.manipulator_tree import copy_weights, with_obstacle_sets
 from ..files import atomic_path
 from ..learn.checkpoints import CheckpointError, load_checkpoint
 from ..learn.export import METADATA, export_learner, export_with_sets, metadata, metadata_text
-from ..learn.learners import build_learner
+from ..pipeline.construct import learner_over_sets
 from ..pipeline.experiment import prepare
 from ..pipeline.fit import learners
 from ..pipeline.progress import Progress
-from ..scenes import ObstacleSet, set_dims, sets_read, with_slots
+from ..scenes import ObstacleSet, with_slots
 from ..scenes.sets import PARKED
 from ._common import user_errors_exit
 from .from_checkpoint import _load, _not_a_checkpoint
@@ -116,15 +114,9 @@ def export_with_run_time_sets(
     trained.load_state_dict(state["model"])
     if trained.tree is None:
         raise ExportError("--set needs a learner whose policy is an RMP tree (its obstacle edges take the sets)")
-    spec = with_obstacle_sets(run.tree.model_dump(), sets)
-    read = sets_read(sets, sum(1 for n in spec["nodes"] if n.startswith("cp") and n[2:].isdigit()))
-    expert = {k: plain_data(w) for k, w in run.expert.items()}
-    aux_dims = {"goal": 3, **set_dims(read)}
-    learner = build_learner(run.learners[name].model_dump(), spec, aux_dims, run.tree.root.dim, expert=expert)
+    learner, read = learner_over_sets(run, name, trained, sets)
     tree = learner.tree
-    assert tree is not None  # built on the tree spec, as the trained learner was
-    copy_weights(trained.tree, tree)
-    tree.to(torch.float64).eval()
+    assert tree is not None  # a tree learner, as the trained one
     q, qd, aux = _example(exp, n=1)
     inputs = _set_inputs(read, aux["goal"].to(torch.float64))
     program = export_with_sets(tree, read, q, qd, inputs)

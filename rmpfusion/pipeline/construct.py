@@ -9,12 +9,17 @@ from __future__ import annotations
 from collections.abc import Mapping
 from contextlib import nullcontext
 
+import torch
+
 from ..assembly.errors import ConfigError, Issue
 from ..assembly.tree import build_tree
 from ..assembly.weighting import plain_data, tree_with_weights
 from ..core.tree import RMPTree
+from ..envs.manipulator_tree import copy_weights, with_obstacle_sets
+from ..learn.learner import Learner
 from ..learn.learners import build_learner, build_order
 from ..registry import ENVS
+from ..scenes import ObstacleSet, set_dims, sets_read
 from .config import RunConfig
 
 
@@ -70,6 +75,22 @@ def build_learners(run: RunConfig, aux_dims: Mapping[str, int], seeded=None) -> 
     if issues:
         raise ConfigError(issues)
     return built
+
+
+def learner_over_sets(
+    run: RunConfig, name: str, trained: Learner, sets: list[ObstacleSet]
+) -> tuple[Learner, list[ObstacleSet]]:
+    """Learner ``name`` of ``run`` rebuilt on its Fig. 1b tree with the fixed-obstacle edges replaced by run-time
+    obstacle ``sets`` (``with_obstacle_sets``), carrying ``trained``'s weights (``copy_weights``, by name), in
+    float64; and the sets as its control points read them (``sets_read``), which its aux is made for."""
+    spec = with_obstacle_sets(run.tree.model_dump(), sets)
+    read = sets_read(sets, sum(1 for n in spec["nodes"] if n.startswith("cp") and n[2:].isdigit()))
+    expert = {k: plain_data(w) for k, w in run.expert.items()}
+    aux_dims = {"goal": 3, **set_dims(read)}
+    learner = build_learner(run.learners[name].model_dump(), spec, aux_dims, run.tree.root.dim, expert=expert)
+    assert learner.tree is not None and trained.tree is not None, "a tree learner, built on the run's tree spec"
+    copy_weights(trained.tree, learner.tree)
+    return learner.to(torch.float64).eval(), read
 
 
 def build_all(run: RunConfig):

@@ -16,12 +16,12 @@ from typing import Annotated, Any
 
 import numpy as np
 import torch
-from pydantic import BeforeValidator, SerializeAsAny, ValidationError
+from pydantic import BeforeValidator, SerializeAsAny
 from pydantic_core import PydanticCustomError
 from torch import Tensor
 
 from ..maps.kinematics import Chain, mount_matrix
-from ..registry import ROBOTS, RegistryError
+from ..registry import ROBOTS, validate_kind
 from .description import RobotDescription
 from .packages import resolved_urdf
 
@@ -87,7 +87,28 @@ class URDFRobot:
     def held_targets(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Where simulators hold the held joints, as (configuration index (0 when none), gain, bias) arrays: joint
         h's target is gain_h · q[index_h] + bias_h (gain 0 for a joint no actuated joint drives), so a mimic joint
-        follows its leader and the others stay where the kinematics freezes them."""
+        follows its leader and the others stay where the kinematics freezes them. Found once per robot (a torque-mode
+        step reads them)."""
+        return self._held_drive
+
+    def held_state(self, q: np.ndarray, qd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(positions, velocities) of the held joints at the actuated (q, q̇): mimic joints at gain·q + bias of their
+        leader, the others at their bias."""
+        index, gain, bias = self._held_drive
+        if not len(q):
+            return bias.astype(float), np.zeros(len(bias))
+        return gain * q[index] + bias, gain * qd[index]
+
+    def simulated_state(self, q: np.ndarray, qd: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """(positions, velocities) of every joint a simulator moves, actuated then held (``held_state``), at the
+        actuated (q, q̇) (q̇ = 0 when not given): the order of ``rmpfusion.sims.SimWorld.reset``."""
+        q = np.asarray(q, dtype=float)
+        qd = np.zeros(len(q)) if qd is None else np.asarray(qd, dtype=float)
+        held, held_v = self.held_state(q, qd)
+        return np.concatenate([q, held]), np.concatenate([qd, held_v])
+
+    @functools.cached_property
+    def _held_drive(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         index, gain, bias = [], [], []
         chain = self.chain
         for name in self.held_joints():
@@ -127,20 +148,7 @@ def _robot_block(value: Any) -> Any:
             if isinstance(value, RobotDescription)
             else _refuse(f"a robot is a mapping (conf/robot/), given {value!r}")
         )
-    kind = value.get("type", "urdf")
-    try:
-        entry = ROBOTS.get(kind)
-    except RegistryError as e:
-        _refuse(f"type: {e}")
-    try:
-        return entry.params.model_validate({**value, "type": kind})
-    except ValidationError as e:
-        _refuse(
-            "; ".join(
-                (f"{'.'.join(map(str, err['loc']))}: " if err["loc"] else "") + err["msg"].removeprefix("Value error, ")
-                for err in e.errors()
-            )
-        )
+    return validate_kind(ROBOTS, value, "urdf", "robot")
 
 
 def _refuse(message: str):

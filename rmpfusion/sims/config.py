@@ -7,10 +7,10 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Annotated, Any
 
-from pydantic import BeforeValidator, Field, SerializeAsAny, ValidationError
+from pydantic import BeforeValidator, Field, SerializeAsAny
 from pydantic_core import PydanticCustomError
 
-from ..registry import SIMULATORS, Params, RegistryError
+from ..registry import SIMULATORS, Params, validate_kind
 from ..robots import URDFRobot
 from .protocol import SimWorld, WorldSettings
 
@@ -31,20 +31,7 @@ def _sim_block(value: Any) -> Any:
         value = {"type": value}
     if not isinstance(value, Mapping):
         _refuse(f"sim is a simulator's block {{type: <name>, ...}} (conf/sim/), given {value!r}")
-    kind = value.get("type", DEFAULT_SIMULATOR)
-    try:
-        entry = SIMULATORS.get(kind)
-    except RegistryError as e:
-        _refuse(f"type: {e}")
-    try:
-        return entry.params.model_validate({**value, "type": kind})
-    except ValidationError as e:
-        _refuse(
-            "; ".join(
-                (f"{'.'.join(map(str, err['loc']))}: " if err["loc"] else "") + err["msg"].removeprefix("Value error, ")
-                for err in e.errors()
-            )
-        )
+    return validate_kind(SIMULATORS, value, DEFAULT_SIMULATOR, "simulator")
 
 
 def _refuse(message: str):

@@ -31,7 +31,6 @@ class TaskWorld:
     def __init__(self, robot: URDFRobot, settings: WorldSettings, sim: SimulatorParams):
         self.robot = robot
         self.sim = open_world(robot, settings, sim)
-        self.held_drive = robot.held_targets()
         self.ground_reach = links_that_can_touch_the_ground(self.sim, robot, sim)
         self.ground_height: float | None = None
 
@@ -48,20 +47,9 @@ class TaskWorld:
             if o.moving:
                 self.sim.move_obstacle(k - 1, a[f"obstacle{k}_center"])
 
-    def held_state(self, q: np.ndarray, qd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(positions, velocities) of the held joints at the actuated (q, q̇): mimic joints at gain·q + bias of their
-        leader, the others at their bias."""
-        index, gain, bias = self.held_drive
-        if not len(q):
-            return bias.astype(float), np.zeros(len(bias))
-        return gain * q[index] + bias, gain * qd[index]
-
     def reset(self, q: np.ndarray, qd: np.ndarray | None = None) -> None:
         """The actuated joints at (q, q̇); the held ones where they follow (mimic joints) or stay (``held_targets``)."""
-        q = np.asarray(q, dtype=float)
-        qd = np.zeros(len(q)) if qd is None else np.asarray(qd, dtype=float)
-        hq, hqd = self.held_state(q, qd)
-        self.sim.reset(np.concatenate([q, hq]), np.concatenate([qd, hqd]))
+        self.sim.reset(*self.robot.simulated_state(q, qd))
 
     def step_computed_torque(self, qdd: np.ndarray, gains: HeldJointGains) -> None:
         """One simulator step under the torques that realise the actuated joints' accelerations ``qdd`` (computed
@@ -69,9 +57,8 @@ class TaskWorld:
         toward where they follow their leader (mimic) or stay, inside the same inverse dynamics."""
         q_all, qd_all = self.sim.state()
         n = len(qdd)
-        q, qd = q_all[:n], qd_all[:n]
-        index, gain, bias = self.held_drive
-        target, target_v = gain * q[index] + bias, gain * qd[index]
+        index, gain, _ = self.robot.held_targets()
+        target, target_v = self.robot.held_state(q_all[:n], qd_all[:n])
         held = gain * qdd[index] - gains.kp * (q_all[n:] - target) - gains.kd * (qd_all[n:] - target_v)
         self.sim.step(self.sim.inverse_dynamics(q_all, qd_all, np.concatenate([qdd, held])))
 
@@ -125,11 +112,9 @@ def ground_links(world: SimWorld, robot: URDFRobot, samples: int = GROUND_SAMPLE
     hi = np.minimum(robot.upper.numpy(), np.pi)
     rng = np.random.default_rng(seed)
     qs = lo + (hi - lo) * rng.random((samples, robot.dof))
-    index, gain, bias = robot.held_targets()
     lowest: dict[str, list[float]] = {}
     for q in qs:
-        held = gain * q[index] + bias if len(q) else bias
-        world.reset(np.concatenate([q, held]), np.zeros(len(q) + len(held)))
+        world.reset(*robot.simulated_state(q))
         for link, (low, _) in world.link_boxes().items():
             if robot.moves(link):
                 lowest.setdefault(link, []).append(float(low[2]))
