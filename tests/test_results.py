@@ -19,6 +19,7 @@ ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "results"
 sys.path.insert(0, str(ROOT / "tools"))
 import compare_metrics
+import dagger_table
 import lasa_table
 import leaves_table
 import reproduce_2d
@@ -34,6 +35,7 @@ TOOLS = {
     "lasa_table": lasa_table.table_of,
     "task_table": task_table.table,
     "leaves_table": leaves_table.table,
+    "dagger_table": dagger_table.markdown_table,
 }
 
 

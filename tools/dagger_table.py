@@ -71,6 +71,13 @@ def _lyapunov(r: dict) -> str:
 
 
 def table(results: dict) -> str:
+    """The table of ``results`` ({method: metrics}) and, below it, what DAgger's own rollouts did round by round."""
+    rounds = round_lines(results)
+    return markdown_table(results) + ("\n" + "\n".join(rounds) + "\n" if rounds else "")
+
+
+def markdown_table(results: dict) -> str:
+    """The markdown table alone (``tests/test_results.py`` regenerates the stored one with it)."""
     rows = [
         (
             "| learner | method | expert labels | expert calls while acting | validation loss | batch-loss "
@@ -92,6 +99,11 @@ def table(results: dict) -> str:
                 f"| {_f(r['success'], True)} | {_f(r['collision'], True)} | {_lyapunov(r)} "
                 f"| {r['train_seconds']:.0f} |"
             )
+    return "\n".join(rows) + "\n"
+
+
+def round_lines(results: dict) -> list[str]:
+    """Per learner, how often DAgger's own rollouts collided and reached the goal in each round."""
     rounds = []
     for key, name in LEARNERS.items():
         r = results.get("dagger", {}).get("learners", {}).get(key)
@@ -103,7 +115,7 @@ def table(results: dict) -> str:
                 + "; reached the goal "
                 + ", ".join(f"{100 * x['learner_success_rate']:.0f} %" for x in per)
             )
-    return "\n".join(rows) + ("\n\n" + "\n".join(rounds) + "\n" if rounds else "\n")
+    return rounds
 
 
 def main(argv=None) -> int:

@@ -68,6 +68,9 @@ SELF_COLLISION_RMP = {
 }
 ORIENTATION_RMP = {"type": "orientation_attractor", "gain": 1.0, "eta": 2.0, "w_u": 1.0, "w_l": 1.0, "sigma": 0.5}
 VELOCITY_LIMIT_RMP = {"type": "velocity_limit", "limit": 1.0, "onset": 0.8, "w": 1.0, "eta": 1.0, "linear_from": 0.99}
+# A joint-space attractor onto a posture: weak beside the end effector's (a tenth of its metric), enough to fix the
+# joints an end-effector attractor leaves free on a redundant arm, no potential well deep enough to fight it.
+POSTURE_RMP = {"type": "goal_attractor", "gain": 1.0, "alpha": 10.0, "eta": 2.0, "w_u": 0.1, "w_l": 0.1, "sigma": 1.0}
 
 # The learner's weight functions: positive MLPs of the parent configuration and the relevant aux state, randomly
 # initialised (learner-0 is the paper's untrained tree). w = floor + exp(MLP): the expert's weights span 1 to 200,
@@ -95,6 +98,7 @@ _LEAVES: dict[str, Mapping[str, Any]] = {
     "self_collision_rmp": SELF_COLLISION_RMP,
     "orientation_rmp": ORIENTATION_RMP,
     "velocity_limit_rmp": VELOCITY_LIMIT_RMP,
+    "posture_rmp": POSTURE_RMP,
 }
 
 
@@ -163,6 +167,28 @@ class VelocityLimits(Params):
     _rmp_tuned = _rmp_onto_tuned("velocity_limit_rmp")
 
 
+class EndEffectorMap(Params):
+    """A learned map between the end effector and its attractor: the offset from the goal, divided by ``scale``
+    (the leaves' numbers suit coordinates of order one), through ``map`` (e.g. a diffeomorphism of R^3 fixing the
+    origin: it bends the straight path to the goal into the demonstrations' shape and, being onto R^3, adds no
+    equilibrium; docs/math.md §12). The attractor and its weight then act in the map's latent space."""
+
+    scale: float = Field(0.1, gt=0, le=10, description="metres per unit of the normalised offset")
+    map: dict[str, Any] = Field(
+        description="the learned map's block, e.g. {type: diffeomorphism, layers: 4, hidden: [32, 32], "
+        "origin: [0, 0, 0]}: any registered map from R^3 to R^3 that keeps the origin"
+    )
+
+
+class Posture(Params):
+    """An attractor of the joints onto the aux configuration ``posture`` (the environment's ``posture_goal``):
+    an end-effector attractor alone leaves a redundant arm's null space free, so a posture fixes where it rests."""
+
+    rmp: GoalAttractor.Params = _tuned_field(GoalAttractor.Params, "posture_rmp", "attractor on q - posture")
+
+    _rmp_tuned = _rmp_onto_tuned("posture_rmp")
+
+
 class ManipulatorTreeParams(Params):
     """Parameters of the Fig. 1b tree: the robot and the scene (the environment's), and the leaves' settings.
 
@@ -211,9 +237,19 @@ class ManipulatorTreeParams(Params):
     )
     orientation: Orientation | None = Field(None, description="a tool-axis attractor (none: position only)")
     velocity_limits: VelocityLimits | None = Field(None, description="a joint velocity cap (none: uncapped)")
+    end_effector_map: EndEffectorMap | None = Field(
+        None,
+        description="a learned map between the end effector's goal offset and its attractor (none: the offset itself)",
+    )
+    posture: Posture | None = Field(None, description="a joint-space attractor onto the aux posture (none: no posture)")
 
     @field_validator(
-        *(f for f in _LEAVES if f not in ("self_collision_rmp", "orientation_rmp", "velocity_limit_rmp")), mode="before"
+        *(
+            f
+            for f in _LEAVES
+            if f not in ("self_collision_rmp", "orientation_rmp", "velocity_limit_rmp", "posture_rmp")
+        ),
+        mode="before",
     )
     @classmethod
     def _leaf_onto_tuned(cls, v: Any, info: Any) -> Any:
@@ -302,12 +338,7 @@ def fig1b(p: ManipulatorTreeParams) -> dict[str, Any]:
         aux["obstacle_radius"] = 1
     nodes: dict[str, Any] = {
         "ee": {"parent": "q", "map": _point(p, r.end_effector.link, r.end_effector.offset)},
-        "attractor": {
-            "parent": "ee",
-            "map": {"type": "offset", "origin": "goal"},
-            "weight": _entry(p, "attractor_weight"),
-            "rmp": _entry(p, "attractor_rmp"),
-        },
+        **_attractor_nodes(p),
     }
     for j, side, lim in r.finite_limits():
         nodes[f"jl{j + 1}_{side}"] = {
@@ -345,6 +376,21 @@ def fig1b(p: ManipulatorTreeParams) -> dict[str, Any]:
         "shared_weights": shared,
         "nodes": nodes,
         "roles": weight_roles(r, p.scene, has_obstacles(p)),
+    }
+
+
+def _attractor_nodes(p: ManipulatorTreeParams) -> dict[str, Any]:
+    """The end effector's attractor on its offset from the goal, or, with ``end_effector_map``, on that offset
+    normalised and through the learned map (ee -> ee_offset -> ee_normalised -> ee_latent -> attractor)."""
+    leaf = {"weight": _entry(p, "attractor_weight"), "rmp": _entry(p, "attractor_rmp")}
+    m = p.end_effector_map
+    if m is None:
+        return {"attractor": {"parent": "ee", "map": {"type": "offset", "origin": "goal"}, **leaf}}
+    return {
+        "ee_offset": {"parent": "ee", "map": {"type": "offset", "origin": "goal"}},
+        "ee_normalised": {"parent": "ee_offset", "map": {"type": "normalize", "scale": m.scale}},
+        "ee_latent": {"parent": "ee_normalised", "map": copy.deepcopy(m.map)},
+        "attractor": {"parent": "ee_latent", "map": {"type": "identity"}, **leaf},
     }
 
 
@@ -406,6 +452,16 @@ def _optional_leaves(p: ManipulatorTreeParams, nodes: dict[str, Any], aux: dict[
             "rmp": {"type": "velocity_limit", **p.velocity_limits.rmp.model_dump(exclude_unset=True)},
         }
         said.append("a joint velocity cap")
+    if p.posture is not None:
+        aux["posture"] = len(p.robot.joints)
+        nodes["posture"] = {
+            "parent": "q",
+            "map": {"type": "offset", "origin": "posture"},
+            "rmp": {"type": "goal_attractor", **p.posture.rmp.model_dump(exclude_unset=True)},
+        }
+        said.append("a posture attractor")
+    if p.end_effector_map is not None:
+        said.append(f"a learned {p.end_effector_map.map.get('type', 'map')} between the end effector and its attractor")
     return "; " + ", ".join(said) if said else ""
 
 

@@ -203,6 +203,15 @@ class Particle2D(ComputesOnDevice, SeededSampling):
         """Names and sizes of the per-sample aux state; pass to ``build_tree(..., aux_dims=...)``."""
         return obstacle_aux_dims(self.dim, self.n_obstacles)
 
+    def recorded_aux(self, goals: Tensor) -> dict[str, Tensor]:
+        """Recorded motions in the plane: the goal is where a demonstration ends (recordings carry no obstacles:
+        ``data.source: recorded`` is for the obstacle-free plane, ``env=plane``)."""
+        return {"goal": goals.to(self.dtype)}
+
+    def recorded_starts(self, candidates: Tensor) -> Tensor:
+        """Any point of the obstacle-free plane may start at rest."""
+        return torch.ones(len(candidates), dtype=torch.bool)
+
     def obstacles(self, aux: Mapping[str, Tensor]) -> tuple[Tensor, Tensor]:
         """Centres (B, K, 2) and radii (B, K) stacked from the aux dict."""
         return stack_obstacles(aux, self.n_obstacles)

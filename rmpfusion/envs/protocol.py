@@ -207,3 +207,35 @@ class DifferentiableRollouts(Protocol):
         """The same environment integrated on another step: gradients through long rollouts cost less on a
         coarser one, while evaluation keeps the experiment's own step."""
         ...
+
+
+@runtime_checkable
+class LearnsFromRecordings(Protocol):
+    """An environment that learns from recorded demonstrations (``data.source: recorded``). It exists because a
+    recording holds configurations only: what the tree reads besides them (the goal in the task's own space, the
+    obstacles, a posture) and which configurations may start a convergence check are the environment's to say.
+    A recording's goal is the configuration it ends at (the mean of its final rest)."""
+
+    def recorded_aux(self, goals: Tensor) -> dict[str, Tensor]:
+        """The aux state ``{name: (n, k)}`` of demonstrations ending at the configurations ``goals`` (n, d)."""
+        ...
+
+    def recorded_starts(self, candidates: Tensor) -> Tensor:
+        """(n,) bool: which configurations ``candidates`` (n, d) may start a rollout at rest (inside the limits,
+        clear of the obstacles)."""
+        ...
+
+
+@runtime_checkable
+class JointSpace(Protocol):
+    """An environment whose configuration is a robot's joints. It exists so that joint-space recordings are
+    checked against the robot file they claim to be of (joint count, names and limits) before anything is learned."""
+
+    @property
+    def robot_description(self) -> Any:
+        """The robot file (``rmpfusion.robots.RobotDescription``)."""
+        ...
+
+    def ee_position(self, q: Tensor) -> Tensor:
+        """(B, 3) end-effector point of configurations q (B, d)."""
+        ...

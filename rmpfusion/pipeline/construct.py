@@ -94,7 +94,9 @@ def learner_over_sets(
 
 
 def build_all(run: RunConfig):
-    """``(env, expert_tree, learners)`` for a validated config: everything an experiment runs on."""
+    """``(env, expert_tree, learners)`` for a validated config: everything an experiment runs on. A run on
+    recorded demonstrations has no expert: its reference tree is the configured tree with every weight 1."""
     env = make_env(run)
     aux_dims = dict(env.aux_dims())
-    return env, build_expert(run, aux_dims), build_learners(run, aux_dims)
+    reference = build_unit_weights if run.data.source == "recorded" else build_expert
+    return env, reference(run, aux_dims), build_learners(run, aux_dims)

@@ -28,13 +28,15 @@ import numpy as np
 import torch
 
 from ..envs.demonstrations import Dataset, load_dataset, save_dataset
+from ..envs.protocol import JointSpace, LearnsFromRecordings
 from ..envs.rollout import Rollout
 from ..evaluate.lyapunov import lyapunov_monotone
 from ..evaluate.reproduction import dtw_distance, swept_error_area
 from ..files import atomic_write_json
 from ..learn.loop import load_snapshot
 from ..plots.recorded import recorded_figures
-from ..recordings import Split, holdout, leave_one_out, recorded_dataset
+from ..recordings import Split, check_joint_recordings, holdout, leave_one_out, recorded_dataset
+from ..recordings.recording import RecordingError
 from ..recordings.signals import States
 from ..recordings.source import check_dimension, content_hash, read_recordings, to_grid
 from .collect import Splits
@@ -64,6 +66,7 @@ def _cache_key(exp: Experiment, files: str, split: str, members: tuple[int, ...]
         "files": files,
         "data": d.model_dump(exclude={"cache_dir", "starts", "enlarge", "horizon_factor", "tolerance"}),
         "dt": exp.env.dt,
+        "env": exp.run.env.model_dump(mode="json"),  # the aux state (an arm's goal, obstacles) depends on it
         "split": split,
         "members": members,
     }
@@ -83,15 +86,32 @@ def _dataset(
     if path.exists():
         ds = load_dataset(path, meta)
         return ds, {**info, "sha256": ds.checksum(), "points": len(ds), "reused": True}
-    ds = recorded_dataset([states[i] for i in members], every=d.every if split == "train" else 1)
+    ds = recorded_dataset(
+        [states[i] for i in members], every=d.every if split == "train" else 1, aux_of=recording_env(exp).recorded_aux
+    )
     return ds, {**info, "sha256": save_dataset(path, ds, meta), "points": len(ds), "reused": False}
+
+
+def recording_env(exp: Experiment) -> LearnsFromRecordings:
+    """The run's environment as one that learns from recordings (what the tree reads besides the configuration)."""
+    env = exp.env
+    if not isinstance(env, LearnsFromRecordings):
+        raise RecordingError(
+            f"env.type={exp.run.env.type} cannot learn from recorded demonstrations (data.source: recorded): it "
+            "does not say what aux state a recording implies; use env=plane or an arm's env=manipulator"
+        )
+    return env
 
 
 def recorded_splits(exp: Experiment) -> tuple[Splits, dict[str, list[States]], list[States]]:
     """The run's splits as datasets, the demonstrations of each split on the step grid, and all of them."""
-    d = exp.run.data
+    d = exp.recorded_data
     t0 = time.time()
-    states = to_grid(read_recordings(d), d, exp.env.dt)
+    recording_env(exp)
+    recordings = read_recordings(d)
+    if isinstance(exp.env, JointSpace):
+        check_joint_recordings(recordings, exp.env.robot_description, named_columns=d.columns is None)
+    states = to_grid(recordings, d, exp.env.dt)
     check_dimension(states, exp.env.dim, exp.run.env.type)
     split = split_of(d, len(states), exp.run.seed)
     parts = {"train": split.train, "test": split.test, **({"val": split.val} if split.val else {})}
@@ -108,6 +128,23 @@ def recorded_splits(exp: Experiment) -> tuple[Splits, dict[str, list[States]], l
 
 
 # ------------------------------------------------------------------ evaluation
+#: configurations (..., d) -> task-space points (..., k)
+ToTask = Callable[[np.ndarray], np.ndarray]
+
+
+def _end_effector(env: Any) -> ToTask | None:
+    """An arm's configurations as end-effector points (m), where reproduction is also measured; None for an
+    environment whose configuration is the task space."""
+    if not isinstance(env, JointSpace):
+        return None
+
+    def to_task(q: np.ndarray) -> np.ndarray:
+        flat = torch.as_tensor(np.asarray(q), dtype=torch.float64).reshape(-1, q.shape[-1])
+        return env.ee_position(flat).detach().numpy().reshape(*q.shape[:-1], 3)
+
+    return to_task
+
+
 def _as_tensor(x: np.ndarray) -> torch.Tensor:
     return torch.as_tensor(np.asarray(x), dtype=torch.float64)
 
@@ -120,6 +157,13 @@ def start_box(demos: list[States], enlarge: float) -> tuple[np.ndarray, np.ndarr
     return lo - pad, hi + pad
 
 
+#: up to this dimension the starts lie on a grid; above it (an arm's joints: 2 per side of 7 would be the box's
+#: 128 corners) they are drawn uniformly in the box
+GRID_DIMENSIONS = 3
+#: rounds of drawing ``data.starts`` candidates before the convergence check goes with the starts it has
+START_ROUNDS = 20
+
+
 def grid_starts(demos: list[States], d) -> np.ndarray:
     """``data.starts`` positions at rest on a regular grid over the enlarged box (as many per side as the
     starts' root allows, rounded down; every dimension the same count)."""
@@ -127,6 +171,25 @@ def grid_starts(demos: list[States], d) -> np.ndarray:
     per_side = max(2, int(np.floor(d.starts ** (1.0 / len(lo)) + 1e-9)))
     axes = [np.linspace(lo[k], hi[k], per_side) for k in range(len(lo))]
     return np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, len(lo))
+
+
+def convergence_starts(env: LearnsFromRecordings, demos: list[States], d, seed: int) -> np.ndarray:
+    """The starts at rest of the convergence check: the grid (up to ``GRID_DIMENSIONS``) or ``data.starts``
+    uniform draws in the enlarged box (seeded by the run's seed), keeping only those the environment accepts (an
+    arm: inside its limits, clear of the obstacles and the ground); an arm's box past its limits or in the table
+    yields fewer, which the metrics report as the number of starts."""
+    lo, hi = start_box(demos, d.enlarge)
+    if len(lo) <= GRID_DIMENSIONS:
+        grid = grid_starts(demos, d)
+        return grid[env.recorded_starts(_as_tensor(grid)).numpy()]
+    rng = np.random.default_rng(seed)
+    kept: list[np.ndarray] = []
+    for _ in range(START_ROUNDS):
+        draw = rng.uniform(lo, hi, size=(d.starts, len(lo)))
+        kept += list(draw[env.recorded_starts(_as_tensor(draw)).numpy()])
+        if len(kept) >= d.starts:
+            break
+    return np.array(kept[: d.starts]).reshape(-1, len(lo))
 
 
 @dataclass
@@ -153,7 +216,8 @@ def evaluation_batch(exp: Experiment, demos: dict[str, list[States]], every_demo
     at = 0
     for k, v in held.items():
         index[k], at = slice(at, at + len(v)), at + len(v)
-    grid = grid_starts(every_demo, d)
+    env = recording_env(exp)
+    grid = convergence_starts(env, every_demo, d, exp.run.seed)
     goal = np.mean([s.goal for s in every_demo], axis=0)
     q0 += list(grid)
     qd0 += [np.zeros_like(goal)] * len(grid)
@@ -163,7 +227,7 @@ def evaluation_batch(exp: Experiment, demos: dict[str, list[States]], every_demo
     return Batch(
         _as_tensor(np.stack(q0)),
         _as_tensor(np.stack(qd0)),
-        {"goal": _as_tensor(np.stack(goals))},
+        env.recorded_aux(_as_tensor(np.stack(goals))),
         held,
         index,
         slice(at, at + len(grid)),
@@ -171,9 +235,11 @@ def evaluation_batch(exp: Experiment, demos: dict[str, list[States]], every_demo
     )
 
 
-def reproduction(batch: Batch, ro, split: str, tolerance: float) -> dict:
+def reproduction(batch: Batch, ro, split: str, tolerance: float, to_task: ToTask | None = None) -> dict:
     """DTW per sample and swept error area over each demonstration's duration, the distance to the goal at the
-    horizon, the time to within ``tolerance``: the mean over the split's demonstrations and each one's own."""
+    horizon, the time to within ``tolerance``: the mean over the split's demonstrations and each one's own. With
+    ``to_task`` (an arm: configurations -> end-effector points), also the DTW of the end-effector paths (m) beside
+    the joint-space one (rad)."""
     path, dist = ro.q.numpy(), ro.goal_distance.numpy()
     per: list[dict[str, Any]] = []
     for n, demo in zip(range(batch.index[split].start, batch.index[split].stop), batch.demos[split]):
@@ -186,12 +252,16 @@ def reproduction(batch: Batch, ro, split: str, tolerance: float) -> dict:
                 "swept_error_area": swept_error_area(path[:T, n], demo.q),
                 "final_distance": float(dist[-1, n]),
                 "time_to_tolerance": float(ro.times[within[0]]) if within.size else float("inf"),
+                **({"ee_dtw": dtw_distance(to_task(path[:T, n]), to_task(demo.q))} if to_task else {}),
             }
         )
-    mean = {k: float(np.mean([p[k] for p in per])) for k in ("dtw", "swept_error_area", "final_distance")}
+    keys = ("dtw", "swept_error_area", "final_distance", *(("ee_dtw",) if to_task else ()))
+    mean = {k: float(np.mean([p[k] for p in per])) for k in keys}
     reached = [p["time_to_tolerance"] for p in per if np.isfinite(p["time_to_tolerance"])]
+    rows = batch.index[split]
     return {
         **mean,
+        "collisions": int(ro.collided[rows].sum()),
         "reached": len(reached) / len(per),
         "time_to_tolerance": float(np.mean(reached)) if reached else None,
         "per_demonstration": per,
@@ -215,6 +285,7 @@ def convergence(batch: Batch, ro, d, rtol: float, atol: float, dt: float) -> dic
         "final_distance_median": float(final.median()),
         "stalled": [ro.q[-1, g][int(b)].tolist() for b in stalled[:10]],
         "stalled_count": int(stalled.numel()),
+        "collisions": int(ro.collided[g].sum()),
     }
     if V is not None:
         out["lyapunov_monotone_fraction"] = float(lyapunov_monotone(V, rtol=rtol, atol=atol).double().mean())
@@ -227,13 +298,16 @@ def evaluate_policy(exp: Experiment, label: str, policy: Callable, batch: Batch)
     ro = exp.env.rollout(
         policy, batch.q0, batch.qd0, batch.aux, batch.horizon, exp.env.dt, progress=exp.say.bar(f"rollout {label}")
     )
-    out = {f"reproduction_{k}": reproduction(batch, ro, k, d.tolerance) for k in batch.index}
+    to_task = _end_effector(exp.env)
+    out = {f"reproduction_{k}": reproduction(batch, ro, k, d.tolerance, to_task) for k in batch.index}
     out["convergence"] = conv = convergence(batch, ro, d, ev.lyapunov_rtol, ev.lyapunov_atol, exp.env.dt)
     rep = out["reproduction_test"]
     monotone = conv.get("lyapunov_monotone_fraction")
+    unit, area = ("rad", "rad²") if to_task else ("m", "m²")
+    ee = f" (end effector {rep['ee_dtw']:.4g} m)" if to_task else ""
     exp.say.say(
-        f"{label}: test DTW {rep['dtw']:.4g} m, swept area {rep['swept_error_area']:.4g} m², final "
-        f"{rep['final_distance']:.2e} m; converged {conv['converged']:.0%} of {conv['starts']} starts"
+        f"{label}: test DTW {rep['dtw']:.4g} {unit}{ee}, swept area {rep['swept_error_area']:.4g} {area}, final "
+        f"{rep['final_distance']:.2e} m, {rep['collisions']} collision(s); converged {conv['converged']:.0%} of {conv['starts']} starts"
         + (f", V_r monotone {monotone:.0%}" if monotone is not None else " (no V_r: not a tree)")
     )
     if monotone is not None and monotone < 1.0:
@@ -281,6 +355,13 @@ def evaluate_recorded(exp: Experiment, fitted: dict, batch: Batch) -> tuple[dict
 
 
 # ------------------------------------------------------------------ the run
+def _top_view(env: Any) -> Callable[[np.ndarray], np.ndarray] | None:
+    """An arm's configurations as its end effector seen from above (x, y), for the rollouts figure; None for an
+    environment whose configuration is already the plane."""
+    to_task = _end_effector(env)
+    return None if to_task is None else (lambda q: to_task(q)[..., :2])
+
+
 def objective(results: dict) -> float | None:
     """What a sweep minimises: the first learner's DTW on the validation demonstrations (settings such as the
     filter's window are chosen there, never on the test demonstrations); None without a validation split."""
@@ -308,6 +389,6 @@ def run_recorded(exp: Experiment, require_trained: bool = False) -> dict:
         }
     )
     if exp.run.eval.figures:
-        metrics["figures"] = recorded_figures(exp.dir / "figures", rollouts, batch, demos)
+        metrics["figures"] = recorded_figures(exp.dir / "figures", rollouts, batch, demos, _top_view(exp.env))
     atomic_write_json(exp.dir / "metrics.json", metrics)
     return metrics

@@ -28,6 +28,8 @@ from ..assembly.generated import expand_tree
 from ..assembly.spec import check_typed, validate_tree_spec
 from ..assembly.weighting import own_weights, weights_by_name
 from ..core.auxstate import AuxOrValue
+from ..envs.protocol import JointSpace
+from ..recordings.joints import check_joint_recordings
 from ..recordings.recording import RecordingError
 from ..recordings.source import check_dimension, read_recordings, to_grid
 from ..registry import ENVS, LEAF_RMPS, TASK_MAPS, TRAIN_METHODS, WEIGHTS, Registry
@@ -167,11 +169,15 @@ def _method_issues(run: RunConfig, env: Any) -> list[Issue]:
 
 def _recording_issues(run: RunConfig, env: Any) -> list[Issue]:
     """Recorded demonstrations read now (they are small), so a bad file is said before anything runs: the
-    reader's message names the file, row and column; a dimension unlike the environment's is said too."""
+    reader's message names the file, row and column; a dimension unlike the environment's is said too, and
+    joint-space recordings are checked against the robot file (joint count, names, limits)."""
     if run.data.source != "recorded":
         return []
     try:
-        check_dimension(to_grid(read_recordings(run.data), run.data, env.dt), env.dim, run.env.type)
+        recordings = read_recordings(run.data)
+        if isinstance(env, JointSpace):
+            check_joint_recordings(recordings, env.robot_description, named_columns=run.data.columns is None)
+        check_dimension(to_grid(recordings, run.data, env.dt), env.dim, run.env.type)
     except RecordingError as e:
         return [Issue("data", str(e))]
     return []
@@ -365,7 +371,8 @@ def resolve_and_validate(cfg: DictConfig | Mapping[str, Any]) -> RunConfig:
     except ConfigError as e:
         issues += e.issues
     run = run.model_copy(update={"expert": weights_by_name(run.tree, run.expert)})  # roles -> the names they cover
-    issues += _expert_issues(run) + _learner_issues(run)
+    # recorded demonstrations have no expert (the reference is the tree with every weight 1)
+    issues += ([] if run.data.source == "recorded" and not run.expert else _expert_issues(run)) + _learner_issues(run)
     if env is not None:
         issues += _method_issues(run, env) + _recording_issues(run, env)
     if aux_dims is not None and not issues:

@@ -4,7 +4,7 @@ draw, so its rollouts are drawn), and V_r along those rollouts (Theorem 2: never
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
 
 import numpy as np
@@ -12,20 +12,30 @@ import numpy as np
 from ..envs.rollout import Rollout
 from .figures import LEGEND_SIZE, TIME_LABEL, TITLE_SIZE, V_LABEL, save_figure, subplots
 
+#: configurations (..., d) -> points of the drawn plane (..., 2): the plane itself, or an arm's end effector seen from
+#: above
+ToPlane = Callable[[np.ndarray], np.ndarray]
 
-def draw_rollouts(rollouts: Mapping[str, Rollout], batch, demos: Mapping[str, list]):
+
+def _first_two(q: np.ndarray) -> np.ndarray:
+    return q[..., :2]
+
+
+def draw_rollouts(rollouts: Mapping[str, Rollout], batch, demos: Mapping[str, list], to_plane: ToPlane = _first_two):
     """One panel per policy: its rollouts from the grid of starts at rest and from the held-out demonstrations'
-    starts, the demonstrations beneath (training grey, held-out coloured), the goal."""
+    starts, the demonstrations beneath (training grey, held-out coloured), the goal; drawn in the plane ``to_plane``
+    maps configurations to (an arm's end effector from above; the goal aux is then the end effector's)."""
     n = len(rollouts)
     fig, axes = subplots(1, n, figsize=(3.8 * n, 3.8), layout="constrained", squeeze=False)
     grid = batch.grid
-    goal = batch.aux["goal"][grid][0].numpy()
+    goal = batch.aux["goal"][grid][0].numpy()[:2]
     for ax, (label, ro) in zip(axes[0], rollouts.items()):
-        q = ro.q.numpy()
+        q = to_plane(ro.q.numpy())
         for k, (split, shown) in enumerate(demos.items()):
             style = {"color": "0.65", "lw": 3.0} if split == "train" else {"color": f"C{k}", "lw": 2.4}
             for i, d in enumerate(shown):
-                ax.plot(d.q[:, 0], d.q[:, 1], alpha=0.9, label=f"{split} demonstration" if i == 0 else None, **style)
+                xy = to_plane(d.q)
+                ax.plot(xy[:, 0], xy[:, 1], alpha=0.9, label=f"{split} demonstration" if i == 0 else None, **style)
         for i, b in enumerate(range(grid.start, grid.stop)):
             ax.plot(q[:, b, 0], q[:, b, 1], color="k", lw=0.6, label="rollout from rest" if i == 0 else None)
         for split, idx in batch.index.items():
@@ -71,11 +81,17 @@ def draw_lyapunov(rollouts: Mapping[str, Rollout], grid: slice, shown: int = 25)
 
 
 def recorded_figures(
-    out_dir: Path, rollouts: Mapping[str, Rollout], batch, demos: Mapping[str, list]
+    out_dir: Path,
+    rollouts: Mapping[str, Rollout],
+    batch,
+    demos: Mapping[str, list],
+    to_plane: ToPlane | None = None,
 ) -> dict[str, str]:
-    """rollouts.png (2-D demonstrations) and lyapunov.png in ``out_dir``; their paths."""
+    """rollouts.png (2-D demonstrations, or any whose configurations ``to_plane`` maps to a plane) and lyapunov.png
+    in ``out_dir``; their paths."""
     paths = {}
-    if batch.q0.shape[1] == 2:
-        paths["rollouts"] = save_figure(draw_rollouts(rollouts, batch, demos), Path(out_dir) / "rollouts.png")
+    if to_plane is not None or batch.q0.shape[1] == 2:
+        drawn = draw_rollouts(rollouts, batch, demos, to_plane or _first_two)
+        paths["rollouts"] = save_figure(drawn, Path(out_dir) / "rollouts.png")
     paths["lyapunov"] = save_figure(draw_lyapunov(rollouts, batch.grid), Path(out_dir) / "lyapunov.png")
     return {k: str(v) for k, v in paths.items()}

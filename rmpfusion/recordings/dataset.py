@@ -4,7 +4,7 @@ demonstration."""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 import torch
@@ -13,19 +13,29 @@ from ..envs.demonstrations import Dataset
 from .signals import States
 
 
-def recorded_dataset(states: Sequence[States], every: int = 1, dtype: torch.dtype = torch.float64) -> Dataset:
-    """One dataset of ``states`` (each a demonstration), keeping every ``every``-th grid sample; the goal of each
-    demonstration is the aux entry ``goal``, and its extra aux entries come along."""
+def recorded_dataset(
+    states: Sequence[States],
+    every: int = 1,
+    dtype: torch.dtype = torch.float64,
+    aux_of: Callable[[torch.Tensor], dict[str, torch.Tensor]] | None = None,
+) -> Dataset:
+    """One dataset of ``states`` (each a demonstration), keeping every ``every``-th grid sample. Each
+    demonstration's aux state is ``aux_of`` of its goal (the configuration it comes to rest at; the environment's
+    ``recorded_aux``: e.g. an arm's end-effector goal, obstacles and posture), by default the goal itself as the aux
+    entry ``goal``; a demonstration's own aux entries (from its file's columns) come along and take precedence."""
     parts: dict[str, list[np.ndarray]] = {k: [] for k in ("q", "qd", "qdd", "t", "traj")}
-    aux: dict[str, list[np.ndarray]] = {"goal": []}
+    goals = torch.as_tensor(np.stack([st.goal for st in states]), dtype=dtype)
+    per_demo = aux_of(goals) if aux_of is not None else {"goal": goals}
+    aux: dict[str, list[np.ndarray]] = {}
     for n, st in enumerate(states):
         rows = slice(None, None, every)
         T = len(st.t[rows])
         for key, value in (("q", st.q), ("qd", st.qd), ("qdd", st.qdd), ("t", st.t)):
             parts[key].append(value[rows])
         parts["traj"].append(np.full(T, n))
-        aux["goal"].append(np.repeat(st.goal[None], T, axis=0))
-        for name, value in st.aux.items():
+        own = {k: v[n].detach().cpu().numpy() for k, v in per_demo.items()}
+        own.update({k: np.asarray(v, np.float64) for k, v in st.aux.items()})
+        for name, value in own.items():
             aux.setdefault(name, []).append(np.repeat(np.asarray(value, np.float64)[None], T, axis=0))
     t = lambda key: torch.as_tensor(np.concatenate(parts[key]), dtype=dtype)
     traj = torch.as_tensor(np.concatenate(parts["traj"]), dtype=torch.long)

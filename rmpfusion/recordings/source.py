@@ -20,18 +20,35 @@ from .readers import read_csv, read_hdf5, read_npz
 from .recording import Recording, RecordingError
 from .signals import States, to_states
 
+#: a ``data.files`` entry starting with this names a recording shipped with rmpfusion (rmpfusion/recordings/files/)
+SHIPPED = "rmpfusion:"
+SHIPPED_DIR = Path(__file__).resolve().parent / "files"
+
+
+def source_file(f: str) -> Path:
+    """One ``data.files`` entry as a path: ``rmpfusion:NAME`` is a recording shipped with the package, anything else
+    a path relative to the directory the command runs in (or absolute)."""
+    if f.startswith(SHIPPED):
+        path = SHIPPED_DIR / f[len(SHIPPED) :]
+        if not path.is_file():
+            shipped = sorted(p.name for p in SHIPPED_DIR.glob("*") if p.is_file())
+            raise RecordingError(
+                f"{f}: rmpfusion ships no such recording (data.files); it ships {', '.join(shipped) or 'none'}"
+            )
+        return path
+    if not Path(f).is_file():
+        raise RecordingError(
+            f"{f}: no such file (data.files); give the path of a recorded file, relative to the "
+            f"directory the command runs in or absolute (or {SHIPPED}NAME for one rmpfusion ships)"
+        )
+    return Path(f)
+
 
 def source_files(d: Any) -> list[Path]:
     """The files a data block reads (the LASA shape's ``.mat`` file, or ``data.files``), each one that exists."""
     if d.format == "lasa":
         return [lasa_file(d.shape)]
-    for f in d.files:
-        if not Path(f).is_file():
-            raise RecordingError(
-                f"{f}: no such file (data.files); give the path of a recorded file, relative to the "
-                "directory the command runs in or absolute"
-            )
-    return [Path(f) for f in d.files]
+    return [source_file(f) for f in d.files]
 
 
 def content_hash(d: Any) -> str:

@@ -13,7 +13,7 @@ import torch
 from torch import Tensor
 
 from ...registry import ENVS
-from ...robots import build_robot
+from ...robots import RobotDescription, build_robot
 from ...scenes import Scene, aux_at, distances, same_layout, scene_aux, scene_aux_dims
 from ...sims import Images
 from ..common import (
@@ -98,7 +98,8 @@ class Manipulator(ComputesOnDevice, SeededSampling):
 
     def aux_dims(self) -> dict[str, int]:
         """Names and sizes of the per-sample aux state; pass to ``build_tree(..., aux_dims=...)``."""
-        return {"goal": 3, **scene_aux_dims(self.scene)}
+        posture = {"posture": self.dim} if self.params.posture_goal else {}
+        return {"goal": 3, **scene_aux_dims(self.scene), **posture}
 
     def aux_at(self, aux: Mapping[str, Tensor], t: Tensor | float) -> dict[str, Tensor]:
         """The aux state ``aux`` (at t = 0) at times ``t``: moving obstacles advanced along their paths."""
@@ -220,7 +221,41 @@ class Manipulator(ComputesOnDevice, SeededSampling):
             obstacles = {"_n": torch.zeros(n_envs, 1, dtype=self.dtype)}
         goal = self._sample_goals(obstacles, generator)
         obstacles.pop("_n", None)
-        return {"goal": goal, **obstacles}
+        return {"goal": goal, **obstacles, **self._posture(self._home().expand(n_envs, -1))}
+
+    def _home(self) -> Tensor:
+        return torch.tensor(self.params.robot.home, dtype=self.dtype)
+
+    def _posture(self, q: Tensor) -> dict[str, Tensor]:
+        """The aux posture (``posture_goal``): ``q`` (n, dof), or nothing."""
+        return {"posture": q.to(self.dtype)} if self.params.posture_goal else {}
+
+    # ------------------------------------------------------------------ recorded demonstrations
+    @property
+    def robot_description(self) -> RobotDescription:
+        """The robot file: joint-space recordings are checked against its joints and limits."""
+        return self.params.robot
+
+    def recorded_aux(self, goals: Tensor) -> dict[str, Tensor]:
+        """The aux state of demonstrations that end at the configurations ``goals`` (n, dof): the end effector's
+        position there is the goal, the training scene's obstacles where the scene puts them (no jitter: a recording
+        was made in one world), and the configuration itself the posture."""
+        goals = goals.to(self.dtype)
+        centers = torch.tensor([o.center for o in self.scene.obstacles], dtype=self.dtype).reshape(1, -1, 3)
+        obstacles = scene_aux(self.scene, centers.expand(len(goals), -1, -1), self.dtype)
+        return {"goal": self.ee_position(goals), **obstacles, **self._posture(goals)}
+
+    def recorded_starts(self, candidates: Tensor) -> Tensor:
+        """Which start configurations ``candidates`` (n, dof) are usable at rest: ``joint_margin`` inside the limits
+        and clear of the scene's obstacles and the ground by ``start_clearance`` (as sampled starts are)."""
+        q = candidates.to(self.dtype)
+        m = self.params.joint_margin
+        ok = ((q >= self.lower + m) & (q <= self.upper - m)).all(-1)
+        inside = ok.nonzero().flatten()
+        if len(inside):
+            margin = self.start_margin(q[inside], self.recorded_aux(q[inside]))
+            ok[inside] = margin >= 0
+        return ok
 
     def sample_initial_states(
         self, envs_aux: Mapping[str, Tensor], n_per_env: int, generator: torch.Generator | None = None

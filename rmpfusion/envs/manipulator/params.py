@@ -76,6 +76,11 @@ class ManipulatorParams(Params):
         "placement, obstacle_jitter and min_start_goal_distance are derived, not read",
     )
     goal_clearance: float = Field(0.15, ge=0, description="min horizontal distance from goal to obstacle surfaces")
+    posture_goal: bool = Field(
+        False,
+        description="aux posture (one angle per joint) for a tree's posture attractor (tree.posture): the robot's "
+        "home in sampled environments, a recorded demonstration's final configuration in recorded ones",
+    )
     nominal_q: tuple[float, ...] | None = Field(None, description="centre of the starts (rad); null: the robot's home")
     start_spread: tuple[float, ...] | float = Field(
         0.3, description="± uniform per joint (rad): one value for every joint, or one per joint"

@@ -1,0 +1,191 @@
+"""Joint-space recordings of an arm (experiment=recorded_arm): the shipped recording is a user's file (irregular
+stamps, noise, the robot's joint names), read back and checked against the robot file; what a recording implies for
+the tree (goal, obstacles, posture) comes from the environment; bad files are refused by file, row and column; the
+tree with a learned end-effector map and a posture attractor keeps Theorem 2 on rollouts; and (slow) the shipped file
+is what tools/arm_recordings.py makes, and a tiny run goes end to end."""
+
+from __future__ import annotations
+
+import csv
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from conftest import ROOT, compose_cfg
+
+from rmpfusion.envs.protocol import JointSpace, LearnsFromRecordings
+from rmpfusion.evaluate.lyapunov import lyapunov_monotone
+from rmpfusion.pipeline.construct import build_unit_weights, make_env
+from rmpfusion.pipeline.validate import resolve_and_validate
+from rmpfusion.recordings import RecordingError, check_joint_recordings
+from rmpfusion.recordings.readers import read_csv
+from rmpfusion.recordings.source import SHIPPED_DIR, source_file
+
+SHIPPED = SHIPPED_DIR / "panda_via_points.csv"
+
+
+@pytest.fixture(scope="module")
+def run():
+    return resolve_and_validate(compose_cfg(["experiment=recorded_arm"]))
+
+
+@pytest.fixture(scope="module")
+def env(run):
+    e = make_env(run)
+    yield e
+    e.close()
+
+
+def test_the_shipped_recording_is_a_users_file_of_the_panda(env):
+    recs = read_csv(SHIPPED, demo_column="demo", units="rad")
+    assert len(recs) == 24
+    steps = np.concatenate([np.diff(r.t) for r in recs])
+    assert steps.min() > 0 and steps.std() > 1e-3  # irregular stamps (jitter, dropped samples), strictly increasing
+    assert min(r.t[0] for r in recs) > 1.0  # the logger's clock does not start at 0
+    assert list(recs[0].columns) == list(env.robot_description.joints)
+    check_joint_recordings(recs, env.robot_description)  # inside the limits, named as the robot file names them
+    assert source_file("rmpfusion:panda_via_points.csv") == SHIPPED
+
+
+def test_an_unknown_shipped_name_and_a_missing_file_are_clear_errors():
+    with pytest.raises(RecordingError, match="ships no such recording.*panda_via_points.csv"):
+        source_file("rmpfusion:nothing.csv")
+    with pytest.raises(RecordingError, match="no such file.*rmpfusion:NAME"):
+        source_file("no/such/file.csv")
+
+
+def test_what_a_recording_implies_comes_from_the_environment(env):
+    assert isinstance(env, LearnsFromRecordings) and isinstance(env, JointSpace)
+    goals = torch.tensor([env.params.robot.home, env.params.start_centre()], dtype=torch.float64)
+    aux = env.recorded_aux(goals)
+    assert set(aux) == set(env.aux_dims())
+    assert torch.allclose(aux["goal"], env.ee_position(goals))  # the end effector where the recording ends
+    assert torch.equal(aux["posture"], goals)  # the configuration itself
+    cyl = env.scene.obstacles[0]
+    centre = next(v for k, v in aux.items() if k.endswith("center"))
+    assert torch.allclose(centre, torch.tensor([cyl.center, cyl.center], dtype=torch.float64))
+
+
+def test_starts_past_a_limit_or_in_the_cylinder_are_refused(env):
+    home = torch.tensor(env.params.robot.home, dtype=torch.float64)
+    past = home.clone()
+    past[3] = float(env.upper[3]) + 0.1
+    ok = env.recorded_starts(torch.stack([home, past]))
+    assert ok.tolist() == [True, False]
+
+
+def _write(path: Path, header: list[str], rows: list[list[float]]) -> Path:
+    with path.open("w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(header)
+        w.writerows(rows)
+    return path
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        ("rename", r"not the robot's joints \(missing panda_joint7\)"),
+        ("limit", r"bad\.csv, row 3, column 'panda_joint4': .* outside panda_joint4's limits"),
+        ("drop", r"6 coordinates per sample, but the robot 'panda' has 7"),
+    ],
+)
+def test_a_joint_recording_unlike_the_robot_is_refused_naming_file_row_and_column(tmp_path, env, change, message):
+    names = list(env.robot_description.joints)
+    home = list(env.params.robot.home)
+    rows = [[0.01 * k, *home] for k in range(20)]
+    if change == "rename":
+        names[-1] = "wrist"
+    if change == "limit":
+        rows[1][4] = float(env.upper[3]) + 0.5
+    if change == "drop":
+        names, rows = names[:-1], [r[:-1] for r in rows]
+    recs = read_csv(_write(tmp_path / "bad.csv", ["t", *names], rows), units="rad")
+    with pytest.raises(RecordingError, match=message):
+        check_joint_recordings(recs, env.robot_description)
+
+
+def test_validation_refuses_a_bad_joint_recording_in_one_line(tmp_path, env):
+    names = list(env.robot_description.joints)
+    rows = [[0.01 * k, *env.params.robot.home] for k in range(40)]
+    rows[5][1] = 99.0
+    bad = _write(tmp_path / "bad.csv", ["t", *names], rows)
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "rmpfusion.cli.validate",
+            "experiment=recorded_arm",
+            f"data.files=[{bad}]",
+            "data.demo_column=null",
+        ],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+    )
+    assert r.returncode != 0
+    assert "Traceback" not in r.stderr + r.stdout
+    assert "row 7, column 'panda_joint1'" in r.stderr + r.stdout
+
+
+def test_the_tree_with_a_learned_map_and_a_posture_keeps_theorem_2_on_rollouts(run, env):
+    """The reference tree (every weight 1, the random map) from three starts for 1 s in the kinematic simulator:
+    V_r never rises (rtol 1e-6)."""
+    tree = build_unit_weights(run, env.aux_dims()).to(torch.float64)
+    assert {"ee_latent", "posture"} <= set(tree.maps)
+    home = torch.tensor(env.params.robot.home, dtype=torch.float64)
+    q0 = home + torch.tensor([[0.0] * 7, [0.1, -0.1, 0.1, 0.1, 0.0, -0.1, 0.2], [-0.1, 0.1, 0.0, -0.1, 0.1, 0.1, 0.0]])
+    goal_q = torch.tensor(env.params.start_centre(), dtype=torch.float64).expand(3, -1)
+    ro = env.rollout(tree, q0, torch.zeros_like(q0), env.recorded_aux(goal_q), 1.0, env.dt)
+    assert ro.V is not None
+    assert bool(lyapunov_monotone(ro.V, rtol=1e-6, atol=1e-9).all())
+    assert not bool(ro.collided.any())
+
+
+@pytest.mark.slow
+def test_the_shipped_recording_is_what_the_tool_makes(tmp_path):
+    """The tool's first demonstration at seed 0 is the shipped file's first (the draws are sequential)."""
+    out = tmp_path / "one.csv"
+    r = subprocess.run(
+        [sys.executable, "tools/arm_recordings.py", "--demos", "1", "--out", str(out)],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+    )
+    assert r.returncode == 0, r.stderr[-2000:]
+    made = out.read_text().splitlines()
+    shipped = SHIPPED.read_text().splitlines()[: len(made)]
+    assert made == shipped
+
+
+@pytest.mark.slow
+def test_a_tiny_recorded_arm_run_end_to_end(tmp_path):
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "rmpfusion.cli.run",
+            "experiment=recorded_arm",
+            "train.iterations=3",
+            "train.snapshots=[0,3]",
+            "data.starts=3",
+            "data.horizon_factor=0.3",
+            "logger=disabled",
+            f"hydra.run.dir={tmp_path}",
+        ],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+    )
+    assert r.returncode == 0, r.stderr[-3000:]
+    m = json.loads((tmp_path / "metrics.json").read_text())
+    for res in (m["tree"], m["learners"]["rmp"]):
+        assert res["reproduction_test"]["dtw"] > 0
+        assert res["convergence"]["starts"] == 3
+        assert res["convergence"]["lyapunov_monotone_fraction"] == 1.0
+        assert res["reproduction_test"]["collisions"] == 0
+    assert (tmp_path / "figures" / "rollouts.png").is_file()
