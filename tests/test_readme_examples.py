@@ -84,6 +84,10 @@ EXCLUDED = {
     "make demo": "the full paper-size experiment (minutes; make may also install into .venv); the command it runs, "
     "rmpfusion-run experiment=2d1level, is the first line of the next block, run here at tiny sizes",
     "make test": "runs the test suite this file is part of",
+    "rmpfusion-run experiment=recorded_arm": "about 30 minutes; tests/test_recorded_arm.py runs it end to end at "
+    "tiny sizes (slow)",
+    "python tools/arm_recordings.py": "about 7 minutes (inverse kinematics and a clearance check of every plan); "
+    "tests/test_recorded_arm.py runs it for one demonstration and compares it with the shipped file (slow)",
     "rmpfusion-run -m experiment=2d2level sweep=seeds launcher=submitit_slurm hydra.launcher.partition=gpu": "needs a SLURM cluster (the submitit_local lines run the same launcher plugin on this machine)",
     "python tools/summarize_sweep.py outputs/multirun/<time>": "<time> stands for a sweep's directory; tests/test_runs.py runs summarize_sweep.py on a real sweep",
     "rmpfusion-view outputs/franka/<time>": "<time> stands for a Franka run's directory; tests/test_viewer.py views a real run's directory",
