@@ -325,6 +325,17 @@ def evaluate_policy(exp: Experiment, label: str, policy: Callable, batch: Batch)
     return out, ro
 
 
+#: at most about this many states are certified: every record up to it, else every n-th (an arm's 100 starts over
+#: 3,400 records would take minutes and gigabytes for a check that the stored fraction of records settles)
+CERTIFIED_STATES = 100_000
+
+
+def certified_every(ro: Rollout) -> int:
+    """Which records the certificate checks: every one, or every n-th so that about ``CERTIFIED_STATES`` are."""
+    T, B = ro.q.shape[:2]
+    return max(1, -(-T * B // CERTIFIED_STATES))
+
+
 def evaluate_recorded(exp: Experiment, fitted: dict, batch: Batch) -> tuple[dict, dict]:
     """The configured tree (every weight 1) and every learner at every training snapshot; the results and the
     final rollout of each policy (for the figures)."""
@@ -342,7 +353,7 @@ def evaluate_recorded(exp: Experiment, fitted: dict, batch: Batch) -> tuple[dict
             final, ro = evaluate_policy(exp, name, model.policy, batch)
         rollouts[f"{name} after {exp.run.train.iterations} iterations"] = ro
         if model.tree is not None:
-            final["certificate"] = certificate(model, ro, batch.aux)
+            final["certificate"] = certificate(model, ro, batch.aux, every=certified_every(ro))
         if learned := model.learned_numbers():
             final["learned_leaf_parameters"] = learned
         res["learners"][name] = {
