@@ -34,7 +34,11 @@ def expert_spec(run: RunConfig) -> dict:
 
 
 def build_expert(run: RunConfig, aux_dims: Mapping[str, int]) -> RMPTree:
-    """The expert tree; a problem with one of the expert's weights is reported at ``expert.<name>``."""
+    """The expert tree; a problem with one of the expert's weights is reported at ``expert.<name>``. A run with no
+    expert at all (``expert: null``: an experiment on recorded demonstrations, or its quick check on an expert data
+    preset) has the tree with every weight 1 as its reference, rather than weights at their random initialisation."""
+    if not run.expert:
+        return build_unit_weights(run, aux_dims)
     return build_tree(
         expert_spec(run), aux_dims=aux_dims, weight_paths={n: f"expert.{n}" for n in run.expert if n in run.tree.nodes}
     )
@@ -94,9 +98,8 @@ def learner_over_sets(
 
 
 def build_all(run: RunConfig):
-    """``(env, expert_tree, learners)`` for a validated config: everything an experiment runs on. A run on
-    recorded demonstrations has no expert: its reference tree is the configured tree with every weight 1."""
+    """``(env, expert_tree, learners)`` for a validated config: everything an experiment runs on. A run with no
+    expert (recorded demonstrations) has the configured tree with every weight 1 as its reference."""
     env = make_env(run)
     aux_dims = dict(env.aux_dims())
-    reference = build_unit_weights if run.data.source == "recorded" else build_expert
-    return env, reference(run, aux_dims), build_learners(run, aux_dims)
+    return env, build_expert(run, aux_dims), build_learners(run, aux_dims)

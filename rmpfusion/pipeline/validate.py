@@ -371,8 +371,8 @@ def resolve_and_validate(cfg: DictConfig | Mapping[str, Any]) -> RunConfig:
     except ConfigError as e:
         issues += e.issues
     run = run.model_copy(update={"expert": weights_by_name(run.tree, run.expert)})  # roles -> the names they cover
-    # recorded demonstrations have no expert (the reference is the tree with every weight 1)
-    issues += ([] if run.data.source == "recorded" and not run.expert else _expert_issues(run)) + _learner_issues(run)
+    # no expert at all (recorded demonstrations): the reference is the tree with every weight 1 (build_expert)
+    issues += (_expert_issues(run) if run.expert else []) + _learner_issues(run)
     if env is not None:
         issues += _method_issues(run, env) + _recording_issues(run, env)
     if aux_dims is not None and not issues:
