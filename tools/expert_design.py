@@ -6,6 +6,10 @@ in their training placement): designing the expert never looks at the test set.
     python tools/expert_design.py                              # experiment=franka, kinematic rollouts at 250 Hz
     python tools/expert_design.py --experiment reach robot=iiwa --rate 1000 --mode torque
     python tools/expert_design.py --experiment reach robot=iiwa --only expert env.reach_layout.turn=1.0
+    python tools/expert_design.py --experiment reach robot=ur5 --out results/reach_expert_design/ur5
+
+With --out DIR the numbers are also written to DIR/metrics.json (the command, the seed, the wall time and every
+policy's numbers), which tools/expert_design_table.py turns into the documentation's table.
 
 Prints, per policy (and learner-0, learner-rmp with the initial weights a run with this seed draws): time to 0.05 m,
 fraction reached, path lengths, goal distance at the 10 s time-out, collisions, close passes (no collision but within
@@ -18,14 +22,17 @@ further from the obstacles than unit ones do.
 from __future__ import annotations
 
 import argparse
+import shlex
 import sys
 import time
+from pathlib import Path
 
 import torch
 from hydra import compose, initialize_config_dir
 
 from rmpfusion.assembly.tree import build_tree
 from rmpfusion.cli import CONF_DIR
+from rmpfusion.files import atomic_write_json
 from rmpfusion.pipeline.collect import SPLIT_SEED_OFFSET
 from rmpfusion.pipeline.construct import build_all, build_learners, expert_spec
 from rmpfusion.pipeline.experiment import learner_seed
@@ -70,8 +77,10 @@ def main(argv=None) -> int:
         default=None,
         help="run only these policies (default: all four)",
     )
+    ap.add_argument("--out", type=Path, default=None, help="also write the numbers to OUT/metrics.json")
     ap.add_argument("overrides", nargs="*", help="further Hydra overrides, e.g. expert.attractor.low=20")
     a = ap.parse_args(argv)
+    started = time.time()
     torch.set_num_threads(1)
     over = [
         f"experiment={a.experiment}",
@@ -96,10 +105,12 @@ def main(argv=None) -> int:
         "learner-0": "learner-0",
     }
     keep = set(chosen.values()) if a.only is None else {chosen[k] for k in a.only}
+    found: dict[str, dict] = {}
     for label, policy in policies(run, env, keep):
         t0 = time.time()
         ro = env.rollout(policy, q0, qd0, aux, horizon=10.0, record_every=0.1)
         m = env.task_metrics(ro)
+        found[label] = summary(m)
         print(
             f"{label:24s} {m['time'].mean():5.2f}±{m['time'].std():4.2f} {m['reached'].mean():8.2f} "
             f"{m['cspace_length'].mean():8.2f} {m['ee_length'].mean():8.2f} {m['timeout_goal_distance'].mean():9.3f} "
@@ -109,7 +120,36 @@ def main(argv=None) -> int:
             flush=True,
         )
     env.close()
+    if a.out is not None:
+        command = "python tools/expert_design.py " + " ".join(shlex.quote(x) for x in (argv or sys.argv[1:]))
+        atomic_write_json(
+            a.out / "metrics.json",
+            {
+                "command": command,
+                "seed": run.seed,
+                "trajectories": a.trajectories,
+                "rate": a.rate,
+                "mode": a.mode,
+                "policies": found,
+                "timing": {"total_s": round(time.time() - started, 1)},
+            },
+        )
+        print(f"written: {a.out / 'metrics.json'}")
     return 0
+
+
+def summary(m: dict) -> dict:
+    """One policy's numbers over the starts, as the table prints them (distances in m)."""
+    return {
+        "time": {"mean": float(m["time"].mean()), "std": float(m["time"].std())},
+        "reached": int(m["reached"].sum()),
+        "cspace_length": float(m["cspace_length"].mean()),
+        "ee_length": float(m["ee_length"].mean()),
+        "timeout_goal_distance": float(m["timeout_goal_distance"].mean()),
+        "collisions": int(m["collided"].sum()),
+        "close_passes": int(m["close_pass"].sum()),
+        "min_clearance": {"least": float(m["min_clearance"].min()), "median": float(m["min_clearance"].median())},
+    }
 
 
 if __name__ == "__main__":
