@@ -84,6 +84,9 @@ EXCLUDED = {
     "make demo": "the full paper-size experiment (minutes; make may also install into .venv); the command it runs, "
     "rmpfusion-run experiment=2d1level, is the first line of the next block, run here at tiny sizes",
     "make test": "runs the test suite this file is part of",
+    "rmpfusion-run -m 'experiment=glob(*)' data=tiny train=tiny eval=fast logger=disabled": "the same sweep as "
+    "tests/test_configs.py::test_sweep_all_experiments_tiny (slow), which runs it and checks that every experiment "
+    "wrote its metrics (minutes: run once, not twice)",
     "rmpfusion-run experiment=recorded_arm": "about 30 minutes; tests/test_recorded_arm.py runs it end to end at "
     "tiny sizes (slow)",
     "python tools/arm_recordings.py": "about 7 minutes (inverse kinematics and a clearance check of every plan); "

@@ -20,8 +20,10 @@ RESULTS = ROOT / "results"
 sys.path.insert(0, str(ROOT / "tools"))
 import compare_metrics
 import dagger_table
+import expert_design_table
 import lasa_table
 import leaves_table
+import recorded_arm_table
 import reproduce_2d
 import task_table
 
@@ -36,6 +38,8 @@ TOOLS = {
     "task_table": task_table.table,
     "leaves_table": leaves_table.table,
     "dagger_table": dagger_table.markdown_table,
+    "expert_design_table": expert_design_table.table,
+    "recorded_arm_table": recorded_arm_table.table,
 }
 
 
