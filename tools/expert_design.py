@@ -109,13 +109,12 @@ def main(argv=None) -> int:
     for label, policy in policies(run, env, keep):
         t0 = time.time()
         ro = env.rollout(policy, q0, qd0, aux, horizon=10.0, record_every=0.1)
-        m = env.task_metrics(ro)
-        found[label] = summary(m)
+        s = found[label] = summary(env.task_metrics(ro))
         print(
-            f"{label:24s} {m['time'].mean():5.2f}±{m['time'].std():4.2f} {m['reached'].mean():8.2f} "
-            f"{m['cspace_length'].mean():8.2f} {m['ee_length'].mean():8.2f} {m['timeout_goal_distance'].mean():9.3f} "
-            f"{int(m['collided'].sum()):10d} {int(m['close_pass'].sum()):6d} "
-            f"{float(m['min_clearance'].min()):11.4f}/{float(m['min_clearance'].median()):.4f}   "
+            f"{label:24s} {s['time']['mean']:5.2f}±{s['time']['std']:4.2f} {s['reached'] / len(q0):8.2f} "
+            f"{s['cspace_length']:8.2f} {s['ee_length']:8.2f} {s['timeout_goal_distance']:9.3f} "
+            f"{s['collisions']:10d} {s['close_passes']:6d} "
+            f"{s['min_clearance']['least']:11.4f}/{s['min_clearance']['median']:.4f}   "
             f"({time.time() - t0:.0f} s)",
             flush=True,
         )

@@ -13,9 +13,10 @@ over the starts (cm).
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
+
+from compare_metrics import metrics_path, read_metrics
 
 HEADER = (
     "| robot | policy | reached | time (s) | goal distance at 10 s (m) | collisions | close passes | clearance (cm) |\n"
@@ -62,8 +63,10 @@ def main(argv=None) -> int:
         robot, sep, where = spec.partition("=")
         if not sep:
             ap.error(f"'{spec}': give ROBOT=DIR")
-        path = Path(where) / "metrics.json" if Path(where).is_dir() else Path(where)
-        runs[robot] = json.loads(path.read_text(encoding="utf-8"))
+        try:
+            runs[robot] = read_metrics(metrics_path(Path(where)))
+        except ValueError as e:
+            ap.error(str(e))
     print(table(runs), end="")
     return 0
 
