@@ -60,6 +60,7 @@ def _overrides_for(group: str, option: str) -> list[str]:
 VARIANTS = {
     ("tree", "lasa"): ["experiment=lasa", "tree=lasa"],  # LASA's weights-only baseline
     ("data", "recorded"): ["experiment=lasa", "data=recorded", "data.format=lasa", "data.shape=Angle"],
+    ("train", "match_lasa"): ["experiment=lasa", "train=match_lasa"],  # trajectory matching in place of BC
 }
 
 

@@ -98,7 +98,7 @@ def test_a_users_csv_of_noisy_irregular_recordings_runs(tmp_path):
 
 def test_bad_recorded_configs_are_one_error_naming_the_key(tmp_path):
     cases = [
-        (["train=dagger"], "train.method", "needs an expert"),
+        (["train=dagger"], "train.method", "learns from recordings: bc, match"),
         (["+expert.attractor=1.0"], "expert", "have no expert"),
         (["data.shape=Sshap"], "data", "did you mean 'Sshape'"),
         (["data.window=10"], "data", "must be odd"),

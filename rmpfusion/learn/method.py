@@ -12,7 +12,7 @@ from abc import ABC, abstractmethod
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any, Generic, TypeVar
+from typing import Any, ClassVar, Generic, TypeVar
 
 import torch
 from torch import nn
@@ -86,6 +86,10 @@ class TrainingMethod(ABC, Generic[P]):
     checkpoints, signals, resume) is shared (``learn/loop.py``)."""
 
     Params: type[TrainParams] = TrainParams
+
+    #: whether the method learns from recorded demonstrations alone (``data.source: recorded``): behavior cloning on
+    #: the recorded accelerations and trajectory matching do; a method that asks an expert or a task cost does not
+    from_recordings: ClassVar[bool] = False
 
     def __init__(self, params: P):
         self.params = params

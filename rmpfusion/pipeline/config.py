@@ -366,15 +366,16 @@ class RunConfig(_Frozen):
                 )
             )
         method = method_of(self.train) if isinstance(self.train, TrainParams) else None
-        if method not in (None, "bc"):
+        if method is not None and not TRAIN_METHODS.get(method).obj.from_recordings:
+            able = sorted(e.name for e in TRAIN_METHODS.entries() if e.obj.from_recordings)
             issues.append(
                 (
                     ("train", "method"),
                     method,
                     (
                         f"train.method={method} needs an expert or the environment's "
-                        "task cost, which recorded demonstrations do not give; use train.method=bc (behavior "
-                        "cloning on the recorded accelerations)"
+                        "task cost, which recorded demonstrations do not give; use a method that learns from "
+                        f"recordings: {', '.join(able)} (bc: behavior cloning on the recorded accelerations)"
                     ),
                 )
             )

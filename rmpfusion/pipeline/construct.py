@@ -47,7 +47,15 @@ def build_expert(run: RunConfig, aux_dims: Mapping[str, int]) -> RMPTree:
 def build_unit_weights(run: RunConfig, aux_dims: Mapping[str, int]) -> RMPTree:
     """The run's tree with every edge weight 1: RMPflow, the reference the paper's learned weights are compared
     with. The tree spec may carry weights of its own (the generated Franka tree starts learners' MLPs there): a
-    node's own weight is removed (absent = 1) and every shared weight becomes the constant 1."""
+    node's own weight is removed (absent = 1) and every shared weight becomes the constant 1. What the tree still
+    draws at random (a learned map's initial parameters) is drawn from the run's seed, so the reference is the same
+    tree whenever it is built (before training or after it, which consumes the global generator)."""
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(run.seed)
+        return _unit_weight_tree(run, aux_dims)
+
+
+def _unit_weight_tree(run: RunConfig, aux_dims: Mapping[str, int]) -> RMPTree:
     tree = plain_data(run.tree)
     own = {
         n: None

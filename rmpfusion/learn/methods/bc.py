@@ -61,6 +61,7 @@ class BehaviorCloning(TrainingMethod[BCParams]):
     """Behavior cloning from the expert's demonstrations (the paper's method)."""
 
     Params = BCParams
+    from_recordings = True
 
     def steps(self, model, ctx, opt, gen) -> Steps:
         return MinibatchSteps(model, self.params, ctx, opt, gen)

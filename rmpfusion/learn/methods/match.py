@@ -1,0 +1,211 @@
+"""Trajectory matching (``train: {method: match}``): roll the learner out from each training demonstration's start,
+with the demonstration's initial velocity and aux state, and minimise the soft-DTW alignment cost
+(``learn/alignment.py``) between the rollout's path and the demonstration's, back-propagated through the
+differentiable rollout APG uses (``DifferentiableRollouts``: the 2-D particle and the plane).
+
+Behavior cloning fits accelerations at the demonstrated states only; a rollout leaves those states as soon as it
+errs, and the errors add up. Matching whole rollouts trains on the states the policy itself visits. Recorded
+demonstrations differ in speed (a human draws the same letter faster or slower), so the rollout is not compared
+with the demonstration sample for sample at the same time: soft-DTW aligns the two paths monotonically, and the
+loss measures their shapes, with time entering only through the order of the records.
+
+The alignment, stated: both paths are sampled every ``record_every`` seconds (the demonstration by linear
+interpolation of its records, the rollout at its records); every rollout lasts ``horizon_factor`` times the longest
+demonstration of the split, so a policy that is slower than its demonstration is still compared over the whole
+path, and one that arrives early pairs its rest at the goal with the demonstration's end. Each coordinate is divided
+by its spread over the training demonstrations (``scaled_square_distances``), and a pair's cost is averaged over
+the alignment's length (the sum of the two paths' record counts), so the loss reads as a squared distance per record
+in units of that spread.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Literal
+
+import numpy as np
+import torch
+from pydantic import Field
+from torch import Tensor, nn
+
+from ...envs.demonstrations import Dataset
+from ...envs.protocol import DifferentiableRollouts, Env
+from ...registry import TRAIN_METHODS
+from ..alignment import scaled_square_distances, soft_dtw
+from ..config import TrainParams
+from ..loop import Steps, optimizer_step
+from ..method import MethodContext, TrainingMethod
+from .apg import SimulatedEnv, on_grid
+
+
+class MatchParams(TrainParams):
+    """Demonstrations per step, the records the paths are compared at, and the alignment's smoothing."""
+
+    method: Literal["match"] = Field("match", description="the TRAIN_METHODS entry these settings are for")
+    batch_size: int = Field(
+        8, ge=1, description="demonstrations rolled out per step, drawn uniformly (capped at the training split's)"
+    )
+    record_every: float = Field(0.1, gt=0, description="seconds between the records the two paths are compared at")
+    horizon_factor: float = Field(
+        1.5, ge=1.0, description="every rollout lasts this many times the longest training demonstration"
+    )
+    dt: float | None = Field(
+        None,
+        gt=0,
+        description="integration step of the training rollouts (null: the environment's); evaluation keeps the "
+        "environment's own",
+    )
+    gamma: float = Field(
+        0.01,
+        gt=0,
+        description="soft-DTW smoothing, in the units of the scaled squared distance (→ 0: hard DTW, not smooth)",
+    )
+
+    def describe(self) -> str:
+        return (
+            f"{super().describe()}; {self.batch_size} demonstrations per step, soft-DTW (gamma={self.gamma}) "
+            f"every {self.record_every}s over {self.horizon_factor}x the longest demonstration"
+            f"{f', integrated at dt={self.dt}' if self.dt else ''}"
+        )
+
+
+class DemonstrationPaths:
+    """A split's demonstrations as the matching loss reads them: each one's start (q0, q̇0, aux) and its path on
+    the record grid, padded to the longest with ``lengths`` saying how many records are its own."""
+
+    def __init__(self, ds: Dataset, record_every: float):
+        starts, paths = [], []
+        for tid in ds.traj_id.unique():
+            rows = torch.nonzero(ds.traj_id == tid).squeeze(1)
+            rows = rows[torch.argsort(ds.t[rows])]
+            starts.append(int(rows[0]))
+            paths.append(on_records(ds.t[rows], ds.q[rows], record_every))
+        first = torch.as_tensor(starts)
+        self.q0, self.qd0 = ds.q[first], ds.qd[first]
+        self.aux = {k: v[first] for k, v in ds.aux.items()}
+        self.lengths = torch.as_tensor([len(p) for p in paths])
+        longest = int(self.lengths.max())
+        pad = lambda p: torch.cat([p, p[-1:].expand(longest - len(p), -1)])
+        self.paths = torch.stack([pad(p) for p in paths])  # (n, N, d)
+        self.duration = (longest - 1) * record_every
+
+    def __len__(self) -> int:
+        return self.q0.shape[0]
+
+    def spread(self) -> Tensor:
+        """(d,) the standard deviation of each coordinate over every record of every demonstration (a constant
+        coordinate counts as 1, not 0)."""
+        own = torch.cat([p[:n] for p, n in zip(self.paths, self.lengths)])
+        s = own.std(0)
+        return torch.where(s > 1e-12, s, torch.ones_like(s))
+
+
+def on_records(t: Tensor, q: Tensor, record_every: float) -> Tensor:
+    """(R, d) positions of a demonstration (records q (T, d) at times t (T,)) at 0, record_every, ... ≤ its
+    duration, by linear interpolation (demonstrations come on any grid; the rollouts record on this one)."""
+    times = (t - t[0]).detach().cpu().numpy()
+    end = float(times[-1])
+    grid = np.arange(0.0, end + 1e-9 * max(1.0, end), record_every)
+    values = q.detach().cpu().numpy()
+    out = np.stack([np.interp(grid, times, values[:, k]) for k in range(values.shape[1])], axis=1)
+    return torch.as_tensor(out, dtype=q.dtype, device=q.device)
+
+
+class MatchingCost:
+    """The mean over demonstrations of the per-record soft-DTW cost between each one's rollout and its path."""
+
+    def __init__(self, env: SimulatedEnv, params: MatchParams, scale: Tensor, duration: float):
+        self.env = env.with_step(params.dt) if params.dt is not None else env
+        self.params, self.scale = params, scale
+        every = params.record_every
+        self.horizon = math.ceil(params.horizon_factor * duration / every - 1e-9) * every
+
+    def __call__(self, policy, demos: DemonstrationPaths, idx: Tensor, backward: bool) -> float:
+        p = self.params
+        aux = {k: v[idx] for k, v in demos.aux.items()}
+        ro = self.env.rollout(
+            policy,
+            demos.q0[idx],
+            demos.qd0[idx],
+            aux,
+            horizon=self.horizon,
+            record_every=p.record_every,
+            enable_grad=backward,
+        )
+        rollout = ro.q.transpose(0, 1)  # (B, M, d)
+        paths, lengths = demos.paths[idx], demos.lengths[idx].to(rollout.device)
+        cost = scaled_square_distances(paths.to(rollout), rollout, self.scale.to(rollout))
+        per_record = soft_dtw(cost, lengths, p.gamma) / (lengths + rollout.shape[1])
+        loss = per_record.mean()
+        if backward:
+            loss.backward()
+        return float(loss.detach())
+
+
+class MatchSteps(Steps):
+    """One step: rollouts from ``batch_size`` training demonstrations' starts, their matching cost
+    back-propagated, one optimiser step. Held out: the cost of every validation demonstration."""
+
+    measure = "cost"
+
+    def __init__(self, model: nn.Module, params: MatchParams, ctx: MethodContext, opt, gen: torch.Generator):
+        ctx.need("match", env=ctx.env)
+        assert isinstance(ctx.env, SimulatedEnv), "Match.requirements refuses an environment without gradients"
+        self.model, self.params, self.ctx, self.opt, self.gen = model, params, ctx, opt, gen
+        self.train = DemonstrationPaths(ctx.train, params.record_every)
+        self.val = DemonstrationPaths(ctx.val, params.record_every) if ctx.val is not None else None
+        longest = max(self.train.duration, self.val.duration) if self.val is not None else self.train.duration
+        self.cost = MatchingCost(ctx.env, params, self.train.spread(), longest)
+        if params.batch_size > len(self.train):
+            ctx.tell(
+                f"train.batch_size={params.batch_size} is more than the {len(self.train)} training demonstrations: "
+                f"every step rolls out {len(self.train)}"
+            )
+
+    def step(self, it: int) -> float:
+        n = len(self.train)
+        idx = torch.randint(n, (min(self.params.batch_size, n),), generator=self.gen)
+        self.opt.zero_grad(set_to_none=True)
+        value = self.cost(self.model, self.train, idx, backward=True)
+        optimizer_step(self.model, self.opt, self.params)
+        return value
+
+    def held_out(self) -> dict[str, float]:
+        if self.val is None:
+            return {}
+        with torch.no_grad():
+            return {"val": self.cost(self.model, self.val, torch.arange(len(self.val)), backward=False)}
+
+    def info(self) -> dict[str, Any]:
+        return {"expert_queries": 0, "rollout_horizon_s": self.cost.horizon}
+
+
+@TRAIN_METHODS.register("match")
+class Match(TrainingMethod[MatchParams]):
+    """Trajectory matching: soft-DTW between rollouts and demonstrations, through differentiable rollouts."""
+
+    Params = MatchParams
+    from_recordings = True
+
+    @classmethod
+    def requirements(cls, params: MatchParams, env: Env, train_trajectories: int) -> list[tuple[str, str]]:
+        if not isinstance(env, DifferentiableRollouts):
+            return [
+                (
+                    "train.method",
+                    (
+                        f"match back-propagates through rollouts, which the environment '{type(env).__name__}' "
+                        "does not offer (it is not simulated in torch); use method bc, or an environment such as "
+                        "plane or particle2d"
+                    ),
+                )
+            ]
+        return on_grid(
+            {},
+            params.record_every,
+            params.dt or env.dt,
+            step="the training step train.dt" if params.dt else "the environment's step",
+        )
+
+    def steps(self, model, ctx, opt, gen) -> Steps:
+        return MatchSteps(model, self.params, ctx, opt, gen)
