@@ -11,7 +11,7 @@ import torch
 from conftest import ROOT
 
 from rmpfusion.scenes import ObstacleSet, World, WorldError
-from rmpfusion.scenes.clouds import cloud_members, keep_nearest, voxel_centroids
+from rmpfusion.scenes.clouds import cloud_members, keep_nearest, member_velocities, voxel_centroids
 
 
 def test_each_occupied_cube_becomes_the_centroid_of_its_points():
@@ -168,3 +168,42 @@ def test_per_control_point_members_equal_a_shared_set_holding_the_same_points():
     assert (a.qdd - b.qdd).abs().max() > 1e-6
     with pytest.raises(ValueError, match="members per control point"):
         with_slots([own], {"goal": goal})
+
+
+def test_members_of_a_moving_cloud_get_its_velocity():
+    """A box's surface seen twice, 1/30 s apart, after it moved 1 cm along x (0.3 m/s). The members on the faces
+    across the motion (±x) move with it; those on the faces along it slide along themselves and show little of it
+    (the aperture problem the docstring states). A cloud at rest gets no velocity."""
+    moving = ObstacleSet(shape="sphere", n_max=400, name="cloud", moving=True)
+    world = World([moving])
+    interval, shift = 1 / 30, torch.tensor([0.01, 0.0, 0.0], dtype=torch.float64)
+    pts = box_surface(3000, seed=2)
+    world.set_cloud("cloud", pts, voxel=0.04, radius=0.035)
+    assert torch.all(world.tensors["cloud_velocity"] == 0)  # the first cloud has nothing to move from
+    world.set_cloud("cloud", pts, voxel=0.04, radius=0.035, since=interval)
+    assert torch.all(world.tensors["cloud_velocity"] == 0)  # at rest: the same members
+    world.set_cloud("cloud", pts + shift, voxel=0.04, radius=0.035, since=interval)
+    mask = world.tensors["cloud_mask"][0] > 0
+    v, c = world.tensors["cloud_velocity"][0][mask], world.tensors["cloud_center"][0][mask]
+    across = (c[:, 0] - 0.51).abs() > 0.095  # the members on the ±x faces (the box's centre is now at x = 0.51)
+    assert across.sum() >= 20
+    mean = v[across].mean(0)
+    assert float(mean[0]) == pytest.approx(0.3, rel=0.15)
+    assert float(mean[1:].abs().max()) < 0.03
+    assert float(v[~across].mean(0)[0]) < 0.5 * float(mean[0])  # along the motion: underestimated
+    assert torch.all(world.tensors["cloud_velocity"][0][~mask] == 0)
+
+
+def test_cloud_velocities_exact_for_separate_points_and_zero_for_what_appears():
+    previous = torch.tensor([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]], dtype=torch.float64)
+    now = torch.tensor([[0.01, 0.0, 0.0], [1.0, 0.02, 0.0], [3.0, 0.0, 0.0]], dtype=torch.float64)
+    v = member_velocities(now, torch.ones(3), previous, torch.ones(2), interval=0.1, max_speed=1.0)
+    torch.testing.assert_close(v, torch.tensor([[0.1, 0, 0], [0, 0.2, 0], [0, 0, 0]], dtype=torch.float64))
+    # an absent previous member is never matched; an absent member has no velocity
+    v = member_velocities(now, torch.tensor([1.0, 1.0, 0.0]), previous, torch.tensor([0.0, 1.0]), 0.1, 100.0)
+    torch.testing.assert_close(v[0], torch.tensor([-9.9, 0.0, 0.0], dtype=torch.float64))
+    assert torch.all(v[2] == 0)
+    with pytest.raises(WorldError, match="not moving"):
+        World([ObstacleSet(shape="sphere", n_max=4, name="cloud")]).set_cloud("cloud", now, 0.05, 0.05, since=0.1)
+    with pytest.raises(ValueError, match="interval between two clouds must be > 0"):
+        member_velocities(now, torch.ones(3), previous, torch.ones(2), interval=0.0, max_speed=1.0)

@@ -10,6 +10,12 @@ spheres' centres: what can be hit first), ties broken by the cube's index, so th
 Or, per control point (``ObstacleSet.per_control_point``): every control point's own members are the ``k`` points of
 the cloud nearest to its centre (``nearest_per_point``); no binning, so a small ``k`` serves a dense cloud.
 
+Velocities from successive clouds (optional, for a set with ``moving: true``): a cloud has no point identities, so
+each member's velocity is its displacement from the nearest member of the previous cloud over the time between the
+two (``member_velocities``), taken as zero where that nearest member is farther than ``max_speed`` times the interval
+(a surface that came into view, not one that moved). The estimate is a first-order one: a surface sliding along
+itself shows no displacement (the aperture problem), and the binning adds up to a cube's side of noise per frame.
+
 What Theorem 2 promises: between two clouds the members are fixed aux state and V_r does not rise. When a new
 cloud replaces the members (or the kept cubes switch as the arm moves), the aux state jumps, and V_r may jump with
 it, as at any change of the world (docs/math.md §13).
@@ -91,3 +97,22 @@ def per_point_aux(obstacle_set: ObstacleSet, members: Tensor, mask: Tensor, radi
         out[f"{p}_radius"] = members.new_full((1, members.shape[1], 1), radius)
         out[f"{p}_mask"] = mask[i - 1].unsqueeze(0)
     return out
+
+
+def member_velocities(
+    centres: Tensor, mask: Tensor, previous: Tensor, previous_mask: Tensor, interval: float, max_speed: float
+) -> Tensor:
+    """(…, n, 3) velocities of the members ``centres`` (…, n, 3) (present where ``mask`` (…, n) is 1) from the
+    members of the previous cloud, ``previous`` (…, m, 3) with ``previous_mask`` (…, m), taken ``interval`` seconds
+    earlier: each member's displacement from the nearest previous member over ``interval``; zero for an absent
+    member, where no previous member is present, and where the nearest is farther than ``max_speed · interval``."""
+    if not interval > 0:
+        raise ValueError(f"the interval between two clouds must be > 0 (s); given {interval}")
+    if not max_speed > 0:
+        raise ValueError(f"max_speed must be > 0 (m/s: the fastest an obstacle is taken to move); given {max_speed}")
+    gap = torch.cdist(centres, previous.to(centres))
+    gap = torch.where(previous_mask[..., None, :] > 0, gap, torch.full_like(gap, float("inf")))
+    distance, nearest = gap.min(-1)
+    matched = torch.gather(previous.to(centres), -2, nearest[..., None].expand(*nearest.shape, 3))
+    keep = (mask > 0) & (distance <= max_speed * interval)
+    return torch.where(keep[..., None], (centres - matched) / interval, torch.zeros_like(centres))

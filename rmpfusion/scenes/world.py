@@ -18,7 +18,7 @@ from collections.abc import Mapping, Sequence
 import torch
 from torch import Tensor
 
-from .clouds import cloud_members
+from .clouds import cloud_members, member_velocities
 from .sets import PARKED, ObstacleSet, with_slots
 
 #: the fields that give an obstacle its size (``resize``), the others are its pose (``move``)
@@ -110,11 +110,22 @@ class World:
     def set_goal(self, goal: Sequence[float] | Tensor) -> None:
         self.goal = self._row(goal, 3, "goal")
 
-    def set_cloud(self, set_name: str, points: Tensor, voxel: float, radius: float, near: Tensor | None = None) -> int:
+    def set_cloud(
+        self,
+        set_name: str,
+        points: Tensor,
+        voxel: float,
+        radius: float,
+        near: Tensor | None = None,
+        since: float | None = None,
+        max_speed: float = 2.0,
+    ) -> int:
         """Fill the sphere set ``set_name`` with a point cloud (P, 3) in world coordinates, replacing whatever it
         held: one sphere of ``radius`` per occupied cube of side ``voxel``, the nearest to ``near`` kept when they are
         more than the set's members (``scenes/clouds.py``). The set then belongs to the cloud (its members have no
-        ids to move or remove one by one). Returns how many members the cloud filled."""
+        ids to move or remove one by one). In a moving set, ``since`` (the seconds since the previous cloud) gives
+        the members velocities from their displacement since that cloud (``member_velocities``; none beyond
+        ``max_speed`` m/s); without it they are at rest. Returns how many members the cloud filled."""
         if set_name not in self.sets:
             raise WorldError(f"no obstacle set '{set_name}'; sets: {', '.join(self.sets) or 'none'}")
         s = self.sets[set_name]
@@ -128,12 +139,22 @@ class World:
                 f"({', '.join(o for o, (p, _) in self.where.items() if p == set_name)}); a cloud needs a "
                 "set of its own"
             )
+        if since is not None and "velocity" not in s.fields():
+            raise WorldError(
+                f"obstacle set '{set_name}' is not moving: its members have no velocity to estimate from the "
+                "previous cloud; build it with moving: true, or leave out since"
+            )
         centres, mask = cloud_members(torch.as_tensor(points, dtype=self.dtype), voxel, s.n_max, near)
+        if "velocity" in s.fields():
+            previous, previous_mask = self.tensors[f"{set_name}_center"][0], self.tensors[f"{set_name}_mask"][0]
+            self.tensors[f"{set_name}_velocity"][:] = (
+                member_velocities(centres, mask, previous, previous_mask, since, max_speed)
+                if since is not None
+                else 0.0
+            )
         self.tensors[f"{set_name}_center"][:] = centres
         self.tensors[f"{set_name}_radius"][:] = radius
         self.tensors[f"{set_name}_mask"][:] = mask
-        if "velocity" in s.fields():
-            self.tensors[f"{set_name}_velocity"][:] = 0.0
         return int(mask.sum())
 
     # ------------------------------------------------------------------ what a controller reads
