@@ -724,3 +724,48 @@ def test_evaluation_from_a_checkpoint_alone(tmp_path):
     bad.write_bytes(bytes(data))
     assert main([str(bad), "--out", str(tmp_path / "bad_eval")]) == 2
     assert not (tmp_path / "bad_eval" / "metrics.json").exists()
+
+
+def test_normalised_mse_weighs_coordinates_by_their_spread_and_samples_by_their_speed():
+    """The recorded-demonstration objective, against its formula written out: each coordinate in units of its
+    spread over the training set, each sample weighted by its speed over its demonstration's mean speed (floored,
+    mean 1); whole-dataset losses are the same quantity, and the reported loss of a run trained on it is the MSE."""
+    from rmpfusion.envs.demonstrations import Dataset
+    from rmpfusion.learn.objectives import dataset_loss, make_objective
+
+    gen = torch.Generator().manual_seed(0)
+    n = 40
+    traj = torch.arange(n) // 20  # two demonstrations of 20 samples
+    qd = torch.rand(n, 2, generator=gen, dtype=torch.float64) * torch.tensor([1.0, 0.1], dtype=torch.float64)
+    qd[:3] = 0.0  # a start at rest
+    qdd = torch.randn(n, 2, generator=gen, dtype=torch.float64) * torch.tensor([10.0, 0.5], dtype=torch.float64)
+    ds = Dataset(
+        q=torch.arange(n, dtype=torch.float64)[:, None].expand(n, 2),  # the row, for the model below
+        qd=qd,
+        qdd=qdd,
+        aux={},
+        env_id=traj,
+        traj_id=traj,
+        t=torch.arange(n, dtype=torch.float64),
+    )
+    objective = make_objective("normalised_mse")
+    objective.fit(ds)
+    w = objective.sample_weights(ds)
+    speed = qd.norm(dim=1)
+    expected = torch.cat([speed[k * 20 : (k + 1) * 20] / speed[k * 20 : (k + 1) * 20].mean() for k in (0, 1)])
+    expected = expected.clamp(min=0.1)
+    torch.testing.assert_close(w, expected / expected.mean())
+    assert torch.all(w[:3] == w.min())  # at rest: the floor
+    pred = torch.randn(n, 2, generator=gen, dtype=torch.float64)
+    scale = qdd.std(0)
+    by_formula = (w[:, None] * ((pred - qdd) / scale) ** 2).mean()
+    torch.testing.assert_close(objective(pred, qdd, w), by_formula)
+
+    class Fixed(torch.nn.Module):
+        def forward(self, q, qd_, aux):
+            return pred[q[:, 0].long()]
+
+    assert dataset_loss(Fixed(), ds, objective, chunk=7) == pytest.approx(float(by_formula), rel=1e-12)
+    with pytest.raises(RuntimeError, match="call fit"):
+        make_objective("normalised_mse")(pred, qdd)
+    assert TrainConfig(objective="normalised_mse").batch_loss_objective == "mse"

@@ -105,7 +105,7 @@ class BCParams(TrainParams):
 
     @property
     def batch_loss_objective(self) -> str:
-        return self.objective
+        return OBJECTIVES.get(self.objective).obj.reports_as or self.objective
 
     def describe(self) -> str:
         return (

@@ -27,6 +27,8 @@ class MinibatchSteps(Steps):
         self.model, self.params, self.ctx, self.opt, self.gen = model, params, ctx, opt, gen
         self.objective = make_objective(params.objective)
         self.data: Dataset = ctx.train
+        self.objective.fit(self.data)
+        self.weights = self.objective.sample_weights(self.data)
         if params.batch_size > len(self.data):
             ctx.tell(
                 f"train.batch_size={params.batch_size} is more than the {len(self.data)} training points: every "
@@ -39,7 +41,8 @@ class MinibatchSteps(Steps):
         idx = torch.randint(N, (min(self.params.batch_size, N),), generator=self.gen).to(self.data.q.device)
         q, qd, aux, qdd = self.data.select(idx)
         self.opt.zero_grad(set_to_none=True)
-        loss = self.objective(self.model(q, qd, aux), qdd)
+        pred = self.model(q, qd, aux)
+        loss = self.objective(pred, qdd) if self.weights is None else self.objective(pred, qdd, self.weights[idx])
         loss.backward()
         optimizer_step(self.model, self.opt, self.params)
         return float(loss.detach())
