@@ -27,6 +27,11 @@ def _registered(registry: Registry, name: str) -> str:
     return name
 
 
+def registered_objective(name: str) -> str:
+    """``name`` if OBJECTIVES has it, else a validation error naming the registered ones."""
+    return _registered(OBJECTIVES, name)
+
+
 class TrainParams(Params):
     """What every training method has: how long it runs, which iterates are kept, how it checkpoints and logs,
     and the optimiser of the learner's parameters with its step-size schedule.
@@ -101,7 +106,7 @@ class BCParams(TrainParams):
     @field_validator("objective")
     @classmethod
     def _objective_registered(cls, name: str) -> str:
-        return _registered(OBJECTIVES, name)
+        return registered_objective(name)
 
     @property
     def batch_loss_objective(self) -> str:

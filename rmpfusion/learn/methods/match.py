@@ -25,21 +25,23 @@ from typing import Any, Literal
 
 import numpy as np
 import torch
-from pydantic import Field
+from pydantic import Field, field_validator
 from torch import Tensor, nn
 
 from ...envs.demonstrations import Dataset
 from ...envs.protocol import DifferentiableRollouts, Env
 from ...registry import TRAIN_METHODS
 from ..alignment import scaled_square_distances, soft_dtw
-from ..config import TrainParams
+from ..config import BCParams, TrainParams, registered_objective
 from ..loop import Steps, optimizer_step
 from ..method import MethodContext, TrainingMethod
 from .apg import SimulatedEnv, on_grid
+from .bc import MinibatchSteps
 
 
 class MatchParams(TrainParams):
-    """Demonstrations per step, the records the paths are compared at, and the alignment's smoothing."""
+    """Demonstrations per step, the records the paths are compared at, the alignment's smoothing, and how many
+    behavior-cloning iterations come first."""
 
     method: Literal["match"] = Field("match", description="the TRAIN_METHODS entry these settings are for")
     batch_size: int = Field(
@@ -61,12 +63,32 @@ class MatchParams(TrainParams):
         description="soft-DTW smoothing, in the units of the scaled squared distance (→ 0: hard DTW, not smooth)",
     )
 
+    pretrain_iterations: int = Field(
+        0,
+        ge=0,
+        description="the first this many iterations are behavior cloning on the recorded accelerations (cheap, "
+        "and a start near the demonstrations), the rest trajectory matching",
+    )
+    pretrain_objective: str = Field("normalised_mse", description="the OBJECTIVES entry of those iterations")
+    pretrain_batch_size: int = Field(256, ge=1, description="samples per behavior-cloning iteration")
+
+    @field_validator("pretrain_objective")
+    @classmethod
+    def _objective_registered(cls, name: str) -> str:
+        return registered_objective(name)
+
     def describe(self) -> str:
         return (
             f"{super().describe()}; {self.batch_size} demonstrations per step, soft-DTW (gamma={self.gamma}) "
             f"every {self.record_every}s over {self.horizon_factor}x the longest demonstration"
             f"{f', integrated at dt={self.dt}' if self.dt else ''}"
+            f"{f', after {self.pretrain_iterations} iterations of behavior cloning' if self.pretrain_iterations else ''}"
         )
+
+    def cloning(self) -> BCParams:
+        """The settings of the behavior-cloning iterations: this block's optimiser, schedule and clipping."""
+        shared = self.model_dump(include=set(TrainParams.model_fields))
+        return BCParams(**shared, objective=self.pretrain_objective, batch_size=self.pretrain_batch_size)
 
 
 class DemonstrationPaths:
@@ -156,6 +178,7 @@ class MatchSteps(Steps):
         self.val = DemonstrationPaths(ctx.val, params.record_every) if ctx.val is not None else None
         longest = max(self.train.duration, self.val.duration) if self.val is not None else self.train.duration
         self.cost = MatchingCost(ctx.env, params, self.train.spread(), longest)
+        self.cloning = MinibatchSteps(model, params.cloning(), ctx, opt, gen) if params.pretrain_iterations else None
         if params.batch_size > len(self.train):
             ctx.tell(
                 f"train.batch_size={params.batch_size} is more than the {len(self.train)} training demonstrations: "
@@ -163,6 +186,8 @@ class MatchSteps(Steps):
             )
 
     def step(self, it: int) -> float:
+        if self.cloning is not None and it < self.params.pretrain_iterations:
+            return self.cloning.step(it)
         n = len(self.train)
         idx = torch.randint(n, (min(self.params.batch_size, n),), generator=self.gen)
         self.opt.zero_grad(set_to_none=True)
