@@ -21,6 +21,7 @@ sys.path.insert(0, str(ROOT / "tools"))
 import compare_metrics
 import dagger_table
 import expert_design_table
+import lasa_methods_table
 import lasa_table
 import leaves_table
 import recorded_arm_table
@@ -40,6 +41,7 @@ TOOLS = {
     "dagger_table": dagger_table.markdown_table,
     "expert_design_table": expert_design_table.table,
     "recorded_arm_table": recorded_arm_table.table,
+    "lasa_methods_table": lasa_methods_table.table,
 }
 
 
