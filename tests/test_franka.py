@@ -128,6 +128,19 @@ def test_kinematic_batch_equals_single_rollouts(env, expert):
     assert (rb.q[-1] != rb.q[0]).any()
 
 
+def test_kinematic_progress_counts_the_records_then_each_samples_collision_replay(env, expert):
+    """A kinematic rollout's long part after the records (each sample's path replayed for collisions) is reported
+    too: progress climbs to records + samples, one unit per sample replayed, never back."""
+    q0, qd0, aux = env.sample(3, 1, seed=2)
+    calls: list[tuple[int, int]] = []
+    with torch.no_grad():
+        env.rollout(expert, q0, qd0, aux, horizon=0.1, record_every=0.05, progress=lambda i, n: calls.append((i, n)))
+    records, samples = 2, 3
+    assert {n for _, n in calls} == {records + samples}
+    done = [i for i, _ in calls]
+    assert done == sorted(done) and done[-samples:] == [records + 1, records + 2, records + 3]
+
+
 def test_collision_detection_on_hand_made_configurations(env):
     q = torch.tensor([NOMINAL, NOMINAL], dtype=F64)
     ee = env.ee_position(q[:1])[0].tolist()

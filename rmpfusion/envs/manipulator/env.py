@@ -318,18 +318,28 @@ class Manipulator(ComputesOnDevice, SeededSampling):
 
         ``policy`` returns a (B, dof) tensor or a TreeOutput (then V and q̇ᵀBq̇ are recorded from the same
         evaluation). ``record_every`` and ``horizon`` must be multiples of 1/control_rate. ``mode`` overrides the
-        env's. ``monitor(i, t, q, qd, qdd, V)`` is called at each record, and ``progress(i, total)`` too.
+        env's. ``monitor(i, t, q, qd, qdd, V)`` is called at each record, and ``progress(done, total)`` too (in kinematic
+        mode also once per sample replayed for collisions after the records).
         """
         n_steps, every = time_grid(horizon, record_every, self.dt, "1/control_rate")
         check_initial_states(q0, qd0, self.dim)
         mode = mode or self.params.mode
-        if progress is not None:  # progress(records done, records in all), reported at every record
-            monitor = _reporting(monitor, progress, n_steps // every)
         aux = {k: torch.as_tensor(v, dtype=self.dtype) for k, v in aux.items()}  # lists: never via float32
         q0, qd0 = q0.to(self.dtype), qd0.to(self.dtype)
-        run = rollout_torque if mode == "torque" else rollout_kinematic
+        records = n_steps // every
+        policy = on_device(policy, self.device)
         with torch.set_grad_enabled(enable_grad):
-            return run(self, on_device(policy, self.device), q0, qd0, aux, n_steps, every, monitor)
+            if mode == "torque":
+                if progress is not None:  # progress(records done, records in all), reported at every record
+                    monitor = _reporting(monitor, progress, records)
+                return rollout_torque(self, policy, q0, qd0, aux, n_steps, every, monitor)
+            # kinematic: after the records, every sample's path is replayed in the simulator for collisions (minutes
+            # for a large batch at 1 kHz), one unit of progress per sample
+            total = records + q0.shape[0]
+            if progress is not None:
+                monitor = _reporting(monitor, progress, total)
+            replayed = None if progress is None else (lambda b: progress(records + b + 1, total))
+            return rollout_kinematic(self, policy, q0, qd0, aux, n_steps, every, monitor, replayed)
 
     # ------------------------------------------------------------------ demonstrations and task metrics
     def demonstration_lengths(self, ro: Rollout) -> Tensor:

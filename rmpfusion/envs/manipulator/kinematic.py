@@ -29,14 +29,16 @@ def rollout_kinematic(
     n_steps: int,
     every: int,
     monitor: Callable[..., Any] | None,
+    replayed: Callable[[int], Any] | None = None,
 ) -> Rollout:
     """``n_steps`` integration steps recorded every ``every`` steps; a sample whose policy evaluation raises or
-    whose state stops being finite ends there with its reason, the others go on."""
+    whose state stops being finite ends there with its reason, the others go on. ``replayed(b)`` is called once
+    sample b's path has been checked for collisions."""
     policy = IsolatingPolicy(policy)  # a sample whose evaluation raises gets NaN, the others go on
     errors: list[str | None] = [None] * q0.shape[0]
     rec, path, goal_hit, alive = _integrate(env, policy, q0, qd0, aux, n_steps, every, monitor, errors)
     death = rec.death_index(alive, errors, n_steps, every)
-    min_clear, first_hit = _replay_collisions(env, torch.stack(path), aux, n_steps, death, errors)
+    min_clear, first_hit = _replay_collisions(env, torch.stack(path), aux, n_steps, death, errors, replayed)
     return finish(env, "kinematic", rec, aux, min_clear, first_hit, goal_hit, errors)
 
 
@@ -80,7 +82,13 @@ def _integrate(env: Manipulator, policy: IsolatingPolicy, q0, qd0, aux, n_steps,
 
 
 def _replay_collisions(
-    env: Manipulator, Q: Tensor, aux, n_steps: int, death: list[int], errors: list[str | None]
+    env: Manipulator,
+    Q: Tensor,
+    aux,
+    n_steps: int,
+    death: list[int],
+    errors: list[str | None],
+    replayed: Callable[[int], Any] | None = None,
 ) -> tuple[Tensor, Tensor]:
     """(smallest clearance, first collision time) of every sample from its configurations Q (n_steps+1, B, dof) up
     to the step it died at, by the simulator's closest points in the env's collision world (moving obstacles where they
@@ -105,4 +113,6 @@ def _replay_collisions(
         except SimulationError as e:
             errors[b] = f"simulator error during collision check: {e}"
             env.worlds.discard_checker()  # a broken world is not reused
+        if replayed is not None:
+            replayed(b)
     return min_clear, first_hit
