@@ -97,6 +97,21 @@ def metrics_path(p: Path) -> Path:
     return p / "metrics.json" if p.is_dir() else p
 
 
+def read_labelled_runs(ap: argparse.ArgumentParser, items: list[str], form: str = "LABEL=PATH") -> dict[str, dict]:
+    """``{label: metrics}`` of command-line items ``LABEL=PATH`` (PATH a metrics.json or the directory holding it), in
+    order; a malformed item or a missing or damaged file ends the command with one line (``ap.error``)."""
+    runs = {}
+    for item in items:
+        label, sep, path = item.partition("=")
+        if not sep:
+            ap.error(f"'{item}': give each run as {form}")
+        try:
+            runs[label] = read_metrics(metrics_path(Path(path)))
+        except ValueError as e:
+            ap.error(str(e))
+    return runs
+
+
 def read_metrics(path: Path) -> dict:
     """A run's metrics.json, or a ValueError naming the file and what is wrong with it (missing, cut short)."""
     try:

@@ -14,9 +14,8 @@ from __future__ import annotations
 
 import argparse
 import sys
-from pathlib import Path
 
-from compare_metrics import metrics_path, read_metrics
+from compare_metrics import read_labelled_runs
 
 HEADER = (
     "| robot | policy | reached | time (s) | goal distance at 10 s (m) | collisions | close passes | clearance (cm) |\n"
@@ -58,16 +57,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("runs", nargs="+", help="ROBOT=DIR (DIR/metrics.json from expert_design.py --out DIR)")
     a = ap.parse_args(argv)
-    runs = {}
-    for spec in a.runs:
-        robot, sep, where = spec.partition("=")
-        if not sep:
-            ap.error(f"'{spec}': give ROBOT=DIR")
-        try:
-            runs[robot] = read_metrics(metrics_path(Path(where)))
-        except ValueError as e:
-            ap.error(str(e))
-    print(table(runs), end="")
+    print(table(read_labelled_runs(ap, a.runs, form="ROBOT=DIR")), end="")
     return 0
 
 

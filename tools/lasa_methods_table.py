@@ -17,7 +17,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from compare_metrics import metrics_path, read_metrics
+from compare_metrics import read_labelled_runs
 
 HEADER = (
     "| run | shape | iteration | validation DTW (mm) | test DTW (mm) | test swept area (mm²) | test final distance (mm) "
@@ -61,13 +61,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("runs", nargs="+", help="LABEL=PATH: a run's metrics.json (or its directory) and its row label")
     args = ap.parse_args(argv)
-    runs = {}
-    for item in args.runs:
-        label, sep, path = item.partition("=")
-        if not sep:
-            ap.error(f"'{item}': give each run as LABEL=PATH")
-        runs[label] = read_metrics(metrics_path(Path(path)))
-    print(table(runs), end="")
+    print(table(read_labelled_runs(ap, args.runs)), end="")
     return 0
 
 

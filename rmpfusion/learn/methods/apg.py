@@ -181,6 +181,15 @@ def on_grid(
     return issues
 
 
+def not_differentiable(method: str, env: Env, instead: str) -> tuple[str, str]:
+    """The requirement a method that back-propagates through rollouts states of an environment without them."""
+    message = (
+        f"{method} back-propagates through rollouts, which the environment '{type(env).__name__}' does not offer "
+        f"(it is not simulated in torch with a differentiable goal distance and clearance); {instead}"
+    )
+    return ("train.method", message)
+
+
 @TRAIN_METHODS.register("apg")
 class APG(TrainingMethod[APGParams]):
     """Policy optimisation by back-propagating a task cost through differentiable rollouts."""
@@ -190,17 +199,7 @@ class APG(TrainingMethod[APGParams]):
     @classmethod
     def requirements(cls, params: APGParams, env: Env, train_trajectories: int) -> list[tuple[str, str]]:
         if not isinstance(env, DifferentiableRollouts):
-            return [
-                (
-                    "train.method",
-                    (
-                        f"apg back-propagates through rollouts, which the environment "
-                        f"'{type(env).__name__}' does not offer (it is not simulated in torch with a "
-                        "differentiable goal distance and clearance); use method pg, or an environment "
-                        "such as particle2d"
-                    ),
-                )
-            ]
+            return [not_differentiable("apg", env, "use method pg, or an environment such as particle2d")]
         return on_grid(
             {"horizon": params.horizon, "truncation": params.window},
             params.record_every,

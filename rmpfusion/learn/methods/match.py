@@ -35,7 +35,7 @@ from ..alignment import scaled_square_distances, soft_dtw
 from ..config import BCParams, TrainParams, registered_objective
 from ..loop import Steps, optimizer_step
 from ..method import MethodContext, TrainingMethod
-from .apg import SimulatedEnv, on_grid
+from .apg import SimulatedEnv, not_differentiable, on_grid
 from .bc import MinibatchSteps
 
 
@@ -215,16 +215,7 @@ class Match(TrainingMethod[MatchParams]):
     @classmethod
     def requirements(cls, params: MatchParams, env: Env, train_trajectories: int) -> list[tuple[str, str]]:
         if not isinstance(env, DifferentiableRollouts):
-            return [
-                (
-                    "train.method",
-                    (
-                        f"match back-propagates through rollouts, which the environment '{type(env).__name__}' "
-                        "does not offer (it is not simulated in torch); use method bc, or an environment such as "
-                        "plane or particle2d"
-                    ),
-                )
-            ]
+            return [not_differentiable("match", env, "use method bc, or an environment such as plane or particle2d")]
         return on_grid(
             {},
             params.record_every,
