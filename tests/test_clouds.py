@@ -207,3 +207,44 @@ def test_cloud_velocities_exact_for_separate_points_and_zero_for_what_appears():
         World([ObstacleSet(shape="sphere", n_max=4, name="cloud")]).set_cloud("cloud", now, 0.05, 0.05, since=0.1)
     with pytest.raises(ValueError, match="interval between two clouds must be > 0"):
         member_velocities(now, torch.ones(3), previous, torch.ones(2), interval=0.0, max_speed=1.0)
+
+
+def test_the_camera_fed_policy_gives_its_moving_members_the_clouds_velocity():
+    """tools/camera_run.py's camera-fed tree with ``--velocities``: each frame's members get their displacement from
+    the previous frame's over the frames' interval (at rest in the first frame), as World.set_cloud does."""
+    import sys
+    from types import SimpleNamespace
+
+    sys.path.insert(0, str(ROOT / "tools"))
+    from camera_run import CameraFed
+
+    period, dt, shift = 4, 0.01, torch.tensor([0.01, 0.0, 0.0], dtype=torch.float64)
+    pts = box_surface(3000, seed=2)
+    seen: list[dict] = []
+
+    class Env:
+        params = SimpleNamespace(depth_camera=SimpleNamespace(seed=0))
+        dt = 0.01
+        frames = 0
+
+        def point_cloud(self, q, aux, sample, rng):
+            return pts + Env.frames * shift  # the box moves 1 cm between two frames
+
+    robot = SimpleNamespace(
+        params=SimpleNamespace(control_points=[None, None]),
+        sphere_centres=lambda q: torch.zeros(q.shape[0], 2, 3, dtype=torch.float64),
+    )
+    learner = SimpleNamespace(policy=lambda q, qd, aux: seen.append(aux) or torch.zeros_like(q))
+    moving = ObstacleSet(shape="sphere", n_max=400, name="points", moving=True)
+    fed = CameraFed(learner, Env(), robot, moving, voxel=0.04, radius=0.035, period=period, latency=0)
+    q = torch.zeros(1, 7, dtype=torch.float64)
+    for step in range(2 * period):
+        Env.frames = step // period
+        fed(q, q, {"goal": torch.zeros(1, 3, dtype=torch.float64)})
+    first, second = seen[0], seen[period]
+    assert torch.all(first["points_velocity"] == 0)
+    mask = second["points_mask"][0] > 0
+    across = (second["points_center"][0][mask][:, 0] - 0.51).abs() > 0.095  # the faces across the motion
+    speed = float(second["points_velocity"][0][mask][across].mean(0)[0])
+    assert speed == pytest.approx(0.01 / (period * dt), rel=0.15)
+    assert torch.equal(seen[period + 1]["points_velocity"], second["points_velocity"])  # held between frames

@@ -18,6 +18,8 @@ from conftest import DOC_PAGES, page_name
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "results"
 sys.path.insert(0, str(ROOT / "tools"))
+import apg_table
+import camera_run
 import compare_metrics
 import dagger_table
 import expert_design_table
@@ -42,6 +44,8 @@ TOOLS = {
     "expert_design_table": expert_design_table.table,
     "recorded_arm_table": recorded_arm_table.table,
     "lasa_methods_table": lasa_methods_table.table,
+    "apg_table": apg_table.table_of,
+    "camera_run": camera_run.table,
 }
 
 

@@ -4,8 +4,10 @@ against the expert and against the same tree with unit weights (RMPflow), on the
 
 Runs the experiment (no expert data in training; conf/train/apg.yaml), then evaluates the unit-weight tree with
 the pipeline's own evaluation, and the task cost APG minimises on the test starts for every policy. Writes
-<out>/table.md beside the run directory <out>/run/ (metrics.json; figures/learning_curve_rmp.png is the learning
-curve, figures/progression_rmp.png the snapshots' trajectories).
+<out>/table.md and <out>/metrics.json (the rows, with the run's command, seed and wall time: what results/ stores and
+tests/test_results.py turns back into the documentation's table with ``table_of``) beside the run directory <out>/run/
+(its own metrics.json; figures/learning_curve_rmp.png is the learning curve, figures/progression_rmp.png the
+snapshots' trajectories).
 
     python tools/apg_table.py                     # conf/train/apg.yaml as it is
     python tools/apg_table.py --table-only        # the table of the run already in --out
@@ -16,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shlex
 import sys
 import time
 from pathlib import Path
@@ -24,6 +27,7 @@ import torch
 
 from rmpfusion.evaluate.lyapunov import lyapunov_monotone
 from rmpfusion.evaluate.metrics import summarize
+from rmpfusion.files import atomic_write_json
 from rmpfusion.learn.learners import build_learner
 from rmpfusion.learn.loop import load_snapshot
 from rmpfusion.learn.methods.apg import RolloutCost
@@ -114,7 +118,8 @@ def rows(run_dir: Path, cfg, fine_dt: float) -> list[dict]:
     for it, state in sorted(fitted.result.snapshots.items()):
         s = metrics["learners"]["rmp"]["snapshots"][str(it)]
         snap = load_snapshot(model, state)
-        out.append(_row(f"APG @ {it}", s["task"], s, task_cost(snap), fine(snap.policy)))
+        label = f"APG @ {it}" + (" (learner-0)" if it == 0 else "")
+        out.append(_row(label, s["task"], s, task_cost(snap), fine(snap.policy)))
         out[-1]["leaves"] = s.get("learned_leaf_parameters")
     return out
 
@@ -126,24 +131,29 @@ def _f(x, pct: bool = False) -> str:
 
 
 def table(rs: list[dict], dt: float, fine_dt: float) -> str:
+    """The Markdown table of the rows ``rs``; a run that learns leaf numbers gets a column of them."""
+    leaves = any(r.get("leaves") for r in rs)
     head = (
         "| policy | task cost (APG's, test starts) | success | collisions | time to 0.1 (s) | path length "
         f"| final distance | closest approach to an obstacle | V_r monotone (RK4 at {dt} s) "
-        f"| V_r monotone (RK4 at {fine_dt} s) |"
+        f"| V_r monotone (RK4 at {fine_dt} s) |" + (" learned leaf numbers |" if leaves else "")
     )
     lines = [head, "|---" * (head.count("|") - 1) + "|"]
     for r in rs:
+        learned = ", ".join(f"{k} = {v:.3g}" for k, v in (r.get("leaves") or {}).items()) or "–"
         lines.append(
             f"| {r['policy']} | {_f(r['cost'])} | {_f(r['success'], True)} | {_f(r['collision'], True)} "
             f"| {_f(r.get('time'))} | {_f(r.get('path_length'))} | {_f(r.get('final_distance'))} "
             f"| {_f(r.get('min_clearance'))} | {_f(r['lyapunov'], True)} | {_f(r['lyapunov_fine'], True)} |"
+            + (f" {learned} |" if leaves else "")
         )
-    leaves = [
-        f"- {r['policy']}: " + ", ".join(f"{k} = {v:.3g}" for k, v in r["leaves"].items())
-        for r in rs
-        if r.get("leaves")
-    ]
-    return "\n".join(lines) + "\n" + ("\nLearned leaf numbers:\n" + "\n".join(leaves) + "\n" if leaves else "")
+    return "\n".join(lines) + "\n"
+
+
+def table_of(runs: dict[str, dict]) -> str:
+    """The table of the (one) stored run in ``runs`` ({label: the metrics.json this tool wrote})."""
+    (m,) = runs.values()
+    return table(m["rows"], m["dt"], m["fine_dt"])
 
 
 def main(argv=None) -> int:
@@ -167,9 +177,26 @@ def main(argv=None) -> int:
     cfg = config(a.overrides, a.experiment)
     if not a.table_only:
         run_experiment(cfg, a.out / "run")
+    rs = rows(a.out / "run", cfg, a.fine_dt)
+    run = json.loads((a.out / "run" / "metrics.json").read_text())
     md = (
         f"# {cfg.name}: the tree optimised through the simulator vs the expert and unit weights "
-        f"({time.time() - t0:.0f} s)\n\n" + table(rows(a.out / "run", cfg, a.fine_dt), cfg.env.dt, a.fine_dt)
+        f"({time.time() - t0:.0f} s)\n\n" + table(rs, cfg.env.dt, a.fine_dt)
+    )
+    command = "python tools/apg_table.py " + shlex.join(
+        [f"--experiment={a.experiment}", f"--fine-dt={a.fine_dt}", *a.overrides]
+    )
+    atomic_write_json(
+        a.out / "metrics.json",
+        {
+            "command": command,
+            "experiment": a.experiment,
+            "seed": run["seed"],
+            "timing": {"total_s": run["timing"]["total_s"]},
+            "dt": cfg.env.dt,
+            "fine_dt": a.fine_dt,
+            "rows": rs,
+        },
     )
     (a.out / "table.md").write_text(md)
     print(md)

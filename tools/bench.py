@@ -24,7 +24,8 @@ Sections:
   robots   rmpfusion-fit-spheres on a 7-joint arm with meshes (the xArm7 of example-robot-data, else the iiwa of
            pybullet_data), as a user runs it: one fresh process, its wall time (target ≤ 60 s on two cores).
   memory   the peak resident memory of a 2d2level training run (a child process) while it trains, over what was
-           resident before its first step (the kernel's high-water mark, reset at that point).
+           resident before its first step (the kernel's high-water mark, reset at that point); and the same of one
+           eager call of the Franka tree with a run-time sphere set of N_max = 1 and 100 members at B = 1024.
 """
 
 from __future__ import annotations
@@ -721,24 +722,53 @@ def section_cuda(compile_: bool) -> None:
     row("cuda", "2d2level training step, minibatch 200, eager", _fmt_time(median_time(step)))
 
 
-def section_memory(iterations: int = 300) -> None:
-    print(f"\npeak memory, 2d2level training ({iterations} iterations of minibatch 200, in a child process)")
-    code_run = f"""
+_PEAK_PRELUDE = """
 import sys, torch
 sys.argv = ['bench']
-sys.path.insert(0, {str(ROOT / "tools")!r})
+sys.path.insert(0, {tools!r})
 torch.set_num_threads(1)
 import bench
-learner, env = bench.learner_2d2level()
-q, qd, aux = env.sample(n_envs=20, n_per_env=500, seed=5)  # the paper's 60,000-point training set
 
 
 def status(key):  # KiB, from the kernel's accounting of this process
     return next(int(line.split()[1]) for line in open('/proc/self/status') if line.startswith(key))
 
 
-before = status('VmRSS:')
-open('/proc/self/clear_refs', 'w').write('5')  # the peak (VmHWM) starts again from what is resident now
+"""
+
+
+def peak_in_child(setup: str, work: str) -> tuple[int, int]:
+    """(resident KiB after ``setup``, peak resident KiB while ``work`` ran after it), both Python source run in a
+    child process (a fresh interpreter: no other section's memory in its peak)."""
+    code = (
+        _PEAK_PRELUDE.format(tools=str(ROOT / "tools"))
+        + setup
+        + "\nbefore = status('VmRSS:')\n"
+        + "open('/proc/self/clear_refs', 'w').write('5')  # the peak (VmHWM) starts again from what is resident now\n"
+        + work
+        + "\nprint(before, status('VmHWM:'))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
+    return int(out[-2]), int(out[-1])
+
+
+def _memory_row(label: str, before: int, peak: int) -> None:
+    row(
+        "memory",
+        label,
+        f"{peak / 1024:.0f} MiB",
+        f"resident before {before / 1024:.0f} MiB",
+        f"+{(peak - before) / 1024:.0f} MiB",
+    )
+
+
+def section_memory(iterations: int = 300) -> None:
+    print(f"\npeak memory, 2d2level training ({iterations} iterations of minibatch 200, in a child process)")
+    setup = """
+learner, env = bench.learner_2d2level()
+q, qd, aux = env.sample(n_envs=20, n_per_env=500, seed=5)  # the paper's 60,000-point training set
+"""
+    work = f"""
 target = torch.randn(q.shape[0], 2, dtype=torch.float64)
 opt = torch.optim.RMSprop(learner.parameters(), lr=1e-4)
 g = torch.Generator().manual_seed(0)
@@ -748,17 +778,13 @@ for it in range({iterations}):
     loss = ((learner(q[idx], qd[idx], {{k: v[idx] for k, v in aux.items()}}) - target[idx]) ** 2).mean()
     loss.backward()
     opt.step()
-print(before, status('VmHWM:'))
 """
-    out = subprocess.run([sys.executable, "-c", code_run], capture_output=True, text=True, check=True).stdout.split()
-    before, peak = int(out[-2]), int(out[-1])  # KiB
-    row(
-        "memory",
-        "peak RSS while training",
-        f"{peak / 1024:.0f} MiB",
-        f"resident before {before / 1024:.0f} MiB",
-        f"+{(peak - before) / 1024:.0f} MiB",
-    )
+    _memory_row("peak RSS while training", *peak_in_child(setup, work))
+    print("peak memory of one eager call of the Franka tree with a run-time sphere set, B = 1024 (in a child process)")
+    for n in sorted({n for n, _, _ in SET_STATES}):
+        setup = f"tree, q, qd, a = bench.franka_set_states({n}, 1024, 1024)"
+        work = "with torch.inference_mode():\n    tree(q, qd, a)"
+        _memory_row(f"N_max = {n}, B = 1024: peak RSS of a call", *peak_in_child(setup, work))
 
 
 #: the 7-joint arm whose meshes the fit reads: the xArm7 as example-robot-data ships it (STL, package://), else the

@@ -15,7 +15,9 @@ cylinder, a moving sphere, a turned box; the test split's placement):
   from the environment's depth camera (``env.depth_camera``: 160×120, 30 Hz unless overridden) by
   ``scenes/clouds.py``: the cloud binned in ``--voxel`` cubes, one member per occupied cube at its points' centroid
   with radius √3/2·voxel, the cubes nearest to the control spheres kept. Between frames the members are fixed; at a
-  frame they switch, where V_r may jump (docs/math.md §13).
+  frame they switch, where V_r may jump (docs/math.md §13). With ``--velocities`` the set is a moving one and each
+  member gets its displacement from the nearest member of the previous frame over the frames' interval
+  (``member_velocities``), so the obstacle leaves see the moving sphere move.
 
 Both run in torque mode in the simulator (computed torque at env.control_rate) from the same starts and goals,
 drawn from the three-obstacle experiment's test split (seed ``--seed``). Printed per policy: reached, collided,
@@ -23,6 +25,9 @@ minimum clearance to the true obstacles (the simulator's distance), final goal d
 changes of the tree's aux, in all and before each rollout's first contact (a contact's force acts from outside the
 closed loop that Theorem 2 speaks of): for the camera policy between frames (its aux holds still between them, whatever moves
 in the world), for the exact policy nowhere while the sphere moves (its aux changes at every step).
+
+``--json FILE`` also writes the numbers with the command, the seed and the wall time (what results/ stores);
+``table`` turns such files back into the documentation's table (tests/test_results.py).
 """
 
 from __future__ import annotations
@@ -43,13 +48,16 @@ sys.path.insert(0, str(ROOT))
 from hydra import compose, initialize_config_dir
 
 from rmpfusion.envs.manipulator_tree import copy_weights
+from rmpfusion.files import atomic_write_json
 from rmpfusion.learn.checkpoints import load_checkpoint
 from rmpfusion.pipeline.collect import SPLIT_SEED_OFFSET
 from rmpfusion.pipeline.config import upgrade_run_config
 from rmpfusion.pipeline.construct import build_learners, learner_over_sets, make_env
 from rmpfusion.pipeline.validate import parse_run_config, resolve_and_validate
 from rmpfusion.scenes import ObstacleSet, sets_read, with_slots
-from rmpfusion.scenes.clouds import cloud_members, nearest_per_point, per_point_aux
+from rmpfusion.scenes.clouds import cloud_members, member_velocities, nearest_per_point, per_point_aux
+
+MAX_SPEED = 2.0  # m/s: a member farther than this from every member of the previous frame came into view, not moved
 
 
 def trained_learner(checkpoint: Path):
@@ -86,6 +94,7 @@ class CameraFed:
         self.rng = np.random.default_rng(env.params.depth_camera.seed)
         self.current: dict[str, torch.Tensor] | None = None
         self.pending: list[tuple[int, dict[str, torch.Tensor]]] = []  # (step it arrives at, frame's set aux)
+        self.previous: dict[int, tuple[torch.Tensor, torch.Tensor]] = {}  # sample -> its last frame's members, mask
 
     def _sense(self, q: torch.Tensor, aux) -> dict[str, torch.Tensor]:
         samples = []
@@ -101,8 +110,19 @@ class CameraFed:
                 samples.append(
                     {f"{p}_center": c[None], f"{p}_radius": torch.full_like(c[None, :, :1], r), f"{p}_mask": m[None]}
                 )
+                if self.set.moving:
+                    samples[-1][f"{p}_velocity"] = self._velocities(b, c, m)[None]
             self.members.append(int(sum(v.sum() for k, v in samples[-1].items() if k.endswith("_mask"))))
         return {k: torch.cat([s[k] for s in samples]) for k in samples[0]}
+
+    def _velocities(self, sample: int, centres: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        """The members' velocities from ``sample``'s previous frame (at rest in the first)."""
+        previous = self.previous.get(sample)
+        self.previous[sample] = (centres, mask)
+        if previous is None:
+            return torch.zeros_like(centres)
+        interval = self.period * self.env.dt
+        return member_velocities(centres, mask, previous[0], previous[1], interval, MAX_SPEED)
 
     def __call__(self, q, qd, aux):
         if self.calls % self.period == 0:
@@ -160,8 +180,16 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--camera-only", action="store_true", help="skip the exact policy (the same for every reduction)")
+    ap.add_argument(
+        "--velocities",
+        action="store_true",
+        help="voxel: the members move, with velocities from successive frames (member_velocities)",
+    )
     ap.add_argument("overrides", nargs="*", help="Hydra overrides of experiment=franka_three_obstacles")
     a = ap.parse_args(argv)
+    if a.velocities and a.reduction != "voxel":
+        ap.error("--velocities needs --reduction voxel (a per-control-point set's members have no velocities)")
+    started = time.time()
     torch.set_num_threads(1)
     learner, _, name = trained_learner(a.checkpoint)
     run3 = three_obstacle_run([f"sim={a.sim}", *a.overrides])
@@ -169,7 +197,8 @@ def main(argv=None) -> int:
     exact = build_learners(run3, env.aux_dims())[name]
     copied = copy_weights(learner.tree, exact.tree)
     if a.reduction == "voxel":
-        sets, radius = [ObstacleSet(shape="sphere", n_max=a.n_max, name="points")], math.sqrt(3) / 2 * a.voxel
+        voxel_set = ObstacleSet(shape="sphere", n_max=a.n_max, name="points", moving=a.velocities)
+        sets, radius = [voxel_set], math.sqrt(3) / 2 * a.voxel
     else:
         sets, radius = [ObstacleSet(shape="sphere", n_max=a.k, name="points", per_control_point=True)], a.point_radius
     cam, _ = learner_over_sets(run3, name, learner, sets)  # the exact tree's obstacle edges, given sets
@@ -180,6 +209,8 @@ def main(argv=None) -> int:
     period = max(1, round(1.0 / (camera.rate * dt)))
     fed = CameraFed(cam, env, env.robot, sets[0], a.voxel, radius, period, round(camera.latency / dt))
     out = {
+        "command": "python tools/camera_run.py CHECKPOINT " + " ".join(argv if argv is not None else sys.argv[2:]),
+        "seed": a.seed,
         "copied_weights": copied,
         "camera_hz": 1.0 / (period * dt),
         "settings": {k: str(v) if isinstance(v, Path) else v for k, v in vars(a).items()},
@@ -215,9 +246,56 @@ def main(argv=None) -> int:
             out[label]["members_per_frame"] = float(np.mean(fed.members)) if fed.members else 0.0
         print(label, json.dumps(out[label]), flush=True)
     env.close()
+    out["timing"] = {"total_s": round(time.time() - started, 1)}
     if a.json is not None:
-        a.json.write_text(json.dumps(out, indent=2))
+        atomic_write_json(a.json, out)
     return 0
+
+
+def _policy_label(settings: dict) -> str:
+    """What a camera row's tree was fed, from the settings it ran with."""
+    if settings["reduction"] == "nearest":
+        return f"camera, each control point's {settings['k']} nearest points, radius {100 * settings['point_radius']:.0f} cm"
+    voxel = settings["voxel"]
+    label = (
+        f"camera, voxels: {settings['n_max']} members of {100 * voxel:.0f} cm cubes, "
+        f"radius {100 * math.sqrt(3) / 2 * voxel:.1f} cm"
+    )
+    return label + (", velocities from successive frames" if settings.get("velocities") else "")
+
+
+def _rises(row: dict) -> str:
+    worst = row["vr_max_relative_rise"]
+    size = f"{worst:.2g}× V_r" if worst >= 1 else f"{100 * worst:.2g} % of V_r"
+    return (
+        f"{row['vr_rises_between_changes']} of {row['records_checked']:,} record pairs "
+        f"({row['vr_rises_before_contact']} before any contact; the largest {size})"
+    )
+
+
+def table(runs: dict[str, dict]) -> str:
+    """The Markdown table of camera_run's --json files ({label: file's content}): the exact policy's row (from the
+    first file that ran it), then each file's camera row."""
+    head = (
+        "| policy | reached | collided | least clearance (mm) | goal distance at 10 s (mm) "
+        "| V_r rises between changes of its aux |"
+    )
+    lines = [head, "|---" * (head.count("|") - 1) + "|"]
+
+    def row(label: str, r: dict, rises: str) -> str:
+        return (
+            f"| {label} | {r['reached']} / {r['n']} | {r['collided']} / {r['n']} | {1000 * r['min_clearance_m']:.1f} "
+            f"| {1000 * r['final_goal_distance_m']:.0f} | {rises} |"
+        )
+
+    exact = next((m["exact"] for m in runs.values() if "exact" in m), None)
+    if exact is not None:
+        lines.append(
+            row("the obstacles given exactly", exact, "not checked: the moving sphere changes its aux at every step")
+        )
+    for m in runs.values():
+        lines.append(row(_policy_label(m["settings"]), m["camera"], _rises(m["camera"])))
+    return "\n".join(lines) + "\n"
 
 
 if __name__ == "__main__":
