@@ -184,3 +184,26 @@ def test_an_upright_home_starts_leaning_out_and_an_upright_nominal_q_is_refused(
             goal_clearance=0.05,
             nominal_q=upright,
         )
+
+
+def test_where_stopped_names_the_joints_that_hold_a_rollout_at_a_limit():
+    """tools/expert_design.py --where-stopped: a rollout that missed its goal is described by its distance from the
+    goal and the joints within AT_LIMIT of a limit; a reached one is not described."""
+    import sys
+
+    sys.path.insert(0, str(CONF.parent / "tools"))
+    from expert_design import AT_LIMIT, stopped_short
+
+    lower, upper = torch.tensor([-1.0, -2.0, -3.0], dtype=torch.float64), torch.tensor([1.0, 2.0, 3.0])
+    arm = SimpleNamespace(
+        lower=lower,
+        upper=upper.double(),
+        ee_position=lambda q: q,  # the end effector at q itself: distances are easy to check
+        params=SimpleNamespace(joints=["a", "b", "c"]),
+    )
+    last = torch.tensor([[1.0 - AT_LIMIT / 2, 0.0, 0.0], [0.0, -2.0, 3.0], [0.0, 0.0, 0.0]], dtype=torch.float64)
+    ro = SimpleNamespace(q=torch.stack([torch.zeros_like(last), last]), reached=torch.tensor([False, False, True]))
+    lines = stopped_short(SimpleNamespace(robot=arm), ro, torch.zeros(3, 3, dtype=torch.float64))
+    assert len(lines) == 2
+    assert "start 0: 0.990 m from the goal; joints at a limit: a;" in lines[0]
+    assert "start 1: 3.606 m from the goal; joints at a limit: b, c;" in lines[1]

@@ -8,6 +8,10 @@ in their training placement): designing the expert never looks at the test set.
     python tools/expert_design.py --experiment reach robot=iiwa --only expert env.reach_layout.turn=1.0
     python tools/expert_design.py --experiment reach robot=ur5 --out results/reach_expert_design/ur5
 
+With --where-stopped, every rollout that did not reach its goal is described where it ended: its distance from
+the goal, the joints within AT_LIMIT rad of a limit and the final configuration (a policy held by a joint limit
+against an obstacle is a local minimum that obstacle weights cannot remove).
+
 With --out DIR the numbers are also written to DIR/metrics.json (the command, the seed, the wall time and every
 policy's numbers), which tools/expert_design_table.py turns into the documentation's table.
 
@@ -64,6 +68,24 @@ def policies(run, env, keep: set[str]):
         yield "learner-0", learner.policy
 
 
+AT_LIMIT = 0.02  # rad (or m): a joint this close to a limit is at it
+
+
+def stopped_short(env, ro, goal: torch.Tensor) -> list[str]:
+    """One line per rollout of ``ro`` that did not reach its goal: where it ended and which joints are at a limit."""
+    robot, q = env.robot, ro.q[-1]
+    at_limit = ((q - robot.lower) < AT_LIMIT) | ((robot.upper - q) < AT_LIMIT)
+    short = (robot.ee_position(q) - goal).norm(dim=-1)
+    lines = []
+    for n in (~ro.reached).nonzero().flatten().tolist():
+        held = [robot.params.joints[j] for j in at_limit[n].nonzero().flatten().tolist()]
+        lines.append(
+            f"    start {n}: {float(short[n]):.3f} m from the goal; joints at a limit: {', '.join(held) or 'none'}; "
+            f"q = [{', '.join(f'{float(v):.2f}' for v in q[n])}]"
+        )
+    return lines
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--experiment", default="franka", help="the experiment (conf/experiment/) whose expert to run")
@@ -78,6 +100,9 @@ def main(argv=None) -> int:
         help="run only these policies (default: all four)",
     )
     ap.add_argument("--out", type=Path, default=None, help="also write the numbers to OUT/metrics.json")
+    ap.add_argument(
+        "--where-stopped", action="store_true", help="describe where each rollout that missed its goal ended"
+    )
     ap.add_argument("overrides", nargs="*", help="further Hydra overrides, e.g. expert.attractor.low=20")
     a = ap.parse_args(argv)
     started = time.time()
@@ -118,6 +143,8 @@ def main(argv=None) -> int:
             f"({time.time() - t0:.0f} s)",
             flush=True,
         )
+        if a.where_stopped:
+            print("\n".join(stopped_short(env, ro, aux["goal"])), flush=True)
     env.close()
     if a.out is not None:
         command = "python tools/expert_design.py " + " ".join(shlex.quote(x) for x in (argv or sys.argv[1:]))
