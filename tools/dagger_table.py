@@ -85,6 +85,7 @@ def markdown_table(results: dict) -> str:
             "| V_r monotone | train s |"
         ),
         "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        *reference_rows(next(iter(results.values()))),
     ]
     for key, name in LEARNERS.items():
         for method, m in results.items():
@@ -100,6 +101,33 @@ def markdown_table(results: dict) -> str:
                 f"| {r['train_seconds']:.0f} |"
             )
     return "\n".join(rows) + "\n"
+
+
+def reference_rows(m: dict) -> list[str]:
+    """What training starts from and aims at, from one run (both methods share the seed, so the same data, expert
+    and initial learners): the expert (losses 0 by definition: not shown), the tree with every weight 1 (RMPflow)
+    against the expert, and each learner at its random initialisation (snapshot 0)."""
+    e, u = m["expert"], m.get("unit_weights")
+    rows = [
+        f"| expert | – | – | – | – | – | – | – | – | {_f(e['success'], True)} | {_f(e['collision'], True)} "
+        f"| {_f(e.get('lyapunov_monotone_fraction'), True)} | – |"
+    ]
+    if u is not None:
+        rows.append(
+            f"| unit weights (RMPflow) | – | – | – | – | – | {_f(u['online_loss'])} | {_f(u.get('online_loss_median'))} "
+            f"| {_f(u.get('online_loss_before_collision'))} | {_f(u['success'], True)} | {_f(u['collision'], True)} "
+            f"| {_f(u.get('lyapunov_monotone_fraction'), True)} | – |"
+        )
+    for key, name in LEARNERS.items():
+        s0 = m["learners"].get(key, {}).get("snapshots", {}).get("0")
+        if s0 is not None:
+            rows.append(
+                f"| {name}-0 (untrained) | – | – | – | {_f(s0.get('val_loss'))} | {_f(s0['batch_loss'])} "
+                f"| {_f(s0['online_loss'])} | {_f(s0.get('online_loss_median'))} "
+                f"| {_f(s0.get('online_loss_before_collision'))} | {_f(s0['success'], True)} "
+                f"| {_f(s0['collision'], True)} | {_f(s0.get('lyapunov_monotone_fraction'), True)} | – |"
+            )
+    return rows
 
 
 def round_lines(results: dict) -> list[str]:

@@ -91,6 +91,14 @@ def row(shape: str, m: dict, policy: str) -> dict:
     return out
 
 
+def untrained_row(shape: str, m: dict, variant: str) -> dict | None:
+    """The variant's learner at its random initialisation (snapshot 0), where the run evaluated it."""
+    r = next(iter(m["learners"].values())).get("snapshots", {}).get("0")
+    if r is None:
+        return None
+    return {"shape": shape, "policy": f"{variant} (learner-0)", **{title: f(r) for title, f in COLUMNS}}
+
+
 def fmt(v) -> str:
     if isinstance(v, bool):
         return "ok" if v else "FAILS"
@@ -113,7 +121,7 @@ def mean_rows(rows: list[dict]) -> list[dict]:
         mean = {"shape": f"mean of {len(mine)}", "policy": policy}
         for title, _ in COLUMNS:
             mean[title] = sum(r[title] for r in mine) / len(mine)
-        if policy != "tree":
+        if "certificate" in mine[0]:
             mean["certificate"] = all(r["certificate"] for r in mine) if mine[0]["certificate"] is not None else None
             mean["train s"] = sum(r["train s"] or 0.0 for r in mine) / len(mine)
         out.append(mean)
@@ -122,18 +130,19 @@ def mean_rows(rows: list[dict]) -> list[dict]:
 
 def table_of(runs: dict[str, dict]) -> str:
     """The table (with the mean rows) of runs labelled ``<variant>/<shape>``, in label order: the tree row of each
-    shape from the first variant listed for it. What the README shows and tests/test_results.py regenerates from
-    results/."""
-    rows, seen = [], set()
+    shape from the first variant listed for it; each variant's untrained learner (learner-0) only in the mean rows.
+    What the README shows and tests/test_results.py regenerates from results/."""
+    rows, untrained, seen = [], [], set()
     for label, m in runs.items():
         variant, shape = label.split("/", 1)
         if shape not in seen:
             rows.append(row(shape, m, "tree"))
             seen.add(shape)
         rows.append(row(shape, m, variant))
+        untrained += [r for r in [untrained_row(shape, m, variant)] if r is not None]
     shapes = list(dict.fromkeys(r["shape"] for r in rows))
     rows = sorted(rows, key=lambda r: (shapes.index(r["shape"]), r["policy"] != "tree"))
-    return table(rows + mean_rows(rows)) + "\n"
+    return table(rows + mean_rows(rows) + mean_rows(untrained)) + "\n"
 
 
 def grid_figure(out: Path, variant: str, shapes: list[str]) -> Path | None:

@@ -1,7 +1,7 @@
 #!/usr/bin/env python
 """The learnable-leaves table: a run whose learner learns leaf parameters (e.g. experiment=2d1level_leaves) as one
 row per snapshot: the learned goal gain, goal damping and obstacle support, batch-loss, success and the Lyapunov
-monitor, from its metrics.json.
+monitor, from its metrics.json; above them the expert and its tree with every weight 1 (RMPflow) on the same starts.
 
     python tools/leaves_table.py outputs/2d1level_leaves/<time>/metrics.json
 """
@@ -28,6 +28,11 @@ def table(runs: dict[str, dict], learner: str = "rmp") -> str:
     snapshots = metrics["learners"][learner]["snapshots"]
     header = ["snapshot", *(c for c, _ in COLUMNS), "batch-loss", "success", "V_r monotone"]
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    for label, key in (("expert", "expert"), ("unit weights (RMPflow)", "unit_weights")):
+        if key in metrics:  # the expert's tree and leaves, its weights as designed or all 1: nothing learned
+            r = metrics[key]
+            cells = [label, *("–" for _ in COLUMNS), "–", f"{100 * r['success']:.0f} %"]
+            lines.append("| " + " | ".join([*cells, f"{100 * r['lyapunov_monotone_fraction']:.0f} %"]) + " |")
     for it in sorted(snapshots, key=int):
         s = snapshots[it]
         cells = [
