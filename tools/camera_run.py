@@ -26,6 +26,9 @@ changes of the tree's aux, in all and before each rollout's first contact (a con
 closed loop that Theorem 2 speaks of): for the camera policy between frames (its aux holds still between them, whatever moves
 in the world), for the exact policy nowhere while the sphere moves (its aux changes at every step).
 
+``--policy learner-0`` runs the checkpoint's learner at its random initialisation (training snapshot 0) and
+``--policy unit`` its tree with every weight 1 (RMPflow) instead, both ways.
+
 ``--json FILE`` also writes the numbers with the command, the seed and the wall time (what results/ stores);
 ``table`` turns such files back into the documentation's table (tests/test_results.py).
 """
@@ -50,6 +53,7 @@ from hydra import compose, initialize_config_dir
 from rmpfusion.envs.manipulator_tree import copy_weights
 from rmpfusion.files import atomic_write_json
 from rmpfusion.learn.checkpoints import load_checkpoint
+from rmpfusion.learn.loop import load_snapshot
 from rmpfusion.pipeline.collect import SPLIT_SEED_OFFSET
 from rmpfusion.pipeline.config import upgrade_run_config
 from rmpfusion.pipeline.construct import build_learners, learner_over_sets, make_env
@@ -60,16 +64,32 @@ from rmpfusion.scenes.clouds import cloud_members, member_velocities, nearest_pe
 MAX_SPEED = 2.0  # m/s: a member farther than this from every member of the previous frame came into view, not moved
 
 
-def trained_learner(checkpoint: Path):
-    """The learner in ``checkpoint`` (its run's config and weights) and that run config."""
+def trained_learner(checkpoint: Path, snapshot: int | None = None):
+    """The learner in ``checkpoint`` (its run's config and weights; with ``snapshot``, that training snapshot's
+    weights, read from the last ``ckpt-*.pt`` beside it: 0 is the learner at its random initialisation) and that run
+    config."""
     state = load_checkpoint(checkpoint)
     run = parse_run_config(upgrade_run_config(state["config"]))
     name = checkpoint.parent.name
     env = make_env(run)
     learner = build_learners(run, env.aux_dims())[name]
-    learner.load_state_dict(state["model"])
+    if snapshot is None:
+        learner.load_state_dict(state["model"])
+    else:
+        last = max(checkpoint.parent.glob("ckpt-*.pt"), default=None)
+        snapshots = {} if last is None else load_checkpoint(last).get("snapshots", {})
+        if snapshot not in snapshots:
+            raise SystemExit(f"camera_run: no snapshot {snapshot} beside {checkpoint} (found: {sorted(snapshots)})")
+        learner = load_snapshot(learner, snapshots[snapshot])
     env.close()
     return learner.double(), run, name
+
+
+def unit_weight_run(run, name: str):
+    """``run`` with learner ``name``'s weights all the constant 1: RMPflow's combination of the same leaves."""
+    block = {"type": "rmp", "weights": {"type": "constant", "value": 1.0}}
+    learners = {**run.learners, name: type(run.learners[name]).model_validate(block)}
+    return run.model_copy(update={"learners": learners})
 
 
 def three_obstacle_run(overrides: list[str]):
@@ -185,15 +205,24 @@ def main(argv=None) -> int:
         action="store_true",
         help="voxel: the members move, with velocities from successive frames (member_velocities)",
     )
+    ap.add_argument(
+        "--policy",
+        choices=["trained", "learner-0", "unit"],
+        default="trained",
+        help="the checkpoint's learner; its random initialisation (snapshot 0); or its tree with every weight 1 (RMPflow)",
+    )
     ap.add_argument("overrides", nargs="*", help="Hydra overrides of experiment=franka_three_obstacles")
     a = ap.parse_args(argv)
     if a.velocities and a.reduction != "voxel":
         ap.error("--velocities needs --reduction voxel (a per-control-point set's members have no velocities)")
     started = time.time()
     torch.set_num_threads(1)
-    learner, _, name = trained_learner(a.checkpoint)
+    learner, _, name = trained_learner(a.checkpoint, 0 if a.policy == "learner-0" else None)
     run3 = three_obstacle_run([f"sim={a.sim}", *a.overrides])
     env = make_env(run3)
+    if a.policy == "unit":
+        run3 = unit_weight_run(run3, name)
+        learner = build_learners(run3, env.aux_dims())[name].double()
     exact = build_learners(run3, env.aux_dims())[name]
     copied = copy_weights(learner.tree, exact.tree)
     if a.reduction == "voxel":
@@ -273,9 +302,14 @@ def _rises(row: dict) -> str:
     )
 
 
+#: how a row names the policy a file ran (``--policy``)
+POLICY_NAMES = {"trained": "", "learner-0": "learner-0 (untrained): ", "unit": "unit weights (RMPflow): "}
+
+
 def table(runs: dict[str, dict]) -> str:
-    """The Markdown table of camera_run's --json files ({label: file's content}): the exact policy's row (from the
-    first file that ran it), then each file's camera row."""
+    """The Markdown table of camera_run's --json files ({label: file's content}): per policy (the trained learner,
+    its initialisation, unit weights), the exact tree's row from the first file that ran it, then each file's camera
+    row."""
     head = (
         "| policy | reached | collided | least clearance (mm) | goal distance at 10 s (mm) "
         "| V_r rises between changes of its aux |"
@@ -288,15 +322,13 @@ def table(runs: dict[str, dict]) -> str:
             f"| {1000 * r['final_goal_distance_m']:.0f} | {rises} |"
         )
 
-    exact = next((m["exact"] for m in runs.values() if "exact" in m), None)
-    if exact is not None:
-        lines.append(
-            row("the obstacles given exactly", exact, "not checked: the moving sphere changes its aux at every step")
-        )
+    exact_done = set()
     for m in runs.values():
-        lines.append(row(_policy_label(m["settings"]), m["camera"], _rises(m["camera"])))
+        policy = m["settings"].get("policy", "trained")
+        who = POLICY_NAMES[policy]
+        if "exact" in m and policy not in exact_done:
+            exact_done.add(policy)
+            unchecked = "not checked: the moving sphere changes its aux at every step"
+            lines.append(row(f"{who}the obstacles given exactly", m["exact"], unchecked))
+        lines.append(row(who + _policy_label(m["settings"]), m["camera"], _rises(m["camera"])))
     return "\n".join(lines) + "\n"
-
-
-if __name__ == "__main__":
-    sys.exit(main())
