@@ -332,3 +332,7 @@ def table(runs: dict[str, dict]) -> str:
             lines.append(row(f"{who}the obstacles given exactly", m["exact"], unchecked))
         lines.append(row(who + _policy_label(m["settings"]), m["camera"], _rises(m["camera"])))
     return "\n".join(lines) + "\n"
+
+
+if __name__ == "__main__":
+    sys.exit(main())
