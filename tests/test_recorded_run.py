@@ -48,6 +48,8 @@ def test_a_tiny_lasa_run_end_to_end_then_resumed(tmp_path):
     assert set(rmp["learned_leaf_parameters"]) == {"attractor.gain", "attractor.alpha", "attractor.eta"}
     assert m["objective"] == rmp["reproduction_val"]["dtw"]  # a sweep chooses on validation
     assert (tmp_path / "figures" / "rollouts.png").stat().st_size > 0
+    assert m["figures"]["latent_rmp"].endswith("latent_rmp.png")  # the learned map's latent space
+    assert (tmp_path / "figures" / "latent_rmp.png").stat().st_size > 0
     again = run_experiment(run, tmp_path, progress=False)
     assert all(again["data"][s]["reused"] for s in ("train", "val", "test"))
     assert again["learners"]["rmp"]["reproduction_test"] == rmp["reproduction_test"]
@@ -189,3 +191,15 @@ def test_the_convergence_grid_covers_the_enlarged_box():
     assert g.shape == (100, 2)
     np.testing.assert_allclose(g.min(0), lo - 0.25 * (hi - lo))
     np.testing.assert_allclose(g.max(0), hi + 0.25 * (hi - lo))
+
+
+def test_the_latent_figure_finds_the_learned_map_and_only_it():
+    """plots/recorded.py draws the latent space of the node whose map has parameters: tree=lasa_map's ``latent``;
+    the weights-only tree (tree=lasa) has none, so no latent figure."""
+    from rmpfusion.pipeline.construct import build_learners, make_env
+    from rmpfusion.plots.recorded import learned_map_nodes
+
+    for tree, expected in (("lasa_map", ["latent"]), ("lasa", [])):
+        run = validated(TINY_LASA + ["data.shape=Sshape", f"tree={tree}"])
+        learner = build_learners(run, make_env(run).aux_dims())["rmp"]
+        assert learned_map_nodes(learner.tree) == expected, tree

@@ -400,6 +400,7 @@ def run_recorded(exp: Experiment, require_trained: bool = False) -> dict:
         }
     )
     if exp.run.eval.figures:
-        metrics["figures"] = recorded_figures(exp.dir / "figures", rollouts, batch, demos, _top_view(exp.env))
+        trees = {name: f.model.tree for name, f in fitted.items() if f.model.tree is not None}
+        metrics["figures"] = recorded_figures(exp.dir / "figures", rollouts, batch, demos, _top_view(exp.env), trees)
     atomic_write_json(exp.dir / "metrics.json", metrics)
     return metrics

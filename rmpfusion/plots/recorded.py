@@ -8,6 +8,7 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 
 import numpy as np
+import torch
 
 from ..envs.rollout import Rollout
 from .figures import LEGEND_SIZE, TIME_LABEL, TITLE_SIZE, V_LABEL, save_figure, subplots
@@ -86,12 +87,80 @@ def recorded_figures(
     batch,
     demos: Mapping[str, list],
     to_plane: ToPlane | None = None,
+    trees: Mapping[str, object] | None = None,
 ) -> dict[str, str]:
     """rollouts.png (2-D demonstrations, or any whose configurations ``to_plane`` maps to a plane) and lyapunov.png
-    in ``out_dir``; their paths."""
+    in ``out_dir``, and for 2-D demonstrations latent_<learner>.png for each of ``trees`` ({learner: its trained
+    RMPTree}) that has a learned map (its deepest); their paths."""
     paths = {}
     if to_plane is not None or batch.q0.shape[1] == 2:
         drawn = draw_rollouts(rollouts, batch, demos, to_plane or _first_two)
         paths["rollouts"] = save_figure(drawn, Path(out_dir) / "rollouts.png")
     paths["lyapunov"] = save_figure(draw_lyapunov(rollouts, batch.grid), Path(out_dir) / "lyapunov.png")
+    if batch.q0.shape[1] == 2:
+        starts = batch.q0[batch.grid].numpy()
+        goal = batch.aux["goal"][batch.grid][0].numpy()
+        for name, tree in (trees or {}).items():
+            learned = learned_map_nodes(tree)
+            if learned:
+                drawn = draw_latent(tree, learned[-1], demos, goal, starts.min(0), starts.max(0))
+                paths[f"latent_{name}"] = save_figure(drawn, Path(out_dir) / f"latent_{name}.png")
     return {k: str(v) for k, v in paths.items()}
+
+
+def learned_map_nodes(tree) -> list[str]:
+    """The nodes of an ``RMPTree`` whose task maps have parameters (learned maps), root side first."""
+    return [n for n in tree.order if n in tree.maps and any(True for _ in tree.maps[n].parameters())]
+
+
+def _grid_lines(lo: np.ndarray, hi: np.ndarray, lines: int = 13, points: int = 120) -> list[np.ndarray]:
+    """A regular grid over the box [lo, hi] as polylines (points, 2): what a map's deformation is drawn on."""
+    xs, ys = np.linspace(lo[0], hi[0], lines), np.linspace(lo[1], hi[1], lines)
+    t = np.linspace(0.0, 1.0, points)
+    return [np.stack([np.full_like(t, x), lo[1] + t * (hi[1] - lo[1])], -1) for x in xs] + [
+        np.stack([lo[0] + t * (hi[0] - lo[0]), np.full_like(t, y)], -1) for y in ys
+    ]
+
+
+def draw_latent(tree, node: str, demos: Mapping[str, list], goal: np.ndarray, lo: np.ndarray, hi: np.ndarray):
+    """The plane and the learned map's latent space side by side: a regular grid over the box [lo, hi] and the
+    demonstrations, and their images at ``node`` (the map's output; its first two coordinates). A map that has learned
+    the motion straightens the demonstrations towards the goal's image; the bent grid shows how far it had to bend
+    space to do so."""
+    dtype = next(tree.parameters()).dtype
+
+    def image(xy: np.ndarray) -> np.ndarray:
+        q = torch.as_tensor(xy, dtype=dtype)
+        aux = {"goal": torch.as_tensor(goal, dtype=dtype).expand(q.shape[0], -1)}
+        with torch.no_grad():
+            y = tree(q, torch.zeros_like(q), aux, return_nodes=True).nodes["state"][node][0]
+        return y[:, :2].numpy()
+
+    fig, axes = subplots(1, 2, figsize=(8.4, 4.0), layout="constrained", squeeze=False)
+    panels = (
+        (axes[0][0], lambda p: p, "the plane", ("x (m)", "y (m)")),
+        (axes[0][1], image, f"latent space ({node})", ("latent 1", "latent 2")),
+    )
+    for ax, to, title, (xlabel, ylabel) in panels:
+        ax.set_xlabel(xlabel), ax.set_ylabel(ylabel)
+        for line in _grid_lines(lo, hi):
+            xy = to(line)
+            ax.plot(xy[:, 0], xy[:, 1], color="0.8", lw=0.6)
+        drawn = []
+        for k, (split, shown) in enumerate(demos.items()):
+            for i, d in enumerate(shown):
+                xy = to(np.asarray(d.q)[:, :2])
+                drawn.append(xy)
+                color = "0.35" if split == "train" else f"C{k}"
+                ax.plot(xy[:, 0], xy[:, 1], color=color, lw=1.8, label=f"{split} demonstration" if i == 0 else None)
+        g = to(np.asarray(goal, dtype=float)[None, :2])[0]
+        ax.plot(*g, "r*", ms=12, label="goal")
+        # framed on the demonstrations (a learned map may stretch far regions of the box a long way)
+        seen = np.concatenate([*drawn, g[None]]) if drawn else g[None]
+        centre, half = (seen.max(0) + seen.min(0)) / 2, 0.75 * (seen.max(0) - seen.min(0)).max() + 1e-9
+        ax.set_xlim(centre[0] - half, centre[0] + half), ax.set_ylim(centre[1] - half, centre[1] + half)
+        ax.set_title(title, fontsize=TITLE_SIZE)
+        ax.set_aspect("equal", adjustable="box")
+    handles, labels = axes[0][0].get_legend_handles_labels()
+    fig.legend(handles, labels, fontsize=LEGEND_SIZE, loc="outside lower center", ncols=4)
+    return fig
