@@ -294,11 +294,13 @@ def _policy_label(settings: dict) -> str:
 
 
 def _rises(row: dict) -> str:
-    worst = row["vr_max_relative_rise"]
+    """Where V_r rose between changes of the tree's aux: in all, and before any contact (where Theorem 2 speaks),
+    with the largest of those rises relative to V_r."""
+    worst = row["vr_max_relative_rise_before_contact"]
     size = f"{worst:.2g}× V_r" if worst >= 1 else f"{100 * worst:.2g} % of V_r"
     return (
-        f"{row['vr_rises_between_changes']} of {row['records_checked']:,} record pairs "
-        f"({row['vr_rises_before_contact']} before any contact; the largest {size})"
+        f"{row['vr_rises_between_changes']} of {row['records_checked']:,} record pairs; "
+        f"{row['vr_rises_before_contact']} before any contact, the largest {size}"
     )
 
 
