@@ -108,10 +108,11 @@ def reference_rows(m: dict) -> list[str]:
     and initial learners): the expert (losses 0 by definition: not shown), the tree with every weight 1 (RMPflow)
     against the expert, and each learner at its random initialisation (snapshot 0)."""
     e, u = m["expert"], m.get("unit_weights")
-    rows = [
+    expert = (
         f"| expert | – | – | – | – | – | – | – | – | {_f(e['success'], True)} | {_f(e['collision'], True)} "
         f"| {_f(e.get('lyapunov_monotone_fraction'), True)} | – |"
-    ]
+    )
+    rows = [expert]
     if u is not None:
         rows.append(
             f"| unit weights (RMPflow) | – | – | – | – | – | {_f(u['online_loss'])} | {_f(u.get('online_loss_median'))} "
