@@ -344,7 +344,7 @@ def test_every_run_command_composes():
     assert len(runs) >= 10
     for u in UNITS:  # a folder given by --config-dir is made by the same block's command before it (the robot fit)
         for c in u.cmds:
-            made = [shlex.split(m) for m in u.cmds if m.startswith("rmpfusion-fit-spheres")]
+            made = [shlex.split(m) for m in commands(u.block) if m.startswith("rmpfusion-fit-spheres")]
             if "--config-dir" in c and not (ROOT / shlex.split(c)[shlex.split(c).index("--config-dir") + 1]).exists():
                 assert made, f"{u.block.where}: {c!r} reads a --config-dir that no command before it writes"
                 subprocess.run(made[0], cwd=ROOT, check=True, capture_output=True, env=_env(), timeout=600)
