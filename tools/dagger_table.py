@@ -103,31 +103,31 @@ def markdown_table(results: dict) -> str:
     return "\n".join(rows) + "\n"
 
 
+def _untrained_row(label: str, r: dict, losses: bool) -> str:
+    """A reference row: no labels, calls or training time; the losses against the expert where ``losses``."""
+    val_batch = f"{_f(r.get('val_loss'))} | {_f(r['batch_loss'])}" if "batch_loss" in r else "– | –"
+    online = (
+        f"{_f(r['online_loss'])} | {_f(r.get('online_loss_median'))} | {_f(r.get('online_loss_before_collision'))}"
+        if losses
+        else "– | – | –"
+    )
+    return (
+        f"| {label} | – | – | – | {val_batch} | {online} | {_f(r['success'], True)} | {_f(r['collision'], True)} "
+        f"| {_f(r.get('lyapunov_monotone_fraction'), True)} | – |"
+    )
+
+
 def reference_rows(m: dict) -> list[str]:
     """What training starts from and aims at, from one run (both methods share the seed, so the same data, expert
     and initial learners): the expert (losses 0 by definition: not shown), the tree with every weight 1 (RMPflow)
     against the expert, and each learner at its random initialisation (snapshot 0)."""
-    e, u = m["expert"], m.get("unit_weights")
-    expert = (
-        f"| expert | – | – | – | – | – | – | – | – | {_f(e['success'], True)} | {_f(e['collision'], True)} "
-        f"| {_f(e.get('lyapunov_monotone_fraction'), True)} | – |"
-    )
-    rows = [expert]
-    if u is not None:
-        rows.append(
-            f"| unit weights (RMPflow) | – | – | – | – | – | {_f(u['online_loss'])} | {_f(u.get('online_loss_median'))} "
-            f"| {_f(u.get('online_loss_before_collision'))} | {_f(u['success'], True)} | {_f(u['collision'], True)} "
-            f"| {_f(u.get('lyapunov_monotone_fraction'), True)} | – |"
-        )
+    rows = [_untrained_row("expert", m["expert"], losses=False)]
+    if "unit_weights" in m:
+        rows.append(_untrained_row("unit weights (RMPflow)", m["unit_weights"], losses=True))
     for key, name in LEARNERS.items():
         s0 = m["learners"].get(key, {}).get("snapshots", {}).get("0")
         if s0 is not None:
-            rows.append(
-                f"| {name}-0 (untrained) | – | – | – | {_f(s0.get('val_loss'))} | {_f(s0['batch_loss'])} "
-                f"| {_f(s0['online_loss'])} | {_f(s0.get('online_loss_median'))} "
-                f"| {_f(s0.get('online_loss_before_collision'))} | {_f(s0['success'], True)} "
-                f"| {_f(s0['collision'], True)} | {_f(s0.get('lyapunov_monotone_fraction'), True)} | – |"
-            )
+            rows.append(_untrained_row(f"{name}-0 (untrained)", s0, losses=True))
     return rows
 
 
