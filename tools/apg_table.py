@@ -32,6 +32,7 @@ from rmpfusion.learn.learners import build_learner
 from rmpfusion.learn.loop import load_snapshot
 from rmpfusion.learn.methods.apg import RolloutCost
 from rmpfusion.pipeline.collect import collect
+from rmpfusion.pipeline.construct import UNIT_WEIGHT_LEARNER
 from rmpfusion.pipeline.evaluation import evaluate_model
 from rmpfusion.pipeline.fit import fit
 from rmpfusion.pipeline.run import run_experiment, start
@@ -53,9 +54,12 @@ def config(extra: list[str], experiment: str = "2d2level_apg"):
 
 def unit_weights(exp):
     """learner-rmp's tree with every learned edge at weight 1: RMPflow's combination of the same leaves."""
-    block = {"type": "rmp", "weights": {"type": "constant", "value": 1.0}}
     return build_learner(
-        block, exp.run.tree.model_dump(), exp.env.aux_dims(), exp.env.dim, expert={k: {} for k in exp.run.expert}
+        UNIT_WEIGHT_LEARNER,
+        exp.run.tree.model_dump(),
+        exp.env.aux_dims(),
+        exp.env.dim,
+        expert={k: {} for k in exp.run.expert},
     )
 
 

@@ -56,7 +56,7 @@ from rmpfusion.learn.checkpoints import load_checkpoint
 from rmpfusion.learn.loop import load_snapshot
 from rmpfusion.pipeline.collect import SPLIT_SEED_OFFSET
 from rmpfusion.pipeline.config import upgrade_run_config
-from rmpfusion.pipeline.construct import build_learners, learner_over_sets, make_env
+from rmpfusion.pipeline.construct import UNIT_WEIGHT_LEARNER, build_learners, learner_over_sets, make_env
 from rmpfusion.pipeline.validate import parse_run_config, resolve_and_validate
 from rmpfusion.scenes import ObstacleSet, sets_read, with_slots
 from rmpfusion.scenes.clouds import cloud_members, member_velocities, nearest_per_point, per_point_aux
@@ -87,8 +87,7 @@ def trained_learner(checkpoint: Path, snapshot: int | None = None):
 
 def unit_weight_run(run, name: str):
     """``run`` with learner ``name``'s weights all the constant 1: RMPflow's combination of the same leaves."""
-    block = {"type": "rmp", "weights": {"type": "constant", "value": 1.0}}
-    learners = {**run.learners, name: type(run.learners[name]).model_validate(block)}
+    learners = {**run.learners, name: type(run.learners[name]).model_validate(UNIT_WEIGHT_LEARNER)}
     return run.model_copy(update={"learners": learners})
 
 

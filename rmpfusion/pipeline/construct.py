@@ -55,6 +55,10 @@ def build_unit_weights(run: RunConfig, aux_dims: Mapping[str, int]) -> RMPTree:
         return _unit_weight_tree(run, aux_dims)
 
 
+#: a tree learner block whose every learned weight is the constant 1: RMPflow's combination of the tree's leaves
+UNIT_WEIGHT_LEARNER = {"type": "rmp", "weights": {"type": "constant", "value": 1.0}}
+
+
 def _unit_weight_tree(run: RunConfig, aux_dims: Mapping[str, int]) -> RMPTree:
     tree = plain_data(run.tree)
     own = {
