@@ -207,6 +207,13 @@ def test_a_learner_trained_among_fixed_obstacles_exports_for_run_time_sets(tiny_
     later = program(q, qd, *world.set_aux().values())
     assert all(t.isfinite().all() for t in (empty, with_ball, later))
     assert (with_ball - empty).abs().max() > 1e-6  # the ball near the arm changes the command
+    nearest = tmp_path / "nearest.pt2"  # each control point's 2 nearest of 6 spheres, selected inside the program
+    assert main([str(tiny_franka_run), "--set", "sphere:6:nearest=2", "--out", str(nearest)]) == 0
+    selecting = torch.export.load(nearest).module()
+    spheres = World([ObstacleSet(shape="sphere", n_max=6, nearest=2)], goal=[0.55, -0.3, 0.4])
+    far = selecting(q, qd, *spheres.set_aux().values())
+    spheres.add("sphere", center=[0.45, 0.15, 0.45], radius=0.08)
+    assert (selecting(q, qd, *spheres.set_aux().values()) - far).abs().max() > 1e-6
     assert main([str(tiny_run), "--set", "sphere:3", "--out", str(tmp_path / "2d.pt2")]) == 2  # no control points
     assert main([str(tiny_franka_run), "--set", "torus:3"]) == 2
     assert main([str(tiny_franka_run), "--set", "sphere:3", "--with-rmp"]) == 2

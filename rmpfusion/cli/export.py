@@ -10,7 +10,8 @@ control loop in Python or C++; docs/tutorials/deployment.md).
     rmpfusion-export outputs/franka/<time>/checkpoints/rmp/final.pt            # -> rmp-final.pt2 beside it
     python -c "import torch; p = torch.export.load('rmp-final.pt2').module(); print(p(q, qd, *aux))"
 
-``--set SHAPE:N`` (repeatable; ``SHAPE:N:per-control-point`` for N members of each control point's own) exports a
+``--set SHAPE:N`` (repeatable; ``SHAPE:N:per-control-point`` for N members of each control point's own,
+``SHAPE:N:nearest=K`` for each control point's K nearest of N, selected inside the program) exports a
 learner trained among a scene's fixed obstacles as a controller for a world that changes at run time: its tree's
 obstacle edges give way to run-time obstacle sets under the same shared weights
 (``envs/manipulator_tree.py::with_obstacle_sets``), and the program takes the goal and every set's tensors and mask
@@ -26,6 +27,7 @@ from pathlib import Path
 import torch
 from pydantic import ValidationError
 
+from ..envs.protocol import JointSpace
 from ..files import atomic_path
 from ..learn.checkpoints import CheckpointError, load_checkpoint
 from ..learn.export import METADATA, export_learner, export_with_sets, metadata, metadata_text
@@ -33,7 +35,8 @@ from ..pipeline.construct import learner_over_sets
 from ..pipeline.experiment import prepare
 from ..pipeline.fit import learners
 from ..pipeline.progress import Progress
-from ..scenes import ObstacleSet, with_slots
+from ..robots.robot import build_robot
+from ..scenes import ObstacleSet, sets_read, with_slots
 from ..scenes.sets import PARKED
 from ._common import user_errors_exit
 from .from_checkpoint import _load, _not_a_checkpoint
@@ -68,13 +71,27 @@ def _check(run_file, learner, q, qd, aux, names, with_rmp: bool) -> float:
 
 
 def parse_set(text: str) -> ObstacleSet:
-    """``SHAPE:N`` or ``SHAPE:N:per-control-point`` as an obstacle set; a malformed one is a ValueError saying how."""
+    """``SHAPE:N``, ``SHAPE:N:per-control-point`` or ``SHAPE:N:nearest=K`` as an obstacle set; a malformed one is a
+    ValueError saying how."""
     parts = text.split(":")
-    if len(parts) not in (2, 3) or not parts[1].isdigit() or (len(parts) == 3 and parts[2] != "per-control-point"):
-        raise ValueError(f"--set {text}: write SHAPE:N or SHAPE:N:per-control-point, e.g. --set sphere:32")
+    how = parts[2] if len(parts) == 3 else ""
+    nearest = how.removeprefix("nearest=")
+    if (
+        len(parts) not in (2, 3)
+        or not parts[1].isdigit()
+        or (len(parts) == 3 and how != "per-control-point" and not (how.startswith("nearest=") and nearest.isdigit()))
+    ):
+        raise ValueError(
+            f"--set {text}: write SHAPE:N, SHAPE:N:per-control-point or SHAPE:N:nearest=K, e.g. --set sphere:32"
+        )
     try:
         return ObstacleSet.model_validate(
-            {"shape": parts[0], "n_max": int(parts[1]), "per_control_point": len(parts) == 3}
+            {
+                "shape": parts[0],
+                "n_max": int(parts[1]),
+                "per_control_point": how == "per-control-point",
+                "nearest": int(nearest) if how.startswith("nearest=") else None,
+            }
         )
     except ValidationError as e:
         reasons = "; ".join(f"{'.'.join(map(str, err['loc']))}: {err['msg']}" for err in e.errors())
@@ -114,12 +131,20 @@ def export_with_run_time_sets(
     trained.load_state_dict(state["model"])
     if trained.tree is None:
         raise ExportError("--set needs a learner whose policy is an RMP tree (its obstacle edges take the sets)")
-    learner, read = learner_over_sets(run, name, trained, sets)
+    learner, _ = learner_over_sets(run, name, trained, sets)
     tree = learner.tree
     assert tree is not None  # a tree learner, as the trained one
     q, qd, aux = _example(exp, n=1)
-    inputs = _set_inputs(read, aux["goal"].to(torch.float64))
-    program = export_with_sets(tree, read, q, qd, inputs)
+    # what the caller passes: a nearest set whole (the program selects each control point's members), the others as
+    # the control points read them
+    if not isinstance(exp.env, JointSpace):
+        raise ExportError("--set needs an environment of a robot's joints (its control points read the sets)")
+    robot = build_robot(exp.env.robot_description)
+    n_points = len(robot.params.control_points)
+    given = [r for s in sets for r in ([s] if s.nearest is not None else sets_read([s], n_points))]
+    centres = robot.sphere_centres if any(s.nearest for s in sets) else None
+    inputs = _set_inputs(given, aux["goal"].to(torch.float64))
+    program = export_with_sets(tree, given, q, qd, inputs, centres)
     meta = metadata(
         {"goal": 3}, ["goal"], exp.env.dim, torch.float64, False, learner=name, checkpoint=str(path),
         iteration=int(state.get("iteration", -1)), experiment=run.name,
@@ -133,7 +158,7 @@ def export_with_run_time_sets(
         loaded = torch.export.load(tmp).module()
         with torch.no_grad():
             got = loaded(q, qd, *inputs.values())
-            want = tree(q, qd, with_slots(read, inputs)).qdd
+            want = tree(q, qd, with_slots(given, inputs, None if centres is None else centres(q))).qdd
         err = float((got - want).abs().max())
         if not err <= TOLERANCE:
             raise ExportError(
@@ -222,7 +247,7 @@ def main(argv=None) -> int | str | None:
         "--set",
         action="append",
         default=[],
-        metavar="SHAPE:N[:per-control-point]",
+        metavar="SHAPE:N[:per-control-point|:nearest=K]",
         help="export for run-time obstacle sets instead of the scene's fixed obstacles (repeatable)",
     )
     a = ap.parse_args(argv)

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import json
 import platform
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import torch
@@ -60,30 +60,45 @@ class SetsProgram(nn.Module):
     present is an input (the masks), not part of the traced graph."""
 
     def __init__(
-        self, tree: RMPTree, sets: Sequence[ObstacleSet], input_names: Sequence[str], tree_aux_names: Sequence[str]
+        self,
+        tree: RMPTree,
+        sets: Sequence[ObstacleSet],
+        input_names: Sequence[str],
+        tree_aux_names: Sequence[str],
+        centres: Callable[[Tensor], Tensor] | None = None,
     ):
         super().__init__()
         self.sets = list(sets)
         self.input_names = list(input_names)
         self.tree_aux_names = list(tree_aux_names)
         self.program = TreeProgram(tree, tree_aux_names)
+        self.centres = centres
 
     def forward(self, q: Tensor, qd: Tensor, *inputs: Tensor) -> Tensor:
-        aux = with_slots(self.sets, dict(zip(self.input_names, inputs)))
+        points = None if self.centres is None else self.centres(q)
+        aux = with_slots(self.sets, dict(zip(self.input_names, inputs)), points)
         return self.program(q, qd, *(aux[n] for n in self.tree_aux_names))
 
 
 def export_with_sets(
-    tree: RMPTree, sets: Sequence[ObstacleSet], q: Tensor, qd: Tensor, inputs: Mapping[str, Tensor]
+    tree: RMPTree,
+    sets: Sequence[ObstacleSet],
+    q: Tensor,
+    qd: Tensor,
+    inputs: Mapping[str, Tensor],
+    centres: Callable[[Tensor], Tensor] | None = None,
 ) -> torch.export.ExportedProgram:
     """A tree holding obstacle sets exported for any obstacles present (0 … N_max of each set): the program takes
     ``inputs`` (``World.set_aux()``: the goal, the set tensors and masks) in their order, at the example's batch size
-    (a controller's 1). The batch size is fixed: torch.export cannot yet prove the stride guards of a shared weight
-    stacked over several members for a symbolic batch (the same holds for a tree of several fixed obstacles)."""
+    (a controller's 1). A set with ``nearest`` is selected inside the program from the control spheres' centres,
+    ``centres(q)`` (``Robot.sphere_centres``). The batch size is fixed: torch.export cannot yet prove the stride guards
+    of a shared weight stacked over several members for a symbolic batch (the same holds for a tree of several fixed
+    obstacles)."""
     names = list(inputs)
-    set_level = {n for s in sets for n in s.set_dims()}  # the sets' own tensors: the program makes slots of them
-    tree_names = [n for n in with_slots(list(sets), inputs) if n not in set_level]
-    program = SetsProgram(tree, sets, names, tree_names).eval()
+    tree_names = [
+        n for n in with_slots(list(sets), inputs, None if centres is None else centres(q)) if n in tree.aux_dims
+    ]
+    program = SetsProgram(tree, sets, names, tree_names, centres).eval()
     _ = tree.plan  # planned before tracing
     entries = tuple(inputs[n].expand(q.shape[0], *inputs[n].shape[1:]).contiguous() for n in names)
     with torch.no_grad():

@@ -128,10 +128,15 @@ class ObstacleDistance(TaskMap):
         a masked map measures an absent obstacle (a subclass whose distance is singular along a line overrides it)."""
         return self.center(aux).new_tensor((1.0, 0.0, 0.0))
 
+    def distance(self, p: Tensor, aux) -> Tensor:
+        """The signed distance alone at offsets ``p`` from the centre: ``measure``'s first output, which a shape whose
+        distance costs less without its derivatives computes directly (ranking many obstacles, scenes/nearest.py)."""
+        return self.measure(p, torch.zeros_like(p), aux)[0]
+
     def psi(self, x, aux=None):
         if self.present is not None:
             return self.forward(x, torch.zeros_like(x), aux)[0]
-        return self.measure(x - self.center(aux), torch.zeros_like(x), aux)[0]
+        return self.distance(x - self.center(aux), aux)
 
     def forward(self, x, xd, aux=None):
         p = x - self.center(aux)
@@ -198,6 +203,9 @@ class SphereObstacle(ObstacleDistance):
     def measure(self, p, v, aux):
         r, g, c = _radial(p, v, 1.0)
         return r - self.radius(aux), g, c
+
+    def distance(self, p, aux):
+        return torch.linalg.vector_norm(p, dim=-1, keepdim=True) - self.radius(aux)
 
 
 @TASK_MAPS.register(

@@ -115,3 +115,18 @@ def aux_at(scene: Scene, aux0: Mapping[str, Tensor], t: Tensor) -> dict[str, Ten
         out[f"obstacle{k}_center"] = c0 + offset
         out[f"obstacle{k}_velocity"] = velocity
     return out
+
+
+#: what an absent member of an obstacle set (scenes/sets.py) holds in its fields: a small, well-formed obstacle at
+#: the origin (its distance is never used)
+PARKED: dict[str, tuple[float, ...]] = {
+    "center": (0.0, 0.0, 0.0),
+    "radius": (0.1,),
+    "velocity": (0.0, 0.0, 0.0),
+    "half_extents": (0.1, 0.1, 0.1),
+    "rotation": (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0),
+    "axis": (0.0, 0.0, 1.0),
+    "half_height": (0.1,),
+    "half_length": (0.1,),
+    "normal": (0.0, 0.0, 1.0),
+}

@@ -20,11 +20,12 @@ from collections.abc import Mapping
 from typing import Any, Literal
 
 import torch
-from pydantic import Field
+from pydantic import Field, model_validator
 from torch import Tensor
 
 from ..registry import TASK_MAPS, Params
-from .aux import SHAPE_AUX
+from .aux import PARKED, SHAPE_AUX
+from .nearest import selection_for
 
 #: every shape a controller may meet; a policy allocates a set of each it will meet before it is compiled or exported
 SET_SHAPES = ("sphere", "box", "cylinder", "capsule", "plane")
@@ -37,18 +38,6 @@ SET_MAPS = {
     "cylinder": "cylinder_obstacle",
     "capsule": "capsule_obstacle",
     "plane": "plane_obstacle",
-}
-#: what an absent member's fields hold: a small, well-formed obstacle at the origin (its distance is never used)
-PARKED: dict[str, tuple[float, ...]] = {
-    "center": (0.0, 0.0, 0.0),
-    "radius": (0.1,),
-    "velocity": (0.0, 0.0, 0.0),
-    "half_extents": (0.1, 0.1, 0.1),
-    "rotation": (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0),
-    "axis": (0.0, 0.0, 1.0),
-    "half_height": (0.1,),
-    "half_length": (0.1,),
-    "normal": (0.0, 0.0, 1.0),
 }
 #: map parameter reading each field (a box's radius is read by the weights only)
 _MAP_KEYS = {
@@ -80,6 +69,27 @@ class ObstacleSet(Params):
         description="every control point reads n_max members of its own (aux prefix cp<i>_<prefix>: e.g. the k "
         "nearest points of a cloud, scenes/clouds.py::nearest_per_point) instead of one set all of them share",
     )
+    nearest: int | None = Field(
+        None,
+        ge=1,
+        description="every control point reads only this many members of the set, those nearest to it, selected "
+        "every call (scenes/nearest.py): k edges per control point however large n_max; exact while the others lie "
+        "beyond the obstacle leaf's support",
+    )
+
+    @model_validator(mode="after")
+    def _one_way_to_read(self):
+        if self.nearest is not None and self.per_control_point:
+            raise ValueError(
+                "nearest selects each control point's members from one shared set; per_control_point gives every "
+                "control point a set of its own: choose one"
+            )
+        if self.nearest is not None and self.nearest >= self.n_max:
+            raise ValueError(
+                f"nearest ({self.nearest}) must be < n_max ({self.n_max}): with nearest >= n_max every control point "
+                "reads every member anyway; leave nearest out"
+            )
+        return self
 
     @property
     def prefix(self) -> str:
@@ -87,7 +97,9 @@ class ObstacleSet(Params):
 
     def for_control_point(self, i: int) -> ObstacleSet:
         """The set control point ``i`` (from 1) reads: this one, or its own copy ``cp<i>_<prefix>`` when every
-        control point has members of its own."""
+        control point has members of its own (``per_control_point``) or its own ``nearest`` of this set's."""
+        if self.nearest is not None:
+            return self.model_copy(update={"name": f"cp{i}_{self.prefix}", "n_max": self.nearest, "nearest": None})
         if not self.per_control_point:
             return self
         return self.model_copy(update={"name": f"cp{i}_{self.prefix}", "per_control_point": False})
@@ -138,6 +150,11 @@ class ObstacleSet(Params):
                 f"obstacle set '{self.prefix}' has members per control point: make the slots of each control point's "
                 f"own set, sets_read(sets, number of control points)"
             )
+        if self.nearest is not None:
+            raise ValueError(
+                f"obstacle set '{self.prefix}' gives each control point its {self.nearest} nearest members: make its "
+                "slots with with_slots(sets, aux, points=<the control spheres' centres, (B, C, 3)>)"
+            )
         if f"{self.prefix}_mask" not in aux:
             raise KeyError(
                 f"obstacle set '{self.prefix}' needs aux '{self.prefix}_mask' of shape (B, {self.n_max}): "
@@ -181,7 +198,8 @@ def sets_read(sets: list[ObstacleSet], n_control_points: int) -> list[ObstacleSe
     per control point (``ObstacleSet.for_control_point``)."""
     out: list[ObstacleSet] = []
     for s in sets:
-        out += [s.for_control_point(i) for i in range(1, n_control_points + 1)] if s.per_control_point else [s]
+        own = s.per_control_point or s.nearest is not None
+        out += [s.for_control_point(i) for i in range(1, n_control_points + 1)] if own else [s]
     return out
 
 
@@ -195,11 +213,21 @@ def set_dims(sets: list[ObstacleSet]) -> dict[str, int]:
     return dims
 
 
-def with_slots(sets: list[ObstacleSet], aux: Mapping[str, Tensor]) -> dict[str, Tensor]:
-    """``aux`` with every set's slot entries added: what the tree is called with."""
-    out = dict(aux)
+def with_slots(sets: list[ObstacleSet], aux: Mapping[str, Tensor], points: Tensor | None = None) -> dict[str, Tensor]:
+    """``aux`` with every set's slot entries added: what the tree is called with. A set with ``nearest`` selects
+    each control point's members first, from ``points`` (B, C, 3), the control spheres' centres (``Robot.
+    sphere_centres``); its selection's own entries (``cp<i>_<prefix>_*``) are added too."""
+    out = {**aux}  # not dict(aux): torch.compile traces a literal, not dict.copy
     for s in sets:
-        out.update(s.slots(aux))
+        if s.nearest is None:
+            out.update(s.slots(aux))
+            continue
+        if points is None:
+            raise ValueError(
+                f"obstacle set '{s.prefix}' gives each control point its {s.nearest} nearest members: pass "
+                "points=<the control spheres' centres at q, (B, C, 3)>, e.g. Robot.sphere_centres(q)"
+            )
+        out.update(selection_for(s, points.shape[1]).slots(aux, points))
     return out
 
 

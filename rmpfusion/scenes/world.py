@@ -166,9 +166,10 @@ class World:
         """The goal and every set's tensors and mask: what an exported policy takes as inputs."""
         return {"goal": self.goal, **self.tensors}
 
-    def aux(self) -> dict[str, Tensor]:
-        """The aux state a tree built with these sets is called with (the set tensors and their slot entries)."""
-        return with_slots(list(self.sets.values()), self.set_aux())
+    def aux(self, points: Tensor | None = None) -> dict[str, Tensor]:
+        """The aux state a tree built with these sets is called with (the set tensors and their slot entries). A set
+        with ``nearest`` needs ``points``, the control spheres' centres at the state the tree is called at (B, C, 3)."""
+        return with_slots(list(self.sets.values()), self.set_aux(), points)
 
     # ------------------------------------------------------------------ internals
     def _set_for(self, shape: str, name: str | None) -> ObstacleSet:
