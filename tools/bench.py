@@ -587,19 +587,36 @@ def section_scaling(compile_: bool) -> None:
 SET_STATES = tuple((n, B, B) for n in (1, 100) for B in (1, 1024))
 
 
-def franka_set_states(n_max: int, batch: int, seed: int):
-    """(tree, q, q̇, aux): the Franka expert on the Panda's tree with one sphere set of ``n_max`` members (the run-time
-    world's tree: tools/world_demo.py), every member present, 3 cm spheres in a slab beyond the goals (x 0.9–1.1 m,
-    clear of the arm's starts), and ``batch`` start states of experiment=franka's sampler."""
+def franka_set_states(n_max: int, batch: int, seed: int, nearest: int | None = None):
+    """(tree, q, q̇, aux, exact): the Franka expert on the Panda's tree with one sphere set of ``n_max`` members (the
+    run-time world's tree: tools/world_demo.py), every member present, 3 cm spheres in a slab beyond the goals (x
+    0.9–1.1 m, clear of the arm's starts), and ``batch`` start states of experiment=franka's sampler. The tree makes
+    its slot entries itself (``SetsSource``): ``aux`` is the goal and the set's tensors and mask, as a World holds
+    them. With ``nearest`` every control point reads its ``nearest`` members, selected inside the tree; ``exact``
+    is the fraction of the states where the selection equals the whole set (1.0 without ``nearest``)."""
     from world_demo import controller
 
-    from rmpfusion.scenes import ObstacleSet
+    from rmpfusion.scenes import ObstacleSet, SetsSource
+    from rmpfusion.scenes.nearest import nearest_members, selection_exact
 
-    sets = [ObstacleSet(shape="sphere", n_max=n_max)]
-    tree, _, _ = controller(sets)
+    sets = [ObstacleSet(shape="sphere", n_max=n_max, nearest=nearest)]
+    tree, robot, run = controller(sets)
+    n_points = len(run.env.robot.control_points)
+    tree.read_aux_through(SetsSource(sets, n_points, robot.sphere_centres))
     _, q, qd, _ = franka_states(1, batch, seed)
-    aux = {k: v.expand(batch, *v.shape[1:]) for k, v in _slab_world(sets, seed).aux().items()}
-    return tree, q, qd, aux
+    aux = {k: v.expand(batch, *v.shape[1:]) for k, v in _slab_world(sets, seed).set_aux().items()}
+    exact = 1.0
+    if nearest is not None:
+        _, left_out = nearest_members(sets[0], aux, robot.sphere_centres(q))
+        radii = torch.tensor([cp.radius for cp in run.env.robot.control_points], dtype=torch.float64)
+        exact = selection_exact(left_out, radii, _barrier_support(run)).double().mean().item()
+    return tree, q, qd, aux, exact
+
+
+def _barrier_support(run) -> float:
+    """r_w of the run's obstacle barrier: beyond it an obstacle edge contributes nothing."""
+    barrier = next(n.rmp for n in run.tree.nodes.values() if n.rmp is not None and n.rmp.type == "collision_avoidance")
+    return float(barrier.model_dump()["r_w"])
 
 
 def _slab_world(sets, seed: int):
@@ -618,36 +635,13 @@ def _slab_world(sets, seed: int):
 SET_NEAREST = 8
 
 
-def franka_nearest_step(n_max: int, k: int, batch: int, seed: int):
-    """(tree, select, q, q̇, exact): the tree of ``franka_set_states`` whose control points each read their ``k``
-    nearest of the ``n_max`` members, ``select(q)`` the aux it is called with (the control spheres' centres, the
-    selection, the slots: a step's whole sensing), and the fraction of the states where the selection is exact."""
-    from world_demo import controller
-
-    from rmpfusion.scenes import ObstacleSet, with_slots
-    from rmpfusion.scenes.nearest import nearest_members, selection_exact
-
-    sets = [ObstacleSet(shape="sphere", n_max=n_max, nearest=k)]
-    tree, robot, run = controller(sets)
-    _, q, qd, _ = franka_states(1, batch, seed)
-    set_aux = {name: v.expand(batch, *v.shape[1:]) for name, v in _slab_world(sets, seed).set_aux().items()}
-
-    def select(q):
-        return with_slots(sets, set_aux, robot.sphere_centres(q))
-
-    _, left_out = nearest_members(sets[0], set_aux, robot.sphere_centres(q))
-    radii = torch.tensor([cp.radius for cp in run.env.robot.control_points], dtype=torch.float64)
-    barrier = next(n.rmp for n in run.tree.nodes.values() if n.rmp is not None and n.rmp.type == "collision_avoidance")
-    exact = selection_exact(left_out, radii, float(barrier.model_dump()["r_w"])).double().mean().item()
-    return tree, select, q, qd, exact
-
-
 def section_sets(compile_: bool) -> None:
     print("\nFranka tree with a run-time obstacle set of N_max = 1 and 100 spheres (every member present): one tree")
-    print("and one compile serve any count from 0 to N_max; how the cost grows with N_max")
+    print("and one compile serve any count from 0 to N_max; the tree is given the set's tensors and makes one entry")
+    print("per member itself (SetsSource); how the cost grows with N_max")
     times: dict[tuple[int, int], dict[str, float]] = {}
     for n, B, seed in SET_STATES:
-        tree, q, qd, a = franka_set_states(n, B, seed)
+        tree, q, qd, a, _ = franka_set_states(n, B, seed)
         times[n, B] = _eager_and_compiled("sets", f"N_max = {n}, B = {B}", tree, (q, qd, a), compile_)
     mode = "compiled" if compile_ else "eager"
     r1 = times[100, 1][mode] / times[1, 1][mode]
@@ -655,35 +649,21 @@ def section_sets(compile_: bool) -> None:
     rb = times[100, 1024][mode] / times[1, 1024][mode]
     row("sets", f"N_max 100 / 1, B = 1024, {mode}", f"{rb:.2f}")
     print(
-        f"the same 100 members, each control point reading its {SET_NEAREST} nearest (nearest: {SET_NEAREST}), a step ="
+        f"the same 100 members, each control point reading its {SET_NEAREST} nearest (nearest: {SET_NEAREST}), selected"
     )
-    print("the control spheres' centres, the selection and the tree; exact where every member left out lies beyond the")
-    print("barrier's support (the fraction of the states where it is, below)")
+    print("inside the tree from the control spheres' centres; exact where every member left out lies beyond the")
+    print("barrier's support (the fraction of the states where it is, in the row)")
     for B in (1, 1024):
-        tree, select, q, qd, exact = franka_nearest_step(100, SET_NEAREST, B, B)
-        t = _selection_step_times(tree, select, q, qd, compile_)
-        row("sets", f"N_max = 100, {SET_NEAREST} nearest, B = {B}, {mode} (exact on {exact:.0%})", _fmt_time(t[mode]))
+        tree, q, qd, a, exact = franka_set_states(100, B, B, nearest=SET_NEAREST)
+        t = _eager_and_compiled(
+            "sets", f"N_max = 100, {SET_NEAREST} nearest, B = {B} (exact on {exact:.0%})", tree, (q, qd, a), compile_
+        )
         r = t[mode] / times[1, B][mode]
         label = f"N_max 100 ({SET_NEAREST} nearest) / 1, B = {B}, {mode}"
-        if B == 1:  # a single state pays the selection's fixed cost: the plain set's row carries the B = 1 target
+        if B == 1:  # a single state pays the selection's fixed cost: the whole set's row carries the B = 1 target
             row("sets", label, f"{r:.2f}")
         else:
             row("sets", label, f"{r:.2f}", "", "", "≤ 5", r <= 5)
-
-
-def _selection_step_times(tree, select, q, qd, compile_: bool) -> dict[str, float]:
-    """{mode: seconds} of one step, selection and tree: eager, and compiled as a controller would (the tree with a
-    fixed structure, the selection as one function)."""
-    out = {}
-    with torch.inference_mode():
-        out["eager"] = median_time(lambda: tree(q, qd, select(q)), min_time=1.0)
-        if compile_:
-            tree.compile(dynamic=False, fixed_structure=True, vectorize=q.shape[0] > 1)
-            compiled_select = torch.compile(select, dynamic=False)
-            tree(q, qd, compiled_select(q))
-            out["compiled"] = median_time(lambda: tree(q, qd, compiled_select(q)))
-            tree.uncompile()
-    return out
 
 
 #: the cloud row: points sampled on the faces of a box beyond the goals, members per control point
@@ -691,68 +671,43 @@ CLOUD_POINTS, CLOUD_K = 1000, 8
 
 
 def franka_cloud_step(seed: int = 0):
-    """(tree, sensing as a function of q, q, q̇): the Franka expert on the Panda's tree whose control points each read
-    their own ``CLOUD_K`` nearest points of a ``CLOUD_POINTS``-point cloud (3 cm spheres); sensing selects them
-    (``nearest_per_point`` from the control spheres' centres) and makes the tree's slot entries."""
+    """(tree, q, q̇, aux): the Franka expert on the Panda's tree whose control points each read their ``CLOUD_K``
+    nearest points of a ``CLOUD_POINTS``-point cloud (3 cm spheres): the cloud is a sphere set with ``nearest``, so
+    a step is one call of the tree given the cloud (the selection and the slots are made inside it)."""
     from world_demo import controller
 
-    from rmpfusion.robots.robot import build_robot
-    from rmpfusion.scenes import ObstacleSet, sets_read, with_slots
-    from rmpfusion.scenes.clouds import nearest_per_point, per_point_aux
+    from rmpfusion.scenes import ObstacleSet, SetsSource
 
-    cloud_set = ObstacleSet(shape="sphere", n_max=CLOUD_K, name="points", per_control_point=True)
-    tree, _, run = controller([cloud_set])
-    robot = build_robot(run.env.robot)
-    read = sets_read([cloud_set], len(run.env.robot.control_points))
+    cloud_set = ObstacleSet(shape="sphere", n_max=CLOUD_POINTS, nearest=CLOUD_K, name="points")
+    tree, robot, run = controller([cloud_set])
+    tree.read_aux_through(SetsSource([cloud_set], len(run.env.robot.control_points), robot.sphere_centres))
     g = torch.Generator().manual_seed(seed)
     u = torch.rand(CLOUD_POINTS, 3, generator=g, dtype=torch.float64) * 2 - 1
     u[torch.arange(CLOUD_POINTS), torch.randint(0, 3, (CLOUD_POINTS,), generator=g)] = 1.0
     cloud = u * torch.tensor([0.1, 0.3, 0.3], dtype=torch.float64) + torch.tensor([0.95, 0.0, 0.4], dtype=torch.float64)
-    goal = torch.tensor([[0.45, 0.35, 0.35]], dtype=torch.float64)
+    aux = {
+        "goal": torch.tensor([[0.45, 0.35, 0.35]], dtype=torch.float64),
+        "points_center": cloud[None],
+        "points_radius": torch.full((1, CLOUD_POINTS, 1), 0.03, dtype=torch.float64),
+        "points_mask": torch.ones(1, CLOUD_POINTS, dtype=torch.float64),
+    }
     _, q, qd, _ = franka_states(1, 1, seed)
-
-    def sense(q):
-        members, mask = nearest_per_point(cloud, robot.sphere_centres(q)[0], CLOUD_K)
-        return with_slots(read, {"goal": goal, **per_point_aux(cloud_set, members, mask, 0.03)})
-
-    return tree, sense, q, qd
+    return tree, q, qd, aux
 
 
 def section_clouds(compile_: bool) -> None:
     print(
         f"\nFranka tree whose control points each read their {CLOUD_K} nearest points of a {CLOUD_POINTS}-point cloud"
     )
-    print("(a step = selecting them and making the slots, then the tree), against the tree of one fixed obstacle")
+    print("(a step = one call of the tree given the cloud: selection, slots and tree), against the tree of one fixed")
+    print("obstacle")
     one, q1, qd1, a1 = franka_states(1, 1, 1)
-    tree, sense, q, qd = franka_cloud_step()
-    with torch.inference_mode():
-        aux = sense(q)
-        times = {
-            "1 obstacle": median_time(lambda: one(q1, qd1, a1), min_time=1.0),
-            "cloud: sensing": median_time(lambda: sense(q), min_time=1.0),
-            "cloud: tree": median_time(lambda: tree(q, qd, aux), min_time=1.0),
-        }
-    mode = "eager"
-    if compile_:  # each compiled as a controller would: the tree with a fixed structure, sensing as one function
-        one.compile(dynamic=False, fixed_structure=True, vectorize=False)
-        tree.compile(dynamic=False, fixed_structure=True, vectorize=False)
-        sense = torch.compile(sense, dynamic=False)
-        with torch.inference_mode():
-            one(q1, qd1, a1), tree(q, qd, sense(q))
-            times = {
-                "1 obstacle": median_time(lambda: one(q1, qd1, a1)),
-                "cloud: sensing": median_time(lambda: sense(q)),
-                "cloud: tree": median_time(lambda: tree(q, qd, aux)),
-            }
-        one.uncompile()
-        tree.uncompile()
-        mode = "compiled"
-    for what, t in times.items():
-        row("clouds", f"{what}, B = 1, {mode}", _fmt_time(t))
-    tree_ratio = times["cloud: tree"] / times["1 obstacle"]
-    row("clouds", f"cloud tree alone / 1 obstacle, B = 1, {mode}", f"{tree_ratio:.2f}")
-    r = (times["cloud: sensing"] + times["cloud: tree"]) / times["1 obstacle"]
-    row("clouds", f"cloud step (k = {CLOUD_K}) / 1 obstacle, B = 1, {mode}", f"{r:.2f}", "", "", "≤ 5", r <= 5)
+    tree, q, qd, aux = franka_cloud_step()
+    base = _eager_and_compiled("clouds", "1 obstacle, B = 1", one, (q1, qd1, a1), compile_)
+    step = _eager_and_compiled("clouds", f"cloud step (k = {CLOUD_K}), B = 1", tree, (q, qd, aux), compile_)
+    for mode in base:
+        r = step[mode] / base[mode]
+        row("clouds", f"cloud step (k = {CLOUD_K}) / 1 obstacle, B = 1, {mode}", f"{r:.2f}", "", "", "≤ 5", r <= 5)
 
 
 def section_cuda(compile_: bool) -> None:

@@ -11,6 +11,7 @@ YAML number is rounded at most once, to the dtype the tree computes in.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from typing import Protocol
 
 import torch
 from torch import Tensor, nn
@@ -25,6 +26,20 @@ def constant(value) -> Tensor:
     """A Python number, or nested lists of them, as an exact float64 tensor: the one way a registered map, leaf
     or weight turns a parameter into a tensor (a buffer the tree's ``.to(dtype)`` then casts)."""
     return torch.as_tensor(value, dtype=CONSTANT_DTYPE)
+
+
+class AuxSource(Protocol):
+    """Makes the aux entries a tree reads from fewer, larger inputs, inside the tree's evaluation (so inside its
+    compiled code): e.g. run-time obstacle sets, passed as one ``(B, N_max, k)`` tensor per field and made into one
+    entry per member (``scenes/sets.py::SetsSource``). A compiled call costs about a microsecond per input tensor
+    before any arithmetic, so hundreds of per-member entries passed from outside would cost more than the tree."""
+
+    #: what the caller passes beside the tree's other aux: name -> per-sample shape
+    inputs: Mapping[str, tuple[int, ...]]
+
+    def __call__(self, q: Tensor, given: AuxDict) -> dict[str, Tensor]:
+        """The entries made from ``given`` at configurations ``q`` (B, d), each (B, k)."""
+        ...
 
 
 class AuxParam(nn.Module):

@@ -40,7 +40,8 @@ class TreeProgram(nn.Module):
 
     def forward(self, q: Tensor, qd: Tensor, *aux: Tensor):
         plan = self.tree.plan
-        root = evaluate(plan, q, qd, dict(zip(self.aux_names, aux)), lean=plan.lean and not self.with_rmp).root
+        given = self.tree.aux_with_source(q, dict(zip(self.aux_names, aux)))  # a tree's AuxSource makes its entries
+        root = evaluate(plan, q, qd, given, lean=plan.lean and not self.with_rmp).root
         a, good = lu_solve(root.M, root.f)
         qdd = torch.cond(good.all(), _solved, _pinv_where_singular, (a, root.M, root.f, good))
         return (qdd, root.M, root.f) if self.with_rmp else qdd

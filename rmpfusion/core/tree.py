@@ -22,7 +22,7 @@ import torch
 from torch import Tensor, nn
 
 from .algebra import Edge, NodeRMP, lu_solve, resolve
-from .auxstate import AuxDict
+from .auxstate import AuxDict, AuxSource
 from .diagnosis import NumericalError, bad_input, bad_node
 from .gds import LeafRMP
 from .groups import Plan
@@ -106,6 +106,7 @@ class RMPTree(nn.Module):
         self._compiled = None  # the torch.compile'd _root_rmp, built on first use after compile()
         self._compile_args: tuple[bool | None, dict[str, Any]] | None = None  # (dynamic, options) once compiled
         self._dtype_cache: tuple | None = None  # (dtype,) once known; see _dtype
+        self.aux_source: AuxSource | None = None  # makes declared aux from the caller's inputs; see read_aux_through
 
     @property
     def plan(self) -> Plan:
@@ -124,10 +125,10 @@ class RMPTree(nn.Module):
         if aux is None:
             return None
         out = dict(aux)
-        for name, d in self.aux_dims.items():
-            if name not in out:
+        for name, t in aux.items():  # what was given (a tree fed by an aux source declares many it is not given)
+            if name not in self.aux_dims:
                 continue
-            t = out[name]
+            d = self.aux_dims[name]
             if isinstance(t, Tensor) and t.shape == (batch, d):  # already as the tree takes it: the common case
                 continue
             if not isinstance(t, Tensor):
@@ -146,6 +147,35 @@ class RMPTree(nn.Module):
             out[name] = t.expand(batch, d) if t.shape[0] == 1 else t
         return out
 
+    def read_aux_through(self, source: AuxSource | None) -> RMPTree:
+        """Call the tree with ``source.inputs`` in place of the aux entries ``source`` makes (``AuxSource``): the
+        entries are made inside every evaluation, compiled with it. None: the caller passes every entry again."""
+        self.aux_source = source
+        self._compiled = None  # traced again: the evaluation now starts with the source
+        return self
+
+    def aux_with_source(self, q: Tensor, aux: AuxDict | None) -> AuxDict | None:
+        """The aux state with the source's entries made (the aux as given when the tree has no source)."""
+        if self.aux_source is None or aux is None:
+            return aux
+        return {**aux, **self.aux_source(q, aux)}
+
+    def _source_inputs(self, aux: dict[str, Tensor] | None, batch: int) -> dict[str, Tensor] | None:
+        """The source's inputs checked (present, per-sample shapes) and broadcast to the batch."""
+        if self.aux_source is None:
+            return aux
+        out = dict(aux or {})
+        for name, shape in self.aux_source.inputs.items():
+            if name not in out:
+                raise KeyError(f"aux '{name}' of shape (B, {', '.join(map(str, shape))}) is required by this tree")
+            t = out[name]
+            if tuple(t.shape[1:]) != tuple(shape) or t.shape[0] not in (1, batch):
+                raise ValueError(
+                    f"aux '{name}' must be ({batch} or 1, {', '.join(map(str, shape))}); got {tuple(t.shape)}"
+                )
+            out[name] = t.expand(batch, *shape)
+        return out
+
     def _inputs(self, q: Tensor, qd: Tensor, aux: AuxDict | None) -> dict[str, Tensor] | None:
         """The state checked (shapes, the tree's dtype) and the aux state normalised; the tree planned."""
         if q.dim() != 2 or q.shape[-1] != self.dim or qd.shape != q.shape:
@@ -157,7 +187,7 @@ class RMPTree(nn.Module):
                 f"state (q.to({dtype})) or the tree (tree.to({q.dtype}))"
             )
         _ = self.plan  # planned before any compiled code runs
-        return self._normalise_aux(aux, q.shape[0], q.dtype)
+        return self._source_inputs(self._normalise_aux(aux, q.shape[0], q.dtype), q.shape[0])
 
     def forward(self, q: Tensor, qd: Tensor, aux: AuxDict | None = None, return_nodes: bool = False) -> TreeOutput:
         aux = self._inputs(q, qd, aux)
@@ -165,7 +195,7 @@ class RMPTree(nn.Module):
         ok: Tensor | bool = False  # the LU solve succeeded with a finite result for every sample
         qdd: Tensor | None = None
         if return_nodes:
-            passes = evaluate(self.plan, q, qd, aux)
+            passes = evaluate(self.plan, q, qd, self.aux_with_source(q, aux))
             r, nodes = passes.root, self._per_node(passes)
         else:
             f, M, G, B, Phi, L, V, qdd, ok = self._root_rmp_maybe_compiled(q, qd, aux, False)
@@ -183,7 +213,7 @@ class RMPTree(nn.Module):
             return qdd
         qdd = resolve(r.f, r.M, self.resolve_method, self.resolve_events)
         if self.check_finite and not bool(torch.isfinite(qdd).all()):
-            raise NumericalError(self._diagnose(q, qd, aux))
+            raise NumericalError(self._diagnose(q, qd, self.aux_with_source(q, aux)))
         return qdd
 
     @property
@@ -228,7 +258,7 @@ class RMPTree(nn.Module):
         """The root's RMP, its LU-solved acceleration and whether that solve is good for every sample, as a
         plain tuple of tensors: the pure tensor program that ``compile`` hands to torch.compile."""
         assert self._plan is not None, "planned by _inputs before any evaluation"
-        r = evaluate(self._plan, q, qd, aux, lean).root
+        r = evaluate(self._plan, q, qd, self.aux_with_source(q, aux), lean).root
         a, good = lu_solve(r.M, r.f)
         return r.f, r.M, r.G, r.B, r.Phi, r.L, r.V, a, good.all()
 

@@ -3,7 +3,7 @@ sets whose members come and go between calls."""
 
 from .aux import aux_at, obstacle_aux_names, scene_aux, scene_aux_dims
 from .distance import SHAPE_MAPS, distances, obstacle_map
-from .sets import SET_SHAPES, ObstacleSet, every_shape, set_dims, sets_read, with_slots
+from .sets import SET_SHAPES, ObstacleSet, SetsSource, every_shape, set_dims, sets_read, with_slots
 from .spec import SHAPES, Box, Capsule, Cylinder, Ground, Scene, Sphere, same_layout
 from .world import World, WorldError
 
@@ -17,6 +17,7 @@ __all__ = [
     "Ground",
     "ObstacleSet",
     "Scene",
+    "SetsSource",
     "Sphere",
     "World",
     "WorldError",

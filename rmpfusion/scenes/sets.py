@@ -16,7 +16,7 @@ scene; for a plane, the size the caller wants its weight to see).
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any, Literal
 
 import torch
@@ -25,7 +25,7 @@ from torch import Tensor
 
 from ..registry import TASK_MAPS, Params
 from .aux import PARKED, SHAPE_AUX
-from .nearest import selection_for
+from .nearest import NearestSelection, selection_for
 
 #: every shape a controller may meet; a policy allocates a set of each it will meet before it is compiled or exported
 SET_SHAPES = ("sphere", "box", "cylinder", "capsule", "plane")
@@ -229,6 +229,40 @@ def with_slots(sets: list[ObstacleSet], aux: Mapping[str, Tensor], points: Tenso
             )
         out.update(selection_for(s, points.shape[1]).slots(aux, points))
     return out
+
+
+class SetsSource:
+    """Obstacle sets' slot entries made inside a tree's evaluation (``RMPTree.read_aux_through``, an ``AuxSource``):
+    the caller passes each set's tensors and mask (``World.set_aux()``), a handful of tensors, and the per-member
+    entries (and a ``nearest`` set's selection) are made where the tree's compiled code makes them too.
+
+    ``sets``: those a tree was built with (``obstacle_sets``), for its ``n_points`` control points. The caller passes
+    a per-control-point set once per control point (``sets_read``), a ``nearest`` set whole, selected from
+    ``centres(q)`` (B, C, 3), the control spheres' centres (``Robot.sphere_centres``)."""
+
+    def __init__(self, sets: list[ObstacleSet], n_points: int, centres: Callable[[Tensor], Tensor] | None = None):
+        if centres is None and any(s.nearest is not None for s in sets):
+            raise ValueError(
+                "a set with nearest selects each control point's members from the control spheres' centres: pass "
+                "centres=<a function of q, e.g. Robot.sphere_centres>"
+            )
+        self.given = [r for s in sets for r in ([s] if s.nearest is not None else sets_read([s], n_points))]
+        self.centres = centres
+        self.inputs = {name: shape for s in self.given for name, shape in s.set_dims().items()}
+        # made here, once: the compiled evaluation traces their tensor work only (it does not see a cache)
+        self.selections = [NearestSelection(s, n_points) for s in self.given if s.nearest is not None]
+        self.plain = [s for s in self.given if s.nearest is None]
+
+    def __call__(self, q: Tensor, given: Mapping[str, Tensor]) -> dict[str, Tensor]:
+        out: dict[str, Tensor] = {}
+        for s in self.plain:
+            out.update(s.slots(given))
+        if self.selections:
+            assert self.centres is not None, "checked when the source was made"
+            points = self.centres(q)
+            for selection in self.selections:
+                out.update(selection.slots(given, points))
+        return out
 
 
 def set_distances(sets: list[ObstacleSet], aux: Mapping[str, Tensor], points: Tensor) -> Tensor:
