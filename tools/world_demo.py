@@ -39,7 +39,7 @@ from rmpfusion.assembly.weighting import plain_data, tree_with_weights, weights_
 from rmpfusion.envs.manipulator.worlds import TaskWorld
 from rmpfusion.pipeline.validate import resolve_and_validate
 from rmpfusion.robots.robot import build_robot
-from rmpfusion.scenes import ObstacleSet, World, set_dims, sets_read
+from rmpfusion.scenes import ObstacleSet, SetsSource, World, set_dims, sets_read
 from rmpfusion.scenes.sets import set_distances
 from rmpfusion.sims import SimulatorParams, WorldSettings, obstacles_of_sets
 
@@ -104,13 +104,14 @@ def run_demo(compiled: bool = True, seconds: float = 6.0, dt: float = 0.002, sim
     from torch._dynamo.utils import counters
 
     tree, robot, run = controller()
+    tree.read_aux_through(SetsSource(SETS, len(run.env.robot.control_points)))  # it makes its per-member entries
     world = World(SETS, goal=GOAL)
     simulated = None if sim is None else TaskWorld(robot, WorldSettings(timestep=dt), SimulatorParams(type=sim))
     q = torch.tensor([list(run.env.robot.home)], dtype=torch.float64)
     qd = torch.zeros_like(q)
     if compiled:
         tree.compile()
-    aux = world.aux
+    aux = world.set_aux  # the goal and each set's tensors and mask: a handful of inputs, whatever N_max
 
     def accel(x, xd):
         with torch.no_grad():
