@@ -801,10 +801,12 @@ for it in range({iterations}):
 """
     _memory_row("peak RSS while training", *peak_in_child(setup, work))
     print("peak memory of one eager call of the Franka tree with a run-time sphere set, B = 1024 (in a child process)")
+    work = "with torch.inference_mode():\n    tree(q, qd, a)"
     for n in sorted({n for n, _, _ in SET_STATES}):
-        setup = f"tree, q, qd, a = bench.franka_set_states({n}, 1024, 1024)"
-        work = "with torch.inference_mode():\n    tree(q, qd, a)"
+        setup = f"tree, q, qd, a, _ = bench.franka_set_states({n}, 1024, 1024)"
         _memory_row(f"N_max = {n}, B = 1024: peak RSS of a call", *peak_in_child(setup, work))
+    setup = f"tree, q, qd, a, _ = bench.franka_set_states(100, 1024, 1024, nearest={SET_NEAREST})"
+    _memory_row(f"N_max = 100, {SET_NEAREST} nearest, B = 1024: peak RSS of a call", *peak_in_child(setup, work))
 
 
 #: the 7-joint arm whose meshes the fit reads: the xArm7 as example-robot-data ships it (STL, package://), else the
