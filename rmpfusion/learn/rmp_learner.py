@@ -38,7 +38,9 @@ class RMPLearner(Learner["RMPLearner.Params"]):
         )
         edges: list[str] | None = Field(
             None,
-            description="edges to learn; default: those the expert weights, else every edge except regulariser leaves",
+            description="edges this learner puts `weights` on; default: those the expert weights, else every edge "
+            "except regulariser leaves. Weights the tree spec declares itself (fig1b's attractor, obstacle and ground "
+            "weights) are learned too, whatever this lists: [] removes only the learner's own",
         )
         edge_weights: dict[str, dict[str, Any]] = Field(
             default_factory=dict,
