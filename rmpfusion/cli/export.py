@@ -36,8 +36,8 @@ from ..pipeline.experiment import prepare
 from ..pipeline.fit import learners
 from ..pipeline.progress import Progress
 from ..robots.robot import build_robot
-from ..scenes import ObstacleSet, sets_read, with_slots
-from ..scenes.sets import PARKED
+from ..scenes import ObstacleSet, with_slots
+from ..scenes.sets import PARKED, sets_given
 from ._common import user_errors_exit
 from .from_checkpoint import _load, _not_a_checkpoint
 
@@ -135,13 +135,10 @@ def export_with_run_time_sets(
     tree = learner.tree
     assert tree is not None  # a tree learner, as the trained one
     q, qd, aux = _example(exp, n=1)
-    # what the caller passes: a nearest set whole (the program selects each control point's members), the others as
-    # the control points read them
     if not isinstance(exp.env, JointSpace):
         raise ExportError("--set needs an environment of a robot's joints (its control points read the sets)")
     robot = build_robot(exp.env.robot_description)
-    n_points = len(robot.params.control_points)
-    given = [r for s in sets for r in ([s] if s.nearest is not None else sets_read([s], n_points))]
+    given = sets_given(sets, len(robot.params.control_points))  # what the program takes
     centres = robot.sphere_centres if any(s.nearest for s in sets) else None
     inputs = _set_inputs(given, aux["goal"].to(torch.float64))
     program = export_with_sets(tree, given, q, qd, inputs, centres)

@@ -46,8 +46,9 @@ class NearestSelection:
         self.fields = obstacle_set.fields()
         self.names = {f: f"{obstacle_set.prefix}_{f}" for f in [*self.fields, "mask"]}
         self.rows = {f: obstacle_set.slot_name(1, f) for f in self.fields}  # the map reads any member as slot 1's
-        spec = {key: v for key, v in obstacle_set.slot_map(1).items() if key not in ("type", "present")}
-        entry = TASK_MAPS.get(obstacle_set.slot_map(1)["type"])
+        any_member = obstacle_set.slot_map(1)
+        spec = {key: v for key, v in any_member.items() if key not in ("type", "present")}
+        entry = TASK_MAPS.get(any_member["type"])
         self.measure = entry.obj(entry.validate(spec), 3, {self.rows[f]: k for f, k in self.fields.items()}).double()
 
     def distances(self, aux: Mapping[str, Tensor], points: Tensor) -> Tensor:

@@ -203,6 +203,13 @@ def sets_read(sets: list[ObstacleSet], n_control_points: int) -> list[ObstacleSe
     return out
 
 
+def sets_given(sets: list[ObstacleSet], n_control_points: int) -> list[ObstacleSet]:
+    """The sets as a caller passes them to a tree that makes its own slot entries (``SetsSource``, an exported
+    program): a ``nearest`` set whole (the tree selects each control point's members), the others as the control
+    points read them (``sets_read``)."""
+    return [r for s in sets for r in ([s] if s.nearest is not None else sets_read([s], n_control_points))]
+
+
 def set_dims(sets: list[ObstacleSet]) -> dict[str, int]:
     """Every slot entry of ``sets``: the aux a tree holding them declares."""
     dims: dict[str, int] = {}
@@ -246,7 +253,7 @@ class SetsSource:
                 "a set with nearest selects each control point's members from the control spheres' centres: pass "
                 "centres=<a function of q, e.g. Robot.sphere_centres>"
             )
-        self.given = [r for s in sets for r in ([s] if s.nearest is not None else sets_read([s], n_points))]
+        self.given = sets_given(sets, n_points)
         self.centres = centres
         self.inputs = {name: shape for s in self.given for name, shape in s.set_dims().items()}
         # made here, once: the compiled evaluation traces their tensor work only (it does not see a cache)
