@@ -16,11 +16,13 @@ from __future__ import annotations
 import copy
 import re
 from collections.abc import Mapping
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 import torch
-from pydantic import Field, field_validator
+from pydantic import BeforeValidator, Field, field_validator
+from pydantic_core import PydanticCustomError
 
+from ..assembly.spec import check_typed
 from ..assembly.weighting import tree_with_weights as with_weights  # noqa: F401  (expert configs: node or shared-weight names)
 from ..core.auxstate import AuxOrValue
 from ..core.tree import RMPTree
@@ -29,7 +31,7 @@ from ..maps.kinematics import Chain
 from ..maps.orientation import check_direction
 from ..maps.robot import Vector3
 from ..maps.self_collision import non_adjacent_link_pairs
-from ..registry import TREE_GENERATORS, Params
+from ..registry import TREE_GENERATORS, WEIGHTS, Params
 from ..rmps.gds_leaves import CollisionAvoidance, Damper, GoalAttractor, IdentityMetric, JointLimitBarrier
 from ..rmps.orientation import OrientationAttractor
 from ..rmps.velocity_limit import VelocityLimit
@@ -37,7 +39,6 @@ from ..robots import RobotField
 from ..robots.home import spheres_without_ground_edge
 from ..robots.robot import build_robot
 from ..scenes import ObstacleSet, Scene, obstacle_map, scene_aux_dims, set_dims, sets_read
-from ..weights.neural import MLPWeight
 
 # Leaf parameters tuned for metre/radian scales of an arm; all GDSs, so Theorem 2 holds for any weights.
 # The obstacle barrier's potential gain (alpha) makes its force exceed the attractor's within ~1 cm of a control
@@ -122,6 +123,39 @@ def _tuned_field(model: type[Params], field: str, what: str) -> Any:
     return Field(
         default_factory=lambda: model(**_tuned(field)),
         description=f"{what} ({_LEAVES[field]['type']}); keys given replace the tuned values one by one",
+    )
+
+
+def _weight_block(field: str) -> Any:
+    """A weight field's validator: a block of any registered weight. Without ``type`` (or with the tuned one) the
+    keys given change the tuned settings one by one; another type starts from its own defaults (``{type: constant}``
+    fixes the weight at 1: nothing of it is learned); a bare positive number is that constant."""
+    tuned_type = _LEAVES[field]["type"]
+
+    def check(value: Any) -> dict[str, Any]:
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            value = {"type": "constant", "value": float(value)}
+        if not isinstance(value, Mapping):
+            raise PydanticCustomError(
+                "weight", "{message}", {"message": f"a weight block {{type: <weight>, ...}} or a number, given {value!r}"}
+            )
+        kind = value.get("type", tuned_type)
+        block = {**(_tuned(field) if kind == tuned_type else {}), **value, "type": kind}
+        _, issues = check_typed(block, WEIGHTS, field)
+        if issues:
+            message = "; ".join(f"{i.path.removeprefix(field).lstrip('.') or 'type'}: {i.message}" for i in issues)
+            raise PydanticCustomError("weight", "{message}", {"message": message})
+        return block
+
+    return BeforeValidator(check)
+
+
+def _weight_field(field: str, what: str) -> Any:
+    """A weight of the generated tree: the tuned block by default, any registered weight when given."""
+    return Field(
+        default_factory=lambda: {"type": _LEAVES[field]["type"], **_tuned(field)},
+        description=f"{what} ({_LEAVES[field]['type']}, tuned; or any registered weight, e.g. {{type: constant}} "
+        "to learn nothing there)",
     )
 
 
@@ -217,14 +251,14 @@ class ManipulatorTreeParams(Params):
     identity_rmp: IdentityMetric.Params = _tuned_field(
         IdentityMetric.Params, "identity_rmp", "identity metric on the root"
     )
-    attractor_weight: MLPWeight.Params = _tuned_field(
-        MLPWeight.Params, "attractor_weight", "learnable weight of the ee -> attractor edge"
+    attractor_weight: Annotated[dict[str, Any], _weight_block("attractor_weight")] = _weight_field(
+        "attractor_weight", "learnable weight of the ee -> attractor edge"
     )
-    obstacle_weight: MLPWeight.Params = _tuned_field(
-        MLPWeight.Params, "obstacle_weight", "learnable weight shared by one control point's obstacle edges"
+    obstacle_weight: Annotated[dict[str, Any], _weight_block("obstacle_weight")] = _weight_field(
+        "obstacle_weight", "learnable weight shared by one control point's obstacle edges"
     )
-    ground_weight: MLPWeight.Params = _tuned_field(
-        MLPWeight.Params, "ground_weight", "learnable weight shared by every control point's ground edge"
+    ground_weight: Annotated[dict[str, Any], _weight_block("ground_weight")] = _weight_field(
+        "ground_weight", "learnable weight shared by every control point's ground edge"
     )
     obstacle_sets: list[ObstacleSet] = Field(
         default_factory=list,
@@ -247,7 +281,7 @@ class ManipulatorTreeParams(Params):
         *(
             f
             for f in _LEAVES
-            if f not in ("self_collision_rmp", "orientation_rmp", "velocity_limit_rmp", "posture_rmp")
+            if f.endswith("_rmp") and f not in ("self_collision_rmp", "orientation_rmp", "velocity_limit_rmp", "posture_rmp")
         ),
         mode="before",
     )
@@ -268,7 +302,10 @@ class ManipulatorTreeParams(Params):
 
 def _entry(p: ManipulatorTreeParams, field: str) -> dict[str, Any]:
     """``{type, **settings}`` as written in a tree spec; only keys that were set, so defaults stay the entry's."""
-    return {"type": _LEAVES[field]["type"], **getattr(p, field).model_dump(exclude_unset=True)}
+    value = getattr(p, field)
+    if isinstance(value, Mapping):  # a weight block, already {type, **settings}
+        return copy.deepcopy(dict(value))
+    return {"type": _LEAVES[field]["type"], **value.model_dump(exclude_unset=True)}
 
 
 def _point(p: ManipulatorTreeParams, link: str, offset) -> dict[str, Any]:
