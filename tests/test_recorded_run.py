@@ -181,6 +181,46 @@ def test_reproduction_of_an_exact_replay_is_zero_and_stalled_starts_are_found():
     assert conv["converged"] == 0.5 and conv["stalled_count"] == 1 and conv["stalled"] == [[0.3, 0.3]]
 
 
+def test_a_stalled_start_names_the_leaves_that_hold_it():
+    """Two equal attractors, onto the goal and onto (0.6, 0.6), balance halfway: a start resting at (0.3, 0.3) is
+    held there by the two, with equal and opposite forces that account for the whole root force."""
+    from rmpfusion import build_tree
+
+    attractor = {"type": "goal_attractor", "gain": 1.0, "eta": 1.0}
+    tree = build_tree(
+        {
+            "root": {"name": "x", "dim": 2},
+            "aux": {"goal": 2},
+            "nodes": {
+                "goal": {"parent": "x", "map": {"type": "offset", "origin": "goal"}, "rmp": attractor},
+                "home": {"parent": "x", "map": {"type": "offset", "origin": [0.6, 0.6]}, "rmp": attractor},
+                "damper": {"parent": "x", "map": {"type": "identity"}, "rmp": {"type": "damper", "eta": 1.0}},
+            },
+        }
+    ).double()
+    demo = demo_states()
+    ro = replay(demo, 20, np.array([[0.0, 0.0005], [0.3, 0.3]]))
+    ro.q = ro.q.double()
+    batch = Batch(
+        q0=ro.q[0],
+        qd0=torch.zeros(3, 2),
+        aux={"goal": torch.zeros(3, 2, dtype=torch.float64)},
+        demos={"test": [demo]},
+        index={"test": slice(0, 1)},
+        grid=slice(1, 3),
+        horizon=float(ro.times[-1]),
+    )
+
+    class D:
+        tolerance = 1e-3
+
+    conv = convergence(batch, ro, D, rtol=1e-6, atol=1e-9, dt=0.02, tree=tree)
+    assert list(conv["held_by"]) in (["goal", "home"], ["home", "goal"])
+    assert conv["held_by"]["goal"] == pytest.approx(conv["held_by"]["home"], rel=1e-9) and conv["held_by"]["goal"] > 0.1
+    assert conv["held_by_unexplained"] < 1e-12
+    assert "held_by" not in convergence(batch, ro, D, rtol=1e-6, atol=1e-9, dt=0.02)  # no tree, no account
+
+
 def test_the_convergence_grid_covers_the_enlarged_box():
     class D:
         starts, enlarge = 100, 0.5

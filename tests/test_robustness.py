@@ -2461,6 +2461,19 @@ def _habitual_key(tmp_path, monkeypatch):
 
 
 @row(
+    "cli-block-merged-into-another",
+    "a block of another kind given where the config has one (tree.obstacle_weight={type: constant})",
+    "rmpfusion-run experiment=recorded_arm 'tree.obstacle_weight={type: constant}'",
+    _SAID,
+    shows="error: 'tree.obstacle_weight': a block given on the command line is merged into the config's "
+    "tree.obstacle_weight, which has no key 'type'; to replace the whole block write ~tree.obstacle_weight "
+    "'+tree.obstacle_weight={...}' (or give the key on its own: +tree.obstacle_weight.type=...)",
+)
+def _block_merged(tmp_path, monkeypatch):
+    return command_line_message("experiment=recorded_arm", "tree.obstacle_weight={type: constant}")
+
+
+@row(
     "config-device-gpu",
     "device=gpu",
     "resolve_and_validate on conf/config.yaml with device=gpu",

@@ -225,6 +225,38 @@ def test_tree_keys_beside_the_parameters_adjust_the_generated_tree():
     assert "did you mean 'cp2_obstacle'" in issues["tree.shared_weights.cp2_obstacel"]
 
 
+@needs_panda
+def test_a_weight_of_the_generated_tree_takes_any_registered_weight():
+    tree = expand_tree(
+        {**declaration(), "obstacle_weight": 1.0, "attractor_weight": {"type": "constant", "value": 2.0}}
+    )
+    assert all(w == {"type": "constant", "value": 1.0} for n, w in tree["shared_weights"].items() if "obstacle" in n)
+    assert tree["nodes"]["attractor"]["weight"] == {"type": "constant", "value": 2.0}
+    # a block of the tuned type changes its own keys only
+    tree = expand_tree({**declaration(), "obstacle_weight": {"hidden": [8]}})
+    assert tree["shared_weights"]["cp1_obstacle"] == {
+        "type": "mlp",
+        "hidden": [8],
+        "aux": ["obstacle_center", "obstacle_radius"],
+        "positivity": "exp",
+    }
+
+
+@needs_panda
+@pytest.mark.parametrize(
+    "value,says",
+    [
+        ({"type": "constnt"}, "unknown weight function 'constnt'"),
+        ({"type": "constant", "hidden": [32]}, "hidden: unknown key"),  # another type starts from its own defaults
+        (-1.0, "must be > 0"),
+        ("strong", "a weight block {type: <weight>, ...} or a number"),
+    ],
+)
+def test_a_bad_weight_of_the_generated_tree_is_refused_naming_its_key(value, says):
+    issues = issues_of({**declaration(), "obstacle_weight": value})
+    assert list(issues) == ["tree.obstacle_weight"] and says in issues["tree.obstacle_weight"]
+
+
 def test_a_generator_registered_from_outside_expands_the_same_way():
     """What a plugin does: register a function with its Params; the declaration needs nothing else."""
 

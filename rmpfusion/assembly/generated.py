@@ -108,7 +108,7 @@ def expand_tree(spec: Mapping[str, Any], where: str = "tree") -> dict[str, Any]:
 def _with_spec_keys(issue: Issue, where: str, fields: Mapping[str, Any]) -> Issue:
     """An unknown top-level key may be a misspelt parameter or a misspelt tree-spec key: offer both."""
     key = issue.path[len(where) + 1 :]
-    if "unknown key" not in issue.message or "." in key:
+    if not issue.message.startswith("unknown key") or "." in key:  # not one said of a key inside a block
         return issue
     spec_keys = [k for k in SPEC_KEYS if k not in fields]
     close = difflib.get_close_matches(key, [*fields, *spec_keys], n=3, cutoff=0.5)

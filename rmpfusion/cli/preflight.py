@@ -151,12 +151,25 @@ def _override_message(
         return None
     key = m.group(1)
     head = key.split(".")[0].split("/")[0]
+    deeper = re.search(r"full_key: (\S+)", str(e.__cause__ or ""))
+    if deeper and deeper.group(1).startswith(key + "."):
+        return _block_merge_message(key, deeper.group(1)[len(key) + 1 :])
     if head in keys() and "." in key:
         return _inner_key_message(key, base())
     hint = _close(head, groups + keys())
     return (
         f"'{key}' is neither a config group nor a key of the config; {hint}config groups: {', '.join(groups)}; "
         f"top-level keys: {', '.join(keys())} (to add a new key on purpose write +{key}=...)"
+    )
+
+
+def _block_merge_message(key: str, inner: str) -> str:
+    """``tree.obstacle_weight={type: constant}``: a block given on the command line merges into the config's
+    block, which has no such key; replacing the block is a deletion and an addition."""
+    return (
+        f"'{key}': a block given on the command line is merged into the config's {key}, which has no key "
+        f"'{inner}'; to replace the whole block write ~{key} '+{key}={{...}}' (or give the key on its own: "
+        f"+{key}.{inner}=...)"
     )
 
 

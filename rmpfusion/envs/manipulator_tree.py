@@ -137,7 +137,9 @@ def _weight_block(field: str) -> Any:
             value = {"type": "constant", "value": float(value)}
         if not isinstance(value, Mapping):
             raise PydanticCustomError(
-                "weight", "{message}", {"message": f"a weight block {{type: <weight>, ...}} or a number, given {value!r}"}
+                "weight",
+                "{message}",
+                {"message": f"a weight block {{type: <weight>, ...}} or a number, given {value!r}"},
             )
         kind = value.get("type", tuned_type)
         block = {**(_tuned(field) if kind == tuned_type else {}), **value, "type": kind}
@@ -281,7 +283,8 @@ class ManipulatorTreeParams(Params):
         *(
             f
             for f in _LEAVES
-            if f.endswith("_rmp") and f not in ("self_collision_rmp", "orientation_rmp", "velocity_limit_rmp", "posture_rmp")
+            if f.endswith("_rmp")
+            and f not in ("self_collision_rmp", "orientation_rmp", "velocity_limit_rmp", "posture_rmp")
         ),
         mode="before",
     )

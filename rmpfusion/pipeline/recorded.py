@@ -27,11 +27,13 @@ from typing import Any
 import numpy as np
 import torch
 
+from ..core.tree import RMPTree
 from ..envs.demonstrations import Dataset, load_dataset, save_dataset
 from ..envs.protocol import JointSpace, LearnsFromRecordings
 from ..envs.rollout import Rollout
 from ..evaluate.lyapunov import lyapunov_monotone
 from ..evaluate.reproduction import dtw_distance, swept_error_area
+from ..evaluate.rest_forces import rest_forces
 from ..files import atomic_write_json
 from ..learn.loop import load_snapshot
 from ..plots.recorded import recorded_figures
@@ -268,10 +270,11 @@ def reproduction(batch: Batch, ro, split: str, tolerance: float, to_task: ToTask
     }
 
 
-def convergence(batch: Batch, ro, d, rtol: float, atol: float, dt: float) -> dict:
+def convergence(batch: Batch, ro, d, rtol: float, atol: float, dt: float, tree: RMPTree | None = None) -> dict:
     """From the grid of starts at rest: the fraction within ``tolerance`` of the goal at the horizon, V_r
     non-increasing, and where the others stopped (nearly at rest away from the goal: a spurious equilibrium, or, for a
-    tree whose map is a diffeomorphism onto ℝⁿ and so has none, a region the map makes extremely slow)."""
+    tree whose map is a diffeomorphism onto ℝⁿ and so has none, a region the map makes extremely slow); for a tree,
+    which of its leaves hold it there (``held_by``)."""
     g = batch.grid
     final = ro.goal_distance[-1, g]
     ok = final <= d.tolerance
@@ -289,18 +292,41 @@ def convergence(batch: Batch, ro, d, rtol: float, atol: float, dt: float) -> dic
     }
     if V is not None:
         out["lyapunov_monotone_fraction"] = float(lyapunov_monotone(V, rtol=rtol, atol=atol).double().mean())
+    if tree is not None and stalled.numel():
+        out.update(held_by(tree, ro.q[-1, g][stalled[:STALLED_EXAMINED]], batch, g.start + stalled[:STALLED_EXAMINED]))
     return out
 
 
-def evaluate_policy(exp: Experiment, label: str, policy: Callable, batch: Batch) -> tuple[dict, Rollout]:
-    """One policy on the evaluation batch: reproduction of the held-out demonstrations, convergence from the grid."""
+#: the stalled rollouts whose rest forces are examined (the first ones; a spurious equilibrium is usually shared)
+STALLED_EXAMINED = 10
+
+
+def held_by(tree: RMPTree, q: torch.Tensor, batch: Batch, rows: torch.Tensor) -> dict:
+    """The leaves whose forces balance where rollouts stopped (median size over the stalled states, strongest
+    first), the part of each its weights' gradient makes (−Φ∇W, docs/math.md §12 premise 3), and how much of the
+    root force at rest their sum leaves unexplained (~0 for a tree of GDS leaves)."""
+    aux = {k: v[rows].to(tree.device) for k, v in batch.aux.items()}
+    forces = rest_forces(tree, q.to(tree.device), aux)
+    strongest = dict(forces.strongest())
+    return {
+        "held_by": strongest,
+        "held_by_weight_gradient": {n: float(forces.weight_gradient[n].norm(dim=-1).median()) for n in strongest},
+        "held_by_unexplained": float(forces.residual.norm(dim=-1).max()),
+    }
+
+
+def evaluate_policy(
+    exp: Experiment, label: str, policy: Callable, batch: Batch, tree: RMPTree | None = None
+) -> tuple[dict, Rollout]:
+    """One policy on the evaluation batch: reproduction of the held-out demonstrations, convergence from the grid
+    (with ``tree``, the policy's tree: which leaves hold the rollouts that stop short)."""
     d, ev = exp.recorded_data, exp.run.eval
     ro = exp.env.rollout(
         policy, batch.q0, batch.qd0, batch.aux, batch.horizon, exp.env.dt, progress=exp.say.bar(f"rollout {label}")
     )
     to_task = _end_effector(exp.env)
     out = {f"reproduction_{k}": reproduction(batch, ro, k, d.tolerance, to_task) for k in batch.index}
-    out["convergence"] = conv = convergence(batch, ro, d, ev.lyapunov_rtol, ev.lyapunov_atol, exp.env.dt)
+    out["convergence"] = conv = convergence(batch, ro, d, ev.lyapunov_rtol, ev.lyapunov_atol, exp.env.dt, tree)
     rep = out["reproduction_test"]
     monotone = conv.get("lyapunov_monotone_fraction")
     unit, area = ("rad", "rad²") if to_task else ("m", "m²")
@@ -318,9 +344,17 @@ def evaluate_policy(exp: Experiment, label: str, policy: Callable, batch: Batch)
             "env.dt to tell integration error from a bug (metrics.json: convergence.lyapunov_monotone_fraction)"
         )
     if conv["stalled_count"]:
+        held = conv.get("held_by")
         exp.say.say(
             f"{label}: {conv['stalled_count']} start(s) nearly at rest away from the goal at the horizon (a "
             f"spurious equilibrium, or a region the policy makes extremely slow), e.g. at {conv['stalled'][0]}"
+            + (
+                "; held there by the forces of "
+                + ", ".join(f"{n} ({f:.3g})" for n, f in held.items())
+                + " (metrics.json: convergence.held_by)"
+                if held
+                else ""
+            )
         )
     return out, ro
 
@@ -341,16 +375,16 @@ def evaluate_recorded(exp: Experiment, fitted: dict, batch: Batch) -> tuple[dict
     final rollout of each policy (for the figures)."""
     res: dict[str, Any] = {"learners": {}}
     rollouts: dict[str, Rollout] = {}
-    res[TREE], rollouts[f"{TREE} (every weight 1)"] = evaluate_policy(exp, TREE, exp.expert_at(), batch)
+    res[TREE], rollouts[f"{TREE} (every weight 1)"] = evaluate_policy(exp, TREE, exp.expert_at(), batch, exp.expert)
     for name, f in fitted.items():
         model = f.model.to(torch.float64)
         snaps = {}
         for it in sorted(f.result.snapshots):
             snap = load_snapshot(model, f.result.snapshots[it]).to(torch.float64)
-            snaps[str(it)], ro = evaluate_policy(exp, f"{name}-{it}", snap.policy, batch)
+            snaps[str(it)], ro = evaluate_policy(exp, f"{name}-{it}", snap.policy, batch, snap.tree)
         final = snaps.get(str(exp.run.train.iterations))
         if final is None:
-            final, ro = evaluate_policy(exp, name, model.policy, batch)
+            final, ro = evaluate_policy(exp, name, model.policy, batch, model.tree)
         rollouts[f"{name} after {exp.run.train.iterations} iterations"] = ro
         if model.tree is not None:
             final["certificate"] = certificate(model, ro, batch.aux, every=certified_every(ro))
