@@ -36,7 +36,7 @@ def test_the_map_is_a_bijection_onto_the_plane_not_only_near_its_data():
     torch.testing.assert_close(m.psi(m.inverse(y), None), y, atol=1e-9, rtol=1e-12)
 
 
-def latent_attractor_tree(seed: int):
+def latent_attractor_tree(seed: int, weight: dict | None = None):
     torch.manual_seed(seed)
     spec = {
         "root": {"name": "x", "dim": 2},
@@ -57,6 +57,7 @@ def latent_attractor_tree(seed: int):
                 "parent": "latent",
                 "map": {"type": "identity"},
                 "rmp": {"type": "goal_attractor", "gain": 2.0, "eta": 0.0},
+                **({"weight": weight} if weight else {}),
             },
             "damper": {"parent": "x", "map": {"type": "identity"}, "rmp": {"type": "damper", "w": 1.0, "eta": 2.0}},
         },
@@ -78,6 +79,30 @@ def test_theorem_2_and_convergence_on_rollouts_of_an_untrained_random_map(seed):
     assert_lyapunov_non_increasing(rec, rtol=1e-7)
     final = (rec["q"][-1] - aux["goal"]).norm(dim=-1)
     assert float(final.max()) < 1e-6, f"did not converge to the goal: final distances {final.tolist()}"
+
+
+@pytest.mark.slow  # a minute: 3,600 RK4 steps
+def test_a_learned_radial_weight_on_the_attractor_adds_no_equilibrium():
+    """Premise 3 of docs/math.md §12 with a weight that is not constant: the radial profile, its learned numbers
+    drawn at random (steps up to e² high, anywhere in [0, 3]), about the attractor's own centre (the latent origin).
+    V_r never rises and every start reaches the goal; the weight varies along the rollouts (by a factor > 1.5), so the
+    check is not the constant weight's again."""
+    tree = latent_attractor_tree(0, weight={"type": "radial", "center": [0.0, 0.0], "steps": 6, "reach": 3.0})
+    radial = tree.weights["attractor"].fn
+    gen = torch.Generator().manual_seed(5)
+    with torch.no_grad():
+        for p in (radial.heights, radial.slopes, radial.positions):
+            p.copy_(2.0 * torch.rand(p.shape, generator=gen, dtype=p.dtype) + (0.0 if p is radial.positions else -1.0))
+    q = 2.0 * torch.randn(16, 2, generator=gen, dtype=torch.float64)
+    qd = torch.randn(16, 2, generator=gen, dtype=torch.float64)
+    aux = {"goal": 0.5 * torch.randn(16, 2, generator=gen, dtype=torch.float64)}
+    rec = rk4_rollout(tree, q, qd, aux, dt=0.05, steps=3600)
+    assert_lyapunov_non_increasing(rec, rtol=1e-7)
+    final = (rec["q"][-1] - aux["goal"]).norm(dim=-1)
+    assert float(final.max()) < 1e-6, f"did not converge to the goal: final distances {final.tolist()}"
+    latent = torch.stack([tree.maps["latent"].psi(x, aux) for x in rec["q"][::100]])
+    w = radial.value(latent, None).detach()
+    assert float(w.max() / w.min()) > 1.5
 
 
 def test_normalize_refuses_a_zero_scale_and_a_wrong_length():

@@ -14,6 +14,8 @@ Variants (the tree and what the learner learns; conf/experiment/lasa.yaml):
   both     tree=lasa_map: the learned map and the weight
   both_all7  both under the protocol most published LASA numbers use: trained and evaluated on all 7
            demonstrations (data.split=all; the other variants hold one out for validation and one for the test)
+  both_radial  both with the attractor's weight a learned radial profile about the latent origin (never
+           decreasing with the distance: it shapes the speed but adds no equilibrium, docs/math.md §12)
 The trees also learn the attractor's gain, softness and damping.
   first_order  not a tree: the first-order baseline (a velocity field through the same kind of learned map,
            Euclideanizing-Flows style, executed by velocity tracking; rmpfusion/learn/first_order.py)
@@ -46,6 +48,7 @@ VARIANTS = {
     "both": [],
     "first_order": ["~learners.rmp", "+learner@learners.first_order=first_order"],
     "both_all7": ["data.split=all"],
+    "both_radial": ["~learners.rmp.weights", "+learners.rmp.weights={type: radial, center: [0.0, 0.0], reach: 3.0}"],
 }
 COLUMNS = (
     ("test DTW (mm)", lambda r: 1e3 * r["reproduction_test"]["dtw"]),

@@ -6,8 +6,9 @@
 One row per policy (the configured tree with every weight 1, then learner-rmp at every snapshot): on the held-out
 test and validation recordings, from each one's first state, the DTW per sample of the joint path (rad) and of the
 end-effector path (m), the end effector's distance to the goal after the horizon, how many came within the tolerance
-and how many collided; from the starts at rest in the recordings' enlarged joint box, how many converged, collided,
-and kept V_r non-increasing; the final learner's certificate and training time.
+and how many collided; from the starts at rest in the recordings' enlarged joint box, how many converged, came to
+rest short of the goal (and which leaves hold them there), collided, and kept V_r non-increasing; the final
+learner's certificate and training time.
 """
 
 from __future__ import annotations
@@ -19,8 +20,8 @@ from pathlib import Path
 
 HEADER = (
     "| run | policy | test DTW (rad) | test end-effector DTW (mm) | test final distance (mm) | test reached "
-    "| test collisions | validation end-effector DTW (mm) | starts converged | starts collided | V_r monotone "
-    "| certificate | train s |"
+    "| test collisions | validation end-effector DTW (mm) | starts converged | starts stopped short (held by) "
+    "| starts collided | V_r monotone | certificate | train s |"
 )
 
 
@@ -51,12 +52,20 @@ def _row(label: str, policy: str, r: dict) -> str:
         f"{test['collisions']} / {n_test}",
         f"{1000 * val['ee_dtw']:.1f}" if "ee_dtw" in val else "–",
         f"{round(conv['converged'] * n)} / {n}",
+        _stopped_short(conv),
         f"{conv['collisions']} / {n}",
         f"{round(conv['lyapunov_monotone_fraction'] * n)} / {n}",
         "–" if cert is None else ("ok" if cert["ok"] else "FAILS"),
         f"{r['train_seconds']:.0f}" if "train_seconds" in r else "–",
     ]
     return "| " + " | ".join(cells) + " |"
+
+
+def _stopped_short(conv: dict) -> str:
+    """How many starts came to rest away from the goal, and the two leaves whose forces hold most of them there
+    (``convergence.held_by``; runs made before it was measured have none)."""
+    held = list(conv.get("held_by") or {})[:2]
+    return f"{conv['stalled_count']} / {conv['starts']}" + (f" ({', '.join(held)})" if held else "")
 
 
 def table(runs: dict[str, dict]) -> str:
