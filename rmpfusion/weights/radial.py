@@ -59,7 +59,7 @@ class Radial(WeightFunction):
         if self.center.dim != in_dim:
             raise ValueError(f"radial.center has dimension {self.center.dim}, the parent space has {in_dim}")
         K, spacing = p.steps, p.reach / max(p.steps - 1, 1)
-        full = lambda v: nn.Parameter(torch.full((K,), v, dtype=CONSTANT_DTYPE))  # noqa: E731
+        full = lambda v: nn.Parameter(torch.full((K,), v, dtype=CONSTANT_DTYPE))
         self.base = nn.Parameter(torch.tensor(_inverse_softplus(p.init), dtype=CONSTANT_DTYPE))
         self.heights = full(_inverse_softplus(p.init / K))
         self.slopes = full(_inverse_softplus(4.0 / spacing))
