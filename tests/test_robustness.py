@@ -1306,6 +1306,17 @@ for _id, _fault, _overrides, _shows, _needs in [
         ("pybullet",),
     ),
     (
+        "match-recordings-not-differentiable",
+        "trajectory matching of an arm's recordings, whose rollouts are not differentiable",
+        ["experiment=recorded_arm_fixed_barriers", "train=match_lasa"],
+        (
+            "train.method: match back-propagates through rollouts, which the environment 'Manipulator' does not offer "
+            "(it is not simulated in torch with a differentiable goal distance and clearance); use method bc, or an "
+            "environment such as plane or particle2d"
+        ),
+        ("pybullet",),
+    ),
+    (
         "joint-margin-no-room",
         "a joint margin that leaves lower ≥ upper for the starts",
         ["experiment=franka", "env.joint_margin=2.0"],

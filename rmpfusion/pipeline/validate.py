@@ -159,8 +159,14 @@ def _make_env(data: Mapping[str, Any]) -> tuple[Any, list[Issue]]:
 def _method_issues(run: RunConfig, env: Any) -> list[Issue]:
     """What the training method needs of the run (an environment it can roll out in, enough demonstrations)."""
     method = TRAIN_METHODS.get(run.train.method).obj
-    if run.data.source == "recorded":  # only behavior cloning; the model's own check says so
-        return []
+    if run.data.source == "recorded":
+        if not method.from_recordings or env is None:  # the config model refuses a method that needs an expert
+            return []
+        try:  # a recorded split is drawn when the run starts: every recording bounds the training ones
+            demonstrations = len(read_recordings(run.data))
+        except RecordingError:
+            return []  # the file's problem is said by _recording_issues
+        return [Issue(path, message) for path, message in method.requirements(run.train, env, demonstrations)]
     return [
         Issue(path, message)
         for path, message in method.requirements(run.train, env, run.data.train_envs * run.data.train_trajectories)
