@@ -24,8 +24,8 @@ go to every run.
 
 Writes ``<out>/lasa_table.md`` (the table: test DTW per sample, swept error area, final distance, convergence from
 the grid of starts at rest, V_r monotone, the certificate, training time; the mean over shapes as the last row),
-``<out>/lasa_table.json`` (every number) and ``<out>/lasa_grid.png`` (the rollouts figure of each shape for the
-last variant listed). A shape whose run failed or is still running is listed, not silently left out.
+``<out>/lasa_table.json`` (every number) and ``<out>/lasa_grid.png`` (the rollouts figure of every run: with
+several variants, each shape's side by side). A shape whose run failed or is still running is listed, not silently left out.
 """
 
 from __future__ import annotations
@@ -151,24 +151,30 @@ def table_of(runs: dict[str, dict]) -> str:
     return table(rows + mean_rows(rows) + mean_rows(untrained)) + "\n"
 
 
-def grid_figure(out: Path, variant: str, shapes: list[str]) -> Path | None:
+def grid_figure(out: Path, variants: list[str], shapes: list[str]) -> Path | None:
+    """Every run's rollouts figure (the tree with every weight 1, then the trained learner, from the grid of starts
+    at rest): one variant, four shapes a row; several variants, one shape a row and one variant a column, so the
+    variants' rollouts of a shape sit side by side."""
     import matplotlib.image as mpimg
     from matplotlib.figure import Figure
 
-    pngs = [(s, out / variant / s / "figures" / "rollouts.png") for s in shapes]
-    pngs = [(s, p) for s, p in pngs if p.is_file()]
-    if not pngs:
+    cells = [(s, v, out / v / s / "figures" / "rollouts.png") for s in shapes for v in variants]
+    cells = [(s, v, p) for s, v, p in cells if p.is_file()]
+    if not cells:
         return None
-    cols = 4
-    rows_n = math.ceil(len(pngs) / cols)
+    cols = 4 if len(variants) == 1 else len(variants)
+    rows_n = math.ceil(len(cells) / cols) if len(variants) == 1 else len({s for s, _, _ in cells})
     fig = Figure(figsize=(4.2 * cols, 2.4 * rows_n), layout="constrained")
     axes = fig.subplots(rows_n, cols, squeeze=False)
     for ax in axes.flat:
         ax.axis("off")
-    for ax, (shape, p) in zip(axes.flat, pngs):
+    row_of = {s: k for k, s in enumerate(dict.fromkeys(s for s, _, _ in cells))}
+    for k, (shape, variant, p) in enumerate(cells):
+        ax = axes.flat[k] if len(variants) == 1 else axes[row_of[shape]][variants.index(variant)]
         ax.imshow(mpimg.imread(p))
-        ax.set_title(shape, fontsize=9)
-    fig.suptitle(f"LASA, variant '{variant}': the tree (left) and the trained learner (right) of each shape")
+        ax.set_title(shape if len(variants) == 1 else f"{shape}, {variant}", fontsize=9)
+    what = f"variant '{variants[0]}'" if len(variants) == 1 else "variants " + ", ".join(f"'{v}'" for v in variants)
+    fig.suptitle(f"LASA, {what}: the tree (left) and the trained learner (right) of each run")
     path = out / "lasa_grid.png"
     fig.savefig(path, dpi=120)
     return path
@@ -204,7 +210,7 @@ def main(argv=None) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "lasa_table.md").write_text(text + "\n")
     (args.out / "lasa_table.json").write_text(json.dumps({"runs": report}, indent=1))
-    grid = grid_figure(args.out, args.variants[-1], args.shapes)
+    grid = grid_figure(args.out, args.variants, args.shapes)
     print(text)
     print(f"wrote {args.out / 'lasa_table.md'}" + (f" and {grid}" if grid else ""))
     return 0
