@@ -243,12 +243,19 @@ def test_ctrl_c_writes_a_checkpoint_and_says_how_to_resume_without_a_traceback(t
     """Ctrl-C (SIGINT): the step in progress finishes, a checkpoint is written, and the command ends in two
     lines (what was saved, how to resume) with the shell's status for an interrupt, 130: no traceback."""
     run_dir = tmp_path / "run"
-    proc = train_proc(run_dir, tmp_path / "logs", "train.checkpoint_every=100000")
+    long = 100_000  # iterations: on a busy machine the run of ITERS could end before the signal arrives
+    proc = train_proc(
+        run_dir,
+        tmp_path / "logs",
+        f"train.iterations={long}",
+        f"train.snapshots=[0,{long}]",
+        "train.checkpoint_every=1000000",
+    )
     proc.wait_until(lambda: "train rmp [" in proc.stdout, "training to start")
     proc.p.send_signal(signal.SIGINT)
     assert proc.wait() == 130, proc.stderr[-3000:]
     assert "Traceback" not in proc.stderr and "KeyboardInterrupt" not in proc.stderr, proc.stderr[-3000:]
-    m = re.search(rf"SIGINT received; checkpoint at iteration (\d+)/{ITERS} written to (\S+);", proc.stderr)
+    m = re.search(rf"SIGINT received; checkpoint at iteration (\d+)/{long} written to (\S+);", proc.stderr)
     assert m and Path(m.group(2)).is_file(), proc.stderr[-3000:]
     assert (
         f"interrupted (Ctrl-C): what was finished is kept in {run_dir} (datasets, the last checkpoint); rerun "
