@@ -162,18 +162,19 @@ def grid_figure(out: Path, variants: list[str], shapes: list[str]) -> Path | Non
     cells = [(s, v, p) for s, v, p in cells if p.is_file()]
     if not cells:
         return None
-    cols = 4 if len(variants) == 1 else len(variants)
-    rows_n = math.ceil(len(cells) / cols) if len(variants) == 1 else len({s for s, _, _ in cells})
+    one = len(variants) == 1
+    cols = 4 if one else len(variants)
+    rows_of = list(dict.fromkeys(s for s, _, _ in cells))
+    places = [divmod(k, cols) if one else (rows_of.index(s), variants.index(v)) for k, (s, v, _) in enumerate(cells)]
+    rows_n = 1 + max(r for r, _ in places)
     fig = Figure(figsize=(4.2 * cols, 2.4 * rows_n), layout="constrained")
     axes = fig.subplots(rows_n, cols, squeeze=False)
     for ax in axes.flat:
         ax.axis("off")
-    row_of = {s: k for k, s in enumerate(dict.fromkeys(s for s, _, _ in cells))}
-    for k, (shape, variant, p) in enumerate(cells):
-        ax = axes.flat[k] if len(variants) == 1 else axes[row_of[shape]][variants.index(variant)]
-        ax.imshow(mpimg.imread(p))
-        ax.set_title(shape if len(variants) == 1 else f"{shape}, {variant}", fontsize=9)
-    what = f"variant '{variants[0]}'" if len(variants) == 1 else "variants " + ", ".join(f"'{v}'" for v in variants)
+    for (r, c), (shape, variant, p) in zip(places, cells):
+        axes[r][c].imshow(mpimg.imread(p))
+        axes[r][c].set_title(shape if one else f"{shape}, {variant}", fontsize=9)
+    what = f"variant '{variants[0]}'" if one else "variants " + ", ".join(f"'{v}'" for v in variants)
     fig.suptitle(f"LASA, {what}: the tree (left) and the trained learner (right) of each run")
     path = out / "lasa_grid.png"
     fig.savefig(path, dpi=120)

@@ -142,7 +142,7 @@ def _weight_block(field: str) -> Any:
                 {"message": f"a weight block {{type: <weight>, ...}} or a number, given {value!r}"},
             )
         kind = value.get("type", tuned_type)
-        block = {**(_tuned(field) if kind == tuned_type else {}), **value, "type": kind}
+        block = {**(_onto_tuned(field, value) if kind == tuned_type else value), "type": kind}
         _, issues = check_typed(block, WEIGHTS, field)
         if issues:
             message = "; ".join(f"{i.path.removeprefix(field).lstrip('.') or 'type'}: {i.message}" for i in issues)

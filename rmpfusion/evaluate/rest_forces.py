@@ -63,9 +63,10 @@ def rest_forces(tree: RMPTree, q: Tensor, aux: Mapping[str, Tensor] | None = Non
             if phi is None:
                 continue
             W, phi = _path_weight(tree, edges, leaf, B, q), phi.reshape(B)
-            if not (W * phi).requires_grad:  # a potential that does not depend on q (none, or constant)
+            weighted = W * phi
+            if not weighted.requires_grad:  # a potential that does not depend on q (none, or constant)
                 continue
-            forces[leaf] = -_grad((W * phi).sum(), q)
+            forces[leaf] = -_grad(weighted.sum(), q)
             by_weight[leaf] = -_grad((W * phi.detach()).sum(), q)
     root = out.f.detach()
     total = torch.stack(list(forces.values())).sum(0) if forces else torch.zeros_like(root)

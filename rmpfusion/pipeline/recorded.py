@@ -293,7 +293,8 @@ def convergence(batch: Batch, ro, d, rtol: float, atol: float, dt: float, tree: 
     if V is not None:
         out["lyapunov_monotone_fraction"] = float(lyapunov_monotone(V, rtol=rtol, atol=atol).double().mean())
     if tree is not None and stalled.numel():
-        out.update(held_by(tree, ro.q[-1, g][stalled[:STALLED_EXAMINED]], batch, g.start + stalled[:STALLED_EXAMINED]))
+        rows = g.start + stalled[:STALLED_EXAMINED]  # the batch's rows of the first stalled rollouts
+        out.update(held_by(tree, ro.q[-1, rows], batch, rows))
     return out
 
 

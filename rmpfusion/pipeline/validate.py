@@ -30,7 +30,7 @@ from ..assembly.weighting import own_weights, weights_by_name
 from ..core.auxstate import AuxOrValue
 from ..envs.protocol import JointSpace
 from ..recordings.joints import check_joint_recordings
-from ..recordings.recording import RecordingError
+from ..recordings.recording import Recording, RecordingError
 from ..recordings.source import check_dimension, read_recordings, to_grid
 from ..registry import ENVS, LEAF_RMPS, TASK_MAPS, TRAIN_METHODS, WEIGHTS, Registry
 from .config import RunConfig, run_config_model
@@ -156,37 +156,39 @@ def _make_env(data: Mapping[str, Any]) -> tuple[Any, list[Issue]]:
         return None, [Issue("env", f"could not be created: {e}")]
 
 
-def _method_issues(run: RunConfig, env: Any) -> list[Issue]:
-    """What the training method needs of the run (an environment it can roll out in, enough demonstrations)."""
+def _method_issues(run: RunConfig, env: Any, recordings: list[Recording] | None) -> list[Issue]:
+    """What the training method needs of the run (an environment it can roll out in, enough demonstrations);
+    ``recordings``: the recorded demonstrations read (None when there are none, or when they could not be read)."""
     method = TRAIN_METHODS.get(run.train.method).obj
     if run.data.source == "recorded":
-        if not method.from_recordings or env is None:  # the config model refuses a method that needs an expert
+        if not method.from_recordings or recordings is None:  # the config model refuses a method needing an expert
             return []
-        try:  # a recorded split is drawn when the run starts: every recording bounds the training ones
-            demonstrations = len(read_recordings(run.data))
-        except RecordingError:
-            return []  # the file's problem is said by _recording_issues
-        return [Issue(path, message) for path, message in method.requirements(run.train, env, demonstrations)]
+        # a recorded split is drawn when the run starts: every recording bounds the training ones
+        return [Issue(path, message) for path, message in method.requirements(run.train, env, len(recordings))]
     return [
         Issue(path, message)
         for path, message in method.requirements(run.train, env, run.data.train_envs * run.data.train_trajectories)
     ]
 
 
-def _recording_issues(run: RunConfig, env: Any) -> list[Issue]:
+def _recordings_checked(run: RunConfig, env: Any) -> tuple[list[Recording] | None, list[Issue]]:
     """Recorded demonstrations read now (they are small), so a bad file is said before anything runs: the
     reader's message names the file, row and column; a dimension unlike the environment's is said too, and
-    joint-space recordings are checked against the robot file (joint count, names, limits)."""
+    joint-space recordings are checked against the robot file (joint count, names, limits). Returns the recordings
+    (None for a run on the expert's demonstrations, or one whose files cannot be read) and the problems."""
     if run.data.source != "recorded":
-        return []
+        return None, []
     try:
         recordings = read_recordings(run.data)
+    except RecordingError as e:
+        return None, [Issue("data", str(e))]
+    try:
         if isinstance(env, JointSpace):
             check_joint_recordings(recordings, env.robot_description, named_columns=run.data.columns is None)
         check_dimension(to_grid(recordings, run.data, env.dt), env.dim, run.env.type)
     except RecordingError as e:
-        return [Issue("data", str(e))]
-    return []
+        return recordings, [Issue("data", str(e))]
+    return recordings, []
 
 
 def _expert_issues(run: RunConfig) -> list[Issue]:
@@ -380,7 +382,8 @@ def resolve_and_validate(cfg: DictConfig | Mapping[str, Any]) -> RunConfig:
     # no expert at all (recorded demonstrations): the reference is the tree with every weight 1 (build_expert)
     issues += (_expert_issues(run) if run.expert else []) + _learner_issues(run)
     if env is not None:
-        issues += _method_issues(run, env) + _recording_issues(run, env)
+        recordings, recording_issues = _recordings_checked(run, env)
+        issues += _method_issues(run, env, recordings) + recording_issues
     if aux_dims is not None and not issues:
         issues += _build_issues(run, aux_dims)
     if issues:
