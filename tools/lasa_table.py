@@ -19,6 +19,9 @@ Variants (the tree and what the learner learns; conf/experiment/lasa.yaml):
 The trees also learn the attractor's gain, softness and damping.
   first_order  not a tree: the first-order baseline (a velocity field through the same kind of learned map,
            Euclideanizing-Flows style, executed by velocity tracking; rmpfusion/learn/first_order.py)
+  seds     not a tree: SEDS (Khansari-Zadeh & Billard 2011), Gaussian mixture regression with every component
+           contracting, started from EM and executed by the same velocity tracking (rmpfusion/learn/seds.py)
+  seds_all7  seds trained and evaluated on all 7 demonstrations (data.split=all), as SEDS's own papers did
 The "tree" row of a shape is the first variant's tree with every weight 1, nothing learned. Arguments after ``--``
 go to every run.
 
@@ -47,6 +50,8 @@ VARIANTS = {
     "map": ["learners.rmp.edges=[]"],
     "both": [],
     "first_order": ["~learners.rmp", "+learner@learners.first_order=first_order"],
+    "seds": ["~learners.rmp", "+learner@learners.seds=seds"],
+    "seds_all7": ["~learners.rmp", "+learner@learners.seds=seds", "data.split=all"],
     "both_all7": ["data.split=all"],
     "both_radial": ["~learners.rmp.weights", "+learners.rmp.weights={type: radial, center: [0.0, 0.0], reach: 3.0}"],
 }

@@ -8,13 +8,8 @@ itself (the coupling layers of ``maps/learned.py``) shifted so ψ(0) = 0, the la
     ẋ = f(x) = −r · scale · J_ψ(n)⁻¹ ψ(n),
 
 which has the goal as its only equilibrium and reaches it from everywhere (ψ is onto ℝⁿ; z decays
-exponentially). The plant is second order, so the field is executed by velocity tracking,
-
-    q̈ = k_v·(f(q) − q̇) + (∂f/∂q)·q̇,
-
-the usual way a first-order dynamical system drives a double integrator: q̇ follows f with time constant 1/k_v.
-Trained by the same behavior cloning on the recorded accelerations as the trees (the tracking term makes it fit
-f to the recorded velocities, weighted by k_v², beside the field's own acceleration along the motion).
+exponentially). The plant is second order, so the field is executed by velocity tracking (``velocity_tracking.py``) and trained
+by the same behavior cloning on the recorded accelerations as the trees.
 """
 
 from __future__ import annotations
@@ -27,17 +22,16 @@ import torch
 from pydantic import Field, field_validator
 from torch import Tensor, nn
 
-from ..core.tree import RMPTree
 from ..maps.learned import Diffeomorphism
-from ..registry import LEARNERS, Params
-from .learner import Learner
+from ..registry import LEARNERS
+from .velocity_tracking import TrackedField, TrackedFieldParams
 
 
 @LEARNERS.register("first_order")
-class FirstOrderLearner(Learner["FirstOrderLearner.Params"]):
+class FirstOrderLearner(TrackedField["FirstOrderLearner.Params"]):
     """ẋ = −r·scale·J_ψ⁻¹ψ((x − goal)/scale), tracked by q̈ = k_v(f − q̇) + (∂f/∂q)q̇."""
 
-    class Params(Params):
+    class Params(TrackedFieldParams):
         layers: int = Field(4, ge=1, le=64, description="coupling layers of ψ")
         hidden: tuple[int, ...] = Field((32, 32), description="hidden widths of each layer's networks")
         activation: Literal["tanh", "softplus", "silu"] = "tanh"
@@ -45,8 +39,6 @@ class FirstOrderLearner(Learner["FirstOrderLearner.Params"]):
         init_std: float = Field(0.1, ge=0, le=10, description="std of the output layers' initial weights")
         scale: float = Field(0.02, gt=0, description="the normalising map's scale (m), as tree=lasa's")
         rate: float = Field(1.0, gt=0, le=1000, description="the latent decay rate r (1/s) at the start; learned")
-        tracking_gain: float = Field(10.0, gt=0, le=10000, description="k_v (1/s): how fast q̇ follows the field")
-        goal: str = Field("goal", description="the aux entry holding the goal")
 
         @field_validator("hidden")
         @classmethod
@@ -64,11 +56,8 @@ class FirstOrderLearner(Learner["FirstOrderLearner.Params"]):
         expert: Mapping[str, Any] | None = None,
     ):
         super().__init__()
-        if params.goal not in aux_dims or int(aux_dims[params.goal]) != dim:
-            raise ValueError(
-                f"first_order needs the aux entry '{params.goal}' of dimension {dim} (the goal); the "
-                f"environment gives {dict(aux_dims)}"
-            )
+        self.params, self.dim = params, dim
+        self.check_goal("first_order", aux_dims, dim)
         psi = Diffeomorphism.Params(
             layers=params.layers,
             hidden=params.hidden,
@@ -79,11 +68,6 @@ class FirstOrderLearner(Learner["FirstOrderLearner.Params"]):
         )
         self.psi = Diffeomorphism(psi, dim).double()
         self.log_rate = nn.Parameter(torch.tensor(math.log(params.rate), dtype=torch.float64))
-        self.params, self.dim = params, dim
-
-    @property
-    def tree(self) -> RMPTree | None:
-        return None
 
     def field(self, q: Tensor, aux: Mapping[str, Tensor]) -> Tensor:
         """f(q) (B, d): the velocity the field asks for at q."""
@@ -91,22 +75,6 @@ class FirstOrderLearner(Learner["FirstOrderLearner.Params"]):
         n = (q - aux[self.params.goal].to(q)) / s
         z, _, J, _ = self.psi(n, torch.zeros_like(n))
         return -self.log_rate.exp() * s * torch.linalg.solve(J, z.unsqueeze(-1)).squeeze(-1)
-
-    def forward(self, q: Tensor, qd: Tensor, aux: Mapping[str, Tensor] | None = None) -> Tensor:
-        keep_graph = torch.is_grad_enabled()  # training differentiates through (∂f/∂q)q̇; a rollout does not
-        with torch.enable_grad():
-            x = q if q.requires_grad else q.detach().requires_grad_(True)
-            f = self.field(x, aux or {})
-            rows = [
-                torch.autograd.grad(f[:, i].sum(), x, create_graph=keep_graph, retain_graph=True)[0]
-                for i in range(self.dim)
-            ]
-            along = torch.stack([(r * qd).sum(-1) for r in rows], -1)  # (∂f/∂q) q̇
-            qdd = self.params.tracking_gain * (f - qd) + along
-        return qdd if keep_graph else qdd.detach()
-
-    def policy(self, q: Tensor, qd: Tensor, aux: Mapping[str, Tensor] | None = None) -> Tensor:
-        return self(q, qd, aux)
 
     def learned_numbers(self) -> dict[str, float]:
         return {"rate": float(self.log_rate.detach().exp())}

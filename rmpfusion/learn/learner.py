@@ -10,12 +10,15 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from collections.abc import Mapping
-from typing import Any, Generic, TypeVar
+from typing import TYPE_CHECKING, Any, Generic, TypeVar
 
 from torch import Tensor, nn
 
 from ..core.tree import RMPTree, TreeOutput
 from ..registry import Params
+
+if TYPE_CHECKING:
+    from ..envs.demonstrations import Dataset
 
 P = TypeVar("P", bound=Params)
 
@@ -54,6 +57,12 @@ class Learner(nn.Module, ABC, Generic[P]):
     @abstractmethod
     def tree(self) -> RMPTree | None:
         """The RMP tree the learner's policy is, or None for a network with no tree structure."""
+
+    def initialise(self, train: Dataset) -> None:
+        """Set what the learner starts from that is made from its training data (SEDS's mixture, fitted by EM);
+        nothing by default: most learners start at a random draw. Every training method calls it before its
+        first step and before a resumed run loads its checkpoint over it, so it must be a deterministic function
+        of the data."""
 
     def num_parameters(self) -> int:
         """The number of trained scalars (what parameter matching and metrics.json count)."""

@@ -9,7 +9,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from ..registry import LEARNERS
-from . import first_order, rmp_learner, unstructured  # noqa: F401  (the built-in learners register themselves)
+from . import first_order, rmp_learner, seds, unstructured  # noqa: F401  (the built-in learners register themselves)
 from .learner import Learner
 
 

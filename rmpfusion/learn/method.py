@@ -21,6 +21,7 @@ from ..envs.common import DTYPES
 from ..envs.demonstrations import Dataset
 from ..envs.protocol import Env
 from .config import TrainParams
+from .learner import Learner
 from .loop import Loop, Steps, TrainResult, run
 from .objectives import module_device
 from .optimizers import make_optimizer
@@ -111,6 +112,8 @@ class TrainingMethod(ABC, Generic[P]):
         dtype = DTYPES[p.dtype]
         model.to(dtype)
         ctx = ctx.cast(dtype, module_device(model))  # the model trains where it is; its data goes there once
+        if isinstance(model, Learner):
+            model.initialise(ctx.train)  # a start made from the data; a resumed run's checkpoint replaces it
         opt = make_optimizer(model.parameters(), p.optimizer, p.lr)
         gen = torch.Generator().manual_seed(int(ctx.seed))
         loop = Loop(

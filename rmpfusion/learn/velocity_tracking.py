@@ -1,0 +1,72 @@
+"""First-order learners executed on a second-order plant: the part every velocity-field baseline shares.
+
+A first-order dynamical system ẋ = f(x) is what most of the learning-from-demonstration literature learns (SEDS,
+CLF-DM, Euclideanizing Flows). The plants here are second order, so the field is executed by velocity tracking,
+
+    q̈ = k_v·(f(q) − q̇) + (∂f/∂q)·q̇,
+
+the usual way a first-order system drives a double integrator: q̇ follows f with time constant 1/k_v, and on a
+motion that already follows the field (q̇ = f) the acceleration is exactly the field's own along the motion.
+Behavior cloning on recorded accelerations therefore fits f to the recorded velocities (weighted by k_v²) beside
+that acceleration. A subclass supplies the field; this class supplies the execution, so every baseline is run and
+trained the same way and differs only in its field.
+"""
+
+from __future__ import annotations
+
+from abc import abstractmethod
+from collections.abc import Mapping
+
+import torch
+from pydantic import Field
+from torch import Tensor
+
+from ..core.tree import RMPTree
+from ..registry import Params
+from .learner import Learner, P
+
+
+class TrackedFieldParams(Params):
+    """What every tracked field is configured by: the tracking gain and where the goal is."""
+
+    tracking_gain: float = Field(10.0, gt=0, le=10000, description="k_v (1/s): how fast q̇ follows the field")
+    goal: str = Field("goal", description="the aux entry holding the goal")
+
+
+class TrackedField(Learner[P]):
+    """q̈ = k_v(f(q) − q̇) + (∂f/∂q)q̇ for the field ``f`` a subclass defines. Not an RMP tree: no V_r, no metric."""
+
+    dim: int
+
+    @abstractmethod
+    def field(self, q: Tensor, aux: Mapping[str, Tensor]) -> Tensor:
+        """f(q) (B, d): the velocity the field asks for at q."""
+
+    @property
+    def tree(self) -> RMPTree | None:
+        return None
+
+    def check_goal(self, name: str, aux_dims: Mapping[str, int], dim: int) -> None:
+        """Refuse an environment without the goal entry the field converges to, naming what it has."""
+        goal = self.params.goal
+        if goal not in aux_dims or int(aux_dims[goal]) != dim:
+            raise ValueError(
+                f"{name} needs the aux entry '{goal}' of dimension {dim} (the goal); the environment gives "
+                f"{dict(aux_dims)}"
+            )
+
+    def forward(self, q: Tensor, qd: Tensor, aux: Mapping[str, Tensor] | None = None) -> Tensor:
+        keep_graph = torch.is_grad_enabled()  # training differentiates through (∂f/∂q)q̇; a rollout does not
+        with torch.enable_grad():
+            x = q if q.requires_grad else q.detach().requires_grad_(True)
+            f = self.field(x, aux or {})
+            rows = [
+                torch.autograd.grad(f[:, i].sum(), x, create_graph=keep_graph, retain_graph=True)[0]
+                for i in range(self.dim)
+            ]
+            along = torch.stack([(r * qd).sum(-1) for r in rows], -1)  # (∂f/∂q) q̇
+            qdd = self.params.tracking_gain * (f - qd) + along
+        return qdd if keep_graph else qdd.detach()
+
+    def policy(self, q: Tensor, qd: Tensor, aux: Mapping[str, Tensor] | None = None) -> Tensor:
+        return self(q, qd, aux)
