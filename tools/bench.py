@@ -884,7 +884,10 @@ def _quiet_resolve(resolve: Callable[[str], str], location: str) -> str:
 #: The batched and training sections run first: in a process where the single-state compiles (C++ wrapper) and the
 #: AOTInductor packaging had run, two of the batched compiles failed in g++ and ran eagerly (the cause was not found).
 #: the LASA shape of the one-shape row, and the stored 26-shape variants whose total run time is reported
-LASA_SHAPE, LASA_VARIANTS = "Angle", ("both", "weights", "map", "first_order", "both_all7", "both_radial")
+LASA_SHAPE, LASA_VARIANTS = (
+    "Angle",
+    ("both", "weights", "map", "first_order", "both_all7", "both_radial", "seds", "seds_all7"),
+)
 
 
 def section_lasa(compile_: bool) -> None:

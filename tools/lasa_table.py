@@ -27,8 +27,9 @@ go to every run.
 
 Writes ``<out>/lasa_table.md`` (the table: test DTW per sample, swept error area, final distance, convergence from
 the grid of starts at rest, V_r monotone, the certificate, training time; the mean over shapes as the last row),
-``<out>/lasa_table.json`` (every number) and ``<out>/lasa_grid.png`` (the rollouts figure of every run: with
-several variants, each shape's side by side). A shape whose run failed or is still running is listed, not silently left out.
+``<out>/lasa_table.json`` (every number), ``<out>/lasa_grid.png`` (the rollouts figure of every run: with
+several variants, each shape's side by side) and, with several variants, ``<out>/lasa_dtw.png`` (each shape's test
+DTW by variant); ``--report DIR`` writes them to DIR instead. A shape whose run failed or is still running is listed, not silently left out.
 """
 
 from __future__ import annotations
@@ -156,7 +157,7 @@ def table_of(runs: dict[str, dict]) -> str:
     return table(rows + mean_rows(rows) + mean_rows(untrained)) + "\n"
 
 
-def grid_figure(out: Path, variants: list[str], shapes: list[str]) -> Path | None:
+def grid_figure(out: Path, variants: list[str], shapes: list[str], to: Path) -> Path | None:
     """Every run's rollouts figure (the tree with every weight 1, then the trained learner, from the grid of starts
     at rest): one variant, four shapes a row; several variants, one shape a row and one variant a column, so the
     variants' rollouts of a shape sit side by side."""
@@ -181,7 +182,37 @@ def grid_figure(out: Path, variants: list[str], shapes: list[str]) -> Path | Non
         axes[r][c].set_title(shape if one else f"{shape}, {variant}", fontsize=9)
     what = f"variant '{variants[0]}'" if one else "variants " + ", ".join(f"'{v}'" for v in variants)
     fig.suptitle(f"LASA, {what}: the tree (left) and the trained learner (right) of each run")
-    path = out / "lasa_grid.png"
+    path = to / "lasa_grid.png"
+    fig.savefig(path, dpi=120)
+    return path
+
+
+def dtw_figure(runs: dict[str, dict], variants: list[str], path: Path) -> Path | None:
+    """Test DTW of every shape, one marker per variant (log scale): where the table's means hide which shapes a
+    variant wins and loses. None with fewer than two variants."""
+    from matplotlib.figure import Figure
+
+    present = [v for v in variants if any(label.startswith(f"{v}/") for label in runs)]
+    if len(present) < 2:
+        return None
+    shapes = list(dict.fromkeys(label.split("/", 1)[1] for label in runs))
+    fig = Figure(figsize=(max(8.0, 0.42 * len(shapes)), 4.2), layout="constrained")
+    ax = fig.subplots()
+    markers = "osD^vP*Xh"
+    for k, variant in enumerate(present):
+        xs, ys = [], []
+        for i, shape in enumerate(shapes):
+            if (m := runs.get(f"{variant}/{shape}")) is not None:
+                xs.append(i + (k - (len(present) - 1) / 2) * 0.09)
+                ys.append(COLUMNS[0][1](next(iter(m["learners"].values()))))
+        mean = sum(ys) / len(ys)
+        ax.scatter(xs, ys, s=18, marker=markers[k % len(markers)], label=f"{variant} (mean {mean:.2f} mm)")
+    ax.set_yscale("log")
+    ax.set_xticks(range(len(shapes)), shapes, rotation=60, ha="right", fontsize=8)
+    ax.set_ylabel("test DTW per sample (mm)")
+    ax.grid(axis="y", which="both", alpha=0.3)
+    ax.legend(fontsize=8, ncol=min(3, len(present)))
+    ax.set_title("LASA: test DTW of each shape's held-out demonstration, by variant")
     fig.savefig(path, dpi=120)
     return path
 
@@ -192,6 +223,7 @@ def main(argv=None) -> int:
     ap.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
     ap.add_argument("--out", type=Path, default=ROOT / "outputs" / "lasa_table")
     ap.add_argument("--summarize-only", action="store_true", help="read the runs already in --out; run nothing")
+    ap.add_argument("--report", type=Path, help="where the table and figures go (default: --out)")
     args, extra = ap.parse_known_args(argv)
     extra = [e for e in extra if e != "--"]
     args.out = args.out.resolve()
@@ -213,12 +245,16 @@ def main(argv=None) -> int:
         sorted(runs.items(), key=lambda kv: (order[kv[0].split("/", 1)[1]], args.variants.index(kv[0].split("/")[0])))
     )
     text = table_of(runs).rstrip("\n")
-    args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "lasa_table.md").write_text(text + "\n")
-    (args.out / "lasa_table.json").write_text(json.dumps({"runs": report}, indent=1))
-    grid = grid_figure(args.out, args.variants, args.shapes)
+    to = (args.report or args.out).resolve()
+    to.mkdir(parents=True, exist_ok=True)
+    (to / "lasa_table.md").write_text(text + "\n")
+    (to / "lasa_table.json").write_text(json.dumps({"runs": report}, indent=1))
+    figures = [
+        grid_figure(args.out, args.variants, args.shapes, to),
+        dtw_figure(runs, args.variants, to / "lasa_dtw.png"),
+    ]
     print(text)
-    print(f"wrote {args.out / 'lasa_table.md'}" + (f" and {grid}" if grid else ""))
+    print(f"wrote {to / 'lasa_table.md'}" + "".join(f" and {f}" for f in figures if f is not None))
     return 0
 
 
