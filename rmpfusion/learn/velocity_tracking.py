@@ -16,6 +16,7 @@ from __future__ import annotations
 
 from abc import abstractmethod
 from collections.abc import Mapping
+from typing import TypeVar
 
 import torch
 from pydantic import Field
@@ -23,7 +24,7 @@ from torch import Tensor
 
 from ..core.tree import RMPTree
 from ..registry import Params
-from .learner import Learner, P
+from .learner import Learner
 
 
 class TrackedFieldParams(Params):
@@ -33,9 +34,13 @@ class TrackedFieldParams(Params):
     goal: str = Field("goal", description="the aux entry holding the goal")
 
 
-class TrackedField(Learner[P]):
+PT = TypeVar("PT", bound=TrackedFieldParams)
+
+
+class TrackedField(Learner[PT]):
     """q̈ = k_v(f(q) − q̇) + (∂f/∂q)q̇ for the field ``f`` a subclass defines. Not an RMP tree: no V_r, no metric."""
 
+    params: PT
     dim: int
 
     @abstractmethod
