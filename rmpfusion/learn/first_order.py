@@ -31,6 +31,8 @@ from .velocity_tracking import TrackedField, TrackedFieldParams
 class FirstOrderLearner(TrackedField["FirstOrderLearner.Params"]):
     """ẋ = −r·scale·J_ψ⁻¹ψ((x − goal)/scale), tracked by q̈ = k_v(f − q̇) + (∂f/∂q)q̇."""
 
+    kind = "first_order"
+
     class Params(TrackedFieldParams):
         layers: int = Field(4, ge=1, le=64, description="coupling layers of ψ")
         hidden: tuple[int, ...] = Field((32, 32), description="hidden widths of each layer's networks")
@@ -55,9 +57,7 @@ class FirstOrderLearner(TrackedField["FirstOrderLearner.Params"]):
         dim: int,
         expert: Mapping[str, Any] | None = None,
     ):
-        super().__init__()
-        self.params, self.dim = params, dim
-        self.check_goal("first_order", aux_dims, dim)
+        super().__init__(params, tree_spec, aux_dims, dim, expert)
         psi = Diffeomorphism.Params(
             layers=params.layers,
             hidden=params.hidden,

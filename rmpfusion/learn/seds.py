@@ -54,6 +54,8 @@ class SedsLearner(TrackedField["SedsLearner.Params"]):
     """ẋ = scale·Σ_k h_k(n) A_k n with A_k + A_kᵀ ≼ −2εI, n = (x − goal)/scale; tracked like every first-order
     baseline."""
 
+    kind = "seds"
+
     class Params(TrackedFieldParams):
         components: int = Field(6, ge=1, le=32, description="K, the Gaussians of the mixture")
         scale: float = Field(0.02, gt=0, description="the normalising map's scale (m), as tree=lasa's")
@@ -70,9 +72,7 @@ class SedsLearner(TrackedField["SedsLearner.Params"]):
         dim: int,
         expert: Mapping[str, Any] | None = None,
     ):
-        super().__init__()
-        self.params, self.dim = params, dim
-        self.check_goal("seds", aux_dims, dim)
+        super().__init__(params, tree_spec, aux_dims, dim, expert)
         k, f64 = params.components, torch.float64
         # before any data: K equal components at the goal, each A_k = −I (a stable field, replaced by `initialise`)
         self.logits = nn.Parameter(torch.zeros(k, dtype=f64))

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 from abc import abstractmethod
 from collections.abc import Mapping
-from typing import TypeVar
+from typing import Any, ClassVar, TypeVar
 
 import torch
 from pydantic import Field
@@ -40,8 +40,24 @@ PT = TypeVar("PT", bound=TrackedFieldParams)
 class TrackedField(Learner[PT]):
     """q̈ = k_v(f(q) − q̇) + (∂f/∂q)q̇ for the field ``f`` a subclass defines. Not an RMP tree: no V_r, no metric."""
 
-    params: PT
-    dim: int
+    #: the registered name, for errors
+    kind: ClassVar[str]
+
+    def __init__(
+        self,
+        params: PT,
+        tree_spec: Mapping[str, Any] | None,
+        aux_dims: Mapping[str, int],
+        dim: int,
+        expert: Mapping[str, Any] | None = None,
+    ):
+        super().__init__()
+        self.params, self.dim = params, dim
+        if params.goal not in aux_dims or int(aux_dims[params.goal]) != dim:
+            raise ValueError(
+                f"{self.kind} needs the aux entry '{params.goal}' of dimension {dim} (the goal); the environment "
+                f"gives {dict(aux_dims)}"
+            )
 
     @abstractmethod
     def field(self, q: Tensor, aux: Mapping[str, Tensor]) -> Tensor:
@@ -50,15 +66,6 @@ class TrackedField(Learner[PT]):
     @property
     def tree(self) -> RMPTree | None:
         return None
-
-    def check_goal(self, name: str, aux_dims: Mapping[str, int], dim: int) -> None:
-        """Refuse an environment without the goal entry the field converges to, naming what it has."""
-        goal = self.params.goal
-        if goal not in aux_dims or int(aux_dims[goal]) != dim:
-            raise ValueError(
-                f"{name} needs the aux entry '{goal}' of dimension {dim} (the goal); the environment gives "
-                f"{dict(aux_dims)}"
-            )
 
     def forward(self, q: Tensor, qd: Tensor, aux: Mapping[str, Tensor] | None = None) -> Tensor:
         keep_graph = torch.is_grad_enabled()  # training differentiates through (∂f/∂q)q̇; a rollout does not

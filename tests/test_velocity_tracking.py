@@ -1,0 +1,56 @@
+"""The velocity tracking every first-order baseline is executed by: q̈ = k_v(f − q̇) + (∂f/∂q)q̇, with the derivative
+along the motion checked against a central difference of the field, and training's gradient reaching every
+parameter through it; an environment without the goal the field needs is refused by name."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from rmpfusion.registry import LEARNERS
+
+KINDS = ("first_order", "seds")
+
+
+def randomised(kind: str, seed: int):
+    """The learner with every parameter drawn at random, so no term of the field is trivially zero."""
+    entry = LEARNERS.get(kind)
+    m = entry.obj(entry.validate({"scale": 0.5, "tracking_gain": 7.0}), None, {"goal": 2}, 2)
+    gen = torch.Generator().manual_seed(seed)
+    with torch.no_grad():
+        for p in m.parameters():
+            p.copy_(0.3 * torch.randn(p.shape, generator=gen, dtype=p.dtype))
+    return m
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_the_tracking_acceleration_adds_the_field_derivative_along_the_motion(kind):
+    m = randomised(kind, 2)
+    gen = torch.Generator().manual_seed(3)
+    q = torch.randn(8, 2, generator=gen, dtype=torch.float64)
+    qd = torch.randn(8, 2, generator=gen, dtype=torch.float64)
+    aux = {"goal": 0.2 * torch.randn(8, 2, generator=gen, dtype=torch.float64)}
+    with torch.no_grad():
+        qdd = m(q, qd, aux)
+        eps = 1e-6
+        along = (m.field(q + eps * qd, aux) - m.field(q - eps * qd, aux)) / (2 * eps)
+        expected = 7.0 * (m.field(q, aux) - qd) + along
+    torch.testing.assert_close(qdd, expected, rtol=1e-6, atol=1e-8)
+    assert float(along.abs().max()) > 1e-3  # the derivative term is really there
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_training_differentiates_through_the_field_derivative(kind):
+    m = randomised(kind, 4)
+    q = torch.randn(4, 2, dtype=torch.float64)
+    qd = torch.randn(4, 2, dtype=torch.float64)
+    m(q, qd, {"goal": torch.zeros(4, 2, dtype=torch.float64)}).square().sum().backward()
+    grads = {name: p.grad for name, p in m.named_parameters()}
+    assert all(g is not None and torch.isfinite(g).all() for g in grads.values()), grads
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_an_environment_without_the_goal_is_refused_by_name(kind):
+    entry = LEARNERS.get(kind)
+    with pytest.raises(ValueError, match=f"{kind} needs the aux entry 'goal' of dimension 2"):
+        entry.obj(entry.validate({}), None, {"target": 2}, 2)
