@@ -38,6 +38,7 @@ RUNS = yaml.safe_load((RESULTS / "runs.yaml").read_text(encoding="utf-8"))
 TOOLS = {
     "reproduce_2d": reproduce_2d.table,
     "lasa_table": lasa_table.table_of,
+    "lasa_choice": lasa_table.choice_table,
     "task_table": task_table.table,
     "leaves_table": leaves_table.table,
     "dagger_table": dagger_table.markdown_table,

@@ -22,6 +22,7 @@ The trees also learn the attractor's gain, softness and damping.
   seds     not a tree: SEDS (Khansari-Zadeh & Billard 2011), Gaussian mixture regression with every component
            contracting, started from EM and executed by the same velocity tracking (rmpfusion/learn/seds.py)
   seds_all7  seds trained and evaluated on all 7 demonstrations (data.split=all), as SEDS's own papers did
+  seds_k3, seds_k6  seds with 3 and 6 Gaussians (seds has 10, chosen among the three on validation: --choose)
 The "tree" row of a shape is the first variant's tree with every weight 1, nothing learned. Arguments after ``--``
 go to every run.
 
@@ -53,6 +54,8 @@ VARIANTS = {
     "first_order": ["~learners.rmp", "+learner@learners.first_order=first_order"],
     "seds": ["~learners.rmp", "+learner@learners.seds=seds"],
     "seds_all7": ["~learners.rmp", "+learner@learners.seds=seds", "data.split=all"],
+    "seds_k3": ["~learners.rmp", "+learner@learners.seds=seds", "learners.seds.components=3"],
+    "seds_k6": ["~learners.rmp", "+learner@learners.seds=seds", "learners.seds.components=6"],
     "both_all7": ["data.split=all"],
     "both_radial": ["~learners.rmp.weights", "+learners.rmp.weights={type: radial, center: [0.0, 0.0], reach: 3.0}"],
 }
@@ -157,6 +160,38 @@ def table_of(runs: dict[str, dict]) -> str:
     return table(rows + mean_rows(rows) + mean_rows(untrained)) + "\n"
 
 
+def choice_table(runs: dict[str, dict]) -> str:
+    """Variants of one learner side by side by their means over the shapes, validation first: the one with the
+    lowest mean validation DTW is kept (the test columns are reported, never chosen by). Runs labelled
+    ``<variant>/<shape>``; every variant must cover the same shapes."""
+    by_variant: dict[str, dict[str, dict]] = {}
+    for label, m in runs.items():
+        variant, shape = label.split("/", 1)
+        by_variant.setdefault(variant, {})[shape] = next(iter(m["learners"].values()))
+    shapes = {frozenset(v) for v in by_variant.values()}
+    if len(shapes) != 1:
+        raise ValueError(f"the variants cover different shapes: {sorted(by_variant)}")
+    mean = lambda rs, f: sum(f(r) for r in rs) / len(rs)
+    rows = {
+        v: {
+            "validation DTW (mm)": mean(rs.values(), lambda r: 1e3 * r["reproduction_val"]["dtw"]),
+            "test DTW (mm)": mean(rs.values(), COLUMNS[0][1]),
+            "converged": mean(rs.values(), lambda r: r["convergence"]["converged"]),
+            "train s": mean(rs.values(), lambda r: r["train_seconds"]),
+        }
+        for v, rs in by_variant.items()
+    }
+    kept = min(rows, key=lambda v: rows[v]["validation DTW (mm)"])
+    keys = ["validation DTW (mm)", "test DTW (mm)", "converged", "train s"]
+    n = len(next(iter(by_variant.values())))
+    lines = [f"| variant (mean of {n} shapes) | " + " | ".join(keys) + " | kept |", "|" + "---|" * (len(keys) + 2)]
+    lines += [
+        f"| {v} | " + " | ".join(fmt(r[k]) for k in keys) + f" | {'yes' if v == kept else ''} |"
+        for v, r in rows.items()
+    ]
+    return "\n".join(lines) + "\n"
+
+
 def grid_figure(out: Path, variants: list[str], shapes: list[str], to: Path) -> Path | None:
     """Every run's rollouts figure (the tree with every weight 1, then the trained learner, from the grid of starts
     at rest): one variant, four shapes a row; several variants, one shape a row and one variant a column, so the
@@ -224,6 +259,11 @@ def main(argv=None) -> int:
     ap.add_argument("--out", type=Path, default=ROOT / "outputs" / "lasa_table")
     ap.add_argument("--summarize-only", action="store_true", help="read the runs already in --out; run nothing")
     ap.add_argument("--report", type=Path, help="where the table and figures go (default: --out)")
+    ap.add_argument(
+        "--choose",
+        action="store_true",
+        help="also write lasa_choice.md: the variants' means, the one with the lowest validation DTW kept",
+    )
     args, extra = ap.parse_known_args(argv)
     extra = [e for e in extra if e != "--"]
     args.out = args.out.resolve()
@@ -254,6 +294,10 @@ def main(argv=None) -> int:
         dtw_figure(runs, args.variants, to / "lasa_dtw.png"),
     ]
     print(text)
+    if args.choose:
+        choice = choice_table(runs)
+        (to / "lasa_choice.md").write_text(choice)
+        print(choice.rstrip("\n"))
     print(f"wrote {to / 'lasa_table.md'}" + "".join(f" and {f}" for f in figures if f is not None))
     return 0
 

@@ -57,7 +57,12 @@ class SedsLearner(TrackedField["SedsLearner.Params"]):
     kind = "seds"
 
     class Params(TrackedFieldParams):
-        components: int = Field(6, ge=1, le=32, description="K, the Gaussians of the mixture")
+        components: int = Field(
+            10,
+            ge=1,
+            le=32,
+            description="K, the Gaussians of the mixture (10: chosen on LASA's validation among 3, 6, 10)",
+        )
         scale: float = Field(0.02, gt=0, description="the normalising map's scale (m), as tree=lasa's")
         margin: float = Field(
             0.01, gt=0, le=100, description="ε (1/s, normalised units): every A_k + A_kᵀ is at most −2ε·I"
