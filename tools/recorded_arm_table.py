@@ -54,7 +54,7 @@ def _row(label: str, policy: str, r: dict) -> str:
         f"{round(conv['converged'] * n)} / {n}",
         _stopped_short(conv),
         f"{conv['collisions']} / {n}",
-        f"{round(conv['lyapunov_monotone_fraction'] * n)} / {n}",
+        f"{round(conv['lyapunov_monotone_fraction'] * n)} / {n}" if "lyapunov_monotone_fraction" in conv else "–",
         "–" if cert is None else ("ok" if cert["ok"] else "FAILS"),
         f"{r['train_seconds']:.0f}" if "train_seconds" in r else "–",
     ]
