@@ -1,12 +1,14 @@
 """The velocity tracking every first-order baseline is executed by: q̈ = k_v(f − q̇) + (∂f/∂q)q̇, with the derivative
 along the motion checked against a central difference of the field, and training's gradient reaching every
-parameter through it; an environment without the goal the field needs is refused by name."""
+parameter through it; an environment without the goal the field needs is refused by name, and so is an export
+(torch.export cannot trace the derivative inside the policy for a batch of any size)."""
 
 from __future__ import annotations
 
 import pytest
 import torch
 
+from rmpfusion.learn.export import export_learner
 from rmpfusion.registry import LEARNERS
 
 KINDS = ("first_order", "seds")
@@ -54,3 +56,12 @@ def test_an_environment_without_the_goal_is_refused_by_name(kind):
     entry = LEARNERS.get(kind)
     with pytest.raises(ValueError, match=f"{kind} needs the aux entry 'goal' of dimension 2"):
         entry.obj(entry.validate({}), None, {"target": 2}, 2)
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_export_is_refused_with_the_reason_instead_of_a_tracing_error(kind):
+    m = randomised(kind, 5)
+    q = torch.randn(4, 2, dtype=torch.float64)
+    aux = {"goal": torch.zeros(4, 2, dtype=torch.float64)}
+    with pytest.raises(ValueError, match=f"learner '{kind}' is a first-order field .* cannot trace"):
+        export_learner(m, q, torch.zeros_like(q), aux, ["goal"])

@@ -40,6 +40,8 @@ def export_learner(
     learner: Learner, q: Tensor, qd: Tensor, aux: Mapping[str, Tensor], aux_names: Sequence[str], with_rmp: bool = False
 ) -> torch.export.ExportedProgram:
     """The learner's policy for any batch size, traced at the example states (B ≥ 2)."""
+    if (refusal := learner.export_refusal()) is not None:
+        raise ValueError(refusal)
     learner.eval()
     if learner.tree is not None:
         return export_tree(learner.tree, q, qd, aux, aux_names, with_rmp=with_rmp)

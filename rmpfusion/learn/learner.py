@@ -64,6 +64,10 @@ class Learner(nn.Module, ABC, Generic[P]):
         first step and before a resumed run loads its checkpoint over it, so it must be a deterministic function
         of the data."""
 
+    def export_refusal(self) -> str | None:
+        """Why torch.export cannot trace this learner's policy (said to whoever asks for an export), or None."""
+        return None
+
     def num_parameters(self) -> int:
         """The number of trained scalars (what parameter matching and metrics.json count)."""
         return sum(p.numel() for p in self.parameters() if p.requires_grad)

@@ -82,3 +82,11 @@ class TrackedField(Learner[PT]):
 
     def policy(self, q: Tensor, qd: Tensor, aux: Mapping[str, Tensor] | None = None) -> Tensor:
         return self(q, qd, aux)
+
+    def export_refusal(self) -> str | None:
+        return (
+            f"learner '{self.kind}' is a first-order field executed by velocity tracking: its policy differentiates "
+            "the field inside the call ((∂f/∂q)q̇), which torch.export cannot trace for a batch of any size (it "
+            "fixes the batch, reverse or forward mode alike); run it in Python (rmpfusion-evaluate, or the learner "
+            "loaded from its checkpoint) instead"
+        )
