@@ -97,8 +97,13 @@ def read_runs(out: Path, variant: str, shapes: list[str]) -> tuple[dict[str, dic
     return found, missing
 
 
+def learner_results(m: dict) -> dict:
+    """A LASA run's one learner's results (each run trains one learner)."""
+    return next(iter(m["learners"].values()))
+
+
 def row(shape: str, m: dict, policy: str) -> dict:
-    r = m["tree"] if policy == "tree" else next(iter(m["learners"].values()))
+    r = m["tree"] if policy == "tree" else learner_results(m)
     out = {"shape": shape, "policy": policy, **{title: f(r) for title, f in COLUMNS}}
     if policy != "tree":
         out["certificate"] = bool(r["certificate"]["ok"]) if "certificate" in r else None  # None: not a tree
@@ -108,7 +113,7 @@ def row(shape: str, m: dict, policy: str) -> dict:
 
 def untrained_row(shape: str, m: dict, variant: str) -> dict | None:
     """The variant's learner at its random initialisation (snapshot 0), where the run evaluated it."""
-    r = next(iter(m["learners"].values())).get("snapshots", {}).get("0")
+    r = learner_results(m).get("snapshots", {}).get("0")
     if r is None:
         return None
     return {"shape": shape, "policy": f"{variant} (learner-0)", **{title: f(r) for title, f in COLUMNS}}
@@ -167,7 +172,7 @@ def choice_table(runs: dict[str, dict]) -> str:
     by_variant: dict[str, dict[str, dict]] = {}
     for label, m in runs.items():
         variant, shape = label.split("/", 1)
-        by_variant.setdefault(variant, {})[shape] = next(iter(m["learners"].values()))
+        by_variant.setdefault(variant, {})[shape] = learner_results(m)
     shapes = {frozenset(v) for v in by_variant.values()}
     if len(shapes) != 1:
         raise ValueError(f"the variants cover different shapes: {sorted(by_variant)}")
@@ -239,7 +244,7 @@ def dtw_figure(runs: dict[str, dict], variants: list[str], path: Path) -> Path |
         for i, shape in enumerate(shapes):
             if (m := runs.get(f"{variant}/{shape}")) is not None:
                 xs.append(i + (k - (len(present) - 1) / 2) * 0.09)
-                ys.append(COLUMNS[0][1](next(iter(m["learners"].values()))))
+                ys.append(COLUMNS[0][1](learner_results(m)))
         mean = sum(ys) / len(ys)
         ax.scatter(xs, ys, s=18, marker=markers[k % len(markers)], label=f"{variant} (mean {mean:.2f} mm)")
     ax.set_yscale("log")

@@ -39,7 +39,6 @@ class FirstOrderLearner(TrackedField["FirstOrderLearner.Params"]):
         activation: Literal["tanh", "softplus", "silu"] = "tanh"
         scale_bound: float = Field(2.0, gt=0, le=20, description="|log-scale| of a layer stays below this")
         init_std: float = Field(0.1, ge=0, le=10, description="std of the output layers' initial weights")
-        scale: float = Field(0.02, gt=0, description="the normalising map's scale (m), as tree=lasa's")
         rate: float = Field(1.0, gt=0, le=1000, description="the latent decay rate r (1/s) at the start; learned")
 
         @field_validator("hidden")
@@ -71,8 +70,7 @@ class FirstOrderLearner(TrackedField["FirstOrderLearner.Params"]):
 
     def field(self, q: Tensor, aux: Mapping[str, Tensor]) -> Tensor:
         """f(q) (B, d): the velocity the field asks for at q."""
-        s = self.params.scale
-        n = (q - aux[self.params.goal].to(q)) / s
+        s, n = self.params.scale, self.normalised(q, aux)
         z, _, J, _ = self.psi(n, torch.zeros_like(n))
         return -self.log_rate.exp() * s * torch.linalg.solve(J, z.unsqueeze(-1)).squeeze(-1)
 

@@ -35,11 +35,6 @@ from .gmm import fit_mixture, phase_assignment
 from .velocity_tracking import TrackedField, TrackedFieldParams
 
 
-def _lower(m: Tensor) -> Tensor:
-    """The lower triangle with the diagonal (…, d, d)."""
-    return torch.tril(m)
-
-
 def _strictly_lower(m: Tensor) -> Tensor:
     return torch.tril(m, diagonal=-1)
 
@@ -63,7 +58,6 @@ class SedsLearner(TrackedField["SedsLearner.Params"]):
             le=32,
             description="K, the Gaussians of the mixture (10: chosen on LASA's validation among 3, 6, 10)",
         )
-        scale: float = Field(0.02, gt=0, description="the normalising map's scale (m), as tree=lasa's")
         margin: float = Field(
             0.01, gt=0, le=100, description="ε (1/s, normalised units): every A_k + A_kᵀ is at most −2ε·I"
         )
@@ -89,7 +83,7 @@ class SedsLearner(TrackedField["SedsLearner.Params"]):
 
     def matrices(self) -> Tensor:
         """A_k (K, d, d): symmetric part −(B_k B_kᵀ + εI), antisymmetric part S_k − S_kᵀ."""
-        B, S = _lower(self.contraction), _strictly_lower(self.rotation)
+        B, S = torch.tril(self.contraction), _strictly_lower(self.rotation)
         eye = torch.eye(self.dim, dtype=B.dtype, device=B.device)
         return -(B @ B.transpose(-1, -2) + self.params.margin * eye) + (S - S.transpose(-1, -2))
 
@@ -103,17 +97,16 @@ class SedsLearner(TrackedField["SedsLearner.Params"]):
         return torch.softmax(log_joint, -1)
 
     def field(self, q: Tensor, aux: Mapping[str, Tensor]) -> Tensor:
-        s = self.params.scale
-        n = (q - aux[self.params.goal].to(q)) / s
+        n = self.normalised(q, aux)
         per_component = torch.einsum("kij,bj->bki", self.matrices().to(n), n)  # A_k n
-        return s * (self.responsibilities(n).unsqueeze(-1) * per_component).sum(1)
+        return self.params.scale * (self.responsibilities(n).unsqueeze(-1) * per_component).sum(1)
 
     def initialise(self, train: Dataset) -> None:
         """SEDS's start: EM on the joint (n, ṅ) training samples from the demonstrations' phase; π_k, μ_k and Σ_k
         of the position block, A_k = Σ_k^{ṅn}(Σ_k^n)⁻¹ with its symmetric part clipped to at most −2ε."""
-        s, d, eps = self.params.scale, self.dim, self.params.margin
-        n = ((train.q - train.aux[self.params.goal]) / s).detach().cpu().double().numpy()
-        nd = (train.qd / s).detach().cpu().double().numpy()
+        d, eps = self.dim, self.params.margin
+        n = self.normalised(train.q, train.aux).detach().cpu().double().numpy()
+        nd = (train.qd / self.params.scale).detach().cpu().double().numpy()
         seeds = phase_assignment(train.t.cpu().numpy(), train.traj_id.cpu().numpy(), self.params.components)
         mix = fit_mixture(np.hstack([n, nd]), seeds, self.params.components, self.params.em_iterations)
         cov_x, cov_vx = mix.covariances[:, :d, :d], mix.covariances[:, d:, :d]

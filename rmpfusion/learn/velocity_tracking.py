@@ -28,8 +28,10 @@ from .learner import Learner
 
 
 class TrackedFieldParams(Params):
-    """What every tracked field is configured by: the tracking gain and where the goal is."""
+    """What every tracked field is configured by: the tracking gain, where the goal is, and the scale its field
+    works at."""
 
+    scale: float = Field(0.02, gt=0, description="the normalising map's scale (m), as tree=lasa's")
     tracking_gain: float = Field(10.0, gt=0, le=10000, description="k_v (1/s): how fast q̇ follows the field")
     goal: str = Field("goal", description="the aux entry holding the goal")
 
@@ -62,6 +64,10 @@ class TrackedField(Learner[PT]):
     @abstractmethod
     def field(self, q: Tensor, aux: Mapping[str, Tensor]) -> Tensor:
         """f(q) (B, d): the velocity the field asks for at q."""
+
+    def normalised(self, q: Tensor, aux: Mapping[str, Tensor]) -> Tensor:
+        """n = (q − goal)/scale: where every field is computed (the leaves' numbers suit coordinates of order one)."""
+        return (q - aux[self.params.goal].to(q)) / self.params.scale
 
     @property
     def tree(self) -> RMPTree | None:
