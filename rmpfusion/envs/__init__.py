@@ -6,6 +6,7 @@ from .manipulator import Manipulator
 from .particle2d import Particle2D
 from .protocol import (
     DifferentiableRollouts,
+    DifferentiableTask,
     Env,
     HasRatioMetrics,
     HasTaskMetrics,
@@ -20,6 +21,7 @@ __all__ = [
     "Dataset",
     "DatasetError",
     "DifferentiableRollouts",
+    "DifferentiableTask",
     "Env",
     "HasRatioMetrics",
     "HasTaskMetrics",

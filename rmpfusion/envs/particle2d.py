@@ -231,6 +231,10 @@ class Particle2D(ComputesOnDevice, SeededSampling):
             return self
         return Particle2D(self.params.for_test())
 
+    def gradient_refusal(self) -> str | None:
+        """None: the particle is integrated in torch, so its rollouts always keep the graph when asked to."""
+        return None
+
     def with_step(self, dt: float) -> Particle2D:
         """The same particle and sampling, integrated on the step ``dt``."""
         settings = self.params.model_dump(include=set(self.Params.model_fields))  # not a config block's `type`

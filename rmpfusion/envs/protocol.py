@@ -189,10 +189,29 @@ class PlanarWorkspace(Protocol):
 
 @runtime_checkable
 class DifferentiableRollouts(Protocol):
-    """An environment simulated in torch, whose ``rollout(..., enable_grad=True)`` keeps the autograd graph from
-    the policy's parameters to every recorded state, and whose task geometry is differentiable too (the 2-D
-    particle). It exists because policy optimisation through the simulator (``train.method=apg``) back-propagates
-    a task cost through rollouts, which a simulator stepped outside torch (pybullet) cannot offer."""
+    """An environment that integrates rollouts in torch, whose ``rollout(..., enable_grad=True)`` keeps the autograd
+    graph from the policy's parameters to every recorded state, on any integration step (the 2-D particle, the
+    plane, the manipulator in kinematic mode). It exists because trajectory matching (``train.method=match``)
+    back-propagates a rollout's distance to a demonstration through the rollout, which a simulator stepped outside
+    torch (pybullet's torque loop) cannot offer."""
+
+    def gradient_refusal(self) -> str | None:
+        """None when rollouts keep the graph as this environment is configured; otherwise why they do not and the
+        setting that would make them (the manipulator in torque mode steps pybullet)."""
+        ...
+
+    def with_step(self, dt: float) -> DifferentiableRollouts:
+        """The same environment integrated on another step: gradients through long rollouts cost less on a
+        coarser one, while evaluation keeps the experiment's own step."""
+        ...
+
+
+@runtime_checkable
+class DifferentiableTask(Protocol):
+    """An environment whose task geometry is differentiable in the configuration (the 2-D particle). It exists
+    because policy optimisation through the simulator (``train.method=apg``) back-propagates a task cost (the goal
+    distance, the clearance) through rollouts; a clearance measured by a simulator's collision queries has no
+    gradient."""
 
     def goal_distance(self, q: Tensor, aux: Mapping[str, Tensor]) -> Tensor:
         """(..., B) distance of configurations q (..., B, d) to the goal, differentiable in q."""
@@ -201,11 +220,6 @@ class DifferentiableRollouts(Protocol):
     def clearance(self, q: Tensor, aux: Mapping[str, Tensor]) -> Tensor:
         """(..., B) signed distance of configurations q (..., B, d) to the nearest obstacle (< 0 inside),
         differentiable in q."""
-        ...
-
-    def with_step(self, dt: float) -> DifferentiableRollouts:
-        """The same environment integrated on another step: gradients through long rollouts cost less on a
-        coarser one, while evaluation keeps the experiment's own step."""
         ...
 
 

@@ -300,6 +300,20 @@ class Manipulator(ComputesOnDevice, SeededSampling):
         return q0, qd0, aux
 
     # ------------------------------------------------------------------ rollouts
+    def gradient_refusal(self) -> str | None:
+        """None in kinematic mode (the closed loop is integrated in torch; the collision replay after it reads the
+        path but enters no gradient); torque mode steps pybullet, outside torch."""
+        if self.params.mode == "kinematic":
+            return None
+        return "env.mode=torque steps pybullet outside torch; set env.mode=kinematic"
+
+    def with_step(self, dt: float) -> Manipulator:
+        """The same robot, scene and settings integrated on the step ``dt`` (control_rate = 1/dt)."""
+        if abs(dt - self.dt) <= 1e-12 * max(1.0, self.dt):
+            return self
+        settings = self.params.model_dump(include=set(ManipulatorParams.model_fields))  # not a config block's `type`
+        return Manipulator(ManipulatorParams.model_validate({**settings, "control_rate": 1.0 / dt}))
+
     def rollout(
         self,
         policy: Callable[..., Any],
@@ -327,6 +341,8 @@ class Manipulator(ComputesOnDevice, SeededSampling):
         aux = {k: torch.as_tensor(v, dtype=self.dtype) for k, v in aux.items()}  # lists: never via float32
         q0, qd0 = q0.to(self.dtype), qd0.to(self.dtype)
         records = n_steps // every
+        if enable_grad and mode == "torque":
+            raise ValueError(f"rollout(enable_grad=True) cannot keep the autograd graph: {self.gradient_refusal()}")
         policy = on_device(policy, self.device)
         with torch.set_grad_enabled(enable_grad):
             if mode == "torque":

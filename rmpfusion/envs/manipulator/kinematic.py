@@ -72,7 +72,7 @@ def _integrate(env: Manipulator, policy: IsolatingPolicy, q0, qd0, aux, n_steps,
         finite = q_new.isfinite().all(-1) & qd_new.isfinite().all(-1)
         for b in (alive & ~finite).nonzero().flatten().tolist():
             errors[b] = policy.explain(b, f"non-finite state at t={(k + 1) * dt:.4f}s")
-        alive &= finite
+        alive = alive & finite  # a new tensor: the where() below keeps this mask for its gradient
         # a dead sample keeps its last finite state so the batched evaluation stays well posed
         q = torch.where(alive[:, None], q_new, q)
         qd = torch.where(alive[:, None], qd_new, torch.zeros_like(qd))

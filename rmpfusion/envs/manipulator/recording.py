@@ -15,8 +15,15 @@ if TYPE_CHECKING:
     from .env import Manipulator
 
 
+def _kept(x: Tensor) -> Tensor:
+    """A record as kept: with its graph under ``torch.enable_grad``, else a plain value (a policy that differentiates
+    inside its call, such as a learned map's Jacobian, may return a graph even when the rollout asked for none)."""
+    return x if torch.is_grad_enabled() else x.detach()
+
+
 class Recorder:
-    """Records at the record times; samples that died get NaN rows."""
+    """Records at the record times; samples that died get NaN rows. Under ``torch.enable_grad`` the records keep
+    the autograd graph (what trajectory matching back-propagates through); otherwise they are plain values."""
 
     def __init__(self) -> None:
         self.t: list[float] = []
@@ -31,17 +38,18 @@ class Recorder:
         """Record one time; ``monitor(i, t, q, qd, qdd, V)`` sees the live values of record i."""
         if monitor is not None:
             monitor(len(self.t), t, q, qd, a, V)
+        alive = alive.clone()  # the caller's mask changes in place later; the records' gradients keep this one
         m = alive[:, None]
         nan = float("nan")
         self.t.append(t)
-        self.q.append(torch.where(m, q, nan).detach().clone())
-        self.qd.append(torch.where(m, qd, nan).detach().clone())
-        self.qdd.append(torch.where(m, a, nan).detach().clone())
+        self.q.append(_kept(torch.where(m, q, nan)))
+        self.qd.append(_kept(torch.where(m, qd, nan)))
+        self.qdd.append(_kept(torch.where(m, a, nan)))
         if V is not None:
-            self.V.append(torch.where(alive, V, nan).detach().clone())
+            self.V.append(_kept(torch.where(alive, V, nan)))
         if D is not None:
-            self.D.append(torch.where(alive, D, nan).detach().clone())
-        self.alive.append(alive.clone())
+            self.D.append(_kept(torch.where(alive, D, nan)))
+        self.alive.append(alive)
 
     @staticmethod
     def stack(xs):

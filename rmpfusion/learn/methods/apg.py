@@ -25,7 +25,7 @@ from pydantic import Field, model_validator
 from torch import Tensor, nn
 
 from ...envs.common import time_grid
-from ...envs.protocol import DifferentiableRollouts, Env
+from ...envs.protocol import DifferentiableRollouts, DifferentiableTask, Env
 from ...registry import TRAIN_METHODS
 from ..config import TrainParams
 from ..loop import Steps, optimizer_step
@@ -81,9 +81,9 @@ class APGParams(TrainParams):
 
 
 @runtime_checkable
-class SimulatedEnv(Env, DifferentiableRollouts, Protocol):
-    """An environment whose rollouts are differentiable (``DifferentiableRollouts``), on any integration step: what
-    APG rolls out in (``APG.requirements`` refuses the others)."""
+class SimulatedEnv(Env, DifferentiableRollouts, DifferentiableTask, Protocol):
+    """An environment whose rollouts and task geometry are differentiable, on any integration step: what APG rolls
+    out in (``APG.requirements`` refuses the others)."""
 
     def with_step(self, dt: float) -> SimulatedEnv: ...
 
@@ -181,13 +181,21 @@ def on_grid(
     return issues
 
 
-def not_differentiable(method: str, env: Env, instead: str) -> tuple[str, str]:
-    """The requirement a method that back-propagates through rollouts states of an environment without them."""
+def not_differentiable(method: str, env: Env, why: str, instead: str) -> tuple[str, str]:
+    """The requirement a method that back-propagates through rollouts states of an environment that cannot:
+    ``why`` not, and what to do ``instead``."""
     message = (
         f"{method} back-propagates through rollouts, which the environment '{type(env).__name__}' does not offer "
-        f"(it is not simulated in torch with a differentiable goal distance and clearance); {instead}"
+        f"({why}); {instead}"
     )
     return ("train.method", message)
+
+
+def gradient_refusal(env: Env) -> str | None:
+    """Why rollouts of ``env`` cannot keep the autograd graph (None when they can)."""
+    if not isinstance(env, DifferentiableRollouts):
+        return "its rollouts are not integrated in torch"
+    return env.gradient_refusal()
 
 
 @TRAIN_METHODS.register("apg")
@@ -198,8 +206,11 @@ class APG(TrainingMethod[APGParams]):
 
     @classmethod
     def requirements(cls, params: APGParams, env: Env, train_trajectories: int) -> list[tuple[str, str]]:
-        if not isinstance(env, DifferentiableRollouts):
-            return [not_differentiable("apg", env, "use method pg, or an environment such as particle2d")]
+        why = gradient_refusal(env)
+        if why is None and not isinstance(env, DifferentiableTask):
+            why = "its goal distance and clearance are not differentiable"
+        if why is not None:
+            return [not_differentiable("apg", env, why, "use method pg, or an environment such as particle2d")]
         return on_grid(
             {"horizon": params.horizon, "truncation": params.window},
             params.record_every,

@@ -1,7 +1,8 @@
 """Trajectory matching (``train: {method: match}``): roll the learner out from each training demonstration's start,
 with the demonstration's initial velocity and aux state, and minimise the soft-DTW alignment cost
 (``learn/alignment.py``) between the rollout's path and the demonstration's, back-propagated through the
-differentiable rollout APG uses (``DifferentiableRollouts``: the 2-D particle and the plane).
+differentiable rollouts APG uses (``DifferentiableRollouts``: the 2-D particle, the plane, and the manipulator in
+kinematic mode, whose collisions are checked after the fact and enter no gradient).
 
 Behavior cloning fits accelerations at the demonstrated states only; a rollout leaves those states as soon as it
 errs, and the errors add up. Matching whole rollouts trains on the states the policy itself visits. Recorded
@@ -21,7 +22,7 @@ in units of that spread.
 from __future__ import annotations
 
 import math
-from typing import Any, Literal
+from typing import Any, Literal, Protocol, runtime_checkable
 
 import numpy as np
 import torch
@@ -35,8 +36,17 @@ from ..alignment import scaled_square_distances, soft_dtw
 from ..config import BCParams, TrainParams, registered_objective
 from ..loop import Steps, optimizer_step
 from ..method import MethodContext, TrainingMethod
-from .apg import SimulatedEnv, not_differentiable, on_grid
+from .apg import gradient_refusal, not_differentiable, on_grid
 from .bc import MinibatchSteps
+
+
+@runtime_checkable
+class RolledOutEnv(Env, DifferentiableRollouts, Protocol):
+    """An environment whose rollouts keep the autograd graph, on any integration step: what matching rolls out in
+    (``Match.requirements`` refuses the others). Its task geometry need not be differentiable: the loss reads the
+    recorded configurations only."""
+
+    def with_step(self, dt: float) -> RolledOutEnv: ...
 
 
 class MatchParams(TrainParams):
@@ -136,7 +146,7 @@ def on_records(t: Tensor, q: Tensor, record_every: float) -> Tensor:
 class MatchingCost:
     """The mean over demonstrations of the per-record soft-DTW cost between each one's rollout and its path."""
 
-    def __init__(self, env: SimulatedEnv, params: MatchParams, scale: Tensor, duration: float):
+    def __init__(self, env: RolledOutEnv, params: MatchParams, scale: Tensor, duration: float):
         self.env = env.with_step(params.dt) if params.dt is not None else env
         self.params, self.scale = params, scale
         every = params.record_every
@@ -172,7 +182,7 @@ class MatchSteps(Steps):
 
     def __init__(self, model: nn.Module, params: MatchParams, ctx: MethodContext, opt, gen: torch.Generator):
         ctx.need("match", env=ctx.env)
-        assert isinstance(ctx.env, SimulatedEnv), "Match.requirements refuses an environment without gradients"
+        assert isinstance(ctx.env, RolledOutEnv), "Match.requirements refuses an environment without gradients"
         self.model, self.params, self.ctx, self.opt, self.gen = model, params, ctx, opt, gen
         self.train = DemonstrationPaths(ctx.train, params.record_every)
         self.val = DemonstrationPaths(ctx.val, params.record_every) if ctx.val is not None else None
@@ -214,8 +224,10 @@ class Match(TrainingMethod[MatchParams]):
 
     @classmethod
     def requirements(cls, params: MatchParams, env: Env, train_trajectories: int) -> list[tuple[str, str]]:
-        if not isinstance(env, DifferentiableRollouts):
-            return [not_differentiable("match", env, "use method bc, or an environment such as plane or particle2d")]
+        why = gradient_refusal(env)
+        if why is not None:
+            instead = "use method bc, or an environment such as plane, particle2d or the manipulator in kinematic mode"
+            return [not_differentiable("match", env, why, instead)]
         return on_grid(
             {},
             params.record_every,
