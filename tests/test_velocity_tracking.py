@@ -1,7 +1,8 @@
 """The velocity tracking every first-order baseline is executed by: q̈ = k_v(f − q̇) + (∂f/∂q)q̇, with the derivative
 along the motion checked against a central difference of the field, and training's gradient reaching every
-parameter through it; an environment without the goal the field needs is refused by name, and so is an export
-(torch.export cannot trace the derivative inside the policy for a batch of any size)."""
+parameter through it; an environment without the goal the field needs is refused by name. SEDS's closed-form
+derivative equals autograd's and exports for any batch size; a field differentiated by autograd inside the policy
+refuses export (torch.export cannot trace that for a batch of any size)."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ import pytest
 import torch
 
 from rmpfusion.learn.export import export_learner
+from rmpfusion.learn.velocity_tracking import TrackedField
 from rmpfusion.registry import LEARNERS
 
 KINDS = ("first_order", "seds")
@@ -58,10 +60,29 @@ def test_an_environment_without_the_goal_is_refused_by_name(kind):
         entry.obj(entry.validate({}), None, {"target": 2}, 2)
 
 
-@pytest.mark.parametrize("kind", KINDS)
-def test_export_is_refused_with_the_reason_instead_of_a_tracing_error(kind):
-    m = randomised(kind, 5)
+def test_an_autograd_field_refuses_export_with_the_reason_instead_of_a_tracing_error():
+    m = randomised("first_order", 5)
     q = torch.randn(4, 2, dtype=torch.float64)
     aux = {"goal": torch.zeros(4, 2, dtype=torch.float64)}
-    with pytest.raises(ValueError, match=f"learner '{kind}' is a first-order field .* cannot trace"):
+    with pytest.raises(ValueError, match="learner 'first_order' is a first-order field .* cannot trace"):
         export_learner(m, q, torch.zeros_like(q), aux, ["goal"])
+
+
+def test_seds_closed_form_derivative_equals_autograd_and_exports_for_any_batch():
+    m = randomised("seds", 6)
+    gen = torch.Generator().manual_seed(7)
+    state = lambda b: (
+        torch.randn(b, 2, generator=gen, dtype=torch.float64),
+        torch.randn(b, 2, generator=gen, dtype=torch.float64),
+        {"goal": 0.2 * torch.randn(b, 2, generator=gen, dtype=torch.float64)},
+    )
+    q, qd, aux = state(9)
+    closed = m.field_and_rate(q, qd, aux)
+    by_autograd = TrackedField.field_and_rate(m, q, qd, aux)
+    for mine, reference in zip(closed, by_autograd):
+        torch.testing.assert_close(mine, reference.detach(), rtol=1e-10, atol=1e-12)
+    program = export_learner(m, *state(4), ["goal"])
+    for b in (2, 13):
+        q, qd, aux = state(b)
+        with torch.no_grad():
+            torch.testing.assert_close(program.module()(q, qd, aux["goal"]), m(q, qd, aux), rtol=1e-12, atol=1e-12)

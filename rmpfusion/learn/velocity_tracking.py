@@ -74,17 +74,22 @@ class TrackedField(Learner[PT]):
         return None
 
     def forward(self, q: Tensor, qd: Tensor, aux: Mapping[str, Tensor] | None = None) -> Tensor:
+        f, along = self.field_and_rate(q, qd, aux or {})
+        return self.params.tracking_gain * (f - qd) + along
+
+    def field_and_rate(self, q: Tensor, qd: Tensor, aux: Mapping[str, Tensor]) -> tuple[Tensor, Tensor]:
+        """(f(q), (∂f/∂q)q̇), the derivative by autograd, one row of ∂f/∂q at a time. A field with a closed form
+        for it overrides this (its policy is then plain tensor algebra, which torch.export traces)."""
         keep_graph = torch.is_grad_enabled()  # training differentiates through (∂f/∂q)q̇; a rollout does not
         with torch.enable_grad():
             x = q if q.requires_grad else q.detach().requires_grad_(True)
-            f = self.field(x, aux or {})
+            f = self.field(x, aux)
             rows = [
                 torch.autograd.grad(f[:, i].sum(), x, create_graph=keep_graph, retain_graph=True)[0]
                 for i in range(self.dim)
             ]
-            along = torch.stack([(r * qd).sum(-1) for r in rows], -1)  # (∂f/∂q) q̇
-            qdd = self.params.tracking_gain * (f - qd) + along
-        return qdd if keep_graph else qdd.detach()
+            along = torch.stack([(r * qd).sum(-1) for r in rows], -1)
+        return (f, along) if keep_graph else (f.detach(), along.detach())
 
     def policy(self, q: Tensor, qd: Tensor, aux: Mapping[str, Tensor] | None = None) -> Tensor:
         return self(q, qd, aux)

@@ -206,9 +206,11 @@ class APG(TrainingMethod[APGParams]):
 
     @classmethod
     def requirements(cls, params: APGParams, env: Env, train_trajectories: int) -> list[tuple[str, str]]:
-        why = gradient_refusal(env)
-        if why is None and not isinstance(env, DifferentiableTask):
-            why = "its goal distance and clearance are not differentiable"
+        why = (
+            gradient_refusal(env)
+            if isinstance(env, DifferentiableTask)
+            else "it is not simulated in torch with a differentiable goal distance and clearance"
+        )
         if why is not None:
             return [not_differentiable("apg", env, why, "use method pg, or an environment such as particle2d")]
         return on_grid(
