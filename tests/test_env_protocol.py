@@ -8,6 +8,7 @@ import torch
 
 from rmpfusion.envs import (
     DifferentiableRollouts,
+    DifferentiableTask,
     Env,
     HasRatioMetrics,
     HasTaskMetrics,
@@ -23,7 +24,8 @@ from rmpfusion.registry import ENVS
 def test_particle2d_is_an_env_with_a_planar_workspace_task_metrics_and_differentiable_rollouts():
     env = Particle2D(n_obstacles=2)
     assert isinstance(env, Env) and isinstance(env, PlanarWorkspace) and isinstance(env, HasTaskMetrics)
-    assert isinstance(env, DifferentiableRollouts)
+    assert isinstance(env, DifferentiableRollouts) and isinstance(env, DifferentiableTask)
+    assert env.gradient_refusal() is None
     assert not isinstance(env, (Renders, HasRatioMetrics))
     assert env.dim == 2 and env.dt == env.params.dt
     assert ENVS.get("particle2d").obj is Particle2D
@@ -51,7 +53,9 @@ def test_the_manipulator_is_an_env_with_task_metrics_ratios_and_renders():
     try:
         assert isinstance(env, Env)
         assert isinstance(env, HasTaskMetrics) and isinstance(env, HasRatioMetrics) and isinstance(env, Renders)
-        assert not isinstance(env, (PlanarWorkspace, DifferentiableRollouts))  # pybullet: no gradients
+        assert not isinstance(env, PlanarWorkspace)
+        # rollouts integrated in torch (kinematic mode) keep gradients; the clearance is pybullet's and has none
+        assert isinstance(env, DifferentiableRollouts) and not isinstance(env, DifferentiableTask)
         assert env.dim == 7 and env.dt == pytest.approx(1.0 / env.params.control_rate)
         assert set(env.ratio_metrics) <= {
             "time",

@@ -1306,13 +1306,13 @@ for _id, _fault, _overrides, _shows, _needs in [
         ("pybullet",),
     ),
     (
-        "match-recordings-not-differentiable",
-        "trajectory matching of an arm's recordings, whose rollouts are not differentiable",
-        ["experiment=recorded_arm_fixed_barriers", "train=match_lasa"],
+        "match-torque-not-differentiable",
+        "trajectory matching of an arm's recordings rolled out in pybullet's torque loop",
+        ["experiment=recorded_arm_match", "env.mode=torque"],
         (
             "train.method: match back-propagates through rollouts, which the environment 'Manipulator' does not offer "
-            "(it is not simulated in torch with a differentiable goal distance and clearance); use method bc, or an "
-            "environment such as plane or particle2d"
+            "(env.mode=torque steps pybullet outside torch; set env.mode=kinematic); use method bc, or an environment "
+            "such as plane, particle2d or the manipulator in kinematic mode"
         ),
         ("pybullet",),
     ),

@@ -142,3 +142,58 @@ def test_matching_recovers_the_demonstrators_curl(matching):
     assert cost(policy, demos, idx, backward=False) < 0.05 * first
     assert policy.curl.item() == pytest.approx(3.0, rel=0.1)  # the cost's minimum is at 2.9: the rollout outlasts
     # the demonstration by half and its tail pairs with the demonstration's last record
+
+
+class PullToPosture(nn.Module):
+    """q̈ = k (posture − q) − 3 q̇ in joint space, k learnable: an arm's rollout as a smooth function of k."""
+
+    def __init__(self, posture: torch.Tensor, gain: float):
+        super().__init__()
+        self.posture = posture
+        self.gain = nn.Parameter(torch.tensor(gain, dtype=torch.float64))
+
+    def forward(self, q, qd, aux):
+        return self.gain * (self.posture - q) - 3.0 * qd
+
+
+def test_the_arms_kinematic_rollouts_carry_the_gradient_trajectory_matching_needs():
+    """The manipulator in kinematic mode integrates in torch: a cost of the recorded configurations of a rollout
+    on a coarser step (``with_step``) has the gradient the central difference of two rollouts gives; torque mode
+    steps pybullet and refuses to pretend otherwise."""
+    pytest.importorskip("pybullet")
+    from manipulators import franka_env
+
+    env = franka_env(mode="kinematic", control_rate=250.0)
+    try:
+        coarse = env.with_step(0.02)
+        assert coarse.dt == pytest.approx(0.02) and coarse.scene == env.scene and env.with_step(env.dt) is env
+        assert coarse.gradient_refusal() is None
+        aux = env.sample_envs(1, torch.Generator().manual_seed(0))
+        q0, qd0, aux = env.sample_initial_states(aux, 2, torch.Generator().manual_seed(1))
+        posture = q0.mean(0) + 0.2
+        policy = PullToPosture(posture, 4.0)
+
+        def cost(backward: bool) -> float:
+            ro = coarse.rollout(policy, q0, qd0, aux, horizon=1.0, record_every=0.1, enable_grad=backward)
+            value = ((ro.q - posture) ** 2).sum(-1).mean()
+            if backward:
+                value.backward()
+            return float(value.detach())
+
+        cost(backward=True)
+        analytic = policy.gain.grad.item()
+        h, base, values = 1e-5, policy.gain.detach().clone(), []
+        for sign in (1, -1):
+            with torch.no_grad():
+                policy.gain.copy_(base + sign * h)
+            values.append(cost(backward=False))
+        assert analytic != 0.0 and analytic == pytest.approx((values[0] - values[1]) / (2 * h), rel=1e-5)
+    finally:
+        env.close()
+    torque = franka_env(mode="torque")
+    try:
+        assert "env.mode=kinematic" in torque.gradient_refusal()
+        with pytest.raises(ValueError, match="cannot keep the autograd graph: env.mode=torque"):
+            torque.rollout(policy, q0, qd0, aux, horizon=0.1, record_every=0.1, enable_grad=True)
+    finally:
+        torque.close()
