@@ -2,7 +2,8 @@
 stamps, noise, the robot's joint names), read back and checked against the robot file; what a recording implies for
 the tree (goal, obstacles, posture) comes from the environment; bad files are refused by file, row and column; the
 tree with a learned end-effector map and a posture attractor keeps Theorem 2 on rollouts; and (slow) the shipped file
-is what tools/arm_recordings.py makes, and a tiny run goes end to end."""
+is what tools/arm_recordings.py makes, and tiny runs (behavior cloning; cloning then trajectory matching) go end
+to end."""
 
 from __future__ import annotations
 
@@ -15,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+import yaml
 from conftest import ROOT, compose_cfg
 
 from rmpfusion.envs.protocol import JointSpace, LearnsFromRecordings
@@ -189,3 +191,38 @@ def test_a_tiny_recorded_arm_run_end_to_end(tmp_path):
         assert res["convergence"]["lyapunov_monotone_fraction"] == 1.0
         assert res["reproduction_test"]["collisions"] == 0
     assert (tmp_path / "figures" / "rollouts.png").is_file()
+
+
+@pytest.mark.slow
+def test_a_tiny_trajectory_matching_run_on_the_arm_end_to_end(tmp_path):
+    """Cloning, then matching through the kinematic simulator's rollouts, then the evaluation: the whole pipeline of
+    experiment=recorded_arm_match at smoke size."""
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "rmpfusion.cli.run",
+            "experiment=recorded_arm_match",
+            "train.pretrain_iterations=2",
+            "train.iterations=4",
+            "train.snapshots=[0,4]",
+            "train.batch_size=2",
+            "train.horizon_factor=1.0",
+            "train.log_every=2",
+            "data.starts=3",
+            "data.horizon_factor=0.3",
+            "logger=disabled",
+            f"hydra.run.dir={tmp_path}",
+        ],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+    )
+    assert r.returncode == 0, r.stderr[-3000:]
+    train = yaml.safe_load((tmp_path / "config.resolved.yaml").read_text())["train"]
+    assert train["method"] == "match" and train["pretrain_iterations"] == 2 and train["dt"] == 0.02
+    m = json.loads((tmp_path / "metrics.json").read_text())
+    learner = m["learners"]["rmp"]
+    assert set(learner["snapshots"]) == {"0", "4"}
+    assert 0 < learner["final_train_loss"] < float("inf")  # the matching cost of the last step
+    assert learner["convergence"]["starts"] == 3 and learner["certificate"]["ok"]
