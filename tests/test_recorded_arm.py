@@ -164,27 +164,19 @@ def test_the_shipped_recording_is_what_the_tool_makes(tmp_path):
     assert made == shipped
 
 
+def tiny_run(tmp_path: Path, experiment: str, *overrides: str) -> dict:
+    """metrics.json of ``rmpfusion-run experiment=<experiment>`` at smoke size (3 starts at rest, short horizons) with
+    ``overrides``, run as a user runs it; a failed run fails the test with its stderr."""
+    command = [sys.executable, "-m", "rmpfusion.cli.run", f"experiment={experiment}", *overrides]
+    command += ["data.starts=3", "data.horizon_factor=0.3", "logger=disabled", f"hydra.run.dir={tmp_path}"]
+    r = subprocess.run(command, capture_output=True, text=True, cwd=ROOT)
+    assert r.returncode == 0, r.stderr[-3000:]
+    return json.loads((tmp_path / "metrics.json").read_text())
+
+
 @pytest.mark.slow
 def test_a_tiny_recorded_arm_run_end_to_end(tmp_path):
-    r = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "rmpfusion.cli.run",
-            "experiment=recorded_arm",
-            "train.iterations=3",
-            "train.snapshots=[0,3]",
-            "data.starts=3",
-            "data.horizon_factor=0.3",
-            "logger=disabled",
-            f"hydra.run.dir={tmp_path}",
-        ],
-        capture_output=True,
-        text=True,
-        cwd=ROOT,
-    )
-    assert r.returncode == 0, r.stderr[-3000:]
-    m = json.loads((tmp_path / "metrics.json").read_text())
+    m = tiny_run(tmp_path, "recorded_arm", "train.iterations=3", "train.snapshots=[0,3]")
     for res in (m["tree"], m["learners"]["rmp"]):
         assert res["reproduction_test"]["dtw"] > 0
         assert res["convergence"]["starts"] == 3
@@ -197,31 +189,10 @@ def test_a_tiny_recorded_arm_run_end_to_end(tmp_path):
 def test_a_tiny_trajectory_matching_run_on_the_arm_end_to_end(tmp_path):
     """Cloning, then matching through the kinematic simulator's rollouts, then the evaluation: the whole pipeline of
     experiment=recorded_arm_match at smoke size."""
-    r = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "rmpfusion.cli.run",
-            "experiment=recorded_arm_match",
-            "train.pretrain_iterations=2",
-            "train.iterations=4",
-            "train.snapshots=[0,4]",
-            "train.batch_size=2",
-            "train.horizon_factor=1.0",
-            "train.log_every=2",
-            "data.starts=3",
-            "data.horizon_factor=0.3",
-            "logger=disabled",
-            f"hydra.run.dir={tmp_path}",
-        ],
-        capture_output=True,
-        text=True,
-        cwd=ROOT,
-    )
-    assert r.returncode == 0, r.stderr[-3000:]
+    matching = ["train.pretrain_iterations=2", "train.iterations=4", "train.snapshots=[0,4]", "train.batch_size=2"]
+    m = tiny_run(tmp_path, "recorded_arm_match", *matching, "train.horizon_factor=1.0", "train.log_every=2")
     train = yaml.safe_load((tmp_path / "config.resolved.yaml").read_text())["train"]
     assert train["method"] == "match" and train["pretrain_iterations"] == 2 and train["dt"] == 0.02
-    m = json.loads((tmp_path / "metrics.json").read_text())
     learner = m["learners"]["rmp"]
     assert set(learner["snapshots"]) == {"0", "4"}
     assert 0 < learner["final_train_loss"] < float("inf")  # the matching cost of the last step
