@@ -188,6 +188,8 @@ def test_the_arms_kinematic_rollouts_carry_the_gradient_trajectory_matching_need
                 policy.gain.copy_(base + sign * h)
             values.append(cost(backward=False))
         assert analytic != 0.0 and analytic == pytest.approx((values[0] - values[1]) / (2 * h), rel=1e-5)
+        with pytest.raises(ValueError, match="cannot keep the autograd graph: env.mode=torque"):  # a call's own mode
+            env.rollout(policy, q0, qd0, aux, horizon=0.1, record_every=0.1, mode="torque", enable_grad=True)
     finally:
         env.close()
     torque = franka_env(mode="torque")

@@ -87,37 +87,36 @@ class SedsLearner(TrackedField["SedsLearner.Params"]):
         eye = torch.eye(self.dim, dtype=B.dtype, device=B.device)
         return -(B @ B.transpose(-1, -2) + self.params.margin * eye) + (S - S.transpose(-1, -2))
 
-    def responsibilities(self, n: Tensor) -> Tensor:
-        """h_k(n) (B, K): each component's posterior at the normalised position."""
-        return self._posterior(n)[0]
-
     def _posterior(self, n: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-        """(h_k(n) (B, K), the whitened offsets z_k = L_k⁻¹(n − μ_k) (B, K, d), the factors L_k (K, d, d))."""
-        L = _cholesky_with_log_diagonal(self.covariance_factor)  # (K, d, d)
+        """(h_k(n) (B, K), each component's posterior at the normalised position; the whitened offsets
+        z_k = L_k⁻¹(n − μ_k) (B, K, d); the factors L_k, one per sample (B, K, d, d))."""
+        L = _cholesky_with_log_diagonal(self.covariance_factor).expand(n.shape[0], -1, -1, -1)
         diff = (n.unsqueeze(1) - self.means).unsqueeze(-1)  # (B, K, d, 1)
-        z = torch.linalg.solve_triangular(L.expand(n.shape[0], *L.shape), diff, upper=False).squeeze(-1)
+        z = torch.linalg.solve_triangular(L, diff, upper=False).squeeze(-1)
         log_det = torch.diagonal(self.covariance_factor, dim1=-2, dim2=-1).sum(-1)  # ½ log det Σ_k
         log_joint = torch.log_softmax(self.logits, 0) - log_det - 0.5 * (z * z).sum(-1)
         return torch.softmax(log_joint, -1), z, L
 
+    def _per_component(self, v: Tensor) -> Tensor:
+        """A_k v for every component (B, K, d) of vectors v (B, d)."""
+        return torch.einsum("kij,bj->bki", self.matrices().to(v), v)
+
     def field(self, q: Tensor, aux: Mapping[str, Tensor]) -> Tensor:
         n = self.normalised(q, aux)
-        per_component = torch.einsum("kij,bj->bki", self.matrices().to(n), n)  # A_k n
-        return self.params.scale * (self.responsibilities(n).unsqueeze(-1) * per_component).sum(1)
+        h = self._posterior(n)[0]
+        return self.params.scale * (h.unsqueeze(-1) * self._per_component(n)).sum(1)
 
     def field_and_rate(self, q: Tensor, qd: Tensor, aux: Mapping[str, Tensor]) -> tuple[Tensor, Tensor]:
         """(f, (∂f/∂q)q̇) in closed form: with ṅ = q̇/scale and d/dt log N_k = −z_k·L_k⁻¹ṅ,
         ḣ_k = h_k (d/dt log N_k − Σ_j h_j d/dt log N_j), and (∂f/∂q)q̇ = Σ_k ḣ_k·scale·A_k n + h_k A_k q̇."""
         n, n_rate = self.normalised(q, aux), qd / self.params.scale
         h, z, L = self._posterior(n)
-        A = self.matrices().to(n)
-        rhs = n_rate[:, None, :, None].expand(-1, L.shape[0], -1, -1)  # ṅ for every component (B, K, d, 1)
-        w = torch.linalg.solve_triangular(L.expand(n.shape[0], *L.shape), rhs, upper=False).squeeze(-1)  # L_k⁻¹ṅ
-        log_rate = -(z * w).sum(-1)  # (B, K)
+        rhs = n_rate[:, None, :, None].expand(-1, L.shape[1], -1, -1)  # ṅ for every component (B, K, d, 1)
+        log_rate = -(z * torch.linalg.solve_triangular(L, rhs, upper=False).squeeze(-1)).sum(-1)  # (B, K)
         h_rate = h * (log_rate - (h * log_rate).sum(-1, keepdim=True))
-        pull = self.params.scale * torch.einsum("kij,bj->bki", A, n)  # scale·A_k n (B, K, d)
+        pull = self.params.scale * self._per_component(n)  # scale·A_k n (B, K, d)
         f = (h.unsqueeze(-1) * pull).sum(1)
-        along = (h_rate.unsqueeze(-1) * pull).sum(1) + (h.unsqueeze(-1) * torch.einsum("kij,bj->bki", A, qd)).sum(1)
+        along = (h_rate.unsqueeze(-1) * pull).sum(1) + (h.unsqueeze(-1) * self._per_component(qd)).sum(1)
         return f, along
 
     def export_refusal(self) -> str | None:

@@ -301,11 +301,7 @@ class Manipulator(ComputesOnDevice, SeededSampling):
 
     # ------------------------------------------------------------------ rollouts
     def gradient_refusal(self) -> str | None:
-        """None in kinematic mode (the closed loop is integrated in torch; the collision replay after it reads the
-        path but enters no gradient); torque mode steps pybullet, outside torch."""
-        if self.params.mode == "kinematic":
-            return None
-        return "env.mode=torque steps pybullet outside torch; set env.mode=kinematic"
+        return _gradient_refusal(self.params.mode)
 
     def with_step(self, dt: float) -> Manipulator:
         """The same robot, scene and settings integrated on the step ``dt`` (control_rate = 1/dt)."""
@@ -341,8 +337,8 @@ class Manipulator(ComputesOnDevice, SeededSampling):
         aux = {k: torch.as_tensor(v, dtype=self.dtype) for k, v in aux.items()}  # lists: never via float32
         q0, qd0 = q0.to(self.dtype), qd0.to(self.dtype)
         records = n_steps // every
-        if enable_grad and mode == "torque":
-            raise ValueError(f"rollout(enable_grad=True) cannot keep the autograd graph: {self.gradient_refusal()}")
+        if enable_grad and (why := _gradient_refusal(mode)) is not None:
+            raise ValueError(f"rollout(enable_grad=True) cannot keep the autograd graph: {why}")
         policy = on_device(policy, self.device)
         with torch.set_grad_enabled(enable_grad):
             if mode == "torque":
@@ -431,6 +427,14 @@ class Manipulator(ComputesOnDevice, SeededSampling):
     def project(self, points, width: int = 320, height: int = 240) -> np.ndarray:
         """(N, 2) pixel coordinates (column, row) of world points (N, 3) in ``render``'s image, to draw paths on it."""
         return rendering.project(self.params.camera, points, width, height)
+
+
+def _gradient_refusal(mode: str) -> str | None:
+    """None in kinematic mode (the closed loop is integrated in torch; the collision replay after it reads the path
+    but enters no gradient); torque mode steps pybullet, outside torch."""
+    if mode == "kinematic":
+        return None
+    return "env.mode=torque steps pybullet outside torch; set env.mode=kinematic"
 
 
 def _centre_key(p: ManipulatorParams) -> str:
