@@ -26,8 +26,8 @@ The trees also learn the attractor's gain, softness and damping.
 The "tree" row of a shape is the first variant's tree with every weight 1, nothing learned. Arguments after ``--``
 go to every run.
 
-Writes ``<out>/lasa_table.md`` (the table: test DTW per sample, swept error area, final distance, convergence from
-the grid of starts at rest, V_r monotone, the certificate, training time; the mean over shapes as the last row),
+Writes ``<out>/lasa_table.md`` (the table: test DTW per sample, swept error area, final distance, whether the rollout from the test
+demonstration's start came within the tolerance of the goal, convergence from the grid of starts at rest, V_r monotone, the certificate, training time; the mean over shapes as the last row),
 ``<out>/lasa_table.json`` (every number), ``<out>/lasa_grid.png`` (the rollouts figure of every run: with
 several variants, each shape's side by side) and, with several variants, ``<out>/lasa_dtw.png`` (each shape's test
 DTW by variant); ``--report DIR`` writes them to DIR instead. A shape whose run failed or is still running is listed, not silently left out.
@@ -63,6 +63,7 @@ COLUMNS = (
     ("test DTW (mm)", lambda r: 1e3 * r["reproduction_test"]["dtw"]),
     ("swept area (mm²)", lambda r: 1e6 * r["reproduction_test"]["swept_error_area"]),
     ("final distance (mm)", lambda r: 1e3 * r["reproduction_test"]["final_distance"]),
+    ("test start reached", lambda r: r["reproduction_test"]["reached"]),
     ("converged", lambda r: r["convergence"]["converged"]),
     ("V_r monotone", lambda r: r["convergence"].get("lyapunov_monotone_fraction", float("nan"))),
 )
