@@ -3,7 +3,8 @@ stamps, noise, the robot's joint names), read back and checked against the robot
 the tree (goal, obstacles, posture) comes from the environment; bad files are refused by file, row and column; the
 tree with a learned end-effector map and a posture attractor keeps Theorem 2 on rollouts; and (slow) the shipped file
 is what tools/arm_recordings.py makes, and tiny runs (behavior cloning; cloning then trajectory matching) go end
-to end."""
+to end. The same for a second arm from another tool: the iiwa's recordings (experiment=recorded_iiwa) are robomimic's
+HDF5 layout, solved by pybullet's inverse kinematics, and read back through the same pipeline."""
 
 from __future__ import annotations
 
@@ -24,10 +25,11 @@ from rmpfusion.evaluate.lyapunov import lyapunov_monotone
 from rmpfusion.pipeline.construct import build_unit_weights, make_env
 from rmpfusion.pipeline.validate import resolve_and_validate
 from rmpfusion.recordings import RecordingError, check_joint_recordings
-from rmpfusion.recordings.readers import read_csv
+from rmpfusion.recordings.readers import read_csv, read_hdf5
 from rmpfusion.recordings.source import SHIPPED_DIR, source_file
 
 SHIPPED = SHIPPED_DIR / "panda_via_points.csv"
+SHIPPED_IIWA = SHIPPED_DIR / "iiwa_post_ik.hdf5"
 
 
 @pytest.fixture(scope="module")
@@ -197,3 +199,79 @@ def test_a_tiny_trajectory_matching_run_on_the_arm_end_to_end(tmp_path):
     assert set(learner["snapshots"]) == {"0", "4"}
     assert 0 < learner["final_train_loss"] < float("inf")  # the matching cost of the last step
     assert learner["convergence"]["starts"] == 3 and learner["certificate"]["ok"]
+
+
+# ------------------------------------------------------------------------------ the iiwa, another tool's recordings
+@pytest.fixture(scope="module")
+def iiwa_env():
+    e = make_env(resolve_and_validate(compose_cfg(["experiment=recorded_iiwa"])))
+    yield e
+    e.close()
+
+
+def iiwa_recordings(env) -> list:
+    return read_hdf5(SHIPPED_IIWA, "obs/robot0_joint_pos", rate=20.0, columns=env.robot_description.joints)
+
+
+def test_the_iiwa_recording_is_robomimics_layout():
+    h5py = pytest.importorskip("h5py")
+    with h5py.File(SHIPPED_IIWA, "r") as fh:
+        demos = fh["data"]
+        assert len(demos) == 24 and sum(g.attrs["num_samples"] for g in demos.values()) == demos.attrs["total"]
+        first = demos["demo_0"]
+        assert (
+            first["obs/robot0_joint_pos"].shape[1] == 7
+            and first["actions"].shape == first["obs/robot0_joint_pos"].shape
+        )
+        assert "t" not in first and "timestamp" not in first  # robomimic keeps no time stamps: data.rate gives them
+        assert json.loads(demos.attrs["env_args"])["env_kwargs"]["control_freq"] == 20.0
+
+
+def test_the_iiwa_recordings_pass_over_the_post_by_rmpfusions_own_kinematics(iiwa_env):
+    """They were solved by pybullet's inverse kinematics; rmpfusion's forward kinematics of the same angles puts
+    every end effector on the post's +y side at the start, on its -y side at the end, and above its top (0.6 m)
+    where it crosses y = 0: an independent check of the tool and of the two libraries' agreement."""
+    recs = iiwa_recordings(iiwa_env)
+    check_joint_recordings(recs, iiwa_env.robot_description, named_columns=False)
+    post = iiwa_env.scene.obstacles[0]
+    top = post.center[2] + post.half_extents[2]
+    for rec in recs:
+        ee = iiwa_env.ee_position(torch.tensor(rec.pos)).numpy()
+        assert ee[0, 1] > 0.2 and ee[-1, 1] < -0.2
+        crossing = int(np.argmin(np.abs(ee[:, 1])))
+        assert ee[crossing, 2] > top + 0.1
+
+
+def test_the_iiwa_recording_without_joint_names_asks_for_them(tmp_path):
+    """robomimic's layout names no joints: validating without data.columns says so and how to fix it."""
+    r = subprocess.run(
+        [sys.executable, "-m", "rmpfusion.cli.validate", "experiment=recorded_iiwa", "data.columns=null"],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+    )
+    out = r.stderr + r.stdout
+    assert r.returncode != 0 and "Traceback" not in out
+    assert "iiwa_post_ik.hdf5 [data/demo_0]" in out and "not the robot's joints" in out and "data.columns" in out
+
+
+def test_the_shipped_iiwa_recording_is_what_the_tool_makes(tmp_path, iiwa_env):
+    """The tool's first demonstration at seed 0 is the shipped file's first (the draws are sequential)."""
+    out = tmp_path / "one.hdf5"
+    r = subprocess.run(
+        [sys.executable, "tools/iiwa_recordings.py", "--demos", "1", "--out", str(out)],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+    )
+    assert r.returncode == 0, r.stderr[-2000:]
+    made = read_hdf5(out, "obs/robot0_joint_pos", rate=20.0)[0]
+    np.testing.assert_array_equal(made.pos, iiwa_recordings(iiwa_env)[0].pos)
+
+
+@pytest.mark.slow
+def test_a_tiny_recorded_iiwa_run_end_to_end(tmp_path):
+    m = tiny_run(tmp_path, "recorded_iiwa", "train.iterations=3", "train.snapshots=[0,3]")
+    learner = m["learners"]["rmp"]
+    assert learner["reproduction_test"]["ee_dtw"] > 0 and learner["convergence"]["starts"] == 3
+    assert learner["convergence"]["lyapunov_monotone_fraction"] == 1.0 and learner["certificate"]["ok"]

@@ -86,6 +86,7 @@ def test_a_users_csv_of_noisy_irregular_recordings_runs(tmp_path):
         TINY_LASA
         + [
             "data.format=csv",
+            "data.shape=null",
             f"data.files=[{csv}]",
             "data.demo_column=demo",
             "data.units=mm",
@@ -104,14 +105,19 @@ def test_bad_recorded_configs_are_one_error_naming_the_key(tmp_path):
         (["+expert.attractor=1.0"], "expert", "have no expert"),
         (["data.shape=Sshap"], "data", "did you mean 'Sshape'"),
         (["data.window=10"], "data", "must be odd"),
-        (["data.format=csv"], "data", "needs data.files"),
+        (["data.format=csv", "data.shape=null"], "data", "needs data.files"),
         (["data.source=robot"], "data", "data.source must be expert"),
-        (["data.format=csv", f"data.files=[{tmp_path / 'missing.csv'}]"], "data", "no such file"),
+        (["data=recorded", f"data.files=[{tmp_path / 'missing.csv'}]"], "data", "no such file"),
     ]
     three = tmp_path / "three.csv"
     three.write_text("t,x,y,z\n" + "".join(f"{0.01 * k},{k},{2 * k},{3 * k}\n" for k in range(60)))
+    cases.append((["data.format=csv", f"data.files=[{three}]"], "data", "data.shape='Angle' is not read by format csv"))
     cases.append(
-        (["data.format=csv", f"data.files=[{three}]", "data.split=all"], "data", "3 coordinates but the environment")
+        (
+            ["data=recorded", f"data.files=[{three}]", "data.split=all"],
+            "data",
+            "3 coordinates (read from the columns 'x', 'y', 'z') but the environment",
+        )
     )
     for extra, path, words in cases:
         with pytest.raises(ConfigError) as err:

@@ -154,7 +154,7 @@ def test_hdf5_in_robomimic_layout_at_a_fixed_rate(tmp_path):
     np.testing.assert_allclose(recs[0].t[:3], [0, 0.01, 0.02])
     with pytest.raises(RecordingError, match=r"data/demo_0\]: no dataset 'obs/eef_pos'"):
         read_hdf5(path, position_key="obs/eef_pos", rate=100.0)
-    with pytest.raises(RecordingError, match="either a time dataset .* or a sampling rate"):
+    with pytest.raises(RecordingError, match=r"either the time dataset's key \(data.time_column\) or a sampling rate"):
         read_hdf5(path, position_key="obs/joint_pos")
 
 

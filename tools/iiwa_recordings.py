@@ -187,8 +187,10 @@ def main(argv=None) -> int:
         if angles is not None:
             demos.append(record(angles, a.rate, rng, a.noise))
     write(a.out, demos, world.names, a.rate)
-    print(f"{a.out}: {len(demos)} demonstrations, {sum(len(q) for q in demos)} samples at {a.rate:g} Hz "
-          f"({drawn} plans drawn)")
+    print(
+        f"{a.out}: {len(demos)} demonstrations, {sum(len(q) for q in demos)} samples at {a.rate:g} Hz "
+        f"({drawn} plans drawn)"
+    )
     return 0
 
 

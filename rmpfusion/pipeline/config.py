@@ -73,6 +73,45 @@ class DataConfig(_Frozen):
         return v
 
 
+#: the data keys each recorded format reads; the others must keep their defaults under that format
+_FORMAT_KEYS = {
+    "lasa": {"shape"},
+    "csv": {
+        "files",
+        "units",
+        "time_units",
+        "columns",
+        "time_column",
+        "demo_column",
+        "velocity_columns",
+        "acceleration_columns",
+    },
+    "npz": {
+        "files",
+        "units",
+        "time_units",
+        "columns",
+        "time_column",
+        "position_key",
+        "velocity_key",
+        "acceleration_key",
+    },
+    "hdf5": {
+        "files",
+        "units",
+        "time_units",
+        "columns",
+        "time_column",
+        "position_key",
+        "velocity_key",
+        "acceleration_key",
+        "group",
+        "rate",
+    },
+}
+_FORMAT_KEYS_ALL = set().union(*_FORMAT_KEYS.values())
+
+
 class RecordedDataConfig(_Frozen):
     """Demonstrations a person recorded (``source: recorded``): files read by ``rmpfusion.recordings``, resampled
     onto the environment's step, differentiated by one Savitzky–Golay filter (or the file's own derivatives),
@@ -86,17 +125,31 @@ class RecordedDataConfig(_Frozen):
         default_factory=list, description="csv / npz / hdf5: the files, one or many demonstrations each"
     )
     units: Literal["m", "cm", "mm", "rad", "deg"] = Field(
-        "m", description="the files' position units; LASA: the dataset's mm are read as m whatever this says"
+        "m",
+        description="the files' position units (rad / deg: joint angles, for an arm's joint-space env); LASA: "
+        "the dataset's own mm, not a setting",
     )
+    time_units: Literal["s", "ms", "us", "ns"] = Field("s", description="csv / npz / hdf5: the time stamps' unit")
     columns: list[str] | None = Field(
         None,
-        description="csv / npz: the coordinates' names, in order (csv default: "
-        "every column but time, demonstration id and aux)",
+        description="the coordinates' names, in order (csv: the columns read, default every column but time, "
+        "demonstration id, derivatives and aux; npz / hdf5: names for the position array's columns)",
     )
-    time_column: str = Field("t", description="csv: the time column; npz: the time array's key")
+    time_column: str = Field(
+        "t", description="csv: the time column; npz: the time array's key; hdf5: the time dataset in each demo group"
+    )
     demo_column: str | None = Field(None, description="csv: a column naming each row's demonstration")
     position_key: str = Field("pos", description="npz / hdf5: the positions' key (hdf5: inside each demo group)")
-    rate: float | None = Field(None, gt=0, description="hdf5 without a time dataset: the recording rate (Hz)")
+    velocity_columns: list[str] | None = Field(None, description="csv: the velocity columns (derivatives: file)")
+    acceleration_columns: list[str] | None = Field(
+        None, description="csv: the acceleration columns (derivatives: file)"
+    )
+    velocity_key: str | None = Field(None, description="npz / hdf5: the velocities' key (derivatives: file)")
+    acceleration_key: str | None = Field(None, description="npz / hdf5: the accelerations' key (derivatives: file)")
+    group: str = Field("data", description="hdf5: the group holding one subgroup per demonstration (robomimic's)")
+    rate: float | None = Field(
+        None, gt=0, description="hdf5 without time stamps (robomimic): the recording rate (Hz), in place of time_column"
+    )
     goal: list[float] | None = Field(
         None, description="the goal of every demonstration; default the mean of its final rest"
     )
@@ -123,7 +176,7 @@ class RecordedDataConfig(_Frozen):
         "demonstration, the protocol of most published LASA numbers",
     )
     val: int = Field(1, ge=0, le=1000, description="holdout: validation demonstrations")
-    test: int = Field(1, ge=0, le=1000, description="holdout: test demonstrations")
+    test: int = Field(1, ge=1, le=1000, description="holdout: test demonstrations")
     fold: int = Field(0, ge=0, description="leave_one_out: the demonstration tested (the next one validates)")
     starts: int = Field(
         100,
@@ -153,11 +206,46 @@ class RecordedDataConfig(_Frozen):
             raise ValueError("format lasa needs data.shape, one of the dataset's shapes (e.g. data.shape=Angle)")
         if self.format != "lasa" and not self.files:
             raise ValueError(f"format {self.format} needs data.files, the recorded files to read")
+        self._no_setting_the_format_ignores()
+        self._file_derivatives_named()
         if self.window % 2 == 0 or self.window <= self.polyorder:
             raise ValueError(
                 f"data.window ({self.window}) must be odd and larger than data.polyorder ({self.polyorder})"
             )
         return self
+
+    def _no_setting_the_format_ignores(self) -> None:
+        """A key the chosen format does not read, set away from its default, is refused rather than ignored (a CSV's
+        columns given to a LASA run would otherwise train on the LASA shape)."""
+        for key in sorted(_FORMAT_KEYS_ALL - _FORMAT_KEYS[self.format]):
+            value, default = getattr(self, key), type(self).model_fields[key].get_default(call_default_factory=True)
+            if value != default:
+                readers = ", ".join(f for f, keys in _FORMAT_KEYS.items() if key in keys)
+                raise ValueError(
+                    f"data.{key}={value!r} is not read by format {self.format} (read by: {readers}); drop it, or "
+                    f"set data.format to the files' format"
+                )
+        if self.format == "hdf5" and self.rate is not None and self.time_column != "t":
+            raise ValueError(
+                f"data.rate and data.time_column={self.time_column!r} both give the times; keep the file's time "
+                "stamps (drop data.rate) or the rate (drop data.time_column)"
+            )
+
+    def _file_derivatives_named(self) -> None:
+        """``derivatives: file`` with a CSV, NPZ or HDF5 file needs the keys that say where the derivatives are."""
+        if self.derivatives != "file" or self.format == "lasa":
+            return
+        keys = (
+            ("velocity_columns", "acceleration_columns")
+            if self.format == "csv"
+            else ("velocity_key", "acceleration_key")
+        )
+        missing = [k for k in keys if getattr(self, k) is None]
+        if missing:
+            raise ValueError(
+                f"data.derivatives=file reads the velocities and accelerations from the files: set "
+                f"{' and '.join('data.' + k for k in missing)}, or use data.derivatives=filter"
+            )
 
 
 #: the data block's union tags: the separator marks them as schema bookkeeping, left out of error locations

@@ -37,7 +37,7 @@ from ..evaluate.rest_forces import rest_forces
 from ..files import atomic_write_json
 from ..learn.loop import load_snapshot
 from ..plots.recorded import recorded_figures
-from ..recordings import Split, check_joint_recordings, holdout, leave_one_out, recorded_dataset
+from ..recordings import check_joint_recordings, check_units, recorded_dataset, split_of
 from ..recordings.recording import RecordingError
 from ..recordings.signals import States
 from ..recordings.source import check_dimension, content_hash, read_recordings, to_grid
@@ -51,16 +51,6 @@ TREE = "tree"
 
 
 # ------------------------------------------------------------------ data
-def split_of(d, n: int, seed: int) -> Split:
-    """Which demonstrations train, validate and test (``data.split``)."""
-    if d.split == "leave_one_out":
-        return leave_one_out(n, d.fold)
-    if d.split == "all":  # the field's usual protocol: train and evaluate on every demonstration
-        every = tuple(range(n))
-        return Split(train=every, val=(), test=every)
-    return holdout(n, d.val, d.test, seed)
-
-
 def _cache_key(exp: Experiment, files: str, split: str, members: tuple[int, ...]) -> str:
     """What determines a split's dataset: the files' content hash, the data settings, the step and its members."""
     d = exp.run.data
@@ -111,10 +101,11 @@ def recorded_splits(exp: Experiment) -> tuple[Splits, dict[str, list[States]], l
     t0 = time.time()
     recording_env(exp)
     recordings = read_recordings(d)
+    check_units(d.units, isinstance(exp.env, JointSpace))
     if isinstance(exp.env, JointSpace):
         check_joint_recordings(recordings, exp.env.robot_description, named_columns=d.columns is None)
     states = to_grid(recordings, d, exp.env.dt)
-    check_dimension(states, exp.env.dim, exp.run.env.type)
+    check_dimension(states, exp.env.dim, exp.run.env.type, recordings[0].columns)
     split = split_of(d, len(states), exp.run.seed)
     parts = {"train": split.train, "test": split.test, **({"val": split.val} if split.val else {})}
     files = content_hash(d)

@@ -3,12 +3,12 @@ one :class:`Recording` type, resampled onto a step grid, differentiated by one s
 rest at either end, and split by whole demonstration."""
 
 from .dataset import recorded_dataset
-from .joints import check_joint_recordings
+from .joints import check_joint_recordings, check_units
 from .lasa import SHAPES, SINGLE_PATTERN_SHAPES, lasa_file, read_lasa
 from .readers import UNITS, read_csv, read_hdf5, read_npz
-from .recording import Recording, RecordingError
+from .recording import Recording, RecordingError, TimeOrderError
 from .signals import States, moving_span, resample, savgol_derivatives, to_states
-from .splits import Split, holdout, leave_one_out
+from .splits import Split, holdout, leave_one_out, split_of
 
 __all__ = [
     "SHAPES",
@@ -18,7 +18,9 @@ __all__ = [
     "RecordingError",
     "Split",
     "States",
+    "TimeOrderError",
     "check_joint_recordings",
+    "check_units",
     "holdout",
     "lasa_file",
     "leave_one_out",
@@ -30,5 +32,6 @@ __all__ = [
     "recorded_dataset",
     "resample",
     "savgol_derivatives",
+    "split_of",
     "to_states",
 ]

@@ -47,3 +47,22 @@ def check_joint_recordings(
                 f"{joints[k]}'s limits [{lo:.6g}, {hi:.6g}] of the robot '{robot.name}' "
                 f"({len(bad)} such value(s)); check the units (deg vs rad) and the joint order"
             )
+
+
+#: the data units a joint-space recording may be in (a prismatic joint's metres are read unchanged with rad)
+ANGULAR_UNITS = ("rad", "deg")
+
+
+def check_units(units: str, joint_space: bool) -> None:
+    """Angular units for an arm's joint-space recordings, lengths for an environment of positions: deg applied
+    to a plane's millimetres would shrink the demonstrations 57 times without a word."""
+    if joint_space and units not in ANGULAR_UNITS:
+        raise RecordingError(
+            f"data.units={units}: the environment learns from joint angles; set data.units=rad or deg (a prismatic "
+            "joint's metres are read unchanged with rad)"
+        )
+    if not joint_space and units in ANGULAR_UNITS:
+        raise RecordingError(
+            f"data.units={units} is for an arm's joint angles, but this environment's coordinates are positions; "
+            "set data.units=m, cm or mm"
+        )

@@ -9,15 +9,24 @@ one :class:`RecordingError` naming the file, and the row and column where there 
 from __future__ import annotations
 
 import csv
+import io
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from .recording import Recording, RecordingError, where
+from .recording import Recording, RecordingError, TimeOrderError, where
+
+#: what a time going backwards in a file without a demonstration column most often means
+MANY_DEMOS_HINT = "; if the file holds several demonstrations, name the column telling them apart in data.demo_column"
 
 #: the factor that takes a value in these units to SI (metres, radians)
 UNITS = {"m": 1.0, "cm": 1e-2, "mm": 1e-3, "rad": 1.0, "deg": np.pi / 180.0}
+#: the factor that takes a time stamp in these units to seconds
+TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
+#: the delimiters a CSV header is sniffed for (spreadsheets in many locales write ';', loggers often tabs)
+DELIMITERS = ",;\t"
 
 
 def unit_scale(units: str, source: str) -> float:
@@ -27,19 +36,60 @@ def unit_scale(units: str, source: str) -> float:
         raise RecordingError(f"{source}: unknown units {units!r}; one of {', '.join(UNITS)}") from None
 
 
-def _scaled(rec_kwargs: dict, scale: float) -> dict:
-    for key in ("pos", "vel", "acc"):
+def time_scale(time_units: str, source: str) -> float:
+    try:
+        return TIME_UNITS[time_units]
+    except KeyError:
+        raise RecordingError(f"{source}: unknown time units {time_units!r}; one of {', '.join(TIME_UNITS)}") from None
+
+
+def _scaled(rec_kwargs: dict, scale: float, seconds: float) -> dict:
+    """Positions and their derivatives in SI units (a derivative's time unit converted too), times in seconds."""
+    rec_kwargs["t"] = rec_kwargs["t"] * seconds
+    for key, per_time in (("pos", 1.0), ("vel", seconds), ("acc", seconds**2)):
         if rec_kwargs.get(key) is not None:
-            rec_kwargs[key] = rec_kwargs[key] * scale
+            rec_kwargs[key] = rec_kwargs[key] * (scale / per_time)
     return rec_kwargs
 
 
 # ------------------------------------------------------------------------------------------------ CSV
-def _float(text: str, source: str, row: int, column: str) -> float:
+def _float(text: str, source: str, row: int, column: str, hint: str = "") -> float:
     try:
         return float(text)
     except ValueError:
-        raise RecordingError(f"{where(source, row, column)}: {text!r} is not a number") from None
+        if "," in text and "." not in text:
+            hint = "; a decimal comma? write the numbers with a decimal point"
+        raise RecordingError(f"{where(source, row, column)}: {text!r} is not a number{hint}") from None
+
+
+def _header_and_body(path: Path, source: str, time_column: str) -> tuple[list[str], list[list[str]]]:
+    """The header (names stripped) and the rows, in any of the common delimiters; a byte-order mark (Excel's
+    "CSV UTF-8") is not part of the first name."""
+    with open(path, newline="", encoding="utf-8-sig") as fh:
+        text = fh.read()
+    first = text.split("\n", 1)[0]
+    if not first.strip():
+        raise RecordingError(
+            f"{source}: the file is empty; it needs a header row naming {time_column!r} and the coordinates"
+        )
+    try:
+        dialect: Any = csv.Sniffer().sniff(first, delimiters=DELIMITERS)
+    except csv.Error:
+        dialect = csv.excel  # one column, or no delimiter to tell: a comma
+    rows = list(csv.reader(io.StringIO(text), dialect))
+    return [h.strip() for h in rows[0]], rows[1:]
+
+
+def _coordinate_columns(header: list[str], used: set, source: str) -> list[str]:
+    """Every column that is not time, a demonstration id, a derivative or aux, in the header's order; an unnamed
+    one (pandas' index, written by ``to_csv`` unless ``index=False``) is refused rather than read as a coordinate."""
+    unnamed = [k + 1 for k, h in enumerate(header) if not h]
+    if unnamed:
+        raise RecordingError(
+            f"{where(source, 1)}: column {unnamed[0]} of the header has no name (pandas writes its index so: "
+            "to_csv(..., index=False)); name it, or list the coordinates in data.columns"
+        )
+    return [h for h in header if h not in used]
 
 
 def read_csv(
@@ -50,36 +100,33 @@ def read_csv(
     demo_column: str | None = None,
     aux_columns: Mapping[str, Sequence[str]] | None = None,
     units: str = "m",
+    acceleration_columns: Sequence[str] | None = None,
+    time_units: str = "s",
 ) -> list[Recording]:
     """Demonstrations from a CSV file whose header names ``time_column`` and the coordinates.
 
     ``columns``: the coordinates, in order (default: every column that is not time, a demonstration id, a
-    velocity or an aux column). ``demo_column``: a column whose value says which demonstration a row belongs to
-    (rows of one demonstration need not be adjacent). ``aux_columns``: aux name -> its columns, read from the
-    demonstration's first row (it must be constant over the demonstration)."""
+    derivative or an aux column). ``demo_column``: a column whose value says which demonstration a row belongs to
+    (rows of one demonstration need not be adjacent). ``velocity_columns`` / ``acceleration_columns``: the file's
+    own derivatives, one column per coordinate. ``aux_columns``: aux name -> its columns, read from the
+    demonstration's first row (it must be constant over the demonstration). The delimiter (comma, semicolon or
+    tab) is read from the header."""
     path = Path(path)
     source = str(path)
-    with open(path, newline="") as fh:
-        reader = csv.reader(fh)
-        try:
-            header = [h.strip() for h in next(reader)]
-        except StopIteration:
-            raise RecordingError(
-                f"{source}: the file is empty; it needs a header row naming {time_column!r} and the coordinates"
-            ) from None
-        body = list(reader)
+    header, body = _header_and_body(path, source, time_column)
     aux_columns = dict(aux_columns or {})
-    used = {time_column, demo_column, *(velocity_columns or ()), *(c for cs in aux_columns.values() for c in cs)}
-    columns = list(columns) if columns is not None else [h for h in header if h not in used]
-    for name in [
-        time_column,
-        *columns,
-        *(velocity_columns or ()),
-        *(c for cs in aux_columns.values() for c in cs),
-        *([demo_column] if demo_column else []),
-    ]:
+    derivatives = [*(velocity_columns or ()), *(acceleration_columns or ())]
+    used = {time_column, demo_column, *derivatives, *(c for cs in aux_columns.values() for c in cs)}
+    guessed = columns is None
+    columns = list(columns) if columns is not None else _coordinate_columns(header, used, source)
+    for name in [time_column, *columns, *derivatives, *(c for cs in aux_columns.values() for c in cs)]:
         if name not in header:
             raise RecordingError(f"{where(source, 1)}: the header has no column {name!r}; it has {', '.join(header)}")
+    if demo_column and demo_column not in header:
+        raise RecordingError(
+            f"{where(source, 1)}: the header has no column {demo_column!r} (data.demo_column); it has "
+            f"{', '.join(header)}"
+        )
     index = {h: k for k, h in enumerate(header)}
     groups: dict[str, list[int]] = {}
     for r, line in enumerate(body):
@@ -89,11 +136,20 @@ def read_csv(
             raise RecordingError(f"{where(source, r + 2)}: {len(line)} values for the header's {len(header)} columns")
         key = line[index[demo_column]].strip() if demo_column else ""
         groups.setdefault(key, []).append(r)
-    scale = unit_scale(units, source)
+    scale, seconds = unit_scale(units, source), time_scale(time_units, source)
+    as_coordinate = (
+        f"; every column but time{', ' + repr(demo_column) if demo_column else ''} is read as a coordinate unless "
+        "data.columns lists them (a column naming each row's demonstration: data.demo_column)"
+        if guessed
+        else ""
+    )
 
     def numbers(rows: list[int], names: Sequence[str]) -> np.ndarray:
         """The cells of ``rows`` in the columns ``names`` as numbers; one that is not a number names its place."""
-        return np.array([[_float(body[r][index[c]], source, r + 2, c) for c in names] for r in rows], dtype=np.float64)
+        return np.array(
+            [[_float(body[r][index[c]], source, r + 2, c, as_coordinate) for c in names] for r in rows],
+            dtype=np.float64,
+        )
 
     out = []
     for key, rows in groups.items():
@@ -102,19 +158,44 @@ def read_csv(
             "t": numbers(rows, [time_column])[:, 0],
             "pos": numbers(rows, columns),
             "vel": numbers(rows, velocity_columns) if velocity_columns else None,
+            "acc": numbers(rows, acceleration_columns) if acceleration_columns else None,
         }
         aux = {name: numbers(rows, cs)[0] for name, cs in aux_columns.items()}
-        out.append(
-            Recording(
-                **_scaled(kwargs, scale), aux=aux, source=label, columns=tuple(columns), rows=np.asarray(rows) + 2
+        try:
+            rec = Recording(
+                **_scaled(kwargs, scale, seconds),
+                aux=aux,
+                source=label,
+                columns=tuple(columns),
+                rows=np.asarray(rows) + 2,
             )
-        )
+        except TimeOrderError as e:
+            raise TimeOrderError(f"{e}{'' if demo_column else MANY_DEMOS_HINT}") from None
+        out.append(rec)
     if not out:
         raise RecordingError(f"{source}: no samples below the header")
     return out
 
 
 # ------------------------------------------------------------------------------------------------ NPZ
+NPZ_LAYOUTS = (
+    "rmpfusion reads t (T,) and positions (T, d) for one demonstration, or (N, T) and (N, T, d) for N of equal "
+    "length; demonstrations of unequal length go one per file (list them in data.files)"
+)
+
+
+def _npz_array(data: Any, key: str, source: str) -> np.ndarray:
+    if key not in data.files:
+        raise RecordingError(f"{source}: no array {key!r}; it holds {', '.join(data.files)}. {NPZ_LAYOUTS}")
+    try:
+        return np.asarray(data[key], dtype=np.float64)
+    except ValueError:  # object arrays (ragged demonstrations) need pickle, which a data file never gets
+        raise RecordingError(
+            f"{source}: the array {key!r} is stored as Python objects (ragged arrays), which rmpfusion does not "
+            f"unpickle. {NPZ_LAYOUTS}"
+        ) from None
+
+
 def read_npz(
     path: str | Path,
     time_key: str = "t",
@@ -122,9 +203,12 @@ def read_npz(
     velocity_key: str | None = None,
     columns: Sequence[str] | None = None,
     units: str = "m",
+    acceleration_key: str | None = None,
+    time_units: str = "s",
 ) -> list[Recording]:
     """Demonstrations from an NPZ file: ``t`` (T,) and ``pos`` (T, d) for one, or a leading demonstration axis
-    (N, T) and (N, T, d) for several of equal length."""
+    (N, T) and (N, T, d) for several of equal length; the file's own derivatives at ``velocity_key`` and
+    ``acceleration_key``, shaped like the positions."""
     path = Path(path)
     source = str(path)
     try:
@@ -132,25 +216,34 @@ def read_npz(
     except (OSError, ValueError) as e:
         raise RecordingError(f"{source}: not a readable NPZ file ({e})") from None
     with data:
-        for key in (time_key, position_key, *([velocity_key] if velocity_key else [])):
-            if key not in data.files:
-                raise RecordingError(f"{source}: no array {key!r}; it holds {', '.join(data.files)}")
-        t, pos = data[time_key], data[position_key]
-        vel = data[velocity_key] if velocity_key else None
+        t, pos = _npz_array(data, time_key, source), _npz_array(data, position_key, source)
+        vel = _npz_array(data, velocity_key, source) if velocity_key else None
+        acc = _npz_array(data, acceleration_key, source) if acceleration_key else None
     if t.ndim == 1:
-        t, pos, vel = t[None], pos[None], (vel[None] if vel is not None else None)
+        t, pos = t[None], pos[None]
+        vel, acc = (a[None] if a is not None else None for a in (vel, acc))
     if pos.ndim == 2:  # (N, T) of one coordinate
         pos = pos[..., None]
+        vel, acc = (a[..., None] if a is not None and a.ndim == 2 else a for a in (vel, acc))
     if t.ndim != 2 or pos.ndim != 3 or pos.shape[:2] != t.shape:
         raise RecordingError(
             f"{source}: {time_key!r} {t.shape} and {position_key!r} {pos.shape} do not match; "
             "expected (T,) and (T, d), or (N, T) and (N, T, d)"
         )
     columns = tuple(columns) if columns is not None else tuple(f"{position_key}[{k}]" for k in range(pos.shape[2]))
-    scale = unit_scale(units, source)
+    scale, seconds = unit_scale(units, source), time_scale(time_units, source)
     return [
         Recording(
-            **_scaled({"t": t[n], "pos": pos[n], "vel": vel[n] if vel is not None else None}, scale),
+            **_scaled(
+                {
+                    "t": t[n],
+                    "pos": pos[n],
+                    "vel": vel[n] if vel is not None else None,
+                    "acc": acc[n] if acc is not None else None,
+                },
+                scale,
+                seconds,
+            ),
             source=f"{source} [demonstration {n}]" if t.shape[0] > 1 else source,
             columns=columns,
             rows=np.arange(t.shape[1]) + 1,
@@ -168,6 +261,26 @@ def _h5py():
     return h5py
 
 
+def _datasets(group: Any) -> list[str]:
+    """Every dataset's path inside ``group`` (what a missing key's message lists)."""
+    found: list[str] = []
+    group.visititems(lambda name, obj: found.append(name) if hasattr(obj, "shape") else None)
+    return found
+
+
+def _h5_array(demo: Any, key: str, label: str, what: str) -> np.ndarray:
+    if key not in demo:
+        raise RecordingError(
+            f"{label}: no dataset {key!r} ({what}); the group holds {', '.join(_datasets(demo)) or 'nothing'}"
+        )
+    obj = demo[key]
+    if not hasattr(obj, "shape"):
+        raise RecordingError(
+            f"{label}: {key!r} is a group, not a dataset ({what}); it holds {', '.join(_datasets(obj)) or 'nothing'}"
+        )
+    return np.asarray(obj, dtype=np.float64)
+
+
 def read_hdf5(
     path: str | Path,
     position_key: str,
@@ -176,47 +289,64 @@ def read_hdf5(
     rate: float | None = None,
     columns: Sequence[str] | None = None,
     units: str = "m",
+    velocity_key: str | None = None,
+    acceleration_key: str | None = None,
+    time_units: str = "s",
 ) -> list[Recording]:
     """Demonstrations from an HDF5 file laid out as robomimic does: one subgroup of ``group`` per demonstration
-    (``data/demo_0``, ``data/demo_1``, … in natural order), positions at ``position_key`` inside it (e.g.
-    ``obs/robot0_joint_pos``), times at ``time_key`` or, where the layout stores none, a fixed ``rate`` (Hz)."""
+    (``data/demo_0``, ``data/demo_1``, … in natural order; datasets beside them, such as statistics, are not
+    demonstrations), positions at ``position_key`` inside it (e.g. ``obs/robot0_joint_pos``), times at
+    ``time_key`` or, where the layout stores none, a fixed ``rate`` (Hz); a group holding time stamps while a rate
+    is given is refused (one of the two would be ignored)."""
     h5py = _h5py()
     path = Path(path)
     source = str(path)
     if (time_key is None) == (rate is None):
         raise RecordingError(
-            f"{source}: give either a time dataset (time_key) or a sampling rate (rate), not "
+            f"{source}: give either the time dataset's key (data.time_column) or a sampling rate (data.rate), not "
             f"{'both' if rate is not None else 'neither'}"
         )
     try:
         fh = h5py.File(path, "r")
     except OSError as e:
         raise RecordingError(f"{source}: not a readable HDF5 file ({e})") from None
-    scale = unit_scale(units, source)
+    scale, seconds = unit_scale(units, source), time_scale(time_units, source)
     out = []
     with fh:
-        if group not in fh:
-            raise RecordingError(f"{source}: no group {group!r}; top level holds {', '.join(fh.keys())}")
-        names = sorted(fh[group].keys(), key=lambda s: (len(s), s))  # demo_2 before demo_10
-        for name in names:
+        if group not in fh or hasattr(fh[group], "shape"):
+            raise RecordingError(
+                f"{source}: no group {group!r} (data.group); top level holds {', '.join(fh.keys())}. rmpfusion reads "
+                "robomimic's layout: one group per demonstration inside data.group"
+            )
+        demos = [name for name in fh[group] if not hasattr(fh[group][name], "shape")]
+        for name in sorted(demos, key=lambda s: (len(s), s)):  # demo_2 before demo_10
             demo = fh[group][name]
             label = f"{source} [{group}/{name}]"
-            if position_key not in demo:
-                raise RecordingError(f"{label}: no dataset {position_key!r}")
-            pos = np.asarray(demo[position_key], dtype=np.float64)
+            pos = _h5_array(demo, position_key, label, "data.position_key")
             if time_key is not None:
-                if time_key not in demo:
-                    raise RecordingError(f"{label}: no dataset {time_key!r}")
-                t = np.asarray(demo[time_key], dtype=np.float64).reshape(-1)
+                t = _h5_array(demo, time_key, label, "data.time_column, or data.rate for a fixed rate").reshape(-1)
             else:
                 assert rate is not None  # one of the two is given (checked above)
-                t = np.arange(pos.shape[0]) / float(rate)
+                if "t" in demo or "timestamp" in demo:
+                    raise RecordingError(
+                        f"{label}: the group holds time stamps, but data.rate={rate} would replace them; name them "
+                        "in data.time_column instead of giving a rate"
+                    )
+                t = np.arange(pos.shape[0]) / (float(rate) * seconds)  # in the time unit: scaled to s below
             cols = (
                 tuple(columns)
                 if columns is not None
                 else tuple(f"{position_key}[{k}]" for k in range(pos.shape[1] if pos.ndim > 1 else 1))
             )
-            out.append(Recording(t=t, pos=pos * scale, source=label, columns=cols, rows=np.arange(t.shape[0]) + 1))
+            kwargs = {
+                "t": t,
+                "pos": pos,
+                "vel": _h5_array(demo, velocity_key, label, "data.velocity_key") if velocity_key else None,
+                "acc": _h5_array(demo, acceleration_key, label, "data.acceleration_key") if acceleration_key else None,
+            }
+            out.append(
+                Recording(**_scaled(kwargs, scale, seconds), source=label, columns=cols, rows=np.arange(t.shape[0]) + 1)
+            )
     if not out:
         raise RecordingError(f"{source}: group {group!r} holds no demonstrations")
     return out

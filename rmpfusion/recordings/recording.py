@@ -17,6 +17,11 @@ class RecordingError(ValueError):
     """A recording that cannot be used: the message names the file, and the row and column where there is one."""
 
 
+class TimeOrderError(RecordingError):
+    """Time stamps that do not increase: a reader that knows why they might not (several demonstrations in one
+    file) adds that to the message."""
+
+
 def where(source: str, row: int | None = None, column: str | None = None) -> str:
     """``file``, ``file, row 12`` or ``file, row 12, column 'q3'``: the place a RecordingError points at.
     Rows count from 1 as a spreadsheet or an editor shows them (for a CSV, the header is row 1)."""
@@ -99,8 +104,33 @@ def check_recording(rec: Recording) -> None:
     bad = np.flatnonzero(step <= 0)
     if bad.size:
         i = int(bad[0]) + 1
-        raise RecordingError(
+        precision = (
+            " (time stamps this large lose their fractions when stored as float32: store float64, or subtract "
+            "the first time)"
+            if abs(float(rec.t[i])) > 1e6
+            else ""
+        )
+        raise TimeOrderError(
             f"{where(rec.source, rec.row(i), 't')}: time {float(rec.t[i])!r} does not increase (the sample "
             f"before is at {float(rec.t[i - 1])!r}); timestamps must be strictly increasing: sort the samples "
-            "or drop the duplicate"
+            f"or drop the duplicate{precision}"
+        )
+    check_gaps(rec, step)
+
+
+#: a step between samples longer than this (s) and than GAP_FACTOR times the median step is a gap, not jitter
+LONGEST_GAP = 1.0
+GAP_FACTOR = 50.0
+
+
+def check_gaps(rec: Recording, step: np.ndarray) -> None:
+    """A pause in the samples long against the recording's own rate: resampling would invent the motion across
+    it (a spline through the gap), and it is most often two demonstrations read as one."""
+    gap = np.flatnonzero((step > LONGEST_GAP) & (step > GAP_FACTOR * np.median(step)))
+    if gap.size:
+        i = int(gap[0]) + 1
+        raise TimeOrderError(
+            f"{where(rec.source, rec.row(i), 't')}: {float(step[i - 1]):.6g} s without a sample before this one "
+            f"(the median step is {float(np.median(step)):.3g} s); resampling would invent the motion across it: "
+            "cut the recording there into two demonstrations"
         )

@@ -61,22 +61,61 @@ def content_hash(d: Any) -> str:
 
 
 def read_recordings(d: Any) -> list[Recording]:
-    """Every demonstration the block names, in file order, positions in SI units."""
+    """Every demonstration the block names, in file order, positions in SI units and times in seconds."""
     if d.format == "lasa":
         return read_lasa(d.shape, use_file_derivatives=d.derivatives == "file")
     out: list[Recording] = []
+    common = {"columns": d.columns, "units": d.units, "time_units": d.time_units}
     for path in source_files(d):
         if d.format == "csv":
             out += read_csv(
-                path, columns=d.columns, time_column=d.time_column, demo_column=d.demo_column, units=d.units
+                path,
+                time_column=d.time_column,
+                demo_column=d.demo_column,
+                velocity_columns=d.velocity_columns,
+                acceleration_columns=d.acceleration_columns,
+                **common,
             )
         elif d.format == "npz":
-            out += read_npz(path, time_key=d.time_column, position_key=d.position_key, columns=d.columns, units=d.units)
+            out += read_npz(
+                path,
+                time_key=d.time_column,
+                position_key=d.position_key,
+                velocity_key=d.velocity_key,
+                acceleration_key=d.acceleration_key,
+                **common,
+            )
         else:
-            out += read_hdf5(path, position_key=d.position_key, rate=d.rate, columns=d.columns, units=d.units)
+            out += read_hdf5(
+                path,
+                position_key=d.position_key,
+                group=d.group,
+                time_key=None if d.rate is not None else d.time_column,
+                rate=d.rate,
+                velocity_key=d.velocity_key,
+                acceleration_key=d.acceleration_key,
+                **common,
+            )
     if not out:
         raise RecordingError(f"{', '.join(map(str, source_files(d)))}: no demonstration in the file(s)")
+    check_durations(out, d.time_units)
     return out
+
+
+#: a demonstration longer than this (s) is taken for time stamps in another unit than data.time_units says
+LONGEST_DEMONSTRATION = 600.0
+
+
+def check_durations(recordings: Sequence[Recording], time_units: str) -> None:
+    """A demonstration lasting over ten minutes is almost always milliseconds or nanoseconds read as seconds (or
+    several demonstrations read as one): refused before a grid of millions of steps is made from it."""
+    longest = max(recordings, key=lambda r: r.duration)
+    if longest.duration > LONGEST_DEMONSTRATION:
+        raise RecordingError(
+            f"{longest.source}: lasts {longest.duration:.6g} s with its time stamps read in {time_units}; if they "
+            "are in another unit, set data.time_units (s, ms, us, ns); if the file holds several demonstrations, "
+            "name the column telling them apart in data.demo_column; cut a longer recording into demonstrations"
+        )
 
 
 def check_derivatives(recordings: Sequence[Recording], derivatives: str) -> None:
@@ -93,11 +132,12 @@ def check_derivatives(recordings: Sequence[Recording], derivatives: str) -> None
         )
 
 
-def check_dimension(states: Sequence[States], dim: int, env: str) -> None:
+def check_dimension(states: Sequence[States], dim: int, env: str, columns: Sequence[str] = ()) -> None:
     """The demonstrations have the environment's dimension (one coordinate per degree of freedom)."""
     if states[0].q.shape[1] != dim:
+        read = f" (read from the columns {', '.join(repr(c) for c in columns)})" if columns else ""
         raise RecordingError(
-            f"{states[0].source}: the demonstrations have {states[0].q.shape[1]} coordinates but the "
+            f"{states[0].source}: the demonstrations have {states[0].q.shape[1]} coordinates{read} but the "
             f"environment {env} has {dim}; choose an environment of that dimension (env=...) or the "
             "columns to read (data.columns)"
         )

@@ -9,6 +9,7 @@ from the rest, the next one in cyclic order, so settings are never chosen on the
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -52,3 +53,15 @@ def leave_one_out(n: int, fold: int, with_validation: bool = True) -> Split:
     val = ((fold + 1) % n,) if with_validation else ()
     train = tuple(i for i in range(n) if i != fold and i not in val)
     return Split(train=train, val=val, test=(fold,))
+
+
+def split_of(d: Any, n: int, seed: int) -> Split:
+    """Which of ``n`` demonstrations train, validate and test under a data block's ``split`` (holdout: ``val`` and
+    ``test``, seeded; leave_one_out: ``fold``; all: every demonstration trains and tests, the protocol of most
+    published LASA numbers)."""
+    if d.split == "leave_one_out":
+        return leave_one_out(n, d.fold)
+    if d.split == "all":
+        every = tuple(range(n))
+        return Split(train=every, val=(), test=every)
+    return holdout(n, d.val, d.test, seed)

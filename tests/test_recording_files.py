@@ -1,0 +1,218 @@
+"""Recordings as other tools write them: spreadsheets' delimiters and byte-order marks, pandas' index column, time
+stamps in milliseconds or nanoseconds, the file's own derivatives, ragged NPZ arrays, HDF5 files with time stamps,
+statistics beside the demonstrations or another group name; and every way a data block could silently read
+something other than what its user meant (a key the format ignores, angles on a plane, one demonstration for three
+splits) refused with the key and the fix."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from conftest import compose_cfg
+from pydantic import ValidationError
+
+from rmpfusion.assembly.errors import ConfigError
+from rmpfusion.pipeline.config import RecordedDataConfig
+from rmpfusion.pipeline.validate import resolve_and_validate
+from rmpfusion.recordings import RecordingError, read_csv, read_hdf5, read_npz
+from rmpfusion.recordings.source import read_recordings, to_grid
+
+#: a minimum-jerk reach in the plane (m) over 2 s at 100 Hz with rest at either end, and its exact derivatives
+T = np.arange(0, 2.6, 0.01)
+S = np.clip((T - 0.3) / 2.0, 0.0, 1.0)
+REACH = np.stack([0.1 - 0.1 * (10 * S**3 - 15 * S**4 + 6 * S**5), 0.05 * (10 * S**3 - 15 * S**4 + 6 * S**5)], 1)
+
+
+def csv_text(rows: list[list], header: list[str], sep: str = ",") -> str:
+    return sep.join(header) + "\n" + "\n".join(sep.join(str(v) for v in r) for r in rows) + "\n"
+
+
+def reach_rows(t_factor: float = 1.0, demo: str | None = None) -> list[list]:
+    return [[*([demo] if demo else []), t * t_factor, *p] for t, p in zip(T, REACH)]
+
+
+def data_block(**keys) -> RecordedDataConfig:
+    return RecordedDataConfig.model_validate({"source": "recorded", **keys})
+
+
+# ------------------------------------------------------------------------------------------------ CSV dialects
+@pytest.mark.parametrize(
+    ("sep", "encoding"), [(";", "utf-8"), ("\t", "utf-8"), (",", "utf-8-sig")], ids=["semicolon", "tab", "bom"]
+)
+def test_a_spreadsheets_csv_reads_like_a_plain_one(tmp_path, sep, encoding):
+    path = tmp_path / "sheet.csv"
+    path.write_text(csv_text(reach_rows(demo="d0"), ["demo", "t", "x", "y"], sep), encoding=encoding)
+    (rec,) = read_csv(path, demo_column="demo")
+    assert rec.columns == ("x", "y")
+    np.testing.assert_allclose(rec.pos, REACH)
+
+
+def test_pandas_index_column_is_refused_not_read_as_a_coordinate(tmp_path):
+    path = tmp_path / "pandas.csv"
+    path.write_text(csv_text([[k, *r] for k, r in enumerate(reach_rows())], ["", "t", "x", "y"]))
+    with pytest.raises(RecordingError, match=r"pandas\.csv, row 1: column 1 of the header has no name.*index=False"):
+        read_csv(path)
+    assert read_csv(path, columns=["x", "y"])[0].dim == 2  # naming the coordinates reads past it
+
+
+def test_a_decimal_comma_and_an_extra_column_get_their_fix(tmp_path):
+    path = tmp_path / "comma.csv"
+    path.write_text("t;x\n0;0,5\n0,01;0,6\n")
+    with pytest.raises(RecordingError, match=r"comma\.csv, row 3, column 't': '0,01' is not a number; a decimal comma"):
+        read_csv(path)
+    path = tmp_path / "extra.csv"
+    path.write_text("t,x,y,gripper\n0,0,0,open\n0.01,0,0,open\n")
+    with pytest.raises(
+        RecordingError, match=r"column 'gripper': 'open' is not a number; every column but time is read"
+    ):
+        read_csv(path)
+
+
+def test_several_demonstrations_without_their_column_get_the_fix(tmp_path):
+    """Two reaches one after the other in one file: the clock restarting, or a pause between them, is refused
+    naming data.demo_column or where to cut, never trained on as one demonstration with a jump."""
+    restart = tmp_path / "restart.csv"
+    restart.write_text(csv_text(reach_rows() + reach_rows(), ["t", "x", "y"]))
+    with pytest.raises(RecordingError, match=r"does not increase.*data\.demo_column"):
+        read_csv(restart)
+    paused = tmp_path / "paused.csv"
+    second = [[t + 10.0, *p] for t, *p in reach_rows()]
+    paused.write_text(csv_text(reach_rows() + second, ["t", "x", "y"]))
+    with pytest.raises(RecordingError, match=rf"paused\.csv, row {len(T) + 2}, column 't': .* without a sample"):
+        read_csv(paused)
+
+
+# ------------------------------------------------------------------------------------------------ time units
+def test_milliseconds_read_with_their_unit_equal_seconds_and_without_it_are_refused(tmp_path):
+    seconds, millis = tmp_path / "s.csv", tmp_path / "ms.csv"
+    seconds.write_text(csv_text(reach_rows(), ["t", "x", "y"]))
+    millis.write_text(csv_text(reach_rows(1000.0), ["t", "x", "y"]))
+    (a,) = read_recordings(data_block(format="csv", files=[str(seconds)]))
+    (b,) = read_recordings(data_block(format="csv", files=[str(millis)], time_units="ms"))
+    np.testing.assert_allclose(a.t, b.t, atol=1e-12)
+    with pytest.raises(RecordingError, match=r"ms\.csv: lasts 2590 s with its time stamps read in s.*data\.time_units"):
+        read_recordings(data_block(format="csv", files=[str(millis)]))
+
+
+def test_nanosecond_epoch_stamps_read_with_their_unit(tmp_path):
+    path = tmp_path / "ns.npz"
+    np.savez(path, t=(1_700_000_000_000_000_000 + T * 1e9).astype(np.int64), pos=REACH)
+    (rec,) = read_recordings(data_block(format="npz", files=[str(path)], time_units="ns"))
+    np.testing.assert_allclose(rec.t - rec.t[0], T, atol=1e-6)
+
+
+# ------------------------------------------------------------------------------------------------ file derivatives
+def test_the_files_own_derivatives_are_read_in_si_and_used(tmp_path):
+    """Velocities and accelerations given in mm/ms and mm/ms² (the file's units): converted to m/s and m/s²; the
+    file's velocities are twice the positions' true rate, and the grid keeps the file's (a filter would not)."""
+    s = np.clip((T - 0.3) / 2.0, 0.0, 1.0)
+    ds = np.where((T > 0.3) & (T < 2.3), 0.5, 0.0)
+    vel = np.outer((30 * s**2 - 60 * s**3 + 30 * s**4) * ds, [-0.1, 0.05])
+    acc = np.outer((60 * s - 180 * s**2 + 120 * s**3) * ds**2, [-0.1, 0.05])
+    vel *= 2.0
+    rows = [[t * 1e3, *(1e3 * p), *(v * 1e3 / 1e3), *(a * 1e3 / 1e6)] for t, p, v, a in zip(T, REACH, vel, acc)]
+    path = tmp_path / "derivs.csv"
+    path.write_text(csv_text(rows, ["t", "x", "y", "vx", "vy", "ax", "ay"]))
+    d = data_block(
+        format="csv",
+        files=[str(path)],
+        units="mm",
+        time_units="ms",
+        velocity_columns=["vx", "vy"],
+        acceleration_columns=["ax", "ay"],
+        derivatives="file",
+    )
+    (rec,) = read_recordings(d)
+    assert rec.columns == ("x", "y")
+    np.testing.assert_allclose(rec.vel, vel, atol=1e-12)
+    np.testing.assert_allclose(rec.acc, acc, atol=1e-12)
+    (states,) = to_grid([rec], d, dt=0.02)
+    np.testing.assert_allclose(np.abs(states.qd).max(axis=0), [0.1875, 0.09375], rtol=1e-3)  # 2 x the true peak
+
+
+def test_file_derivatives_without_their_keys_are_refused():
+    with pytest.raises(ValidationError, match=r"data\.velocity_columns and data\.acceleration_columns"):
+        data_block(format="csv", files=["x.csv"], derivatives="file")
+    with pytest.raises(ValidationError, match=r"data\.acceleration_key, or use data\.derivatives=filter"):
+        data_block(format="hdf5", files=["x.hdf5"], rate=10.0, derivatives="file", velocity_key="obs/vel")
+
+
+# ------------------------------------------------------------------------------------------------ NPZ
+def test_ragged_npz_arrays_are_refused_naming_the_layouts(tmp_path):
+    path = tmp_path / "ragged.npz"
+    ragged = np.empty(2, dtype=object)
+    ragged[0], ragged[1] = T, T[:100]
+    np.savez(path, t=ragged, pos=ragged)
+    with pytest.raises(RecordingError, match=r"ragged\.npz: the array 't' is stored as Python objects.*one per file"):
+        read_npz(path)
+
+
+# ------------------------------------------------------------------------------------------------ HDF5
+@pytest.fixture
+def h5py():
+    return pytest.importorskip("h5py", reason="h5py reads HDF5 recordings (a run-time dependency)")
+
+
+def test_hdf5_time_stamps_are_read_and_never_replaced_by_a_rate(tmp_path, h5py):
+    path = tmp_path / "stamped.hdf5"
+    with h5py.File(path, "w") as fh:
+        fh.create_dataset("episodes/ep_0/pos", data=REACH)
+        fh.create_dataset("episodes/ep_0/t", data=T * 2.0)  # a 50 Hz clock
+        fh.create_dataset("episodes/stats", data=np.zeros(3))  # not a demonstration
+    (rec,) = read_recordings(data_block(format="hdf5", files=[str(path)], group="episodes"))
+    np.testing.assert_allclose(rec.t, T * 2.0)
+    with pytest.raises(RecordingError, match=r"holds time stamps, but data\.rate=100\.0 would replace them"):
+        read_recordings(data_block(format="hdf5", files=[str(path)], group="episodes", rate=100.0))
+    with pytest.raises(RecordingError, match=r"no group 'data' \(data\.group\); top level holds episodes"):
+        read_hdf5(path, "pos", time_key="t")
+
+
+def test_hdf5_keys_that_miss_list_what_the_group_holds(tmp_path, h5py):
+    path = tmp_path / "robomimic.hdf5"
+    with h5py.File(path, "w") as fh:
+        fh.create_dataset("data/demo_0/obs/robot0_eef_pos", data=np.zeros((10, 3)))
+        fh.create_dataset("data/demo_0/actions", data=np.zeros((10, 7)))
+    with pytest.raises(RecordingError, match=r"no dataset 'pos' \(data\.position_key\); the group holds actions, obs/"):
+        read_hdf5(path, "pos", rate=20.0)
+    with pytest.raises(RecordingError, match=r"'obs' is a group, not a dataset .*robot0_eef_pos"):
+        read_hdf5(path, "obs", rate=20.0)
+
+
+# ------------------------------------------------------------------------------------------------ the data block
+@pytest.mark.parametrize(
+    ("keys", "message"),
+    [
+        (
+            {"format": "lasa", "shape": "Angle", "files": ["mine.csv"]},
+            r"data\.files=\['mine\.csv'\] is not read by format lasa",
+        ),
+        (
+            {"format": "csv", "files": ["a.csv"], "rate": 100.0},
+            r"data\.rate=100\.0 is not read by format csv \(read by: hdf5\)",
+        ),
+        (
+            {"format": "npz", "files": ["a.npz"], "demo_column": "demo"},
+            r"data\.demo_column='demo' is not read by format npz",
+        ),
+        ({"format": "lasa", "shape": "Angle", "units": "mm"}, r"data\.units='mm' is not read by format lasa"),
+        ({"format": "csv", "files": ["a.csv"], "test": 0}, r"test\n.*greater than or equal to 1"),
+    ],
+)
+def test_a_key_the_format_ignores_is_refused(keys, message):
+    with pytest.raises(ValidationError, match=message):
+        data_block(**keys)
+
+
+def test_a_lasa_run_given_a_users_file_says_so_at_validation(tmp_path):
+    with pytest.raises(ConfigError, match=r"data\.files=.* is not read by format lasa"):
+        resolve_and_validate(compose_cfg(["experiment=lasa", f"data.files=[{tmp_path / 'mine.csv'}]"]))
+
+
+def test_angles_on_a_plane_and_too_few_demonstrations_are_refused_at_validation(tmp_path):
+    path = tmp_path / "one.csv"
+    path.write_text(csv_text(reach_rows(), ["t", "x", "y"]))
+    base = ["experiment=lasa", "data=recorded", f"data.files=[{path}]", "name=mine"]
+    with pytest.raises(ConfigError, match=r"data\.units=deg is for an arm's joint angles.*data\.units=m, cm or mm"):
+        resolve_and_validate(compose_cfg([*base, "data.units=deg"]))
+    with pytest.raises(ConfigError, match=r"cannot split 1 demonstration\(s\) into 1 validation, 1 test"):
+        resolve_and_validate(compose_cfg(base))
