@@ -47,3 +47,12 @@ def test_every_kind_of_sweep_is_checked_on_its_first_job_or_left_to_its_sweeper(
         ],
         conf,
     ) == ["experiment=2d2level", "seed=1", "seed=3", "train.lr=0.001"]
+
+
+def test_a_misspelt_key_is_answered_with_the_keys_of_the_blocks_the_command_chose():
+    """experiment=lasa chooses a recorded data block and recorded_arm an arm's env: a misspelt key of either is
+    answered with that block's keys, not those of the default config's blocks."""
+    data = _validate("experiment=lasa", "data.unit=mm")
+    assert data.returncode == 2 and "did you mean 'data.units'" in data.stderr and "time_units" in data.stderr
+    env = _validate("experiment=recorded_arm", "env.control_rat=100")
+    assert env.returncode == 2 and "did you mean 'env.control_rate'" in env.stderr

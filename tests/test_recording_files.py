@@ -6,16 +6,20 @@ splits) refused with the key and the fix."""
 
 from __future__ import annotations
 
+import subprocess
+import sys
+
 import numpy as np
 import pytest
-from conftest import compose_cfg
+from conftest import ROOT, compose_cfg
 from pydantic import ValidationError
 
 from rmpfusion.assembly.errors import ConfigError
+from rmpfusion.cli.rundir import RunDirError, check_same_recordings, save_recordings
 from rmpfusion.pipeline.config import RecordedDataConfig
 from rmpfusion.pipeline.validate import resolve_and_validate
 from rmpfusion.recordings import RecordingError, read_csv, read_hdf5, read_npz
-from rmpfusion.recordings.source import read_recordings, to_grid
+from rmpfusion.recordings.source import file_hashes, read_recordings, source_file, to_grid
 
 #: a minimum-jerk reach in the plane (m) over 2 s at 100 Hz with rest at either end, and its exact derivatives
 T = np.arange(0, 2.6, 0.01)
@@ -178,7 +182,33 @@ def test_hdf5_keys_that_miss_list_what_the_group_holds(tmp_path, h5py):
         read_hdf5(path, "obs", rate=20.0)
 
 
+def test_a_binary_file_read_as_csv_and_a_directory_say_what_they_are(tmp_path):
+    np.savez(tmp_path / "demos.npz", t=T, pos=REACH)
+    with pytest.raises(RecordingError, match=r"demos\.npz: not a text CSV file.*data\.format=npz or hdf5"):
+        read_csv(tmp_path / "demos.npz")
+    with pytest.raises(RecordingError, match=r"a directory \(data\.files\); list the recorded files in it"):
+        source_file(str(tmp_path))
+
+
+# ------------------------------------------------------------------------------------------------ the run directory
+def test_a_changed_recording_is_not_resumed_as_the_run_that_learned_from_the_old_one(tmp_path):
+    path = tmp_path / "demos.csv"
+    path.write_text(csv_text(reach_rows(), ["t", "x", "y"]))
+    d = data_block(format="csv", files=[str(path)])
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    save_recordings(file_hashes(d), run_dir)
+    check_same_recordings(file_hashes(d), run_dir)  # unchanged: the run resumes
+    path.write_text(csv_text(reach_rows()[:-1], ["t", "x", "y"]))
+    with pytest.raises(RunDirError, match=rf"learned from another version of {path}.*put the recording back"):
+        check_same_recordings(file_hashes(d), run_dir)
+
+
 # ------------------------------------------------------------------------------------------------ the data block
+def test_one_file_may_be_given_without_brackets():
+    assert data_block(format="csv", files="a.csv").files == ["a.csv"]
+
+
 @pytest.mark.parametrize(
     ("keys", "message"),
     [
@@ -196,6 +226,15 @@ def test_hdf5_keys_that_miss_list_what_the_group_holds(tmp_path, h5py):
         ),
         ({"format": "lasa", "shape": "Angle", "units": "mm"}, r"data\.units='mm' is not read by format lasa"),
         ({"format": "csv", "files": ["a.csv"], "test": 0}, r"test\n.*greater than or equal to 1"),
+        (
+            {"format": "csv", "files": ["a.csv"], "split": "leave_one_out", "val": 3},
+            r"data\.val=3 is not read by split leave_one_out",
+        ),
+        (
+            {"format": "csv", "files": ["a.csv"], "fold": 2},
+            r"data\.fold=2 is not read by split holdout .*set data\.fold=0",
+        ),
+        ({"format": "csv", "files": ["a.csv"], "rest_fraction": 0.95}, r"rest_fraction\n.*less than or equal to 0\.25"),
     ],
 )
 def test_a_key_the_format_ignores_is_refused(keys, message):
@@ -216,3 +255,52 @@ def test_angles_on_a_plane_and_too_few_demonstrations_are_refused_at_validation(
         resolve_and_validate(compose_cfg([*base, "data.units=deg"]))
     with pytest.raises(ConfigError, match=r"cannot split 1 demonstration\(s\) into 1 validation, 1 test"):
         resolve_and_validate(compose_cfg(base))
+
+
+@pytest.mark.slow
+def test_a_rerun_after_the_recording_changed_is_refused_and_resumes_once_it_is_back(tmp_path):
+    """The command line end to end: the same command into the same directory resumes, unless the recorded file
+    changed in between (refused, exit 2, the run's metrics untouched)."""
+    path = tmp_path / "demos.csv"
+    demos = lambda third: [[f"d{k}", t, *(p * (1 + third * k))] for k in range(3) for t, p in zip(T, REACH)]
+    path.write_text(csv_text(demos(0.1), ["demo", "t", "x", "y"]))
+    original = path.read_text()
+    command = [
+        sys.executable,
+        "-m",
+        "rmpfusion.cli.run",
+        "experiment=lasa",
+        "data=recorded",
+        f"data.files=[{path}]",
+        "data.demo_column=demo",
+        "name=mine",
+        "train.iterations=3",
+        "train.snapshots=[0,3]",
+        "data.starts=2",
+        "data.horizon_factor=0.5",
+        "logger=disabled",
+        f"hydra.run.dir={tmp_path / 'run'}",
+    ]
+    run = lambda: subprocess.run(command, capture_output=True, text=True, cwd=ROOT)
+    first = run()
+    assert first.returncode == 0, first.stderr[-2000:]
+    metrics = (tmp_path / "run" / "metrics.json").read_bytes()
+    path.write_text(csv_text(demos(0.2), ["demo", "t", "x", "y"]))  # two demonstrations recorded again
+    changed = run()
+    assert changed.returncode == 2 and "Traceback" not in changed.stderr
+    assert "learned from another version of" in changed.stderr
+    assert (tmp_path / "run" / "metrics.json").read_bytes() == metrics
+    path.write_text(original)
+    again = run()
+    assert again.returncode == 0, again.stderr[-2000:]
+
+
+def test_a_run_stored_before_the_newer_data_keys_resumes():
+    """A run directory's saved config from before time_units, the derivative keys and group existed reads as the
+    config it ran with, so rerunning the same command resumes it instead of being refused as another config."""
+    from rmpfusion.cli.rundir import config_diff
+    from rmpfusion.pipeline.config import RECORDED_DATA_ADDED, upgrade_run_config
+
+    now = resolve_and_validate(compose_cfg(["experiment=lasa"])).model_dump(mode="json")
+    before = {**now, "data": {k: v for k, v in now["data"].items() if k not in RECORDED_DATA_ADDED}}
+    assert config_diff(upgrade_run_config(before), now) == []

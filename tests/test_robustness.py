@@ -1317,6 +1317,34 @@ for _id, _fault, _overrides, _shows, _needs in [
         ("pybullet",),
     ),
     (
+        "recorded-key-the-format-ignores",
+        "a user's file given to the LASA experiment, whose data block reads the LASA shape",
+        ["experiment=lasa", "data.files=[my_demos.csv]"],
+        (
+            "data: data.files=['my_demos.csv'] is not read by format lasa (read by: csv, npz, hdf5); set data.files=[], "
+            "or a data.format that reads it (for your own files start from data=recorded: no preset's values) "
+            "(given: {'source': 'recorded', 'format': 'lasa', 'shape': 'Angle', 'files': ['my_demo...)"
+        ),
+        (),
+    ),
+    (
+        "recorded-angles-on-a-plane",
+        "joint-angle units for recordings learned on the plane",
+        [
+            "experiment=lasa",
+            "data=recorded",
+            "data.files=[rmpfusion:panda_via_points.csv]",
+            "data.demo_column=demo",
+            "data.units=deg",
+            "name=mine",
+        ],
+        (
+            "data: data.units=deg is for an arm's joint angles, but this environment's coordinates are positions; set "
+            "data.units=m, cm or mm"
+        ),
+        (),
+    ),
+    (
         "joint-margin-no-room",
         "a joint margin that leaves lower ≥ upper for the starts",
         ["experiment=franka", "env.joint_margin=2.0"],

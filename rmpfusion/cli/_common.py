@@ -34,7 +34,18 @@ from ..registry import PluginError, RegistryError
 from . import logger as wandb_logger
 from . import sweeps
 from .preflight import CommandLineError, check_command_line, check_output_dir
-from .rundir import RESOLVED, HydraFiles, RunDirError, check_same_config, console_log, exclusive, record_environment
+from .rundir import (
+    RESOLVED,
+    HydraFiles,
+    RunDirError,
+    check_same_config,
+    check_same_recordings,
+    console_log,
+    exclusive,
+    record_environment,
+    recorded_file_hashes,
+    save_recordings,
+)
 
 #: Exit code of a command whose configuration is invalid (nothing was run).
 CONFIG_ERROR_EXIT = 2
@@ -264,6 +275,8 @@ def job(cfg, threads: int = 1, log: bool = True) -> Iterator[Job]:
                 run = resolve_and_validate(cfg)
             stack.enter_context(exclusive(run_dir))
             check_same_config(run.model_dump(mode="json"), run_dir)
+            recordings = recorded_file_hashes(run)
+            check_same_recordings(recordings, run_dir)
         except RunDirError as e:
             hydra_files.restore()
             print(f"error: {e}", file=sys.stderr)
@@ -273,6 +286,7 @@ def job(cfg, threads: int = 1, log: bool = True) -> Iterator[Job]:
             raise
         hydra_files.accept()
         save_resolved(run, run_dir)
+        save_recordings(recordings, run_dir)
         stack.enter_context(console_log(run_dir))
         environment = record_environment(run_dir, threads)
         for p in remove_stale_temporaries(run_dir):

@@ -234,8 +234,19 @@ def check_command_line(conf_dir: str, argv: list[str]) -> None:
     if cmd.config_dir:
         overrides.append(f"hydra.searchpath=[file://{Path(cmd.config_dir).resolve()}]")
     with initialize_config_dir(config_dir=conf_dir, version_base="1.3"):
-        base = functools.cache(lambda: compose("config"))  # the base config: only for messages
+        base = functools.cache(lambda: _chosen_config(overrides, groups))  # only for messages
         _compose(overrides, groups, dirs, lambda: [str(k) for k in base()], base)
+
+
+def _chosen_config(overrides: list[str], groups: list[str]) -> Any:
+    """The config the command line's group choices make (experiment=..., data=...), without its other overrides:
+    a misspelt key is then answered with the keys of the blocks the user chose, not the defaults'. The plain
+    default config where those choices do not compose on their own."""
+    chosen = [o for o in overrides if o.split("=", 1)[0].lstrip("+~").split("@", 1)[0] in groups]
+    try:
+        return compose("config", overrides=chosen)
+    except HydraException:
+        return compose("config")
 
 
 def _compose(

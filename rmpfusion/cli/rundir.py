@@ -12,6 +12,7 @@ from __future__ import annotations
 import contextlib
 import datetime as _dt
 import errno
+import json
 import logging
 import math
 import os
@@ -27,6 +28,7 @@ from typing import Any
 
 from ..files import atomic_write_json
 from ..pipeline.config import upgrade_run_config
+from ..recordings.source import file_hashes
 
 #: the resolved, validated configuration of the run that owns a directory (written by save_resolved)
 RESOLVED = "config.resolved.yaml"
@@ -106,6 +108,39 @@ def check_same_config(resolved: Mapping[str, Any], run_dir: Path) -> None:
             f"{run_dir} already holds a run with a different configuration (saved in {saved}):\n"
             f"{shown}{more}\nNothing was changed. {fix}"
         )
+
+
+RECORDINGS = "recordings.json"
+
+
+def recorded_file_hashes(run: Any) -> dict[str, str] | None:
+    """sha256 of every recorded file a run learns from (None for a run on an expert's demonstrations)."""
+    if run.data.source != "recorded":
+        return None
+    return file_hashes(run.data)
+
+
+def check_same_recordings(hashes: dict[str, str] | None, run_dir: Path) -> None:
+    """Refuse ``run_dir`` if a recorded file changed since the run there read it: the configuration is the same,
+    but resuming would evaluate the model trained on the old recording against the new one."""
+
+    saved = run_dir / RECORDINGS
+    if hashes is None or not saved.is_file():
+        return
+    old = json.loads(saved.read_text())
+    changed = [name for name in hashes if name in old and old[name] != hashes[name]]
+    if changed:
+        raise RunDirError(
+            f"{run_dir} holds a run that learned from another version of {', '.join(changed)} (sha256 "
+            f"{old[changed[0]][:12]}... then, {hashes[changed[0]][:12]}... now; {saved}). Nothing was changed. "
+            "Give this run its own directory (a new hydra.run.dir=..., or none for a fresh timestamped one), or put "
+            "the recording back to resume that run."
+        )
+
+
+def save_recordings(hashes: dict[str, str] | None, run_dir: Path) -> None:
+    if hashes is not None:
+        atomic_write_json(run_dir / RECORDINGS, hashes)
 
 
 class HydraFiles:
@@ -255,7 +290,6 @@ def environment(threads: int | None = None) -> dict[str, Any]:
 def record_environment(run_dir: Path, threads: int | None = None) -> dict[str, Any]:
     """Write ``versions.json``; a resumed run keeps the earlier invocations' records under ``history`` and
     warns when the packages changed in between (the numbers may then differ from an uninterrupted run)."""
-    import json
 
     rec = environment(threads)
     path = run_dir / VERSIONS

@@ -110,6 +110,9 @@ _FORMAT_KEYS = {
     },
 }
 _FORMAT_KEYS_ALL = set().union(*_FORMAT_KEYS.values())
+#: the data keys each split reads
+_SPLIT_KEYS = {"holdout": {"val", "test"}, "leave_one_out": {"fold"}, "all": set()}
+_SPLIT_KEYS_ALL = set().union(*_SPLIT_KEYS.values())
 
 
 class RecordedDataConfig(_Frozen):
@@ -167,7 +170,11 @@ class RecordedDataConfig(_Frozen):
     )
     polyorder: int = Field(3, ge=2, le=6, description="the filter's polynomial order")
     rest_fraction: float = Field(
-        0.02, ge=0, lt=1, description="speeds below this fraction of the peak at either end are rest, trimmed"
+        0.02,
+        ge=0,
+        le=0.25,
+        description="speeds below this fraction of the peak at either end are rest, trimmed (above a quarter of "
+        "the peak, the motion itself would be cut and the goal taken mid-motion)",
     )
     every: int = Field(1, ge=1, le=1000, description="keep every this-many grid samples for training")
     split: Literal["holdout", "leave_one_out", "all"] = Field(
@@ -200,6 +207,11 @@ class RecordedDataConfig(_Frozen):
         None, description="where the split datasets are cached (keyed by the files' content); default the run directory"
     )
 
+    @field_validator("files", mode="before")
+    @classmethod
+    def _one_file_is_a_list_of_one(cls, value: Any) -> Any:
+        return [value] if isinstance(value, str) else value
+
     @model_validator(mode="after")
     def _what_the_format_needs(self):
         if self.format == "lasa" and not self.shape:
@@ -215,16 +227,25 @@ class RecordedDataConfig(_Frozen):
         return self
 
     def _no_setting_the_format_ignores(self) -> None:
-        """A key the chosen format does not read, set away from its default, is refused rather than ignored (a CSV's
-        columns given to a LASA run would otherwise train on the LASA shape)."""
-        for key in sorted(_FORMAT_KEYS_ALL - _FORMAT_KEYS[self.format]):
-            value, default = getattr(self, key), type(self).model_fields[key].get_default(call_default_factory=True)
-            if value != default:
-                readers = ", ".join(f for f, keys in _FORMAT_KEYS.items() if key in keys)
-                raise ValueError(
-                    f"data.{key}={value!r} is not read by format {self.format} (read by: {readers}); drop it, or "
-                    f"set data.format to the files' format"
-                )
+        """A key the chosen format or split does not read, set away from its default, is refused rather than
+        ignored (a CSV's files given to a LASA run would otherwise train on the LASA shape; a validation count
+        under leave-one-out would be one demonstration whatever it said)."""
+        for chosen, table, every, kind in (
+            (self.format, _FORMAT_KEYS, _FORMAT_KEYS_ALL, "format"),
+            (self.split, _SPLIT_KEYS, _SPLIT_KEYS_ALL, "split"),
+        ):
+            for key in sorted(every - table[chosen]):
+                value, default = getattr(self, key), type(self).model_fields[key].get_default(call_default_factory=True)
+                if value != default:
+                    readers = ", ".join(f for f, keys in table.items() if key in keys)
+                    own = (
+                        " (for your own files start from data=recorded: no preset's values)" if kind == "format" else ""
+                    )
+                    shown = "null" if default is None else default
+                    raise ValueError(
+                        f"data.{key}={value!r} is not read by {kind} {chosen} (read by: {readers}); set "
+                        f"data.{key}={shown}, or a data.{kind} that reads it{own}"
+                    )
         if self.format == "hdf5" and self.rate is not None and self.time_column != "t":
             raise ValueError(
                 f"data.rate and data.time_column={self.time_column!r} both give the times; keep the file's time "
@@ -272,15 +293,29 @@ DataBlock = Annotated[
 
 def upgrade_run_config(run: Mapping[str, Any]) -> dict[str, Any]:
     """A stored run config (a checkpoint's ``config``, a run directory's config.resolved.yaml) with renamed keys
-    under their current names (``RENAMED_KEYS``) and training keys added since at the values it was made with
-    (``upgrade_train_config``); anything else is returned unchanged."""
+    under their current names (``RENAMED_KEYS``) and training and recorded-data keys added since at the values it
+    was made with (``upgrade_train_config``, ``RECORDED_DATA_ADDED``); anything else is returned unchanged."""
     out = dict(run)
     for block, names in RENAMED_KEYS.items():
         if isinstance(out.get(block), Mapping):
             out[block] = _renamed(out[block], names)
     if isinstance(out.get("train"), Mapping):
         out["train"] = upgrade_train_config(out["train"])
+    data = out.get("data")
+    if isinstance(data, Mapping) and data.get("source") == "recorded":
+        out["data"] = {**RECORDED_DATA_ADDED, **data}
     return out
+
+
+#: keys the recorded data block gained after runs were stored, at the values those runs were made with
+RECORDED_DATA_ADDED = {
+    "time_units": "s",
+    "velocity_columns": None,
+    "acceleration_columns": None,
+    "velocity_key": None,
+    "acceleration_key": None,
+    "group": "data",
+}
 
 
 def train_union() -> Any:

@@ -36,7 +36,7 @@ from ..evaluate.reproduction import dtw_distance, swept_error_area
 from ..evaluate.rest_forces import rest_forces
 from ..files import atomic_write_json
 from ..learn.loop import load_snapshot
-from ..plots.recorded import recorded_figures
+from ..plots.recorded import View, recorded_figures
 from ..recordings import check_joint_recordings, check_units, recorded_dataset, split_of
 from ..recordings.recording import RecordingError
 from ..recordings.signals import States
@@ -392,11 +392,16 @@ def evaluate_recorded(exp: Experiment, fitted: dict, batch: Batch) -> tuple[dict
 
 
 # ------------------------------------------------------------------ the run
-def _top_view(env: Any) -> Callable[[np.ndarray], np.ndarray] | None:
-    """An arm's configurations as its end effector seen from above (x, y), for the rollouts figure; None for an
-    environment whose configuration is already the plane."""
+def _arm_views(env: Any) -> list[View] | None:
+    """An arm's configurations as its end effector seen from above (x, y) and from the side (y, z), for the
+    rollouts figure; None for an environment whose configuration is already the plane."""
     to_task = _end_effector(env)
-    return None if to_task is None else (lambda q: to_task(q)[..., :2])
+    if to_task is None:
+        return None
+    return [
+        View(lambda q: to_task(q)[..., :2], (0, 1), ("x (m)", "y (m)"), ", from above"),
+        View(lambda q: to_task(q)[..., 1:], (1, 2), ("y (m)", "z (m)"), ", from the side"),
+    ]
 
 
 def objective(results: dict) -> float | None:
@@ -427,6 +432,6 @@ def run_recorded(exp: Experiment, require_trained: bool = False) -> dict:
     )
     if exp.run.eval.figures:
         trees = {name: f.model.tree for name, f in fitted.items() if f.model.tree is not None}
-        metrics["figures"] = recorded_figures(exp.dir / "figures", rollouts, batch, demos, _top_view(exp.env), trees)
+        metrics["figures"] = recorded_figures(exp.dir / "figures", rollouts, batch, demos, _arm_views(exp.env), trees)
     atomic_write_json(exp.dir / "metrics.json", metrics)
     return metrics

@@ -4,7 +4,8 @@ draw, so its rollouts are drawn), and V_r along those rollouts (Theorem 2: never
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -14,52 +15,69 @@ from ..envs.rollout import Rollout
 from .figures import LEGEND_SIZE, TIME_LABEL, TITLE_SIZE, V_LABEL, save_figure, subplots
 
 #: configurations (..., d) -> points of the drawn plane (..., 2): the plane itself, or an arm's end effector seen from
-#: above
+#: above or from the side
 ToPlane = Callable[[np.ndarray], np.ndarray]
 
 
-def _first_two(q: np.ndarray) -> np.ndarray:
-    return q[..., :2]
+@dataclass(frozen=True)
+class View:
+    """One way of drawing rollouts: configurations to the plane drawn (``to_plane``), which two of the goal aux's
+    coordinates that plane shows (``goal_axes``), and its axes' names."""
+
+    to_plane: ToPlane
+    goal_axes: tuple[int, int] = (0, 1)
+    labels: tuple[str, str] = ("x (m)", "y (m)")
+    title: str = ""
 
 
-def draw_rollouts(rollouts: Mapping[str, Rollout], batch, demos: Mapping[str, list], to_plane: ToPlane = _first_two):
-    """One panel per policy: its rollouts from the grid of starts at rest and from the held-out demonstrations'
-    starts, the demonstrations beneath (training grey, held-out coloured), the goal; drawn in the plane ``to_plane``
-    maps configurations to (an arm's end effector from above; the goal aux is then the end effector's)."""
+PLANE = View(lambda q: q[..., :2])
+
+
+def draw_rollouts(rollouts: Mapping[str, Rollout], batch, demos: Mapping[str, list], views: Sequence[View] = (PLANE,)):
+    """One column per policy, one row per view: its rollouts from the grid of starts at rest and from the held-out
+    demonstrations' starts, the demonstrations beneath (training grey, held-out coloured), the goal. An arm's
+    end effector is drawn from above and from the side, since a detour over an obstacle is invisible from above."""
     n = len(rollouts)
-    fig, axes = subplots(1, n, figsize=(3.8 * n, 3.8), layout="constrained", squeeze=False)
-    grid = batch.grid
-    goal = batch.aux["goal"][grid][0].numpy()[:2]
-    for ax, (label, ro) in zip(axes[0], rollouts.items()):
-        q = to_plane(ro.q.numpy())
-        for k, (split, shown) in enumerate(demos.items()):
-            style = {"color": "0.65", "lw": 3.0} if split == "train" else {"color": f"C{k}", "lw": 2.4}
-            for i, d in enumerate(shown):
-                xy = to_plane(d.q)
-                ax.plot(xy[:, 0], xy[:, 1], alpha=0.9, label=f"{split} demonstration" if i == 0 else None, **style)
-        for i, b in enumerate(range(grid.start, grid.stop)):
-            ax.plot(q[:, b, 0], q[:, b, 1], color="k", lw=0.6, label="rollout from rest" if i == 0 else None)
-        for split, idx in batch.index.items():
-            for i, b in enumerate(range(idx.start, idx.stop)):
-                ax.plot(
-                    q[:, b, 0],
-                    q[:, b, 1],
-                    color="tab:red",
-                    lw=1.4,
-                    ls="--",
-                    label="rollout from a held-out start" if (i == 0 and split == "test") else None,
-                )
-        starts = q[0, grid]
-        ax.plot(starts[:, 0], starts[:, 1], "k.", ms=3, label="start at rest")
-        ax.plot(*goal, "r*", ms=12, label="goal")
-        lo, hi = starts.min(0), starts.max(0)
-        ax.set_xlim(lo[0], hi[0]), ax.set_ylim(lo[1], hi[1])
-        ax.set_title(label, fontsize=TITLE_SIZE)
-        ax.set_xlabel("x (m)"), ax.set_ylabel("y (m)")
-        ax.set_aspect("equal", adjustable="box")
+    fig, axes = subplots(len(views), n, figsize=(3.8 * n, 3.8 * len(views)), layout="constrained", squeeze=False)
+    for row, view in zip(axes, views):
+        for ax, (label, ro) in zip(row, rollouts.items()):
+            _draw_panel(ax, ro, batch, demos, view)
+            ax.set_title(f"{label}{view.title}", fontsize=TITLE_SIZE)
     handles, labels = axes[0][0].get_legend_handles_labels()
     fig.legend(handles, labels, fontsize=LEGEND_SIZE, loc="outside lower center", ncols=4)
     return fig
+
+
+def _draw_panel(ax, ro: Rollout, batch, demos: Mapping[str, list], view: View) -> None:
+    grid = batch.grid
+    goal = batch.aux["goal"][grid][0].numpy()[list(view.goal_axes)]
+    q = view.to_plane(ro.q.numpy())
+    for k, (split, shown) in enumerate(demos.items()):
+        style = {"color": "0.65", "lw": 3.0} if split == "train" else {"color": f"C{k}", "lw": 2.4}
+        for i, d in enumerate(shown):
+            xy = view.to_plane(d.q)
+            ax.plot(xy[:, 0], xy[:, 1], alpha=0.9, label=f"{split} demonstration" if i == 0 else None, **style)
+    for i, b in enumerate(range(grid.start, grid.stop)):
+        ax.plot(q[:, b, 0], q[:, b, 1], color="k", lw=0.6, label="rollout from rest" if i == 0 else None)
+    for split, idx in batch.index.items():
+        for i, b in enumerate(range(idx.start, idx.stop)):
+            ax.plot(
+                q[:, b, 0],
+                q[:, b, 1],
+                color="tab:red",
+                lw=1.4,
+                ls="--",
+                label="rollout from a held-out start" if (i == 0 and split == "test") else None,
+            )
+    starts = q[0, grid]
+    ax.plot(starts[:, 0], starts[:, 1], "k.", ms=3, label="start at rest")
+    ax.plot(*goal, "r*", ms=12, label="goal")
+    shown_demos = np.concatenate([view.to_plane(d.q) for ds in demos.values() for d in ds] + [starts])
+    lo, hi = shown_demos.min(0), shown_demos.max(0)
+    pad = 0.05 * (hi - lo).max()
+    ax.set_xlim(lo[0] - pad, hi[0] + pad), ax.set_ylim(lo[1] - pad, hi[1] + pad)
+    ax.set_xlabel(view.labels[0]), ax.set_ylabel(view.labels[1])
+    ax.set_aspect("equal", adjustable="box")
 
 
 def draw_lyapunov(rollouts: Mapping[str, Rollout], grid: slice, shown: int = 25):
@@ -86,15 +104,15 @@ def recorded_figures(
     rollouts: Mapping[str, Rollout],
     batch,
     demos: Mapping[str, list],
-    to_plane: ToPlane | None = None,
+    views: Sequence[View] | None = None,
     trees: Mapping[str, object] | None = None,
 ) -> dict[str, str]:
-    """rollouts.png (2-D demonstrations, or any whose configurations ``to_plane`` maps to a plane) and lyapunov.png
+    """rollouts.png (2-D demonstrations, or any whose configurations ``views`` map to planes) and lyapunov.png
     in ``out_dir``, and for 2-D demonstrations latent_<learner>.png for each of ``trees`` ({learner: its trained
     RMPTree}) that has a learned map (its deepest); their paths."""
     paths = {}
-    if to_plane is not None or batch.q0.shape[1] == 2:
-        drawn = draw_rollouts(rollouts, batch, demos, to_plane or _first_two)
+    if views is not None or batch.q0.shape[1] == 2:
+        drawn = draw_rollouts(rollouts, batch, demos, views or (PLANE,))
         paths["rollouts"] = save_figure(drawn, Path(out_dir) / "rollouts.png")
     paths["lyapunov"] = save_figure(draw_lyapunov(rollouts, batch.grid), Path(out_dir) / "lyapunov.png")
     if batch.q0.shape[1] == 2:

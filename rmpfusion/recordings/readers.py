@@ -65,8 +65,14 @@ def _float(text: str, source: str, row: int, column: str, hint: str = "") -> flo
 def _header_and_body(path: Path, source: str, time_column: str) -> tuple[list[str], list[list[str]]]:
     """The header (names stripped) and the rows, in any of the common delimiters; a byte-order mark (Excel's
     "CSV UTF-8") is not part of the first name."""
-    with open(path, newline="", encoding="utf-8-sig") as fh:
-        text = fh.read()
+    try:
+        with open(path, newline="", encoding="utf-8-sig") as fh:
+            text = fh.read()
+    except UnicodeDecodeError:
+        raise RecordingError(
+            f"{source}: not a text CSV file (its bytes are not UTF-8); an NPZ or HDF5 file needs data.format=npz or "
+            "hdf5, a CSV saved in another encoding needs saving as UTF-8"
+        ) from None
     first = text.split("\n", 1)[0]
     if not first.strip():
         raise RecordingError(

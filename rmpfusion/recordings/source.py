@@ -36,6 +36,10 @@ def source_file(f: str) -> Path:
                 f"{f}: rmpfusion ships no such recording (data.files); it ships {', '.join(shipped) or 'none'}"
             )
         return path
+    if Path(f).is_dir():
+        raise RecordingError(
+            f"{f}: a directory (data.files); list the recorded files in it, e.g. data.files=[{f}/demo_0.csv,...]"
+        )
     if not Path(f).is_file():
         raise RecordingError(
             f"{f}: no such file (data.files); give the path of a recorded file, relative to the "
@@ -49,6 +53,13 @@ def source_files(d: Any) -> list[Path]:
     if d.format == "lasa":
         return [lasa_file(d.shape)]
     return [source_file(f) for f in d.files]
+
+
+def file_hashes(d: Any) -> dict[str, str]:
+    """sha256 of each file the block reads, by the name the block gives it: what a run directory records, so a
+    rerun after a recording changed is not taken for a resume of the run that learned from the old one."""
+    names = [d.shape] if d.format == "lasa" else list(d.files)
+    return {n: hashlib.sha256(p.read_bytes()).hexdigest() for n, p in zip(names, source_files(d))}
 
 
 def content_hash(d: Any) -> str:
