@@ -153,17 +153,19 @@ def test_the_tree_with_a_learned_map_and_a_posture_keeps_theorem_2_on_rollouts(r
 @pytest.mark.slow
 def test_the_shipped_recording_is_what_the_tool_makes(tmp_path):
     """The tool's first demonstration at seed 0 is the shipped file's first (the draws are sequential)."""
-    out = tmp_path / "one.csv"
-    r = subprocess.run(
-        [sys.executable, "tools/arm_recordings.py", "--demos", "1", "--out", str(out)],
-        capture_output=True,
-        text=True,
-        cwd=ROOT,
-    )
-    assert r.returncode == 0, r.stderr[-2000:]
+    out = one_demonstration_of("tools/arm_recordings.py", tmp_path / "one.csv")
     made = out.read_text().splitlines()
     shipped = SHIPPED.read_text().splitlines()[: len(made)]
     assert made == shipped
+
+
+def one_demonstration_of(tool: str, out: Path) -> Path:
+    """``out``, written by a recordings tool asked for one demonstration at its default seed."""
+    r = subprocess.run(
+        [sys.executable, tool, "--demos", "1", "--out", str(out)], capture_output=True, text=True, cwd=ROOT
+    )
+    assert r.returncode == 0, r.stderr[-2000:]
+    return out
 
 
 def tiny_run(tmp_path: Path, experiment: str, *overrides: str) -> dict:
@@ -257,14 +259,7 @@ def test_the_iiwa_recording_without_joint_names_asks_for_them(tmp_path):
 
 def test_the_shipped_iiwa_recording_is_what_the_tool_makes(tmp_path, iiwa_env):
     """The tool's first demonstration at seed 0 is the shipped file's first (the draws are sequential)."""
-    out = tmp_path / "one.hdf5"
-    r = subprocess.run(
-        [sys.executable, "tools/iiwa_recordings.py", "--demos", "1", "--out", str(out)],
-        capture_output=True,
-        text=True,
-        cwd=ROOT,
-    )
-    assert r.returncode == 0, r.stderr[-2000:]
+    out = one_demonstration_of("tools/iiwa_recordings.py", tmp_path / "one.hdf5")
     made = read_hdf5(out, "obs/robot0_joint_pos", rate=20.0)[0]
     np.testing.assert_array_equal(made.pos, iiwa_recordings(iiwa_env)[0].pos)
 

@@ -34,7 +34,11 @@ def summary(run, env, expert, learners) -> str:
         data_line = (
             f"data: recorded demonstrations ({d.format}: {what}), split {d.split}, derivatives "
             f"{d.derivatives}"
-            + (f" (Savitzky-Golay window {d.window}, order {d.polyorder})" if d.derivatives == "filter" else "")
+            + (
+                f" (Savitzky-Golay window {d.window}, order {d.polyorder})"
+                if d.derivatives == "filter"
+                else " (the files' own; data.window and data.polyorder are not used)"
+            )
         )
     else:
         data_line = (

@@ -74,40 +74,13 @@ class DataConfig(_Frozen):
 
 
 #: the data keys each recorded format reads; the others must keep their defaults under that format
+_FILE_KEYS = {"files", "units", "time_units", "columns", "time_column"}
+_ARRAY_KEYS = _FILE_KEYS | {"position_key", "velocity_key", "acceleration_key"}
 _FORMAT_KEYS = {
     "lasa": {"shape"},
-    "csv": {
-        "files",
-        "units",
-        "time_units",
-        "columns",
-        "time_column",
-        "demo_column",
-        "velocity_columns",
-        "acceleration_columns",
-    },
-    "npz": {
-        "files",
-        "units",
-        "time_units",
-        "columns",
-        "time_column",
-        "position_key",
-        "velocity_key",
-        "acceleration_key",
-    },
-    "hdf5": {
-        "files",
-        "units",
-        "time_units",
-        "columns",
-        "time_column",
-        "position_key",
-        "velocity_key",
-        "acceleration_key",
-        "group",
-        "rate",
-    },
+    "csv": _FILE_KEYS | {"demo_column", "velocity_columns", "acceleration_columns"},
+    "npz": _ARRAY_KEYS,
+    "hdf5": _ARRAY_KEYS | {"group", "rate"},
 }
 _FORMAT_KEYS_ALL = set().union(*_FORMAT_KEYS.values())
 #: the data keys each split reads

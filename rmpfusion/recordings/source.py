@@ -77,6 +77,7 @@ def read_recordings(d: Any) -> list[Recording]:
         return read_lasa(d.shape, use_file_derivatives=d.derivatives == "file")
     out: list[Recording] = []
     common = {"columns": d.columns, "units": d.units, "time_units": d.time_units}
+    arrays = {"position_key": d.position_key, "velocity_key": d.velocity_key, "acceleration_key": d.acceleration_key}
     for path in source_files(d):
         if d.format == "csv":
             out += read_csv(
@@ -88,25 +89,10 @@ def read_recordings(d: Any) -> list[Recording]:
                 **common,
             )
         elif d.format == "npz":
-            out += read_npz(
-                path,
-                time_key=d.time_column,
-                position_key=d.position_key,
-                velocity_key=d.velocity_key,
-                acceleration_key=d.acceleration_key,
-                **common,
-            )
+            out += read_npz(path, time_key=d.time_column, **arrays, **common)
         else:
-            out += read_hdf5(
-                path,
-                position_key=d.position_key,
-                group=d.group,
-                time_key=None if d.rate is not None else d.time_column,
-                rate=d.rate,
-                velocity_key=d.velocity_key,
-                acceleration_key=d.acceleration_key,
-                **common,
-            )
+            time_key = None if d.rate is not None else d.time_column
+            out += read_hdf5(path, group=d.group, time_key=time_key, rate=d.rate, **arrays, **common)
     if not out:
         raise RecordingError(f"{', '.join(map(str, source_files(d)))}: no demonstration in the file(s)")
     check_durations(out, d.time_units)
