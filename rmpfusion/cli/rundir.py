@@ -123,7 +123,6 @@ def recorded_file_hashes(run: Any) -> dict[str, str] | None:
 def check_same_recordings(hashes: dict[str, str] | None, run_dir: Path) -> None:
     """Refuse ``run_dir`` if a recorded file changed since the run there read it: the configuration is the same,
     but resuming would evaluate the model trained on the old recording against the new one."""
-
     saved = run_dir / RECORDINGS
     if hashes is None or not saved.is_file():
         return
@@ -290,7 +289,6 @@ def environment(threads: int | None = None) -> dict[str, Any]:
 def record_environment(run_dir: Path, threads: int | None = None) -> dict[str, Any]:
     """Write ``versions.json``; a resumed run keeps the earlier invocations' records under ``history`` and
     warns when the packages changed in between (the numbers may then differ from an uninterrupted run)."""
-
     rec = environment(threads)
     path = run_dir / VERSIONS
     history: list = []

@@ -37,10 +37,10 @@ from ..evaluate.rest_forces import rest_forces
 from ..files import atomic_write_json
 from ..learn.loop import load_snapshot
 from ..plots.recorded import View, recorded_figures
-from ..recordings import check_joint_recordings, check_units, recorded_dataset, split_of
+from ..recordings import recorded_dataset, split_of
 from ..recordings.recording import RecordingError
 from ..recordings.signals import States
-from ..recordings.source import check_dimension, content_hash, read_recordings, to_grid
+from ..recordings.source import content_hash, on_grid_for, read_recordings
 from .collect import Splits
 from .evaluation import certificate
 from .experiment import Experiment, clean
@@ -101,11 +101,8 @@ def recorded_splits(exp: Experiment) -> tuple[Splits, dict[str, list[States]], l
     t0 = time.time()
     recording_env(exp)
     recordings = read_recordings(d)
-    check_units(d.units, isinstance(exp.env, JointSpace))
-    if isinstance(exp.env, JointSpace):
-        check_joint_recordings(recordings, exp.env.robot_description, named_columns=d.columns is None)
-    states = to_grid(recordings, d, exp.env.dt)
-    check_dimension(states, exp.env.dim, exp.run.env.type, recordings[0].columns)
+    robot = exp.env.robot_description if isinstance(exp.env, JointSpace) else None
+    states = on_grid_for(recordings, d, exp.env.dt, exp.env.dim, exp.run.env.type, robot)
     split = split_of(d, len(states), exp.run.seed)
     parts = {"train": split.train, "test": split.test, **({"val": split.val} if split.val else {})}
     files = content_hash(d)

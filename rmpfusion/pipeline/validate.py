@@ -29,9 +29,8 @@ from ..assembly.spec import check_typed, validate_tree_spec
 from ..assembly.weighting import own_weights, weights_by_name
 from ..core.auxstate import AuxOrValue
 from ..envs.protocol import JointSpace
-from ..recordings.joints import check_joint_recordings, check_units
 from ..recordings.recording import Recording, RecordingError
-from ..recordings.source import check_dimension, read_recordings, to_grid
+from ..recordings.source import on_grid_for, read_recordings
 from ..recordings.splits import split_of
 from ..registry import ENVS, LEAF_RMPS, TASK_MAPS, TRAIN_METHODS, WEIGHTS, Registry
 from .config import RunConfig, run_config_model
@@ -184,10 +183,8 @@ def _recordings_checked(run: RunConfig, env: Any) -> tuple[list[Recording] | Non
     except RecordingError as e:
         return None, [Issue("data", str(e))]
     try:
-        check_units(run.data.units, isinstance(env, JointSpace))
-        if isinstance(env, JointSpace):
-            check_joint_recordings(recordings, env.robot_description, named_columns=run.data.columns is None)
-        check_dimension(to_grid(recordings, run.data, env.dt), env.dim, run.env.type, recordings[0].columns)
+        robot = env.robot_description if isinstance(env, JointSpace) else None
+        on_grid_for(recordings, run.data, env.dt, env.dim, run.env.type, robot)
         split_of(run.data, len(recordings), run.seed)
     except RecordingError as e:
         return recordings, [Issue("data", str(e))]

@@ -126,11 +126,12 @@ GAP_FACTOR = 50.0
 def check_gaps(rec: Recording, step: np.ndarray) -> None:
     """A pause in the samples long against the recording's own rate: resampling would invent the motion across
     it (a spline through the gap), and it is most often two demonstrations read as one."""
-    gap = np.flatnonzero((step > LONGEST_GAP) & (step > GAP_FACTOR * np.median(step)))
+    median = float(np.median(step))
+    gap = np.flatnonzero((step > LONGEST_GAP) & (step > GAP_FACTOR * median))
     if gap.size:
         i = int(gap[0]) + 1
         raise TimeOrderError(
             f"{where(rec.source, rec.row(i), 't')}: {float(step[i - 1]):.6g} s without a sample before this one "
-            f"(the median step is {float(np.median(step)):.3g} s); resampling would invent the motion across it: "
+            f"(the median step is {median:.3g} s); resampling would invent the motion across it: "
             "cut the recording there into two demonstrations"
         )

@@ -15,6 +15,8 @@ from typing import Any
 
 import numpy as np
 
+from ..robots import RobotDescription
+from .joints import check_joint_recordings, check_units
 from .lasa import lasa_file, read_lasa
 from .readers import read_csv, read_hdf5, read_npz
 from .recording import Recording, RecordingError
@@ -138,6 +140,20 @@ def check_dimension(states: Sequence[States], dim: int, env: str, columns: Seque
             f"environment {env} has {dim}; choose an environment of that dimension (env=...) or the "
             "columns to read (data.columns)"
         )
+
+
+def on_grid_for(
+    recordings: Sequence[Recording], d: Any, dt: float, dim: int, env: str, robot: RobotDescription | None
+) -> list[States]:
+    """The recordings on the environment's step grid after every check that needs the environment: the units
+    (angles for a joint space, lengths otherwise), an arm's joints (``robot``: its description, None for an
+    environment of positions) and the dimension. Validation and the run call this one function."""
+    check_units(d.units, robot is not None)
+    if robot is not None:
+        check_joint_recordings(recordings, robot, named_columns=d.columns is None)
+    states = to_grid(recordings, d, dt)
+    check_dimension(states, dim, env, recordings[0].columns)
+    return states
 
 
 def to_grid(recordings: Sequence[Recording], d: Any, dt: float) -> list[States]:
