@@ -341,3 +341,23 @@ def test_every_eval_preset_lists_every_evaluation_setting(preset):
     assert set(EvalConfig.model_fields) <= listed, (
         f"conf/eval/{preset}.yaml lacks {set(EvalConfig.model_fields) - listed}"
     )
+
+
+@pytest.mark.parametrize("experiment", EXPERIMENTS)
+def test_no_experiment_overrides_the_evaluation_preset_a_command_chooses(experiment):
+    """An experiment's own keys are merged after the config groups, so an ``eval:`` block in it would silently undo
+    ``eval=fast`` on the command line (experiment=lasa eval=fast drew every figure): experiments choose an eval
+    preset in their defaults instead, which the command line's choice replaces."""
+    import yaml
+
+    own = yaml.safe_load((CONF / "experiment" / f"{experiment}.yaml").read_text()) or {}
+    assert "eval" not in own, f"conf/experiment/{experiment}.yaml sets eval keys; choose a conf/eval preset instead"
+
+
+def test_eval_fast_turns_the_figures_off_on_recorded_demonstrations():
+    """The preset a command chooses wins over the one the experiment chose (Hydra's command-line overrides are
+    applied after the experiment's defaults list)."""
+    chosen = compose_cfg(["experiment=lasa", "eval=fast"])
+    default = compose_cfg(["experiment=lasa"])
+    assert chosen.eval.figures is False and default.eval.figures is True
+    assert default.eval.unit_weights is False and default.eval.compile is False

@@ -1345,6 +1345,16 @@ for _id, _fault, _overrides, _shows, _needs in [
         (),
     ),
     (
+        "recorded-eval-horizon",
+        "an evaluation horizon for recorded demonstrations, whose rollouts last a multiple of the longest one",
+        ["experiment=lasa", "eval.horizon=5"],
+        (
+            "eval.horizon: recorded demonstrations set how long the evaluation's rollouts last: data.horizon_factor "
+            "times the longest demonstration; remove eval.horizon and set data.horizon_factor instead (given: 5.0)"
+        ),
+        (),
+    ),
+    (
         "joint-margin-no-room",
         "a joint margin that leaves lower ≥ upper for the starts",
         ["experiment=franka", "env.joint_margin=2.0"],

@@ -475,6 +475,16 @@ class RunConfig(_Frozen):
                     ),
                 )
             )
+        if self.eval.horizon is not None:
+            issues.append(
+                (
+                    ("eval", "horizon"),
+                    self.eval.horizon,
+                    "recorded demonstrations set how long the evaluation's rollouts last: "
+                    "data.horizon_factor times the longest demonstration; remove eval.horizon and set "
+                    "data.horizon_factor instead",
+                )
+            )
         return [
             InitErrorDetails(
                 type=PydanticCustomError("run_config", "{message}", {"message": m}),
