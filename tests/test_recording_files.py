@@ -182,11 +182,42 @@ def test_hdf5_keys_that_miss_list_what_the_group_holds(tmp_path, h5py):
         read_hdf5(path, "obs", rate=20.0)
 
 
+def write_episodes(folder, h5py, count: int) -> None:
+    """ALOHA's and ACT's layout: one episode per file, ``observations/qpos`` at the top level, no time stamps (the
+    rate is the recorder's), the reach slowed down k-fold in episode_k so each file is told apart."""
+    folder.mkdir()
+    for k in range(count):
+        with h5py.File(folder / f"episode_{k}.hdf5", "w") as fh:
+            fh.attrs["sim"] = True
+            fh.create_dataset("observations/qpos", data=np.repeat(REACH, k + 1, axis=0))
+            fh.create_dataset("action", data=np.repeat(REACH, k + 1, axis=0))
+
+
+def test_one_episode_per_file_named_by_a_pattern_reads_in_recording_order(tmp_path, h5py, monkeypatch):
+    write_episodes(tmp_path / "episodes", h5py, 11)
+    monkeypatch.chdir(tmp_path)
+    block = data_block(
+        format="hdf5", files=["episodes/episode_*.hdf5"], group=None, position_key="observations/qpos", rate=100.0
+    )
+    recs = read_recordings(block)
+    assert [r.source for r in recs] == [f"episodes/episode_{k}.hdf5" for k in range(11)]  # 2 before 10
+    for k, rec in enumerate(recs):
+        assert rec.pos.shape == (REACH.shape[0] * (k + 1), 2)
+        np.testing.assert_allclose(rec.t[1], 0.01)  # the rate, as no stamps are stored
+    hashes = file_hashes(block)
+    assert list(hashes) == [f"episodes/episode_{k}.hdf5" for k in range(11)]  # what a run directory records
+    with pytest.raises(RecordingError, match=r"no group 'data' \(data\.group\); top level holds action, observations.*"
+                       r"data\.group=null"):
+        read_recordings(block.model_copy(update={"group": "data"}))
+    with pytest.raises(RecordingError, match=r"episodes/epsode_\*\.hdf5: no file matches this pattern \(data\.files\)"):
+        read_recordings(block.model_copy(update={"files": ["episodes/epsode_*.hdf5"]}))
+
+
 def test_a_binary_file_read_as_csv_and_a_directory_say_what_they_are(tmp_path):
     np.savez(tmp_path / "demos.npz", t=T, pos=REACH)
     with pytest.raises(RecordingError, match=r"demos\.npz: not a text CSV file.*data\.format=npz or hdf5"):
         read_csv(tmp_path / "demos.npz")
-    with pytest.raises(RecordingError, match=r"a directory \(data\.files\); list the recorded files in it"):
+    with pytest.raises(RecordingError, match=r"a directory \(data\.files\); name the recorded files in it.*with a pattern"):
         source_file(str(tmp_path))
 
 

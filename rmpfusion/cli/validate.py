@@ -12,6 +12,7 @@ from ..assembly.spec import weight_label
 from ..evaluate.weights import learned_edges
 from ..pipeline.construct import build_all
 from ..pipeline.validate import resolve_and_validate
+from ..recordings.source import source_files
 from ._common import discard_unclaimed, hydra_app, hydra_run_dir, user_errors_exit
 
 
@@ -30,7 +31,9 @@ def summary(run, env, expert, learners) -> str:
         lines.append(f"learner {name}: {run.learners[name].type}, {model.num_parameters()} parameters{extra}")
     d, t = run.data, run.train
     if d.source == "recorded":
+        read = source_files(d)
         what = f"LASA shape {d.shape}" if d.format == "lasa" else ", ".join(d.files)
+        what += f": {len(read)} files" if len(read) != len(d.files) and d.format != "lasa" else ""
         data_line = (
             f"data: recorded demonstrations ({d.format}: {what}), split {d.split}, derivatives "
             f"{d.derivatives}"
@@ -46,8 +49,15 @@ def summary(run, env, expert, learners) -> str:
             f"{d.test_envs} x {d.test_trajectories}, validation {d.val_envs} x {d.val_trajectories}), every "
             f"{d.interval}s"
         )
+    lines.append(data_line)
+    if d.source == "recorded":
+        lines.append(
+            f"eval: rollouts from the held-out demonstrations' starts and {d.starts} starts at rest, "
+            f"{d.horizon_factor:g} times the longest demonstration; figures {'on' if run.eval.figures else 'off'} "
+            "(eval.compile and eval.unit_weights are for expert data: the tree with every weight 1 is always the "
+            "reference here)"
+        )
     lines += [
-        data_line,
         f"train: {t.method}, {t.describe()}",
         f"logger: wandb {run.logger.mode}",
         "OK: the configuration is valid and builds; nothing was run.",

@@ -98,7 +98,9 @@ class RecordedDataConfig(_Frozen):
     format: Literal["lasa", "csv", "npz", "hdf5"] = Field(description="how the files are laid out")
     shape: str | None = Field(None, description="format lasa: the handwriting shape (e.g. Angle, Sshape)")
     files: list[str] = Field(
-        default_factory=list, description="csv / npz / hdf5: the files, one or many demonstrations each"
+        default_factory=list,
+        description="csv / npz / hdf5: the files, one or many demonstrations each; wildcards (episodes/*.hdf5) "
+        "name every matching file, in natural order",
     )
     units: Literal["m", "cm", "mm", "rad", "deg"] = Field(
         "m",
@@ -122,7 +124,11 @@ class RecordedDataConfig(_Frozen):
     )
     velocity_key: str | None = Field(None, description="npz / hdf5: the velocities' key (derivatives: file)")
     acceleration_key: str | None = Field(None, description="npz / hdf5: the accelerations' key (derivatives: file)")
-    group: str = Field("data", description="hdf5: the group holding one subgroup per demonstration (robomimic's)")
+    group: str | None = Field(
+        "data",
+        description="hdf5: the group holding one subgroup per demonstration (robomimic's); null: each file is one "
+        "demonstration (ALOHA's episode files)",
+    )
     rate: float | None = Field(
         None, gt=0, description="hdf5 without time stamps (robomimic): the recording rate (Hz), in place of time_column"
     )
@@ -330,12 +336,14 @@ class EvalConfig(_Frozen):
     figures: bool = True
     compile: bool = Field(
         False,
-        description="roll out through torch.compile'd trees (same numbers, faster after a one-off compile per tree)",
+        description="roll out through torch.compile'd trees (same numbers, faster after a one-off compile per tree); "
+        "expert data only: recorded demonstrations' few rollouts run eagerly",
     )
     unit_weights: bool = Field(
         False,
         description="also roll out the expert's tree with every weight 1 (RMPflow) "
-        "from the test starts: what the expert's weights add",
+        "from the test starts: what the expert's weights add; expert data only: with recorded demonstrations that "
+        "tree is always rolled out, as the untrained reference",
     )
 
 

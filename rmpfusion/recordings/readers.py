@@ -290,7 +290,7 @@ def _h5_array(demo: Any, key: str, label: str, what: str) -> np.ndarray:
 def read_hdf5(
     path: str | Path,
     position_key: str,
-    group: str = "data",
+    group: str | None = "data",
     time_key: str | None = None,
     rate: float | None = None,
     columns: Sequence[str] | None = None,
@@ -303,7 +303,8 @@ def read_hdf5(
     (``data/demo_0``, ``data/demo_1``, … in natural order; datasets beside them, such as statistics, are not
     demonstrations), positions at ``position_key`` inside it (e.g. ``obs/robot0_joint_pos``), times at
     ``time_key`` or, where the layout stores none, a fixed ``rate`` (Hz); a group holding time stamps while a rate
-    is given is refused (one of the two would be ignored)."""
+    is given is refused (one of the two would be ignored). ``group=None`` reads the whole file as one demonstration,
+    as ALOHA's and ACT's episode files hold one (``observations/qpos`` at the top level, one file per episode)."""
     h5py = _h5py()
     path = Path(path)
     source = str(path)
@@ -319,15 +320,7 @@ def read_hdf5(
     scale, seconds = unit_scale(units, source), time_scale(time_units, source)
     out = []
     with fh:
-        if group not in fh or hasattr(fh[group], "shape"):
-            raise RecordingError(
-                f"{source}: no group {group!r} (data.group); top level holds {', '.join(fh.keys())}. rmpfusion reads "
-                "robomimic's layout: one group per demonstration inside data.group"
-            )
-        demos = [name for name in fh[group] if not hasattr(fh[group][name], "shape")]
-        for name in sorted(demos, key=lambda s: (len(s), s)):  # demo_2 before demo_10
-            demo = fh[group][name]
-            label = f"{source} [{group}/{name}]"
+        for label, demo in _demonstration_groups(fh, group, source):
             pos = _h5_array(demo, position_key, label, "data.position_key")
             if time_key is not None:
                 t = _h5_array(demo, time_key, label, "data.time_column, or data.rate for a fixed rate").reshape(-1)
@@ -356,3 +349,18 @@ def read_hdf5(
     if not out:
         raise RecordingError(f"{source}: group {group!r} holds no demonstrations")
     return out
+
+
+def _demonstration_groups(fh: Any, group: str | None, source: str) -> list[tuple[str, Any]]:
+    """Each demonstration's group with the label its errors name: the subgroups of ``group`` in natural order
+    (demo_2 before demo_10), or the file's top level where ``group`` is None (one demonstration per file)."""
+    if group is None:
+        return [(source, fh)]
+    if group not in fh or hasattr(fh[group], "shape"):
+        raise RecordingError(
+            f"{source}: no group {group!r} (data.group); top level holds {', '.join(fh.keys())}. rmpfusion reads "
+            "robomimic's layout, one group per demonstration inside data.group, or one demonstration per file "
+            "(ALOHA's episodes) with data.group=null"
+        )
+    demos = [name for name in fh[group] if not hasattr(fh[group][name], "shape")]
+    return [(f"{source} [{group}/{name}]", fh[group][name]) for name in sorted(demos, key=lambda s: (len(s), s))]

@@ -8,7 +8,9 @@ Velocities and accelerations come from one place for the whole dataset: the Savi
 
 from __future__ import annotations
 
+import glob
 import hashlib
+import re
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -40,7 +42,8 @@ def source_file(f: str) -> Path:
         return path
     if Path(f).is_dir():
         raise RecordingError(
-            f"{f}: a directory (data.files); list the recorded files in it, e.g. data.files=[{f}/demo_0.csv,...]"
+            f"{f}: a directory (data.files); name the recorded files in it, e.g. data.files=[{f}/demo_0.csv,...], "
+            f"or all of them with a pattern: 'data.files=[\"{f}/*.csv\"]'"
         )
     if not Path(f).is_file():
         raise RecordingError(
@@ -50,18 +53,42 @@ def source_file(f: str) -> Path:
     return Path(f)
 
 
+def _natural(name: str) -> list:
+    """Sort key putting episode_2 before episode_10, as the files were recorded."""
+    return [int(part) if part.isdigit() else part for part in re.split(r"(\d+)", name)]
+
+
+def matching_files(pattern: str) -> list[str]:
+    """The files a ``data.files`` entry with wildcards names (``episodes/*.hdf5``), in natural order; a pattern
+    that matches no file is refused, not read as an empty dataset."""
+    found = sorted((p for p in glob.glob(pattern) if Path(p).is_file()), key=_natural)
+    if not found:
+        raise RecordingError(
+            f"{pattern}: no file matches this pattern (data.files), relative to the directory the command runs in "
+            f"({Path.cwd()}); check the path, or quote the list on the command line: 'data.files=[\"{pattern}\"]'"
+        )
+    return found
+
+
+def named_files(d: Any) -> list[tuple[str, Path]]:
+    """Each file the block reads with the name runs record it by: the LASA shape and its ``.mat`` file, or every
+    ``data.files`` entry (wildcards expanded), each one that exists."""
+    if d.format == "lasa":
+        return [(d.shape, lasa_file(d.shape))]
+    names = [m for f in d.files for m in (matching_files(f) if any(c in f for c in "*?[") else [f])]
+    return [(n, source_file(n)) for n in names]
+
+
 def source_files(d: Any) -> list[Path]:
     """The files a data block reads (the LASA shape's ``.mat`` file, or ``data.files``), each one that exists."""
-    if d.format == "lasa":
-        return [lasa_file(d.shape)]
-    return [source_file(f) for f in d.files]
+    return [p for _, p in named_files(d)]
 
 
 def file_hashes(d: Any) -> dict[str, str]:
     """sha256 of each file the block reads, by the name the block gives it: what a run directory records, so a
-    rerun after a recording changed is not taken for a resume of the run that learned from the old one."""
-    names = [d.shape] if d.format == "lasa" else list(d.files)
-    return {n: hashlib.sha256(p.read_bytes()).hexdigest() for n, p in zip(names, source_files(d))}
+    rerun after a recording changed (or a pattern that now matches other files) is not taken for a resume of the
+    run that learned from the old ones."""
+    return {n: hashlib.sha256(p.read_bytes()).hexdigest() for n, p in named_files(d)}
 
 
 def content_hash(d: Any) -> str:
