@@ -206,8 +206,11 @@ def test_one_episode_per_file_named_by_a_pattern_reads_in_recording_order(tmp_pa
         np.testing.assert_allclose(rec.t[1], 0.01)  # the rate, as no stamps are stored
     hashes = file_hashes(block)
     assert list(hashes) == [f"episodes/episode_{k}.hdf5" for k in range(11)]  # what a run directory records
-    with pytest.raises(RecordingError, match=r"no group 'data' \(data\.group\); top level holds action, observations.*"
-                       r"data\.group=null"):
+    with pytest.raises(
+        RecordingError,
+        match=r"no group 'data' \(data\.group\); top level holds action, observations.*"
+        r"data\.group=null",
+    ):
         read_recordings(block.model_copy(update={"group": "data"}))
     with pytest.raises(RecordingError, match=r"episodes/epsode_\*\.hdf5: no file matches this pattern \(data\.files\)"):
         read_recordings(block.model_copy(update={"files": ["episodes/epsode_*.hdf5"]}))
@@ -217,7 +220,9 @@ def test_a_binary_file_read_as_csv_and_a_directory_say_what_they_are(tmp_path):
     np.savez(tmp_path / "demos.npz", t=T, pos=REACH)
     with pytest.raises(RecordingError, match=r"demos\.npz: not a text CSV file.*data\.format=npz or hdf5"):
         read_csv(tmp_path / "demos.npz")
-    with pytest.raises(RecordingError, match=r"a directory \(data\.files\); name the recorded files in it.*with a pattern"):
+    with pytest.raises(
+        RecordingError, match=r"a directory \(data\.files\); name the recorded files in it.*with a pattern"
+    ):
         source_file(str(tmp_path))
 
 

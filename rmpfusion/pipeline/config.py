@@ -488,9 +488,11 @@ class RunConfig(_Frozen):
                 (
                     ("eval", "horizon"),
                     self.eval.horizon,
-                    "recorded demonstrations set how long the evaluation's rollouts last: "
-                    "data.horizon_factor times the longest demonstration; remove eval.horizon and set "
-                    "data.horizon_factor instead",
+                    (
+                        "recorded demonstrations set how long the evaluation's rollouts last: "
+                        "data.horizon_factor times the longest demonstration; remove eval.horizon and set "
+                        "data.horizon_factor instead"
+                    ),
                 )
             )
         return [
