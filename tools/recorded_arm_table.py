@@ -6,7 +6,7 @@
 One row per policy (the configured tree with every weight 1, then learner-rmp at every snapshot): on the held-out
 test and validation recordings, from each one's first state, the DTW per sample of the joint path (rad) and of the
 end-effector path (m), the end effector's distance to the goal after the horizon, how many came within the tolerance
-and how many collided; from the starts at rest in the recordings' enlarged joint box, how many converged, came to
+(test and validation) and how many collided; from the starts at rest in the recordings' enlarged joint box, how many converged, came to
 rest short of the goal (and which leaves hold them there), collided, and kept V_r non-increasing; the final
 learner's certificate and training time.
 """
@@ -20,7 +20,8 @@ from pathlib import Path
 
 HEADER = (
     "| run | policy | test DTW (rad) | test end-effector DTW (mm) | test final distance (mm) | test reached "
-    "| test collisions | validation end-effector DTW (mm) | starts converged | starts stopped short (held by) "
+    "| test collisions | validation end-effector DTW (mm) | validation reached | starts converged "
+    "| starts stopped short (held by) "
     "| starts collided | V_r monotone | certificate | train s |"
 )
 
@@ -39,7 +40,7 @@ def _policies(m: dict) -> list[tuple[str, dict]]:
 
 def _row(label: str, policy: str, r: dict) -> str:
     test, val, conv = r["reproduction_test"], r.get("reproduction_val") or {}, r["convergence"]
-    n_test = len(test["per_demonstration"])
+    n_test, n_val = len(test["per_demonstration"]), len(val.get("per_demonstration", []))
     n = conv["starts"]
     cert = r.get("certificate")
     cells = [
@@ -51,6 +52,7 @@ def _row(label: str, policy: str, r: dict) -> str:
         f"{round(test['reached'] * n_test)} / {n_test}",
         f"{test['collisions']} / {n_test}",
         f"{1000 * val['ee_dtw']:.1f}" if "ee_dtw" in val else "–",
+        f"{round(val['reached'] * n_val)} / {n_val}" if n_val else "–",
         f"{round(conv['converged'] * n)} / {n}",
         _stopped_short(conv),
         f"{conv['collisions']} / {n}",
