@@ -5,6 +5,8 @@ demonstrations a known policy made."""
 from __future__ import annotations
 
 import numpy as np
+from types import SimpleNamespace
+
 import pytest
 import torch
 from torch import nn
@@ -61,6 +63,28 @@ def test_scaled_distances_weigh_each_coordinate_by_its_spread():
     assert torch.allclose(d, torch.tensor([[[2.0, 1.0]]], dtype=torch.float64))
 
 
+def test_a_coordinate_the_demonstrations_hold_still_is_not_weighed_by_its_noise():
+    """A joint the recordings barely move (the iiwa's wrist: 1 mrad of spread, its noise, beside 0.39 rad) would
+    weigh 1/spread² times more than the others and make matching fit its noise: its spread is floored at
+    ``spread_floor`` times the largest; coordinates that move keep their own, and nothing moving counts as 1."""
+    t = torch.arange(0, 2.0, 0.01, dtype=torch.float64)
+    noise = 1e-3 * torch.sin(37.0 * t)
+    ds = SimpleNamespace(
+        traj_id=torch.zeros_like(t, dtype=torch.long),
+        t=t,
+        q=torch.stack([0.8 * t, 0.3 * torch.sin(t), noise], 1),
+        qd=torch.zeros(len(t), 3, dtype=torch.float64),
+        aux={},
+    )
+    demos = DemonstrationPaths(ds, record_every=0.1)
+    own = demos.spread(0.0)
+    floored = demos.spread(0.1)
+    assert own[2] < 1e-3 and torch.equal(floored[:2], own[:2])
+    assert floored[2] == pytest.approx(0.1 * float(own.max()))
+    still = SimpleNamespace(**{**vars(ds), "q": torch.zeros(len(t), 3, dtype=torch.float64)})
+    assert torch.equal(DemonstrationPaths(still, record_every=0.1).spread(0.1), torch.ones(3, dtype=torch.float64))
+
+
 def test_demonstrations_are_resampled_on_the_record_grid():
     t = torch.tensor([0.0, 0.03, 0.1, 0.26], dtype=torch.float64)  # irregular
     q = torch.stack([3 * t + 1, -t], 1)  # linear: interpolation is exact
@@ -109,7 +133,7 @@ def matching():
     goals = torch.tensor([[1.0, 1.0], [0.0, 0.5], [0.5, 0.0]], dtype=torch.float64)
     demos = DemonstrationPaths(demonstrations_of(CurlToGoal(3.0), env, starts, goals), record_every=0.1)
     params = MatchParams(record_every=0.1, horizon_factor=1.5, gamma=0.01)
-    return MatchingCost(env, params, demos.spread(), demos.duration), demos
+    return MatchingCost(env, params, demos.spread(params.spread_floor), demos.duration), demos
 
 
 def test_matching_cost_gradient_equals_finite_differences(matching):

@@ -136,18 +136,20 @@ def _renamed(block: Mapping[str, Any], names: Mapping[str, str]) -> dict[str, An
     return out
 
 
-#: keys added to behavior cloning's block since configs were first stored, with the value that reproduces a file
-#: stored without them
-ADDED_KEYS: dict[str, dict[str, Any]] = {"train": {"method": DEFAULT_METHOD, "objective": "mse"}}
+#: keys added to a method's block since configs were first stored, by method, with the value that reproduces a file
+#: stored without them (a block without ``method`` is behavior cloning's)
+ADDED_KEYS: dict[str, dict[str, Any]] = {
+    DEFAULT_METHOD: {"method": DEFAULT_METHOD, "objective": "mse"},
+    "match": {"spread_floor": 0.0},
+}
 
 
 def upgrade_train_config(train: Mapping[str, Any]) -> dict[str, Any]:
     """A stored ``train`` block (a checkpoint's ``train_config``, a run config's ``train``) as it reads today:
-    renamed keys under their current names (``RENAMED_KEYS``), and a block without ``method`` (written before
-    training methods existed) is behavior cloning, with the keys added to it since at the values it was made with
-    (``ADDED_KEYS``)."""
+    renamed keys under their current names (``RENAMED_KEYS``), a block without ``method`` (written before
+    training methods existed) is behavior cloning, and the keys added to its method since are set to the values it
+    was made with (``ADDED_KEYS``)."""
     out = _renamed(train, RENAMED_KEYS["train"])
-    if out.get("method", DEFAULT_METHOD) == DEFAULT_METHOD:
-        for key, value in ADDED_KEYS["train"].items():
-            out.setdefault(key, value)
+    for key, value in ADDED_KEYS.get(out.get("method", DEFAULT_METHOD), {}).items():
+        out.setdefault(key, value)
     return out

@@ -72,6 +72,14 @@ class MatchParams(TrainParams):
         gt=0,
         description="soft-DTW smoothing, in the units of the scaled squared distance (→ 0: hard DTW, not smooth)",
     )
+    spread_floor: float = Field(
+        0.1,
+        ge=0,
+        le=1,
+        description="each coordinate's distance is scaled by its spread over the training demonstrations, floored "
+        "at this fraction of the largest: a coordinate that barely moves (a joint the recordings hold still, whose "
+        "spread is its noise) is weighed as one that moves this much, not 1/spread² times the others",
+    )
 
     pretrain_iterations: int = Field(
         0,
@@ -89,7 +97,8 @@ class MatchParams(TrainParams):
 
     def describe(self) -> str:
         return (
-            f"{super().describe()}; {self.batch_size} demonstrations per step, soft-DTW (gamma={self.gamma}) "
+            f"{super().describe()}; {self.batch_size} demonstrations per step, soft-DTW (gamma={self.gamma}, "
+            f"spreads floored at {self.spread_floor:g} of the largest) "
             f"every {self.record_every}s over {self.horizon_factor}x the longest demonstration"
             f"{f', integrated at dt={self.dt}' if self.dt else ''}"
             f"{f', after {self.pretrain_iterations} iterations of behavior cloning' if self.pretrain_iterations else ''}"
@@ -124,12 +133,13 @@ class DemonstrationPaths:
     def __len__(self) -> int:
         return self.q0.shape[0]
 
-    def spread(self) -> Tensor:
-        """(d,) the standard deviation of each coordinate over every record of every demonstration (a constant
-        coordinate counts as 1, not 0)."""
+    def spread(self, floor: float) -> Tensor:
+        """(d,) the standard deviation of each coordinate over every record of every demonstration, at least
+        ``floor`` times the largest one (where nothing moves, every coordinate counts as 1)."""
         own = torch.cat([p[:n] for p, n in zip(self.paths, self.lengths)])
         s = own.std(0)
-        return torch.where(s > 1e-12, s, torch.ones_like(s))
+        least = torch.maximum(floor * s.max(), s.new_tensor(1e-12))
+        return torch.where(s.max() > 1e-12, torch.maximum(s, least), torch.ones_like(s))
 
 
 def on_records(t: Tensor, q: Tensor, record_every: float) -> Tensor:
@@ -187,7 +197,7 @@ class MatchSteps(Steps):
         self.train = DemonstrationPaths(ctx.train, params.record_every)
         self.val = DemonstrationPaths(ctx.val, params.record_every) if ctx.val is not None else None
         longest = max(self.train.duration, self.val.duration) if self.val is not None else self.train.duration
-        self.cost = MatchingCost(ctx.env, params, self.train.spread(), longest)
+        self.cost = MatchingCost(ctx.env, params, self.train.spread(params.spread_floor), longest)
         self.cloning = MinibatchSteps(model, params.cloning(), ctx, opt, gen) if params.pretrain_iterations else None
         if params.batch_size > len(self.train):
             ctx.tell(
