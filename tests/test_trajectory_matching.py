@@ -4,9 +4,9 @@ demonstrations a known policy made."""
 
 from __future__ import annotations
 
-import numpy as np
 from types import SimpleNamespace
 
+import numpy as np
 import pytest
 import torch
 from torch import nn
