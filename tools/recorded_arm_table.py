@@ -6,9 +6,9 @@
 One row per policy (the configured tree with every weight 1, then learner-rmp at every snapshot): on the held-out
 test and validation recordings, from each one's first state, the DTW per sample of the joint path (rad) and of the
 end-effector path (m), the end effector's distance to the goal after the horizon, how many came within the tolerance
-(test and validation) and how many collided; from the starts at rest in the recordings' enlarged joint box, how many converged, came to
-rest short of the goal (and which leaves hold them there), collided, and kept V_r non-increasing; the final
-learner's certificate and training time.
+(test and validation) and how many collided; from the starts at rest in the recordings' enlarged joint box, how many
+converged, came to rest short of the goal (and which leaves hold them there), collided, and kept V_r
+non-increasing; the final learner's certificate and training time.
 """
 
 from __future__ import annotations

@@ -31,33 +31,36 @@ def summary(run, env, expert, learners) -> str:
         lines.append(f"learner {name}: {run.learners[name].type}, {model.num_parameters()} parameters{extra}")
     d, t = run.data, run.train
     if d.source == "recorded":
-        read = source_files(d)
         what = f"LASA shape {d.shape}" if d.format == "lasa" else ", ".join(d.files)
-        what += f": {len(read)} files" if len(read) != len(d.files) and d.format != "lasa" else ""
-        data_line = (
-            f"data: recorded demonstrations ({d.format}: {what}), split {d.split}, derivatives "
-            f"{d.derivatives}"
-            + (
-                f" (Savitzky-Golay window {d.window}, order {d.polyorder})"
-                if d.derivatives == "filter"
-                else " (the files' own; data.window and data.polyorder are not used)"
-            )
-        )
+        if d.format != "lasa" and len(read := source_files(d)) != len(d.files):
+            what += f": {len(read)} files"  # a pattern named them
+        data_lines = [
+            (
+                f"data: recorded demonstrations ({d.format}: {what}), split {d.split}, derivatives "
+                f"{d.derivatives}"
+                + (
+                    f" (Savitzky-Golay window {d.window}, order {d.polyorder})"
+                    if d.derivatives == "filter"
+                    else " (the files' own; data.window and data.polyorder are not used)"
+                )
+            ),
+            (
+                f"eval: rollouts from the held-out demonstrations' starts and {d.starts} starts at rest, "
+                f"{d.horizon_factor:g} times the longest demonstration; figures {'on' if run.eval.figures else 'off'} "
+                "(eval.compile and eval.unit_weights are for expert data: the tree with every weight 1 is always the "
+                "reference here)"
+            ),
+        ]
     else:
-        data_line = (
-            f"data: {d.train_envs} envs x {d.train_trajectories} trajectories x {d.points} points (test "
-            f"{d.test_envs} x {d.test_trajectories}, validation {d.val_envs} x {d.val_trajectories}), every "
-            f"{d.interval}s"
-        )
-    lines.append(data_line)
-    if d.source == "recorded":
-        lines.append(
-            f"eval: rollouts from the held-out demonstrations' starts and {d.starts} starts at rest, "
-            f"{d.horizon_factor:g} times the longest demonstration; figures {'on' if run.eval.figures else 'off'} "
-            "(eval.compile and eval.unit_weights are for expert data: the tree with every weight 1 is always the "
-            "reference here)"
-        )
+        data_lines = [
+            (
+                f"data: {d.train_envs} envs x {d.train_trajectories} trajectories x {d.points} points (test "
+                f"{d.test_envs} x {d.test_trajectories}, validation {d.val_envs} x {d.val_trajectories}), every "
+                f"{d.interval}s"
+            )
+        ]
     lines += [
+        *data_lines,
         f"train: {t.method}, {t.describe()}",
         f"logger: wandb {run.logger.mode}",
         "OK: the configuration is valid and builds; nothing was run.",
