@@ -1321,7 +1321,7 @@ for _id, _fault, _overrides, _shows, _needs in [
         "a user's file given to the LASA experiment, whose data block reads the LASA shape",
         ["experiment=lasa", "data.files=[my_demos.csv]"],
         (
-            "data: data.files=['my_demos.csv'] is not read by format lasa (read by: csv, npz, hdf5); set data.files=[], "
+            "data: data.files=['my_demos.csv'] is not read by format lasa (read by: csv, npz, hdf5, rosbag); set data.files=[], "
             "or a data.format that reads it (for your own files start from data=recorded: no preset's values) "
             "(given: {'source': 'recorded', 'format': 'lasa', 'shape': 'Angle', 'files': ['my_demo...)"
         ),

@@ -33,7 +33,7 @@ def summary(run, env, expert, learners) -> str:
     if d.source == "recorded":
         what = f"LASA shape {d.shape}" if d.format == "lasa" else ", ".join(d.files)
         if d.format != "lasa" and len(read := source_files(d)) != len(d.files):
-            what += f": {len(read)} files"  # a pattern named them
+            what += f": {len(read)} {'bags' if d.format == 'rosbag' else 'files'}"  # a pattern named them
         data_lines = [
             (
                 f"data: recorded demonstrations ({d.format}: {what}), split {d.split}, derivatives "

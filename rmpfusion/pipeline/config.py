@@ -81,6 +81,7 @@ _FORMAT_KEYS = {
     "csv": _FILE_KEYS | {"demo_column", "velocity_columns", "acceleration_columns"},
     "npz": _ARRAY_KEYS,
     "hdf5": _ARRAY_KEYS | {"group", "rate"},
+    "rosbag": {"files", "units", "columns", "topic"},
 }
 _FORMAT_KEYS_ALL = set().union(*_FORMAT_KEYS.values())
 #: the data keys each split reads
@@ -95,12 +96,12 @@ class RecordedDataConfig(_Frozen):
     the demonstrations and evaluated against the held-out ones (``pipeline/recorded.py``)."""
 
     source: Literal["recorded"]
-    format: Literal["lasa", "csv", "npz", "hdf5"] = Field(description="how the files are laid out")
+    format: Literal["lasa", "csv", "npz", "hdf5", "rosbag"] = Field(description="how the files are laid out")
     shape: str | None = Field(None, description="format lasa: the handwriting shape (e.g. Angle, Sshape)")
     files: list[str] = Field(
         default_factory=list,
-        description="csv / npz / hdf5: the files, one or many demonstrations each; wildcards (episodes/*.hdf5) "
-        "name every matching file, in natural order",
+        description="csv / npz / hdf5: the files, one or many demonstrations each; rosbag: ROS 1 .bag files or ROS "
+        "2 bag directories, one demonstration each; wildcards (episodes/*.hdf5) name every match, in natural order",
     )
     units: Literal["m", "cm", "mm", "rad", "deg"] = Field(
         "m",
@@ -111,12 +112,16 @@ class RecordedDataConfig(_Frozen):
     columns: list[str] | None = Field(
         None,
         description="the coordinates' names, in order (csv: the columns read, default every column but time, "
-        "demonstration id, derivatives and aux; npz / hdf5: names for the position array's columns)",
+        "demonstration id, derivatives and aux; npz / hdf5: names for the position array's columns; rosbag: the "
+        "joints read by name, default the robot's)",
     )
     time_column: str = Field(
         "t", description="csv: the time column; npz: the time array's key; hdf5: the time dataset in each demo group"
     )
     demo_column: str | None = Field(None, description="csv: a column naming each row's demonstration")
+    topic: str | None = Field(
+        None, description="rosbag: the sensor_msgs/JointState topic; default the bag's only topic of that type"
+    )
     position_key: str = Field("pos", description="npz / hdf5: the positions' key (hdf5: inside each demo group)")
     velocity_columns: list[str] | None = Field(None, description="csv: the velocity columns (derivatives: file)")
     acceleration_columns: list[str] | None = Field(
@@ -235,6 +240,11 @@ class RecordedDataConfig(_Frozen):
         """``derivatives: file`` with a CSV, NPZ or HDF5 file needs the keys that say where the derivatives are."""
         if self.derivatives != "file" or self.format == "lasa":
             return
+        if self.format == "rosbag":
+            raise ValueError(
+                "data.derivatives=file: a ROS bag's JointState messages carry no accelerations (and the "
+                "velocities would then mix with the filter's); use data.derivatives=filter"
+            )
         keys = (
             ("velocity_columns", "acceleration_columns")
             if self.format == "csv"

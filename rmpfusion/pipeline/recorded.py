@@ -100,8 +100,8 @@ def recorded_splits(exp: Experiment) -> tuple[Splits, dict[str, list[States]], l
     d = exp.recorded_data
     t0 = time.time()
     recording_env(exp)
-    recordings = read_recordings(d)
     robot = exp.env.robot_description if isinstance(exp.env, JointSpace) else None
+    recordings = read_recordings(d, robot.joints if robot is not None else None)
     states = on_grid_for(recordings, d, exp.env.dt, exp.env.dim, exp.run.env.type, robot)
     split = split_of(d, len(states), exp.run.seed)
     parts = {"train": split.train, "test": split.test, **({"val": split.val} if split.val else {})}

@@ -178,12 +178,12 @@ def _recordings_checked(run: RunConfig, env: Any) -> tuple[list[Recording] | Non
     (None for a run on the expert's demonstrations, or one whose files cannot be read) and the problems."""
     if run.data.source != "recorded":
         return None, []
+    robot = env.robot_description if isinstance(env, JointSpace) else None
     try:
-        recordings = read_recordings(run.data)
+        recordings = read_recordings(run.data, robot.joints if robot is not None else None)
     except RecordingError as e:
         return None, [Issue("data", str(e))]
     try:
-        robot = env.robot_description if isinstance(env, JointSpace) else None
         on_grid_for(recordings, run.data, env.dt, env.dim, run.env.type, robot)
         split_of(run.data, len(recordings), run.seed)
     except RecordingError as e:

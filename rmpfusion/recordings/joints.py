@@ -9,7 +9,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from ..robots import RobotDescription
-from .recording import Recording, RecordingError, where
+from .recording import Recording, RecordingError
 
 #: angles within this much of a limit count as inside it (encoders and the URDF's rounding, in rad or m)
 LIMIT_TOLERANCE = 1e-3
@@ -43,7 +43,7 @@ def check_joint_recordings(
             i, k = (int(v) for v in bad[0])
             lo, hi = limits[k]
             raise RecordingError(
-                f"{where(rec.source, rec.row(i), rec.columns[k])}: {rec.pos[i, k]:.6g} lies outside "
+                f"{rec.at(i, rec.columns[k])}: {rec.pos[i, k]:.6g} lies outside "
                 f"{joints[k]}'s limits [{lo:.6g}, {hi:.6g}] of the robot '{robot.name}' "
                 f"({len(bad)} such value(s)); check the units (deg vs rad) and the joint order"
             )

@@ -22,12 +22,13 @@ class TimeOrderError(RecordingError):
     file) adds that to the message."""
 
 
-def where(source: str, row: int | None = None, column: str | None = None) -> str:
+def where(source: str, row: int | None = None, column: str | None = None, unit: str = "row") -> str:
     """``file``, ``file, row 12`` or ``file, row 12, column 'q3'``: the place a RecordingError points at.
-    Rows count from 1 as a spreadsheet or an editor shows them (for a CSV, the header is row 1)."""
+    Rows count from 1 as a spreadsheet or an editor shows them (for a CSV, the header is row 1); a bag's places
+    are its messages (``unit``)."""
     out = source
     if row is not None:
-        out += f", row {row}"
+        out += f", {unit} {row}"
     if column is not None:
         out += f", column {column!r}"
     return out
@@ -52,6 +53,8 @@ class Recording:
     aux: dict[str, np.ndarray] = field(default_factory=dict)
     #: file rows of the samples (for messages): row_of[i] is the file row of sample i
     rows: np.ndarray | None = None
+    #: what a row is called in messages: a file's row, a bag's message
+    row_unit: str = "row"
 
     def __post_init__(self):
         self.t = np.asarray(self.t, dtype=np.float64)
@@ -70,6 +73,10 @@ class Recording:
 
     def row(self, i: int) -> int | None:
         return int(self.rows[i]) if self.rows is not None else None
+
+    def at(self, i: int, column: str | None = None) -> str:
+        """Where sample ``i`` (and ``column``) lies in the file, as a RecordingError names it."""
+        return where(self.source, self.row(i), column, self.row_unit)
 
 
 def check_recording(rec: Recording) -> None:
@@ -91,7 +98,7 @@ def check_recording(rec: Recording) -> None:
         bad = np.flatnonzero(~np.isfinite(values[:, 0]))
         if bad.size:
             raise RecordingError(
-                f"{where(rec.source, rec.row(int(bad[0])), name)}: {float(values[bad[0], 0])} is not a finite "
+                f"{rec.at(int(bad[0]), name)}: {float(values[bad[0], 0])} is not a finite "
                 f"number ({bad.size} such value(s) in this column); fill or drop those samples"
             )
     for label, arr in (("velocity", rec.vel), ("acceleration", rec.acc)):
@@ -111,7 +118,7 @@ def check_recording(rec: Recording) -> None:
             else ""
         )
         raise TimeOrderError(
-            f"{where(rec.source, rec.row(i), 't')}: time {float(rec.t[i])!r} does not increase (the sample "
+            f"{rec.at(i, 't')}: time {float(rec.t[i])!r} does not increase (the sample "
             f"before is at {float(rec.t[i - 1])!r}); timestamps must be strictly increasing: sort the samples "
             f"or drop the duplicate{precision}"
         )
@@ -131,7 +138,7 @@ def check_gaps(rec: Recording, step: np.ndarray) -> None:
     if gap.size:
         i = int(gap[0]) + 1
         raise TimeOrderError(
-            f"{where(rec.source, rec.row(i), 't')}: {float(step[i - 1]):.6g} s without a sample before this one "
+            f"{rec.at(i, 't')}: {float(step[i - 1]):.6g} s without a sample before this one "
             f"(the median step is {median:.3g} s); resampling would invent the motion across it: "
             "cut the recording there into two demonstrations"
         )

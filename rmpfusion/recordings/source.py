@@ -8,6 +8,7 @@ Velocities and accelerations come from one place for the whole dataset: the Savi
 
 from __future__ import annotations
 
+import dataclasses
 import glob
 import hashlib
 import re
@@ -22,6 +23,7 @@ from .joints import check_joint_recordings, check_units
 from .lasa import lasa_file, read_lasa
 from .readers import read_csv, read_hdf5, read_npz
 from .recording import Recording, RecordingError
+from .rosbag import ROS2_METADATA, is_ros2_bag, read_rosbag
 from .signals import States, to_states
 
 #: a ``data.files`` entry starting with this names a recording shipped with rmpfusion (rmpfusion/recordings/files/)
@@ -29,9 +31,9 @@ SHIPPED = "rmpfusion:"
 SHIPPED_DIR = Path(__file__).resolve().parent / "files"
 
 
-def source_file(f: str) -> Path:
+def source_file(f: str, file_format: str = "csv") -> Path:
     """One ``data.files`` entry as a path: ``rmpfusion:NAME`` is a recording shipped with the package, anything else
-    a path relative to the directory the command runs in (or absolute)."""
+    a path relative to the directory the command runs in (or absolute); a ROS 2 bag is a directory."""
     if f.startswith(SHIPPED):
         path = SHIPPED_DIR / f[len(SHIPPED) :]
         if not path.is_file():
@@ -40,6 +42,13 @@ def source_file(f: str) -> Path:
                 f"{f}: rmpfusion ships no such recording (data.files); it ships {', '.join(shipped) or 'none'}"
             )
         return path
+    if is_ros2_bag(Path(f)):  # a ROS 2 bag is a directory (its metadata and storage files)
+        return Path(f)
+    if Path(f).is_dir() and file_format == "rosbag":
+        raise RecordingError(
+            f"{f}: a directory without {ROS2_METADATA}, so not a ROS 2 bag (data.files); name the bags in it (ROS 1 "
+            f".bag files or ROS 2 bag directories), all of them with a pattern: 'data.files=[\"{f}/*\"]'"
+        )
     if Path(f).is_dir():
         raise RecordingError(
             f"{f}: a directory (data.files); name the recorded files in it, e.g. data.files=[{f}/demo_0.csv,...], "
@@ -61,7 +70,7 @@ def _natural(name: str) -> list:
 def matching_files(pattern: str) -> list[str]:
     """The files a ``data.files`` entry with wildcards names (``episodes/*.hdf5``), in natural order; a pattern
     that matches no file is refused, not read as an empty dataset."""
-    found = sorted((p for p in glob.glob(pattern) if Path(p).is_file()), key=_natural)
+    found = sorted((p for p in glob.glob(pattern) if Path(p).is_file() or is_ros2_bag(Path(p))), key=_natural)
     if not found:
         raise RecordingError(
             f"{pattern}: no file matches this pattern (data.files), relative to the directory the command runs in "
@@ -76,7 +85,7 @@ def named_files(d: Any) -> list[tuple[str, Path]]:
     if d.format == "lasa":
         return [(d.shape, lasa_file(d.shape))]
     names = [m for f in d.files for m in (matching_files(f) if any(c in f for c in "*?[") else [f])]
-    return [(n, source_file(n)) for n in names]
+    return [(n, source_file(n, d.format)) for n in names]
 
 
 def source_files(d: Any) -> list[Path]:
@@ -88,7 +97,12 @@ def file_hashes(d: Any) -> dict[str, str]:
     """sha256 of each file the block reads, by the name the block gives it: what a run directory records, so a
     rerun after a recording changed (or a pattern that now matches other files) is not taken for a resume of the
     run that learned from the old ones."""
-    return {n: hashlib.sha256(p.read_bytes()).hexdigest() for n, p in named_files(d)}
+    hashes = {}
+    for name, path in named_files(d):
+        h = hashlib.sha256()
+        _feed(h, path)
+        hashes[name] = h.hexdigest()
+    return hashes
 
 
 def content_hash(d: Any) -> str:
@@ -96,12 +110,24 @@ def content_hash(d: Any) -> str:
     not when a file is moved."""
     h = hashlib.sha256()
     for path in source_files(d):
-        h.update(path.read_bytes())
+        _feed(h, path)
     return h.hexdigest()
 
 
-def read_recordings(d: Any) -> list[Recording]:
-    """Every demonstration the block names, in file order, positions in SI units and times in seconds."""
+def _feed(h: Any, path: Path) -> None:
+    """A file's bytes into the hash ``h``; a ROS 2 bag directory's files with their names, in sorted order."""
+    if not path.is_dir():
+        h.update(path.read_bytes())
+        return
+    for member in sorted(p for p in path.rglob("*") if p.is_file()):
+        h.update(str(member.relative_to(path)).encode())
+        h.update(member.read_bytes())
+
+
+def read_recordings(d: Any, joints: Sequence[str] | None = None) -> list[Recording]:
+    """Every demonstration the block names, in file order, positions in SI units and times in seconds. ``joints``:
+    the robot's joints in its file's order, which a ROS bag's joint states are read by name in (a bag names each
+    value; ``data.columns`` chooses others)."""
     if d.format == "lasa":
         return read_lasa(d.shape, use_file_derivatives=d.derivatives == "file")
     out: list[Recording] = []
@@ -117,6 +143,8 @@ def read_recordings(d: Any) -> list[Recording]:
                 acceleration_columns=d.acceleration_columns,
                 **common,
             )
+        elif d.format == "rosbag":
+            out += read_rosbag(path, topic=d.topic, joints=d.columns or joints, units=d.units)
         elif d.format == "npz":
             out += read_npz(path, time_key=d.time_column, **arrays, **common)
         else:
@@ -195,6 +223,6 @@ def to_grid(recordings: Sequence[Recording], d: Any, dt: float) -> list[States]:
     out = []
     for rec in recordings:
         if d.derivatives == "filter":  # the file's derivatives are never mixed with the filter's
-            rec = Recording(t=rec.t, pos=rec.pos, source=rec.source, columns=rec.columns, aux=rec.aux, rows=rec.rows)
+            rec = dataclasses.replace(rec, vel=None, acc=None)
         out.append(to_states(rec, dt, window=d.window, polyorder=d.polyorder, rest_fraction=d.rest_fraction, goal=goal))
     return out

@@ -1,0 +1,188 @@
+"""Robot logs as ROS records them: sensor_msgs/JointState in ROS 1 bags and ROS 2 bags (SQLite3 and MCAP), written
+by rosbags' own writers the way drivers publish them (joints in the driver's order, a gripper's fingers in the same
+messages or in messages of their own, header stamps on the robot's clock) and read back by name in the robot file's
+order; every bad bag answered by one message naming the bag, the message and the joint."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import ROOT, compose_cfg
+from pydantic import ValidationError
+
+from rmpfusion.pipeline.config import RecordedDataConfig
+from rmpfusion.pipeline.validate import resolve_and_validate
+from rmpfusion.recordings import RecordingError
+from rmpfusion.recordings.source import file_hashes, read_recordings, to_grid
+
+sys.path.insert(0, str(ROOT / "tools"))
+from rosbag_recordings import CLOCK_NS, driver_log, joint_state, main, typestore, write_bag
+
+PANDA = [f"panda_joint{k}" for k in range(1, 8)]
+KINDS = ["ros1", "ros2-sqlite3", "ros2-mcap"]
+
+
+def bag_path(tmp_path: Path, kind: str, name: str = "demo") -> Path:
+    return tmp_path / (f"{name}.bag" if kind == "ros1" else name)
+
+
+def arm_reach(n: int = 150) -> tuple[np.ndarray, np.ndarray]:
+    """A joint-space reach inside the Panda's limits at irregular stamps (about 100 Hz with jitter)."""
+    s = np.linspace(0, 1, n)
+    q = np.array([0.0, -0.3, 0.0, -2.0, 0.0, 1.8, 0.8]) + np.outer(10 * s**3 - 15 * s**4 + 6 * s**5, np.full(7, 0.4))
+    steps = 10_000_000 + np.random.default_rng(0).integers(-2_000_000, 2_000_000, n)
+    return q, CLOCK_NS + np.concatenate([[0], np.cumsum(steps[1:])])
+
+
+def data_block(**keys) -> RecordedDataConfig:
+    return RecordedDataConfig.model_validate({"source": "recorded", "format": "rosbag", "units": "rad", **keys})
+
+
+def edited(kind: str, log: list, k: int, stamp_ns: int | None = None, names=None, positions=None) -> list:
+    """``log`` with message ``k`` (0-based) remade: another stamp, other names or other positions."""
+    topic, msgtype, msg, logged = log[k]
+    stamp = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec if stamp_ns is None else stamp_ns
+    new = joint_state(typestore(kind), kind, stamp, names or msg.name, msg.position if positions is None else positions)
+    return [*log[:k], (topic, msgtype, new, logged), *log[k + 1 :]]
+
+
+# ------------------------------------------------------------------------------------------------ good bags
+@pytest.mark.parametrize("kind", KINDS)
+def test_joint_states_are_read_by_name_in_the_robots_order(tmp_path, kind):
+    q, stamps = arm_reach()
+    bag = write_bag(bag_path(tmp_path, kind), kind, driver_log(kind, q, stamps, PANDA))
+    (rec,) = read_recordings(data_block(files=[str(bag)]), joints=PANDA)
+    assert rec.columns == tuple(PANDA)
+    np.testing.assert_array_equal(rec.pos, q)  # the robot file's order, fingers dropped, gripper messages skipped
+    np.testing.assert_allclose(rec.t, (stamps - stamps[0]) * 1e-9, rtol=0, atol=1e-15)  # header stamps, exact
+    arm_messages = [k + 1 + k // 3 for k in range(len(q))]  # numbers on the topic, the gripper's messages counted
+    np.testing.assert_array_equal(rec.rows, arm_messages)
+    assert rec.source == f"{bag} [/joint_states]"
+
+
+def test_without_header_stamps_the_bags_own_times_are_used(tmp_path):
+    q, stamps = arm_reach(40)
+    log = driver_log("ros2-mcap", q, stamps, PANDA)
+    for k in range(len(log)):
+        log = edited("ros2-mcap", log, k, stamp_ns=0)
+    (rec,) = read_recordings(data_block(files=[str(write_bag(tmp_path / "b", "ros2-mcap", log))]), PANDA)
+    np.testing.assert_allclose(rec.t, (stamps - stamps[0]) * 1e-9, rtol=0, atol=1e-15)  # logged 2 ms later, all
+
+
+def test_a_ros2_bag_directory_is_one_file_to_patterns_and_hashes(tmp_path):
+    q, stamps = arm_reach(40)
+    for k in (1, 2, 10):
+        write_bag(tmp_path / f"episode_{k}", "ros2-sqlite3", driver_log("ros2-sqlite3", q + 0.01 * k, stamps, PANDA))
+    block = data_block(files=[str(tmp_path / "episode_*")])
+    recs = read_recordings(block, PANDA)
+    assert [r.source for r in recs] == [f"{tmp_path / f'episode_{k}'} [/joint_states]" for k in (1, 2, 10)]
+    hashes = file_hashes(block)
+    metadata = tmp_path / "episode_2" / "metadata.yaml"
+    metadata.write_text(metadata.read_text() + "\n")
+    changed = file_hashes(block)
+    assert [n for n in hashes if hashes[n] != changed[n]] == [str(tmp_path / "episode_2")]
+
+
+def test_the_topic_is_chosen_where_a_bag_holds_two(tmp_path):
+    q, stamps = arm_reach(40)
+    log = driver_log("ros1", q, stamps, PANDA) + driver_log("ros1", q + 0.1, stamps, PANDA, "/teleop/joint_states")
+    bag = str(write_bag(tmp_path / "two.bag", "ros1", sorted(log, key=lambda m: m[3])))
+    with pytest.raises(RecordingError, match=r"two\.bag: 2 topics of type sensor_msgs/msg/JointState.*data\.topic"):
+        read_recordings(data_block(files=[bag]), PANDA)
+    (rec,) = read_recordings(data_block(files=[bag], topic="/teleop/joint_states"), PANDA)
+    np.testing.assert_array_equal(rec.pos, q + 0.1)
+
+
+# ------------------------------------------------------------------------------------------------ bad bags
+def test_a_bag_without_joint_states_names_what_it_holds(tmp_path):
+    text = typestore("ros2-mcap").types["std_msgs/msg/String"](data="hello")
+    bag = str(write_bag(tmp_path / "chatter", "ros2-mcap", [("/chatter", "std_msgs/msg/String", text, 1)]))
+    with pytest.raises(RecordingError, match=r"chatter: no topic of type .*JointState; the bag holds /chatter "):
+        read_recordings(data_block(files=[bag]), PANDA)
+    with pytest.raises(RecordingError, match=r"the topic '/chatter' carries std_msgs/msg/String, not "):
+        read_recordings(data_block(files=[bag], topic="/chatter"), PANDA)
+    with pytest.raises(RecordingError, match=r"no topic '/joint_states' \(data\.topic\); the bag holds /chatter"):
+        read_recordings(data_block(files=[bag], topic="/joint_states"), PANDA)
+
+
+def test_another_robots_bag_names_the_joints_it_lacks(tmp_path):
+    q, stamps = arm_reach(20)
+    ur = [f"wrist_{k}_joint" if j == "panda_joint7" else j for k, j in enumerate(PANDA)]
+    bag = str(write_bag(tmp_path / "ur.bag", "ros1", driver_log("ros1", q, stamps, ur)))
+    with pytest.raises(
+        RecordingError,
+        match=r"ur\.bag \[/joint_states\]: no message carries every joint .*never named: panda_joint7.*wrist_6_joint",
+    ):
+        read_recordings(data_block(files=[bag]), PANDA)
+
+
+@pytest.mark.parametrize(
+    ("fault", "message"),
+    [
+        ("nan", r"demo \[/joint_states\], message 5, column 'panda_joint3': nan is not a finite number"),
+        ("repeated stamp", r"demo \[/joint_states\], message 5, column 't': time .* does not increase"),
+        ("short position list", r"demo \[/joint_states\], message 5: the message names 9 joints but holds 8"),
+    ],
+)
+def test_a_bad_message_is_named_by_its_number(tmp_path, fault, message):
+    q, stamps = arm_reach(20)
+    log = driver_log("ros2-mcap", q, stamps, PANDA)  # message 5 (index 4) is the arm's, after 3 arm and 1 gripper
+    names, positions = list(log[4][2].name), np.array(log[4][2].position)
+    if fault == "nan":
+        positions[names.index("panda_joint3")] = np.nan
+        log = edited("ros2-mcap", log, 4, positions=positions)
+    elif fault == "repeated stamp":
+        log = edited("ros2-mcap", log, 4, stamp_ns=int(stamps[2]))
+    else:
+        log = edited("ros2-mcap", log, 4, positions=positions[:-1])
+    bag = str(write_bag(tmp_path / "demo", "ros2-mcap", log))
+    with pytest.raises(RecordingError, match=message):
+        read_recordings(data_block(files=[bag]), PANDA)
+
+
+def test_a_file_that_is_not_a_bag_is_refused(tmp_path):
+    (tmp_path / "notes.bag").write_text("t,x\n0,1\n")
+    with pytest.raises(RecordingError, match=r"notes\.bag: not a readable ROS bag"):
+        read_recordings(data_block(files=[str(tmp_path / "notes.bag")]), PANDA)
+
+
+def test_without_rosbags_installed_the_fix_is_named(tmp_path, monkeypatch):
+    q, stamps = arm_reach(20)
+    bag = str(write_bag(tmp_path / "demo", "ros2-mcap", driver_log("ros2-mcap", q, stamps, PANDA)))
+    monkeypatch.setitem(sys.modules, "rosbags.highlevel", None)  # as if the optional package were not installed
+    with pytest.raises(RecordingError, match=r"needs the rosbags package: pip install -e '\.\[ros\]'"):
+        read_recordings(data_block(files=[bag]), PANDA)
+
+
+def test_a_directory_that_is_not_a_ros2_bag_is_refused(tmp_path):
+    (tmp_path / "bags").mkdir()
+    with pytest.raises(RecordingError, match=r"bags: a directory without metadata\.yaml, so not a ROS 2 bag.*/\*"):
+        read_recordings(data_block(files=[str(tmp_path / "bags")]), PANDA)
+
+
+def test_settings_a_bag_cannot_honour_are_refused():
+    with pytest.raises(ValidationError, match=r"a ROS bag's JointState messages carry no accelerations"):
+        data_block(files=["x.bag"], derivatives="file")
+    with pytest.raises(ValidationError, match=r"data\.time_units='ms' is not read by format rosbag"):
+        data_block(files=["x.bag"], time_units="ms")
+
+
+# ------------------------------------------------------------------------------------------------ end to end
+def test_the_panda_recordings_as_bags_equal_the_csv_on_the_step_grid(tmp_path):
+    """The shipped Panda recordings (a planner's, with noise and irregular stamps) logged by the tool to one ROS 2
+    bag per demonstration as a driver publishes them: the run's checks pass and every demonstration lands on the
+    step grid exactly as from the CSV. The tool refuses to write over a directory that exists."""
+    assert main(["--out", str(tmp_path / "bags")]) == 0
+    assert main(["--out", str(tmp_path / "bags")]) == 1
+    overrides = ["experiment=recorded_arm", "data.format=rosbag", "data.demo_column=null"]
+    run = resolve_and_validate(compose_cfg([*overrides, f"data.files=[{tmp_path}/bags/demo*]"]))
+    from_csv = resolve_and_validate(compose_cfg(["experiment=recorded_arm"]))
+    dt, _ = from_csv.env.integration_step()
+    bags, csvs = (to_grid(read_recordings(r.data, PANDA), r.data, dt) for r in (run, from_csv))
+    assert len(bags) == len(csvs) == 24
+    for a, b in zip(bags, csvs):
+        np.testing.assert_allclose(a.q, b.q, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(a.qd, b.qd, rtol=0, atol=1e-6)
