@@ -6,6 +6,7 @@ splits) refused with the key and the fix."""
 
 from __future__ import annotations
 
+import re
 import subprocess
 import sys
 
@@ -49,6 +50,19 @@ def test_a_spreadsheets_csv_reads_like_a_plain_one(tmp_path, sep, encoding):
     (rec,) = read_csv(path, demo_column="demo")
     assert rec.columns == ("x", "y")
     np.testing.assert_allclose(rec.pos, REACH)
+
+
+@pytest.mark.parametrize(
+    ("time_name", "fix"),
+    [("time", "; set data.time_column=time"), ("%time", "; set data.time_column=%time"), ("clock", "")],
+)
+def test_a_time_column_under_another_name_is_named_with_its_fix(tmp_path, time_name, fix):
+    path = tmp_path / "log.csv"
+    path.write_text(csv_text(reach_rows(), [time_name, "x", "y"]))
+    expected = f"log.csv, row 1: the header has no time column 't' (data.time_column); it has {time_name}, x, y{fix}"
+    with pytest.raises(RecordingError, match=re.escape(expected) + "$"):
+        read_csv(path)
+    assert read_csv(path, time_column=time_name)[0].dim == 2
 
 
 def test_pandas_index_column_is_refused_not_read_as_a_coordinate(tmp_path):

@@ -98,6 +98,12 @@ def _coordinate_columns(header: list[str], used: set, source: str) -> list[str]:
     return [h for h in header if h not in used]
 
 
+def _time_column_hint(header: Sequence[str]) -> str:
+    """The fix when one column's name says it holds the time (``time``, ``timestamp``, rostopic's ``%time``)."""
+    timed = [h for h in header if "time" in h.lower() or h.lower() in ("stamp", "sec", "secs", "seconds")]
+    return f"; set data.time_column={timed[0]}" if len(timed) == 1 else ""
+
+
 def read_csv(
     path: str | Path,
     columns: Sequence[str] | None = None,
@@ -125,7 +131,12 @@ def read_csv(
     used = {time_column, demo_column, *derivatives, *(c for cs in aux_columns.values() for c in cs)}
     guessed = columns is None
     columns = list(columns) if columns is not None else _coordinate_columns(header, used, source)
-    for name in [time_column, *columns, *derivatives, *(c for cs in aux_columns.values() for c in cs)]:
+    if time_column not in header:
+        raise RecordingError(
+            f"{where(source, 1)}: the header has no time column {time_column!r} (data.time_column); it has "
+            f"{', '.join(header)}{_time_column_hint(header)}"
+        )
+    for name in [*columns, *derivatives, *(c for cs in aux_columns.values() for c in cs)]:
         if name not in header:
             raise RecordingError(f"{where(source, 1)}: the header has no column {name!r}; it has {', '.join(header)}")
     if demo_column and demo_column not in header:
