@@ -90,7 +90,11 @@ def test_the_topic_is_chosen_where_a_bag_holds_two(tmp_path):
     q, stamps = arm_reach(40)
     log = driver_log("ros1", q, stamps, PANDA) + driver_log("ros1", q + 0.1, stamps, PANDA, "/teleop/joint_states")
     bag = str(write_bag(tmp_path / "two.bag", "ros1", sorted(log, key=lambda m: m[3])))
-    with pytest.raises(RecordingError, match=r"two\.bag: 2 topics of type sensor_msgs/msg/JointState.*data\.topic"):
+    with pytest.raises(
+        RecordingError,
+        match=r"two\.bag: 2 topics of type sensor_msgs/msg/JointState: /joint_states, /teleop/joint_states; name the "
+        r"one to read in data\.topic$",
+    ):
         read_recordings(data_block(files=[bag]), PANDA)
     (rec,) = read_recordings(data_block(files=[bag], topic="/teleop/joint_states"), PANDA)
     np.testing.assert_array_equal(rec.pos, q + 0.1)
@@ -100,12 +104,22 @@ def test_the_topic_is_chosen_where_a_bag_holds_two(tmp_path):
 def test_a_bag_without_joint_states_names_what_it_holds(tmp_path):
     text = typestore("ros2-mcap").types["std_msgs/msg/String"](data="hello")
     bag = str(write_bag(tmp_path / "chatter", "ros2-mcap", [("/chatter", "std_msgs/msg/String", text, 1)]))
-    with pytest.raises(RecordingError, match=r"chatter: no topic of type .*JointState; the bag holds /chatter "):
+    with pytest.raises(RecordingError, match=r"chatter: no topic of type .*JointState; the bag holds /chatter \(std"):
         read_recordings(data_block(files=[bag]), PANDA)
-    with pytest.raises(RecordingError, match=r"the topic '/chatter' carries std_msgs/msg/String, not "):
+    with pytest.raises(
+        RecordingError, match=r"'/chatter' \(data\.topic\) carries std_msgs/msg/String, not .*has none$"
+    ):
         read_recordings(data_block(files=[bag], topic="/chatter"), PANDA)
     with pytest.raises(RecordingError, match=r"no topic '/joint_states' \(data\.topic\); the bag holds /chatter"):
         read_recordings(data_block(files=[bag], topic="/joint_states"), PANDA)
+
+
+def test_a_bag_of_every_topic_lists_the_first_twenty(tmp_path):
+    String = typestore("ros1").types["std_msgs/msg/String"]
+    log = [(f"/topic_{k:02d}", "std_msgs/msg/String", String(data="x"), k + 1) for k in range(25)]
+    bag = str(write_bag(tmp_path / "all.bag", "ros1", log))
+    with pytest.raises(RecordingError, match=r"/topic_19 \(std_msgs/msg/String\) and 5 more$"):
+        read_recordings(data_block(files=[bag]), PANDA)
 
 
 def test_another_robots_bag_names_the_joints_it_lacks(tmp_path):

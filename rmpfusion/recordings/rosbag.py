@@ -78,23 +78,39 @@ def read_rosbag(
 def _joint_state_connections(bag: Any, topic: str | None, source: str) -> list[Any]:
     """The bag's connections on the joint-state topic: ``topic`` when given, else the only JointState topic."""
     kinds = {c.topic: c.msgtype for c in bag.connections}
-    listed = ", ".join(f"{name} ({kind})" for name, kind in sorted(kinds.items())) or "no topic"
+    joint_topics = sorted(name for name, kind in kinds.items() if kind == JOINT_STATE)
+    held = _listed(kinds)
     if topic is None:
-        found = sorted(name for name, kind in kinds.items() if kind == JOINT_STATE)
-        if len(found) != 1:
-            why = "no topic" if not found else f"{len(found)} topics"
+        if len(joint_topics) > 1:
             raise RecordingError(
-                f"{source}: {why} of type {JOINT_STATE}; the bag holds {listed}. "
-                + ("Name the joint states' topic in data.topic" if found else "Record the robot's joint states")
+                f"{source}: {len(joint_topics)} topics of type {JOINT_STATE}: {', '.join(joint_topics)}; name the "
+                "one to read in data.topic"
             )
-        topic = found[0]
+        if not joint_topics:
+            raise RecordingError(f"{source}: no topic of type {JOINT_STATE}; the bag holds {held}")
+        topic = joint_topics[0]
     if topic not in kinds:
-        raise RecordingError(f"{source}: no topic {topic!r} (data.topic); the bag holds {listed}")
+        raise RecordingError(
+            f"{source}: no topic {topic!r} (data.topic); "
+            + (f"its {JOINT_STATE} topics: {', '.join(joint_topics)}" if joint_topics else f"the bag holds {held}")
+        )
     if kinds[topic] != JOINT_STATE:
         raise RecordingError(
-            f"{source}: the topic {topic!r} carries {kinds[topic]}, not {JOINT_STATE}; the bag holds {listed}"
+            f"{source}: the topic {topic!r} (data.topic) carries {kinds[topic]}, not {JOINT_STATE}; "
+            + (f"its {JOINT_STATE} topics: {', '.join(joint_topics)}" if joint_topics else "the bag has none")
         )
     return [c for c in bag.connections if c.topic == topic]
+
+
+#: a bag recorded with every topic can hold hundreds: the messages list this many
+LISTED_TOPICS = 20
+
+
+def _listed(kinds: dict[str, str]) -> str:
+    """The bag's topics with their types, the first LISTED_TOPICS of them."""
+    names = sorted(kinds)
+    shown = ", ".join(f"{name} ({kinds[name]})" for name in names[:LISTED_TOPICS]) or "no topic"
+    return shown + (f" and {len(names) - LISTED_TOPICS} more" if len(names) > LISTED_TOPICS else "")
 
 
 def _joint_positions(
