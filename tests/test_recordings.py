@@ -109,7 +109,7 @@ def test_csv_with_many_demonstrations_aux_columns_and_millimetres(tmp_path):
     "text,message",
     [
         ("", r"empty\.csv: the file is empty"),
-        ("time,x\n0,1\n", r"no column 't'; it has time, x"),
+        ("time,x\n0,1\n", r"no time column 't' \(data\.time_column\); it has time, x; set data\.time_column=time"),
         ("t,x\n0,1\n0.1,2\n0.1,3\n", r"row 4, column 't': time 0\.1 does not increase"),
         ("t,x\n0,1\n0.1,nan\n0.2,3\n", r"row 3, column 'x': nan is not a finite number"),
         ("t,x\n0,1\n0.1,abc\n", r"row 3, column 'x': 'abc' is not a number"),
