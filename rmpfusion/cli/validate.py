@@ -43,6 +43,11 @@ def summary(run, env, expert, learners) -> str:
                     if d.derivatives == "filter"
                     else " (the files' own; data.window and data.polyorder are not used)"
                 )
+                + (
+                    f"; aux per demonstration from the files: {', '.join(from_files)}"
+                    if (from_files := {**(d.aux_columns or {}), **(d.aux_keys or {})})
+                    else ""
+                )
             ),
             (
                 f"eval: rollouts from the held-out demonstrations' starts and {d.starts} starts at rest, "

@@ -75,10 +75,10 @@ class DataConfig(_Frozen):
 
 #: the data keys each recorded format reads; the others must keep their defaults under that format
 _FILE_KEYS = {"files", "units", "time_units", "columns", "time_column"}
-_ARRAY_KEYS = _FILE_KEYS | {"position_key", "velocity_key", "acceleration_key"}
+_ARRAY_KEYS = _FILE_KEYS | {"position_key", "velocity_key", "acceleration_key", "aux_keys"}
 _FORMAT_KEYS = {
     "lasa": {"shape"},
-    "csv": _FILE_KEYS | {"demo_column", "velocity_columns", "acceleration_columns"},
+    "csv": _FILE_KEYS | {"demo_column", "velocity_columns", "acceleration_columns", "aux_columns"},
     "npz": _ARRAY_KEYS,
     "hdf5": _ARRAY_KEYS | {"group", "rate"},
     "rosbag": {"files", "units", "columns", "topic"},
@@ -121,6 +121,18 @@ class RecordedDataConfig(_Frozen):
     demo_column: str | None = Field(None, description="csv: a column naming each row's demonstration")
     topic: str | None = Field(
         None, description="rosbag: the sensor_msgs/JointState topic; default the bag's only topic of that type"
+    )
+    aux_columns: dict[str, list[str]] | None = Field(
+        None,
+        description="csv: aux state that differs between demonstrations (an obstacle where it stood, the goal), "
+        "name -> its columns, one value per demonstration, in the environment's units (m: data.units is the "
+        "positions'), e.g. {obstacle1_center: [ox, oy, oz]}; the names are the environment's aux state "
+        "(rmpfusion-validate lists them). The rest comes from the scene and each demonstration's final rest",
+    )
+    aux_keys: dict[str, str] | None = Field(
+        None,
+        description="npz / hdf5: the same, name -> array key: (k,) or (N, k) for N demonstrations in an NPZ; (k,) "
+        "or a constant (T, k) in each HDF5 demonstration group",
     )
     position_key: str = Field("pos", description="npz / hdf5: the positions' key (hdf5: inside each demo group)")
     velocity_columns: list[str] | None = Field(None, description="csv: the velocity columns (derivatives: file)")
@@ -204,6 +216,10 @@ class RecordedDataConfig(_Frozen):
             raise ValueError(f"format {self.format} needs data.files, the recorded files to read")
         self._no_setting_the_format_ignores()
         self._file_derivatives_named()
+        if self.goal is not None and "goal" in {**(self.aux_columns or {}), **(self.aux_keys or {})}:
+            raise ValueError(
+                "data.goal and a goal aux column (data.aux_columns / data.aux_keys) both give the goal; keep one"
+            )
         if self.window % 2 == 0 or self.window <= self.polyorder:
             raise ValueError(
                 f"data.window ({self.window}) must be odd and larger than data.polyorder ({self.polyorder})"
@@ -304,6 +320,9 @@ RECORDED_DATA_ADDED = {
     "velocity_key": None,
     "acceleration_key": None,
     "group": "data",
+    "topic": None,
+    "aux_columns": None,
+    "aux_keys": None,
 }
 
 

@@ -102,7 +102,7 @@ def recorded_splits(exp: Experiment) -> tuple[Splits, dict[str, list[States]], l
     recording_env(exp)
     robot = exp.env.robot_description if isinstance(exp.env, JointSpace) else None
     recordings = read_recordings(d, robot.joints if robot is not None else None)
-    states = on_grid_for(recordings, d, exp.env.dt, exp.env.dim, exp.run.env.type, robot)
+    states = on_grid_for(recordings, d, exp.env.dt, exp.env.dim, exp.run.env.type, robot, exp.env.aux_dims())
     split = split_of(d, len(states), exp.run.seed)
     parts = {"train": split.train, "test": split.test, **({"val": split.val} if split.val else {})}
     files = content_hash(d)
@@ -214,10 +214,15 @@ def evaluation_batch(exp: Experiment, demos: dict[str, list[States]], every_demo
     goals += [goal] * len(grid)
     longest = max(float(s.t[-1]) for s in every_demo)
     horizon = dt * int(np.ceil(d.horizon_factor * longest / dt - 1e-9))
+    aux = env.recorded_aux(_as_tensor(np.stack(goals)))
+    held_states = [s for v in held.values() for s in v]
+    for n, s in enumerate(held_states):  # a demonstration's own aux state (its obstacle, its goal) where it has one
+        for name, value in s.aux.items():
+            aux[name][n] = _as_tensor(value)
     return Batch(
         _as_tensor(np.stack(q0)),
         _as_tensor(np.stack(qd0)),
-        env.recorded_aux(_as_tensor(np.stack(goals))),
+        aux,
         held,
         index,
         slice(at, at + len(grid)),

@@ -184,7 +184,7 @@ def _recordings_checked(run: RunConfig, env: Any) -> tuple[list[Recording] | Non
     except RecordingError as e:
         return None, [Issue("data", str(e))]
     try:
-        on_grid_for(recordings, run.data, env.dt, env.dim, run.env.type, robot)
+        on_grid_for(recordings, run.data, env.dt, env.dim, run.env.type, robot, env.aux_dims())
         split_of(run.data, len(recordings), run.seed)
     except RecordingError as e:
         return recordings, [Issue("data", str(e))]

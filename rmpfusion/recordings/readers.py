@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import csv
 import io
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -50,6 +50,27 @@ def _scaled(rec_kwargs: dict, scale: float, seconds: float) -> dict:
         if rec_kwargs.get(key) is not None:
             rec_kwargs[key] = rec_kwargs[key] * (scale / per_time)
     return rec_kwargs
+
+
+# ------------------------------------------------------------------------------------------------ aux state
+def _constant(values: np.ndarray, label: str, place: Callable[[int, int], str]) -> np.ndarray:
+    """An aux entry's one value (k,) from its samples ``values`` (T, k): the tree reads one aux state per
+    demonstration, so a value that changes within it (an obstacle moved mid-recording) is refused at the first
+    sample that differs (``place(i, k)``: where sample i's k-th value is, for the message)."""
+    values = np.asarray(values, dtype=np.float64).reshape(len(values), -1)
+    bad = np.argwhere(values != values[0])
+    if bad.size:
+        i, k = (int(v) for v in bad[0])
+        raise RecordingError(
+            f"{place(i, k)}: {values[i, k]:.6g} differs from {values[0, k]:.6g} earlier in "
+            f"{label}; aux state (data.aux_columns / data.aux_keys) holds one value per demonstration"
+        )
+    return values[0]
+
+
+def _cells(source: str, rows: Sequence[int], columns: Sequence[str]) -> Callable[[int, int], str]:
+    """Where a CSV demonstration's i-th sample of its k-th aux column is (the header is row 1)."""
+    return lambda i, k: where(source, rows[i] + 2, columns[k])
 
 
 # ------------------------------------------------------------------------------------------------ CSV
@@ -177,7 +198,7 @@ def read_csv(
             "vel": numbers(rows, velocity_columns) if velocity_columns else None,
             "acc": numbers(rows, acceleration_columns) if acceleration_columns else None,
         }
-        aux = {name: numbers(rows, cs)[0] for name, cs in aux_columns.items()}
+        aux = {name: _constant(numbers(rows, cs), label, _cells(source, rows, cs)) for name, cs in aux_columns.items()}
         try:
             rec = Recording(
                 **_scaled(kwargs, scale, seconds),
@@ -222,10 +243,12 @@ def read_npz(
     units: str = "m",
     acceleration_key: str | None = None,
     time_units: str = "s",
+    aux_keys: Mapping[str, str] | None = None,
 ) -> list[Recording]:
     """Demonstrations from an NPZ file: ``t`` (T,) and ``pos`` (T, d) for one, or a leading demonstration axis
     (N, T) and (N, T, d) for several of equal length; the file's own derivatives at ``velocity_key`` and
-    ``acceleration_key``, shaped like the positions."""
+    ``acceleration_key``, shaped like the positions; aux state per demonstration at ``aux_keys`` (name -> key of
+    a (k,) array for one demonstration, (N, k) for N)."""
     path = Path(path)
     source = str(path)
     try:
@@ -236,6 +259,7 @@ def read_npz(
         t, pos = _npz_array(data, time_key, source), _npz_array(data, position_key, source)
         vel = _npz_array(data, velocity_key, source) if velocity_key else None
         acc = _npz_array(data, acceleration_key, source) if acceleration_key else None
+        aux = {name: (key, _npz_array(data, key, source)) for name, key in (aux_keys or {}).items()}
     if t.ndim == 1:
         t, pos = t[None], pos[None]
         vel, acc = (a[None] if a is not None else None for a in (vel, acc))
@@ -248,6 +272,9 @@ def read_npz(
             "expected (T,) and (T, d), or (N, T) and (N, T, d)"
         )
     columns = tuple(columns) if columns is not None else tuple(f"{position_key}[{k}]" for k in range(pos.shape[2]))
+    per_demo = {
+        name: _per_demonstration(arr, t.shape[0], f"{source}: aux array {key!r}") for name, (key, arr) in aux.items()
+    }
     scale, seconds = unit_scale(units, source), time_scale(time_units, source)
     return [
         Recording(
@@ -262,11 +289,26 @@ def read_npz(
                 seconds,
             ),
             source=f"{source} [demonstration {n}]" if t.shape[0] > 1 else source,
+            aux={name: arr[n] for name, arr in per_demo.items()},
             columns=columns,
             rows=np.arange(t.shape[1]) + 1,
         )
         for n in range(t.shape[0])
     ]
+
+
+def _per_demonstration(arr: np.ndarray, n: int, label: str) -> np.ndarray:
+    """An NPZ aux array as (N, k): (k,) or a scalar for a file of one demonstration, (N, k) for N."""
+    if n == 1 and arr.ndim <= 1:
+        return arr.reshape(1, -1)
+    if arr.ndim == 2 and arr.shape[0] == n:
+        return arr
+    if arr.ndim == 1 and arr.shape[0] == n:
+        return arr[:, None]
+    raise RecordingError(
+        f"{label} has shape {arr.shape}; aux state holds one value per demonstration: (k,) for a file of one, "
+        f"(N, k) for N (this file holds {n})"
+    )
 
 
 # ------------------------------------------------------------------------------------------------ HDF5
@@ -309,13 +351,15 @@ def read_hdf5(
     velocity_key: str | None = None,
     acceleration_key: str | None = None,
     time_units: str = "s",
+    aux_keys: Mapping[str, str] | None = None,
 ) -> list[Recording]:
     """Demonstrations from an HDF5 file laid out as robomimic does: one subgroup of ``group`` per demonstration
     (``data/demo_0``, ``data/demo_1``, … in natural order; datasets beside them, such as statistics, are not
     demonstrations), positions at ``position_key`` inside it (e.g. ``obs/robot0_joint_pos``), times at
     ``time_key`` or, where the layout stores none, a fixed ``rate`` (Hz); a group holding time stamps while a rate
     is given is refused (one of the two would be ignored). ``group=None`` reads the whole file as one demonstration,
-    as ALOHA's and ACT's episode files hold one (``observations/qpos`` at the top level, one file per episode)."""
+    as ALOHA's and ACT's episode files hold one (``observations/qpos`` at the top level, one file per episode).
+    Aux state per demonstration at ``aux_keys`` (name -> dataset in each group: (k,), or (T, k) constant)."""
     h5py = _h5py()
     path = Path(path)
     source = str(path)
@@ -354,12 +398,27 @@ def read_hdf5(
                 "vel": _h5_array(demo, velocity_key, label, "data.velocity_key") if velocity_key else None,
                 "acc": _h5_array(demo, acceleration_key, label, "data.acceleration_key") if acceleration_key else None,
             }
+            aux = {name: _h5_aux(demo, key, label) for name, key in (aux_keys or {}).items()}
             out.append(
-                Recording(**_scaled(kwargs, scale, seconds), source=label, columns=cols, rows=np.arange(t.shape[0]) + 1)
+                Recording(
+                    **_scaled(kwargs, scale, seconds),
+                    source=label,
+                    columns=cols,
+                    aux=aux,
+                    rows=np.arange(t.shape[0]) + 1,
+                )
             )
     if not out:
         raise RecordingError(f"{source}: group {group!r} holds no demonstrations")
     return out
+
+
+def _h5_aux(demo: Any, key: str, label: str) -> np.ndarray:
+    """A demonstration group's aux entry: a (k,) dataset (or a scalar), or a (T, k) one constant over the samples."""
+    arr = _h5_array(demo, key, label, "data.aux_keys")
+    if arr.ndim <= 1:
+        return arr.reshape(-1)
+    return _constant(arr.reshape(len(arr), -1), label, lambda i, k: f"{label}, {key}[{i}, {k}]")
 
 
 def _demonstration_groups(fh: Any, group: str | None, source: str) -> list[tuple[str, Any]]:

@@ -12,7 +12,7 @@ import dataclasses
 import glob
 import hashlib
 import re
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -132,7 +132,12 @@ def read_recordings(d: Any, joints: Sequence[str] | None = None) -> list[Recordi
         return read_lasa(d.shape, use_file_derivatives=d.derivatives == "file")
     out: list[Recording] = []
     common = {"columns": d.columns, "units": d.units, "time_units": d.time_units}
-    arrays = {"position_key": d.position_key, "velocity_key": d.velocity_key, "acceleration_key": d.acceleration_key}
+    arrays = {
+        "position_key": d.position_key,
+        "velocity_key": d.velocity_key,
+        "acceleration_key": d.acceleration_key,
+        "aux_keys": d.aux_keys,
+    }
     for path in source_files(d):
         if d.format == "csv":
             out += read_csv(
@@ -141,6 +146,7 @@ def read_recordings(d: Any, joints: Sequence[str] | None = None) -> list[Recordi
                 demo_column=d.demo_column,
                 velocity_columns=d.velocity_columns,
                 acceleration_columns=d.acceleration_columns,
+                aux_columns=d.aux_columns,
                 **common,
             )
         elif d.format == "rosbag":
@@ -198,17 +204,43 @@ def check_dimension(states: Sequence[States], dim: int, env: str, columns: Seque
 
 
 def on_grid_for(
-    recordings: Sequence[Recording], d: Any, dt: float, dim: int, env: str, robot: RobotDescription | None
+    recordings: Sequence[Recording],
+    d: Any,
+    dt: float,
+    dim: int,
+    env: str,
+    robot: RobotDescription | None,
+    aux_dims: Mapping[str, int],
 ) -> list[States]:
     """The recordings on the environment's step grid after every check that needs the environment: the units
     (angles for a joint space, lengths otherwise), an arm's joints (``robot``: its description, None for an
-    environment of positions) and the dimension. Validation and the run call this one function."""
+    environment of positions), the aux state the files give (``aux_dims``: the environment's aux names and widths)
+    and the dimension. Validation and the run call this one function."""
     check_units(d.units, robot is not None)
     if robot is not None:
         check_joint_recordings(recordings, robot, named_columns=d.columns is None)
+    check_aux(recordings, aux_dims, env)
     states = to_grid(recordings, d, dt)
     check_dimension(states, dim, env, recordings[0].columns)
     return states
+
+
+def check_aux(recordings: Sequence[Recording], aux_dims: Mapping[str, int], env: str) -> None:
+    """Aux state from the files names the environment's own aux entries with their widths: an entry the tree never
+    reads would be ignored without a word, one of another width would fail deep inside a rollout."""
+    known = ", ".join(f"{name} ({width})" for name, width in aux_dims.items()) or "none"
+    for rec in recordings:
+        for name, value in rec.aux.items():
+            if name not in aux_dims:
+                raise RecordingError(
+                    f"{rec.source}: aux state {name!r} (data.aux_columns / data.aux_keys) is not read by the "
+                    f"environment {env}; its aux state (name and width): {known}"
+                )
+            if value.shape != (aux_dims[name],):
+                raise RecordingError(
+                    f"{rec.source}: aux state {name!r} has {value.size} value(s) but the environment {env} reads "
+                    f"{aux_dims[name]} (data.aux_columns / data.aux_keys)"
+                )
 
 
 def to_grid(recordings: Sequence[Recording], d: Any, dt: float) -> list[States]:
@@ -224,5 +256,7 @@ def to_grid(recordings: Sequence[Recording], d: Any, dt: float) -> list[States]:
     for rec in recordings:
         if d.derivatives == "filter":  # the file's derivatives are never mixed with the filter's
             rec = dataclasses.replace(rec, vel=None, acc=None)
-        out.append(to_states(rec, dt, window=d.window, polyorder=d.polyorder, rest_fraction=d.rest_fraction, goal=goal))
+        own = rec.aux.get("goal")  # a goal column in the configuration's own coordinates (the plane's) is the goal
+        at = own if own is not None and own.shape == (rec.dim,) else goal
+        out.append(to_states(rec, dt, window=d.window, polyorder=d.polyorder, rest_fraction=d.rest_fraction, goal=at))
     return out
