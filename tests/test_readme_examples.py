@@ -91,6 +91,17 @@ EXCLUDED = {
     "tiny sizes (slow)",
     "python tools/arm_recordings.py": "about 7 minutes (inverse kinematics and a clearance check of every plan); "
     "tests/test_recorded_arm.py runs it for one demonstration and compares it with the shipped file (slow)",
+    "python tools/rosbag_recordings.py --out bags": "writes bags/ where "
+    "it runs and refuses a second time (nothing is overwritten); tests/test_rosbag.py runs the tool into a temporary "
+    "directory and reads its bags back",
+    "rmpfusion-run experiment=recorded_arm data.format=rosbag data.demo_column=null 'data.files=[\"bags/demo*\"]'": (
+        "reads the bags the line before writes; tests/test_rosbag.py validates this run's config on them and checks "
+        "they land on the step grid as the CSV that experiment=recorded_arm (tested end to end) reads"
+    ),
+    "rmpfusion-run experiment=recorded_arm data.files=[my_demos.csv] 'data.aux_columns={obstacle1_center: [ox, oy, oz]}'": (
+        "my_demos.csv stands for a user's file; tests/test_recorded_aux.py validates this config on such a file and "
+        "checks that each demonstration's obstacle reaches training and evaluation"
+    ),
     "rmpfusion-run -m experiment=2d2level sweep=seeds launcher=submitit_slurm hydra.launcher.partition=gpu": "needs a SLURM cluster (the submitit_local lines run the same launcher plugin on this machine)",
     "python tools/summarize_sweep.py outputs/multirun/<time>": "<time> stands for a sweep's directory; tests/test_runs.py runs summarize_sweep.py on a real sweep",
     "rmpfusion-view outputs/franka/<time>": "<time> stands for a Franka run's directory; tests/test_viewer.py views a real run's directory",
