@@ -46,6 +46,8 @@ DEFAULT_OUT = SHIPPED_DIR / "panda_via_points.csv"
 VIA_X = (0.33, 0.38)
 VIA_Y = 0.04
 VIA_Z = 0.05
+#: the cylinder's aux entry, which --cylinder-shift moves for each demonstration (written as the columns ox, oy, oz)
+CYLINDER = "obstacle1_center"
 
 
 def environment(overrides: list[str]):
@@ -76,8 +78,11 @@ def inverse_kinematics(env, target: np.ndarray, seed: np.ndarray, iters: int = 2
     return q.numpy(), err
 
 
-def plan(env, rng: np.random.Generator, duration: float) -> tuple[CubicSpline, np.ndarray] | None:
-    """One start -> via -> goal joint spline, or None when the inverse kinematics misses (> 2 mm)."""
+def plan(
+    env, rng: np.random.Generator, duration: float, shift: np.ndarray | None = None
+) -> tuple[CubicSpline, np.ndarray] | None:
+    """One start -> via -> goal joint spline, or None when the inverse kinematics misses (> 2 mm); the via point
+    follows the cylinder across the reach when it stands ``shift`` from the scene's place."""
     p = env.params
     centre, spread = np.array(p.start_centre()), np.array(p.spread())
     q_start = centre + rng.uniform(-spread, spread)
@@ -90,7 +95,7 @@ def plan(env, rng: np.random.Generator, duration: float) -> tuple[CubicSpline, n
     via = np.array(
         [
             rng.uniform(*VIA_X),
-            rng.uniform(-VIA_Y, VIA_Y),
+            rng.uniform(-VIA_Y, VIA_Y) + (0.0 if shift is None else float(shift[1])),
             0.5 * (ee_start[2] + goal[2]) + rng.uniform(-VIA_Z, VIA_Z),
         ]
     )
@@ -101,13 +106,15 @@ def plan(env, rng: np.random.Generator, duration: float) -> tuple[CubicSpline, n
     return CubicSpline(knots, np.stack([q_start, q_via, q_goal]), bc_type="clamped"), q_goal
 
 
-def clear(env, spline: CubicSpline, duration: float, clearance: float) -> bool:
-    """Every configuration along the plan (50 Hz) inside the limits and ``clearance`` from the cylinder and the
-    table."""
+def clear(env, spline: CubicSpline, duration: float, clearance: float, centre: np.ndarray | None = None) -> bool:
+    """Every configuration along the plan (50 Hz) inside the limits and ``clearance`` from the cylinder (standing at
+    ``centre``, default the scene's place) and the table."""
     q = torch.tensor(spline(np.linspace(0.0, duration, int(50 * duration) + 1)), dtype=torch.float64)
     if not bool(((q > env.lower + 0.02) & (q < env.upper - 0.02)).all()):
         return False
     aux = env.recorded_aux(q[-1:].expand(len(q), -1))
+    if centre is not None:
+        aux[CYLINDER] = torch.tensor(centre, dtype=torch.float64).expand(len(q), 3).contiguous()
     sc, p = env.checker(), env.params
     for b in range(len(q)):
         sc.set_env(env.scene, sample_aux(aux, b))
@@ -143,6 +150,13 @@ def main(argv=None) -> int:
     ap.add_argument("--noise", type=float, default=0.001, help="std of the angles' noise (rad)")
     ap.add_argument("--duration", type=float, nargs=2, default=(2.5, 3.5), help="the motion's duration range (s)")
     ap.add_argument("--clearance", type=float, default=0.03, help="m from the cylinder and the table along a plan")
+    ap.add_argument(
+        "--cylinder-shift",
+        type=float,
+        nargs=2,
+        metavar=("DX", "DY"),
+        help="move the cylinder for each demonstration by up to ±DX, ±DY (m) and write where it stood (ox, oy, oz)",
+    )
     ap.add_argument("overrides", nargs="*", help="Hydra overrides of experiment=recorded_arm (e.g. robot=...)")
     a = ap.parse_args(argv)
     env = environment(a.overrides)
@@ -154,19 +168,24 @@ def main(argv=None) -> int:
         if drawn > 50 * a.demos:
             print(f"only {len(rows)} of {a.demos} plans clear after {drawn - 1} draws", file=sys.stderr)
             return 1
+        shift, centre = None, None
+        if a.cylinder_shift:  # drawn only when asked, so the default file is the same draw for draw
+            shift = np.array([*rng.uniform(-np.array(a.cylinder_shift), np.array(a.cylinder_shift)), 0.0])
+            centre = np.array(env.scene.obstacles[0].center) + shift
         duration = rng.uniform(*a.duration)
-        made = plan(env, rng, duration)
-        if made is None or not clear(env, made[0], duration, a.clearance):
+        made = plan(env, rng, duration, shift)
+        if made is None or not clear(env, made[0], duration, a.clearance, centre):
             continue
         t, q = record(made[0], duration, rng, a)
-        rows.append((len(rows), t, q))
+        rows.append((len(rows), t, q, centre))
     lines = []
-    for demo, t, q in rows:
-        lines += [[f"demo{demo:02d}", f"{tk:.4f}", *(f"{v:.5f}" for v in qk)] for tk, qk in zip(t, q)]
+    for demo, t, q, centre in rows:
+        where = [f"{v:.4f}" for v in centre] if centre is not None else []
+        lines += [[f"demo{demo:02d}", f"{tk:.4f}", *(f"{v:.5f}" for v in qk), *where] for tk, qk in zip(t, q)]
     a.out.parent.mkdir(parents=True, exist_ok=True)
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
-    w.writerow(["demo", "t", *names])
+    w.writerow(["demo", "t", *names, *(["ox", "oy", "oz"] if a.cylinder_shift else [])])
     w.writerows(lines)
     atomic_write_bytes(a.out, buf.getvalue().encode())
     print(f"{a.out}: {len(rows)} demonstrations, {len(lines)} rows ({drawn} plans drawn)")
