@@ -401,7 +401,7 @@ def _arm_views(env: Any) -> list[View] | None:
     if to_task is None:
         return None
     return [
-        View(lambda q: to_task(q)[..., :2], (0, 1), ("x (m)", "y (m)"), ", from above"),
+        View(lambda q: to_task(q)[..., :2], (0, 1), ("x (m)", "y (m)"), ", from above", from_above=True),
         View(lambda q: to_task(q)[..., 1:], (1, 2), ("y (m)", "z (m)"), ", from the side"),
     ]
 

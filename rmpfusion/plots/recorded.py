@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from matplotlib.patches import Circle
 
 from ..envs.rollout import Rollout
 from .figures import LEGEND_SIZE, TIME_LABEL, TITLE_SIZE, V_LABEL, save_figure, subplots
@@ -22,12 +23,15 @@ ToPlane = Callable[[np.ndarray], np.ndarray]
 @dataclass(frozen=True)
 class View:
     """One way of drawing rollouts: configurations to the plane drawn (``to_plane``), which two of the goal aux's
-    coordinates that plane shows (``goal_axes``), and its axes' names."""
+    coordinates that plane shows (``goal_axes``), and its axes' names. ``from_above``: the plane looks down the
+    world's z axis, so each obstacle's footprint is drawn (a circle of its radius), for every held-out
+    demonstration where its own obstacle stood."""
 
     to_plane: ToPlane
     goal_axes: tuple[int, int] = (0, 1)
     labels: tuple[str, str] = ("x (m)", "y (m)")
     title: str = ""
+    from_above: bool = False
 
 
 PLANE = View(lambda q: q[..., :2])
@@ -69,6 +73,8 @@ def _draw_panel(ax, ro: Rollout, batch, demos: Mapping[str, list], view: View) -
                 ls="--",
                 label="rollout from a held-out start" if (i == 0 and split == "test") else None,
             )
+    if view.from_above:
+        _draw_footprints(ax, batch)
     starts = q[0, grid]
     ax.plot(starts[:, 0], starts[:, 1], "k.", ms=3, label="start at rest")
     ax.plot(*goal, "r*", ms=12, label="goal")
@@ -78,6 +84,26 @@ def _draw_panel(ax, ro: Rollout, batch, demos: Mapping[str, list], view: View) -
     ax.set_xlim(lo[0] - pad, hi[0] + pad), ax.set_ylim(lo[1] - pad, hi[1] + pad)
     ax.set_xlabel(view.labels[0]), ax.set_ylabel(view.labels[1])
     ax.set_aspect("equal", adjustable="box")
+
+
+def _draw_footprints(ax, batch) -> None:
+    """Each obstacle's footprint seen from above (``obstacleK_center`` and ``obstacleK_radius`` of the aux state):
+    where the starts at rest saw it (grey), and, where a held-out demonstration's own obstacle stood elsewhere, there
+    (dashed, in the held-out rollouts' red)."""
+    k = 1
+    while f"obstacle{k}_center" in batch.aux and f"obstacle{k}_radius" in batch.aux:
+        centres, radii = batch.aux[f"obstacle{k}_center"].numpy(), batch.aux[f"obstacle{k}_radius"].numpy()
+        rows = [batch.grid.start, *(b for idx in batch.index.values() for b in range(idx.start, idx.stop))]
+        drawn: list[tuple[float, float]] = []
+        for b in rows:
+            xy = (float(centres[b, 0]), float(centres[b, 1]))
+            if any(np.hypot(xy[0] - x, xy[1] - y) < 1e-9 for x, y in drawn):
+                continue
+            scene = b == batch.grid.start
+            style = {"color": "0.45", "ls": "-"} if scene else {"color": "tab:red", "ls": ":"}
+            ax.add_patch(Circle(xy, float(radii[b, 0]), fill=False, lw=1.0, **style))
+            drawn.append(xy)
+        k += 1
 
 
 def draw_lyapunov(rollouts: Mapping[str, Rollout], grid: slice, shown: int = 25):
