@@ -214,7 +214,7 @@ def evaluation_batch(exp: Experiment, demos: dict[str, list[States]], every_demo
     goals += [goal] * len(grid)
     longest = max(float(s.t[-1]) for s in every_demo)
     horizon = dt * int(np.ceil(d.horizon_factor * longest / dt - 1e-9))
-    aux = env.recorded_aux(_as_tensor(np.stack(goals)))
+    aux = {k: v.clone() for k, v in env.recorded_aux(_as_tensor(np.stack(goals))).items()}  # written into below
     held_states = [s for v in held.values() for s in v]
     for n, s in enumerate(held_states):  # a demonstration's own aux state (its obstacle, its goal) where it has one
         for name, value in s.aux.items():
