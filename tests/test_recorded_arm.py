@@ -95,7 +95,7 @@ def _write(path: Path, header: list[str], rows: list[list[float]]) -> Path:
     [
         ("rename", r"not the robot's joints \(missing panda_joint7\)"),
         ("limit", r"bad\.csv, row 3, column 'panda_joint4': .* outside panda_joint4's limits"),
-        ("drop", r"6 coordinates per sample, but the robot 'panda' has 7"),
+        ("drop", r"6 coordinates per sample \(read from .*\), but the robot 'panda' has 7"),
     ],
 )
 def test_a_joint_recording_unlike_the_robot_is_refused_naming_file_row_and_column(tmp_path, env, change, message):

@@ -216,7 +216,7 @@ def test_joint_recordings_are_checked_against_the_robot_file(tmp_path):
     home = list(robot.home)
     good = joint_csv(tmp_path, ["t", *joints], [[0.0, *home], [0.1, *home]])
     check_joint_recordings(good, robot)
-    with pytest.raises(RecordingError, match=r"6 coordinates per sample, but the robot 'panda' has 7"):
+    with pytest.raises(RecordingError, match=r"6 coordinates per sample \(read from .*\), but the robot 'panda' has 7"):
         check_joint_recordings(joint_csv(tmp_path, ["t", *joints[:6]], [[0.0, *home[:6]], [0.1, *home[:6]]]), robot)
     swapped = [joints[1], joints[0], *joints[2:]]
     with pytest.raises(RecordingError, match="not the robot's joints \\(in another order\\)"):

@@ -25,8 +25,9 @@ def check_joint_recordings(
     for rec in recordings:
         if rec.dim != len(joints):
             raise RecordingError(
-                f"{rec.source}: {rec.dim} coordinates per sample, but the robot '{robot.name}' has "
-                f"{len(joints)} actuated joints ({', '.join(joints)})"
+                f"{rec.source}: {rec.dim} coordinates per sample (read from {', '.join(rec.columns)}), but the robot "
+                f"'{robot.name}' has {len(joints)} actuated joints ({', '.join(joints)}); name the columns to read in "
+                "data.columns, and any aux columns in data.aux_columns"
             )
         if named_columns and list(rec.columns) != joints:
             missing = [j for j in joints if j not in rec.columns]
