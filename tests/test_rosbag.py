@@ -50,10 +50,11 @@ def edited(kind: str, log: list, k: int, stamp_ns: int | None = None, names=None
 
 
 # ------------------------------------------------------------------------------------------------ good bags
+@pytest.mark.parametrize("compressed", [False, True], ids=["plain", "compressed"])
 @pytest.mark.parametrize("kind", KINDS)
-def test_joint_states_are_read_by_name_in_the_robots_order(tmp_path, kind):
+def test_joint_states_are_read_by_name_in_the_robots_order(tmp_path, kind, compressed):
     q, stamps = arm_reach()
-    bag = write_bag(bag_path(tmp_path, kind), kind, driver_log(kind, q, stamps, PANDA))
+    bag = write_bag(bag_path(tmp_path, kind), kind, driver_log(kind, q, stamps, PANDA), compressed)
     (rec,) = read_recordings(data_block(files=[str(bag)]), joints=PANDA)
     assert rec.columns == tuple(PANDA)
     np.testing.assert_array_equal(rec.pos, q)  # the robot file's order, fingers dropped, gripper messages skipped

@@ -61,19 +61,25 @@ def joint_state(store: Any, kind: str, stamp_ns: int, names: Sequence[str], posi
     )
 
 
-def write_bag(path: Path, kind: str, messages: Sequence[tuple[str, str, Any, int]]) -> Path:
-    """A bag of ``kind`` at ``path`` holding ``messages``: (topic, message type, message, log time in ns)."""
+def write_bag(path: Path, kind: str, messages: Sequence[tuple[str, str, Any, int]], compressed: bool = False) -> Path:
+    """A bag of ``kind`` at ``path`` holding ``messages``: (topic, message type, message, log time in ns);
+    ``compressed`` as ``rosbag record --lz4`` (ROS 1) or ``ros2 bag record --compression-mode message
+    --compression-format zstd`` (ROS 2) write them."""
     from rosbags.rosbag1 import Writer as Ros1Writer
-    from rosbags.rosbag2 import StoragePlugin
+    from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin
     from rosbags.rosbag2 import Writer as Ros2Writer
 
     store = typestore(kind)
     writer: Any
     if kind == "ros1":
         writer, serialize = Ros1Writer(path), store.serialize_ros1
+        if compressed:
+            writer.set_compression(Ros1Writer.CompressionFormat.LZ4)
     else:
         plugin = StoragePlugin.MCAP if kind == "ros2-mcap" else StoragePlugin.SQLITE3
         writer, serialize = Ros2Writer(path, version=9, storage_plugin=plugin), store.serialize_cdr
+        if compressed:
+            writer.set_compression(CompressionMode.MESSAGE, CompressionFormat.ZSTD)
     with writer:
         connections = {}
         for topic, msgtype in dict.fromkeys((topic, msgtype) for topic, msgtype, _, _ in messages):
@@ -117,6 +123,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--csv", type=Path, default=SHIPPED_DIR / "panda_via_points.csv", help="the recordings to log")
     ap.add_argument("--out", type=Path, required=True, help="a new directory for the bags")
     ap.add_argument("--kind", choices=KINDS, default="ros2-mcap")
+    ap.add_argument("--compressed", action="store_true", help="LZ4 chunks (ROS 1) or zstd messages (ROS 2)")
     a = ap.parse_args(argv)
     if a.out.exists():
         print(f"{a.out} exists; give a new directory (nothing is overwritten)", file=sys.stderr)
@@ -126,9 +133,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         for name, (t, q) in demos.items():
             stamps = CLOCK_NS + np.round((t - t[0]) * 1e9).astype(np.int64)
-            write_bag(
-                staging / (f"{name}.bag" if a.kind == "ros1" else name), a.kind, driver_log(a.kind, q, stamps, joints)
-            )
+            bag = staging / (f"{name}.bag" if a.kind == "ros1" else name)
+            write_bag(bag, a.kind, driver_log(a.kind, q, stamps, joints), a.compressed)
         staging.rename(a.out)  # every bag or none: no half-written directory under the name asked for
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
