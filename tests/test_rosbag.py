@@ -13,13 +13,14 @@ import pytest
 from conftest import ROOT, compose_cfg
 from pydantic import ValidationError
 
+from rmpfusion.assembly.errors import ConfigError
 from rmpfusion.pipeline.config import RecordedDataConfig
 from rmpfusion.pipeline.validate import resolve_and_validate
 from rmpfusion.recordings import RecordingError
 from rmpfusion.recordings.source import file_hashes, read_recordings, to_grid
 
 sys.path.insert(0, str(ROOT / "tools"))
-from rosbag_recordings import CLOCK_NS, driver_log, joint_state, main, typestore, write_bag
+from rosbag_recordings import CLOCK_NS, driver_log, joint_state, main, point_message, typestore, write_bag
 
 PANDA = [f"panda_joint{k}" for k in range(1, 8)]
 KINDS = ["ros1", "ros2-sqlite3", "ros2-mcap"]
@@ -99,6 +100,52 @@ def test_the_topic_is_chosen_where_a_bag_holds_two(tmp_path):
         read_recordings(data_block(files=[bag]), PANDA)
     (rec,) = read_recordings(data_block(files=[bag], topic="/teleop/joint_states"), PANDA)
     np.testing.assert_array_equal(rec.pos, q + 0.1)
+
+
+POINT_TYPES = ["geometry_msgs/msg/PoseStamped", "geometry_msgs/msg/PointStamped", "geometry_msgs/msg/TransformStamped"]
+
+
+def mocap_bag(tmp_path: Path, msgtype: str, kind: str = "ros2-mcap") -> tuple[Path, np.ndarray, np.ndarray]:
+    """A tracked pen's handwriting in the plane z = 0.8 m (a motion-capture driver's topic), at irregular stamps."""
+    q, stamps = arm_reach(120)
+    xyz = np.stack([0.3 * q[:, 3] + 0.6, 0.2 * q[:, 1], np.full(len(q), 0.8)], 1)
+    store = typestore(kind)
+    log = [("/mocap/pen/pose", msgtype, point_message(store, kind, msgtype, int(s), p), int(s) + 5_000_000)
+           for s, p in zip(stamps, xyz)]  # fmt: skip
+    return write_bag(bag_path(tmp_path, kind, "pen"), kind, log), xyz, stamps
+
+
+@pytest.mark.parametrize("msgtype", POINT_TYPES)
+def test_a_motion_capture_topic_reads_as_positions_in_the_plane(tmp_path, msgtype):
+    bag, xyz, stamps = mocap_bag(tmp_path, msgtype)
+    (rec,) = read_recordings(data_block(files=[str(bag)], units="m", columns=["x", "y"]))
+    assert rec.columns == ("x", "y") and rec.source == f"{bag} [/mocap/pen/pose]"
+    np.testing.assert_array_equal(rec.pos, xyz[:, :2])
+    np.testing.assert_allclose(rec.t, (stamps - stamps[0]) * 1e-9, rtol=0, atol=1e-15)
+    (every,) = read_recordings(data_block(files=[str(bag)], units="m"))
+    np.testing.assert_array_equal(every.pos, xyz)  # x, y, z without data.columns
+    with pytest.raises(RecordingError, match=r"pen \[/mocap/pen/pose\]: w \(data\.columns\) is not a coordinate"):
+        read_recordings(data_block(files=[str(bag)], units="m", columns=["x", "w"]))
+
+
+def test_a_motion_capture_bag_validates_for_the_plane_and_not_for_an_arm(tmp_path):
+    bag, _, _ = mocap_bag(tmp_path, POINT_TYPES[0], kind="ros1")
+    mine = [
+        "experiment=lasa",
+        "data=recorded",
+        "data.format=rosbag",
+        f"data.files=[{bag}]",
+        "data.split=all",
+        "name=pen",
+    ]
+    resolve_and_validate(compose_cfg([*mine, "data.columns=[x,y]"]))
+    with pytest.raises(
+        ConfigError,
+        match=r"have 3 coordinates \(read from the columns 'x', 'y', 'z'\) but the environment particle2d has 2",
+    ):
+        resolve_and_validate(compose_cfg(mine))
+    with pytest.raises(RecordingError, match=r"pen\.bag: no topic of type sensor_msgs/msg/JointState; the bag holds "):
+        read_recordings(data_block(files=[str(bag)]), PANDA)  # an arm reads joint states only
 
 
 # ------------------------------------------------------------------------------------------------ bad bags

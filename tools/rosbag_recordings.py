@@ -61,6 +61,26 @@ def joint_state(store: Any, kind: str, stamp_ns: int, names: Sequence[str], posi
     )
 
 
+def point_message(store: Any, kind: str, msgtype: str, stamp_ns: int, xyz: Sequence[float]) -> Any:
+    """A stamped point in space as ``msgtype`` holds it: a PoseStamped's position (identity orientation), a
+    PointStamped's point or a TransformStamped's translation (as motion-capture drivers publish a tracked body)."""
+    types = store.types
+    stamp = types["builtin_interfaces/msg/Time"](sec=stamp_ns // 10**9, nanosec=stamp_ns % 10**9)
+    header = types["std_msgs/msg/Header"](stamp=stamp, frame_id="world", **({"seq": 0} if kind == "ros1" else {}))
+    x, y, z = (float(v) for v in xyz)
+    rotation = types["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0)
+    if msgtype == "geometry_msgs/msg/PoseStamped":
+        pose = types["geometry_msgs/msg/Pose"](
+            position=types["geometry_msgs/msg/Point"](x=x, y=y, z=z), orientation=rotation
+        )
+        return types[msgtype](header=header, pose=pose)
+    if msgtype == "geometry_msgs/msg/PointStamped":
+        return types[msgtype](header=header, point=types["geometry_msgs/msg/Point"](x=x, y=y, z=z))
+    translation = types["geometry_msgs/msg/Vector3"](x=x, y=y, z=z)
+    transform = types["geometry_msgs/msg/Transform"](translation=translation, rotation=rotation)
+    return types[msgtype](header=header, child_frame_id="pen", transform=transform)
+
+
 def write_bag(path: Path, kind: str, messages: Sequence[tuple[str, str, Any, int]], compressed: bool = False) -> Path:
     """A bag of ``kind`` at ``path`` holding ``messages``: (topic, message type, message, log time in ns);
     ``compressed`` as ``rosbag record --lz4`` (ROS 1) or ``ros2 bag record --compression-mode message

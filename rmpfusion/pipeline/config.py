@@ -113,14 +113,16 @@ class RecordedDataConfig(_Frozen):
         None,
         description="the coordinates' names, in order (csv: the columns read, default every column but time, "
         "demonstration id, derivatives and aux; npz / hdf5: names for the position array's columns; rosbag: the "
-        "joints read by name, default the robot's)",
+        "joints read by name, default the robot's, or a point's coordinates among x, y, z, default all three)",
     )
     time_column: str = Field(
         "t", description="csv: the time column; npz: the time array's key; hdf5: the time dataset in each demo group"
     )
     demo_column: str | None = Field(None, description="csv: a column naming each row's demonstration")
     topic: str | None = Field(
-        None, description="rosbag: the sensor_msgs/JointState topic; default the bag's only topic of that type"
+        None,
+        description="rosbag: the topic read, sensor_msgs/JointState (or, for an environment of positions, a "
+        "geometry_msgs PoseStamped, PointStamped or TransformStamped); default the bag's only topic of those types",
     )
     aux_columns: dict[str, list[str]] | None = Field(
         None,

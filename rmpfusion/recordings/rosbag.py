@@ -8,13 +8,17 @@ for, from the messages that carry all of them; a message lacking one is skipped,
 demonstration. Times are the messages' header stamps (the driver's clock) where every message has one, else the
 times the bag recorded them (never a mix), counted from the first message.
 
+An environment of positions (the plane) may instead read a point in space per message: a motion-capture body's
+``geometry_msgs/PoseStamped`` (as vrpn and mocap drivers publish it), a ``PointStamped`` or a ``TransformStamped``,
+its coordinates chosen among x, y, z by ``data.columns``.
+
 ROS bags are read by ``rosbags`` (Ternaris's pure-Python reader of both ROS generations, no ROS install needed),
 an optional dependency: ``pip install -e '.[ros]'``.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -25,6 +29,15 @@ from .recording import Recording, RecordingError, where
 
 #: the message type read, as rosbags names it for both ROS generations
 JOINT_STATE = "sensor_msgs/msg/JointState"
+#: the message types of a point in space read for an environment of positions (motion capture, a tracked tool),
+#: and where each holds its point
+POINT_TYPES: dict[str, Callable[[Any], Any]] = {
+    "geometry_msgs/msg/PoseStamped": lambda msg: msg.pose.position,
+    "geometry_msgs/msg/PointStamped": lambda msg: msg.point,
+    "geometry_msgs/msg/TransformStamped": lambda msg: msg.transform.translation,
+}
+#: a point's coordinates, what data.columns chooses among
+AXES = ("x", "y", "z")
 #: a ROS 2 bag is a directory holding this file beside its storage files
 ROS2_METADATA = "metadata.yaml"
 
@@ -46,18 +59,25 @@ def _any_reader() -> tuple[Any, type[Exception]]:
 
 
 def read_rosbag(
-    path: str | Path, topic: str | None = None, joints: Sequence[str] | None = None, units: str = "rad"
+    path: str | Path,
+    topic: str | None = None,
+    columns: Sequence[str] | None = None,
+    units: str = "rad",
+    joint_space: bool = False,
 ) -> list[Recording]:
-    """The demonstration a bag holds: the positions of ``joints`` (default: those the topic's first message
-    names, in its order) from the ``sensor_msgs/JointState`` messages on ``topic`` (default: the bag's only
-    topic of that type). Positions are scaled from ``units`` (ROS's own are rad and m)."""
+    """The demonstration a bag holds, from the messages on ``topic`` (default: the bag's only topic of a type read):
+    for an arm (``joint_space``) ``sensor_msgs/JointState``, the positions of the joints ``columns`` by name
+    (default: those its first message names, in its order); for an environment of positions also a point in space
+    (``POINT_TYPES``: motion capture, a tracked tool), its coordinates ``columns`` among x, y, z (default all three).
+    Positions are scaled from ``units`` (ROS's own are rad and m)."""
     any_reader, reader_error = _any_reader()
     path = Path(path)
     source = str(path)
     scale = unit_scale(units, source)
+    kinds = (JOINT_STATE,) if joint_space else (JOINT_STATE, *POINT_TYPES)
     try:
         with any_reader([path]) as bag:
-            connections = _joint_state_connections(bag, topic, source)
+            connections = _topic_connections(bag, topic, source, kinds)
             label = f"{source} [{connections[0].topic}]"
             read = [(bag.deserialize(raw, c.msgtype), ns) for c, ns, raw in bag.messages(connections=connections)]
     except reader_error as e:
@@ -65,8 +85,13 @@ def read_rosbag(
     if not read:
         raise RecordingError(f"{label}: the topic holds no message")
     messages, logged = [m for m, _ in read], [ns for _, ns in read]
-    wanted = tuple(joints) if joints is not None else tuple(messages[0].name)
-    rows, positions, stamps = _joint_positions(messages, wanted, label)
+    kind = connections[0].msgtype
+    if kind == JOINT_STATE:
+        wanted = tuple(columns) if columns is not None else tuple(messages[0].name)
+        rows, positions, stamps = _joint_positions(messages, wanted, label)
+    else:
+        wanted = tuple(columns) if columns is not None else AXES
+        rows, positions, stamps = _point_positions(messages, POINT_TYPES[kind], wanted, label)
     t = _seconds(stamps if all(s > 0 for s in stamps) else [logged[i] for i in rows])
     return [
         Recording(
@@ -75,29 +100,30 @@ def read_rosbag(
     ]
 
 
-def _joint_state_connections(bag: Any, topic: str | None, source: str) -> list[Any]:
-    """The bag's connections on the joint-state topic: ``topic`` when given, else the only JointState topic."""
-    kinds = {c.topic: c.msgtype for c in bag.connections}
-    joint_topics = sorted(name for name, kind in kinds.items() if kind == JOINT_STATE)
-    held = _listed(kinds)
+def _topic_connections(bag: Any, topic: str | None, source: str, kinds: Sequence[str]) -> list[Any]:
+    """The bag's connections on the topic read: ``topic`` when given, else the only topic of one of ``kinds``."""
+    types = {c.topic: c.msgtype for c in bag.connections}
+    readable = sorted(name for name, kind in types.items() if kind in kinds)
+    what = " or ".join(kinds)
+    held = _listed(types)
     if topic is None:
-        if len(joint_topics) > 1:
+        if len(readable) > 1:
             raise RecordingError(
-                f"{source}: {len(joint_topics)} topics of type {JOINT_STATE}: {', '.join(joint_topics)}; name the "
-                "one to read in data.topic"
+                f"{source}: {len(readable)} topics of type {what}: {', '.join(readable)}; name the one to read in "
+                "data.topic"
             )
-        if not joint_topics:
-            raise RecordingError(f"{source}: no topic of type {JOINT_STATE}; the bag holds {held}")
-        topic = joint_topics[0]
-    if topic not in kinds:
+        if not readable:
+            raise RecordingError(f"{source}: no topic of type {what}; the bag holds {held}")
+        topic = readable[0]
+    if topic not in types:
         raise RecordingError(
             f"{source}: no topic {topic!r} (data.topic); "
-            + (f"its {JOINT_STATE} topics: {', '.join(joint_topics)}" if joint_topics else f"the bag holds {held}")
+            + (f"its topics of type {what}: {', '.join(readable)}" if readable else f"the bag holds {held}")
         )
-    if kinds[topic] != JOINT_STATE:
+    if types[topic] not in kinds:
         raise RecordingError(
-            f"{source}: the topic {topic!r} (data.topic) carries {kinds[topic]}, not {JOINT_STATE}; "
-            + (f"its {JOINT_STATE} topics: {', '.join(joint_topics)}" if joint_topics else "the bag has none")
+            f"{source}: the topic {topic!r} (data.topic) carries {types[topic]}, not {what}; "
+            + (f"its topics of those types: {', '.join(readable)}" if readable else "the bag has none")
         )
     return [c for c in bag.connections if c.topic == topic]
 
@@ -141,6 +167,22 @@ def _joint_positions(
             f"{', '.join(sorted(seen))}. Choose the joints in data.columns, or the robot those joints belong to"
         )
     return rows, np.asarray(positions, dtype=np.float64), stamps
+
+
+def _point_positions(
+    messages: Sequence[Any], point_of: Callable[[Any], Any], wanted: Sequence[str], label: str
+) -> tuple[list[int], np.ndarray, list[int]]:
+    """Every message's point (``point_of``: where a message of its type holds it), its ``wanted`` coordinates among
+    x, y, z, and its header stamp (ns)."""
+    unknown = [c for c in wanted if c not in AXES]
+    if unknown:
+        raise RecordingError(
+            f"{label}: {', '.join(unknown)} (data.columns) is not a coordinate of a point; choose among x, y, z"
+        )
+    points = [point_of(msg) for msg in messages]
+    positions = np.array([[float(getattr(p, axis)) for axis in wanted] for p in points], dtype=np.float64)
+    stamps = [int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec) for msg in messages]
+    return list(range(len(messages))), positions, stamps
 
 
 def _seconds(nanoseconds: Sequence[int]) -> np.ndarray:

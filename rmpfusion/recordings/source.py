@@ -150,7 +150,9 @@ def read_recordings(d: Any, joints: Sequence[str] | None = None) -> list[Recordi
                 **common,
             )
         elif d.format == "rosbag":
-            out += read_rosbag(path, topic=d.topic, joints=d.columns or joints, units=d.units)
+            out += read_rosbag(
+                path, topic=d.topic, columns=d.columns or joints, units=d.units, joint_space=joints is not None
+            )
         elif d.format == "npz":
             out += read_npz(path, time_key=d.time_column, **arrays, **common)
         else:
