@@ -16,7 +16,7 @@ from pydantic import ValidationError
 from rmpfusion.assembly.errors import ConfigError
 from rmpfusion.pipeline.config import RecordedDataConfig
 from rmpfusion.pipeline.validate import resolve_and_validate
-from rmpfusion.recordings import RecordingError
+from rmpfusion.recordings import RecordingError, read_lasa
 from rmpfusion.recordings.source import file_hashes, read_recordings, to_grid
 
 sys.path.insert(0, str(ROOT / "tools"))
@@ -126,6 +126,27 @@ def test_a_motion_capture_topic_reads_as_positions_in_the_plane(tmp_path, msgtyp
     np.testing.assert_array_equal(every.pos, xyz)  # x, y, z without data.columns
     with pytest.raises(RecordingError, match=r"pen \[/mocap/pen/pose\]: w \(data\.columns\) is not a coordinate"):
         read_recordings(data_block(files=[str(bag)], units="m", columns=["x", "w"]))
+
+
+def test_lasa_handwriting_logged_as_motion_capture_reads_as_the_dataset(tmp_path):
+    """People's handwriting (LASA's Sshape, 7 demonstrations), each logged as a tracked pen's PoseStamped topic at
+    the dataset's own times: on the plane's step grid the bags give the dataset's demonstrations."""
+    store = typestore("ros2-mcap")
+    msgtype = "geometry_msgs/msg/PoseStamped"
+    for k, rec in enumerate(read_lasa("Sshape")):
+        stamps = CLOCK_NS + np.round((rec.t - rec.t[0]) * 1e9).astype(np.int64)
+        log = [
+            ("/pen", msgtype, point_message(store, "ros2-mcap", msgtype, int(s), (*p, 0.0)), int(s))
+            for s, p in zip(stamps, rec.pos)
+        ]
+        write_bag(tmp_path / f"pen_{k}", "ros2-mcap", log)
+    bags = data_block(files=[str(tmp_path / "pen_*")], units="m", columns=["x", "y"])
+    lasa = RecordedDataConfig.model_validate({"source": "recorded", "format": "lasa", "shape": "Sshape"})
+    from_bags, from_dataset = (to_grid(read_recordings(d), d, 0.02) for d in (bags, lasa))
+    assert len(from_bags) == len(from_dataset) == 7
+    for a, b in zip(from_bags, from_dataset):
+        np.testing.assert_allclose(a.q, b.q, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(a.goal, b.goal, rtol=0, atol=1e-9)
 
 
 def test_a_motion_capture_bag_validates_for_the_plane_and_not_for_an_arm(tmp_path):
