@@ -46,11 +46,16 @@ def typestore(kind: str) -> Any:
     return get_typestore(Stores.ROS1_NOETIC if kind == "ros1" else Stores.ROS2_HUMBLE)
 
 
+def _header(store: Any, kind: str, stamp_ns: int, frame_id: str) -> Any:
+    """A std_msgs/Header stamped ``stamp_ns`` (ROS 1's carries a sequence number too)."""
+    stamp = store.types["builtin_interfaces/msg/Time"](sec=stamp_ns // 10**9, nanosec=stamp_ns % 10**9)
+    return store.types["std_msgs/msg/Header"](stamp=stamp, frame_id=frame_id, **({"seq": 0} if kind == "ros1" else {}))
+
+
 def joint_state(store: Any, kind: str, stamp_ns: int, names: Sequence[str], positions: Iterable[float]) -> Any:
     """One sensor_msgs/JointState with its header stamped ``stamp_ns`` (no velocities or efforts)."""
     types = store.types
-    stamp = types["builtin_interfaces/msg/Time"](sec=stamp_ns // 10**9, nanosec=stamp_ns % 10**9)
-    header = types["std_msgs/msg/Header"](stamp=stamp, frame_id="", **({"seq": 0} if kind == "ros1" else {}))
+    header = _header(store, kind, stamp_ns, "")
     empty = np.zeros(0, dtype=np.float64)
     return types[JOINT_STATE](
         header=header,
@@ -65,8 +70,7 @@ def point_message(store: Any, kind: str, msgtype: str, stamp_ns: int, xyz: Seque
     """A stamped point in space as ``msgtype`` holds it: a PoseStamped's position (identity orientation), a
     PointStamped's point or a TransformStamped's translation (as motion-capture drivers publish a tracked body)."""
     types = store.types
-    stamp = types["builtin_interfaces/msg/Time"](sec=stamp_ns // 10**9, nanosec=stamp_ns % 10**9)
-    header = types["std_msgs/msg/Header"](stamp=stamp, frame_id="world", **({"seq": 0} if kind == "ros1" else {}))
+    header = _header(store, kind, stamp_ns, "world")
     x, y, z = (float(v) for v in xyz)
     rotation = types["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0)
     if msgtype == "geometry_msgs/msg/PoseStamped":

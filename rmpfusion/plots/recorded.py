@@ -89,11 +89,11 @@ def _draw_panel(ax, ro: Rollout, batch, demos: Mapping[str, list], view: View) -
 def _draw_footprints(ax, batch) -> None:
     """Each obstacle's footprint seen from above (``obstacleK_center`` and ``obstacleK_radius`` of the aux state):
     where the starts at rest saw it (grey), and, where a held-out demonstration's own obstacle stood elsewhere, there
-    (dashed, in the held-out rollouts' red)."""
+    (dotted, in the held-out rollouts' red)."""
+    rows = [batch.grid.start, *(b for idx in batch.index.values() for b in range(idx.start, idx.stop))]
     k = 1
     while f"obstacle{k}_center" in batch.aux and f"obstacle{k}_radius" in batch.aux:
         centres, radii = batch.aux[f"obstacle{k}_center"].numpy(), batch.aux[f"obstacle{k}_radius"].numpy()
-        rows = [batch.grid.start, *(b for idx in batch.index.values() for b in range(idx.start, idx.stop))]
         drawn: list[tuple[float, float]] = []
         for b in rows:
             xy = (float(centres[b, 0]), float(centres[b, 1]))

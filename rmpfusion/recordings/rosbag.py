@@ -158,7 +158,7 @@ def _joint_positions(
         if all(joint in index for joint in wanted):
             rows.append(i)
             positions.append([float(msg.position[index[joint]]) for joint in wanted])
-            stamps.append(int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec))
+            stamps.append(_stamp_ns(msg))
     if not rows:
         missing = sorted(set(wanted) - seen)
         raise RecordingError(
@@ -181,8 +181,13 @@ def _point_positions(
         )
     points = [point_of(msg) for msg in messages]
     positions = np.array([[float(getattr(p, axis)) for axis in wanted] for p in points], dtype=np.float64)
-    stamps = [int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec) for msg in messages]
+    stamps = [_stamp_ns(msg) for msg in messages]
     return list(range(len(messages))), positions, stamps
+
+
+def _stamp_ns(msg: Any) -> int:
+    """A stamped message's header time in integer nanoseconds (0 where the publisher left it unset)."""
+    return int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
 
 
 def _seconds(nanoseconds: Sequence[int]) -> np.ndarray:
