@@ -4,7 +4,8 @@ Importing the package registers every built-in component, environment and learne
 own package is imported); plugins load on the first registry lookup. docs/architecture.md draws the layers.
 """
 
-from . import envs, learn, sims  # noqa: F401  (imported to register the built-in environments, learners, simulators)
+# imported to register the built-in environments, learners, simulators and config resolvers
+from . import envs, learn, resolvers, sims  # noqa: F401
 from .assembly import build_tree
 from .core import RMPTree, TreeOutput
 from .registry import ENVS, LEAF_RMPS, LEARNERS, TASK_MAPS, WEIGHTS

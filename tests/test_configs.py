@@ -121,6 +121,19 @@ def test_without_an_experiment_the_run_is_named_default():
     )
 
 
+@pytest.mark.parametrize(
+    ("overrides", "name"),
+    [
+        (["data.shape=Sshape"], "lasa_Sshape"),
+        (["data=recorded", "data.files=[demos.csv]"], "lasa_recorded"),  # the block lists shape: null
+        (["data=tiny"], "lasa_expert"),  # an expert preset has no shape key at all
+    ],
+)
+def test_the_lasa_experiment_is_named_for_its_shape_or_else_its_source(overrides, name):
+    """A null shape is "no shape" (a run on the user's own files), never the text None in the run's name."""
+    assert compose_cfg(["experiment=lasa", *overrides]).name == name
+
+
 def test_sweep_job_directories_carry_the_jobs_overrides(tmp_path):
     """hydra.sweep.subdir is <job number>_<name>_<overrides>: readable, unique, and without the keys that change
     where or how a job runs and logs (conf/config.yaml's exclude_keys) or that the name already says."""

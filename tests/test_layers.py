@@ -14,6 +14,7 @@ PACKAGE = pathlib.Path(__file__).resolve().parents[1] / "rmpfusion"
 RANK = {
     "core": 0,
     "files": 0,
+    "resolvers": 0,  # OmegaConf resolvers the shipped configs use
     "registry": 1,
     "examples": 1,
     "maps": 1,
