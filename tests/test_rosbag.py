@@ -269,3 +269,55 @@ def test_the_panda_recordings_as_bags_equal_the_csv_on_the_step_grid(tmp_path):
     for a, b in zip(bags, csvs):
         np.testing.assert_allclose(a.q, b.q, rtol=0, atol=1e-9)
         np.testing.assert_allclose(a.qd, b.qd, rtol=0, atol=1e-6)
+
+
+def rostopic_csv(path: Path, q: np.ndarray, stamps_ns: np.ndarray) -> list[str]:
+    """``rostopic echo -p /joint_states > path`` as ROS 1 writes it for a driver publishing the joints last to
+    first with the fingers between: ``%time`` (receipt, ns), the header's fields (stamp in ns, an empty frame id),
+    then ``field.name<k>``, ``field.position<k>``, ``field.velocity<k>``, ``field.effort<k>`` per joint. Returns the
+    position columns that hold the Panda's joints in the robot's order."""
+    order = [*PANDA[:1:-1], "panda_finger_joint1", "panda_finger_joint2", *PANDA[1::-1]]
+    n = len(order)
+    header = ["%time", "field.header.seq", "field.header.stamp", "field.header.frame_id"]
+    header += [f"field.{part}{k}" for part in ("name", "position", "velocity", "effort") for k in range(n)]
+    lines = [",".join(header)]
+    for seq, (row, stamp) in enumerate(zip(q, stamps_ns)):
+        values = dict(zip(PANDA, row)) | {"panda_finger_joint1": 0.04, "panda_finger_joint2": 0.04}
+        cells = [str(int(stamp) + 2_000_000), str(seq), str(int(stamp)), ""]
+        cells += [*order, *(repr(float(values[j])) for j in order), *["0.0"] * n, *["0.0"] * n]
+        lines.append(",".join(cells))
+    path.write_text("\n".join(lines) + "\n")
+    return [f"field.position{order.index(j)}" for j in PANDA]
+
+
+def test_a_rostopic_echo_csv_of_joint_states_reads_with_its_columns_named(tmp_path):
+    """The other way ROS 1 users keep joint states: ``rostopic echo -p`` CSV, one file per demonstration, names in
+    the driver's order and strings beside the numbers. Naming the stamp column (ns) and the position columns in
+    the robot's order reads it as the bag is read; left to guess the columns, the first one that is not a number
+    is named with the fix."""
+    q, stamps = arm_reach()
+    columns = rostopic_csv(tmp_path / "demo0.csv", q, stamps)
+    bag = bag_path(tmp_path, "ros1")
+    write_bag(bag, "ros1", driver_log("ros1", q, stamps, PANDA))
+    (from_csv,) = read_recordings(
+        data_block(
+            format="csv",
+            files=[str(tmp_path / "demo0.csv")],
+            time_column="field.header.stamp",
+            time_units="ns",
+            columns=columns,
+        ),
+        PANDA,
+    )
+    (from_bag,) = read_recordings(data_block(files=[str(bag)]), PANDA)
+    np.testing.assert_array_equal(from_csv.pos, from_bag.pos)
+    np.testing.assert_allclose(from_csv.t - from_csv.t[0], from_bag.t - from_bag.t[0], rtol=0, atol=1e-6)
+    with pytest.raises(
+        RecordingError, match=r"demo0\.csv, row 2, column 'field\.header\.frame_id': '' is not a number"
+    ):
+        read_recordings(
+            data_block(
+                format="csv", files=[str(tmp_path / "demo0.csv")], time_column="field.header.stamp", time_units="ns"
+            ),
+            PANDA,
+        )
