@@ -2045,6 +2045,73 @@ def _cache_file(tmp_path, monkeypatch):
     )
 
 
+_PANDA = ", ".join(f"panda_joint{k}" for k in range(1, 8))
+
+
+@row(
+    "recorded-bag-of-another-arm",
+    "a ROS bag of another arm's joint states for the Panda's experiment",
+    "rmpfusion-validate experiment=recorded_arm data.format=rosbag data.demo_column=null data.files=[<dir>/ur5e.bag] "
+    "(a UR5e driver's /joint_states: six joints of other names)",
+    _ONE_LINE.format(code=2),
+    shows="error: invalid configuration: 1 problem(s)\n  - data: <dir>/ur5e.bag [/joint_states]: no message carries "
+    f"every joint of {_PANDA} (never named: {_PANDA}); the topic's messages name elbow_joint, shoulder_lift_joint, "
+    "shoulder_pan_joint, wrist_1_joint, wrist_2_joint, wrist_3_joint. Choose the joints in data.columns, or the robot "
+    "those joints belong to",
+    needs=("rosbags",),
+)
+def _bag_of_another_arm(tmp_path, monkeypatch):
+    import numpy as np
+
+    sys.path.insert(0, str(ROOT / "tools"))
+    from rosbag_recordings import CLOCK_NS, joint_state, typestore, write_bag
+
+    ur = ["shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint", "wrist_1_joint", "wrist_2_joint", "wrist_3_joint"]
+    store, stamps = typestore("ros1"), CLOCK_NS + 10_000_000 * np.arange(20)
+    log = [
+        ("/joint_states", "sensor_msgs/msg/JointState", joint_state(store, "ros1", int(t), ur, [0.1 * k] * 6), int(t))
+        for k, t in enumerate(stamps)
+    ]
+    write_bag(tmp_path / "ur5e.bag", "ros1", log)
+    return said(
+        _validate_main(),
+        "experiment=recorded_arm",
+        "data.format=rosbag",
+        "data.demo_column=null",
+        f"data.files=[{tmp_path / 'ur5e.bag'}]",
+        f"hydra.run.dir={tmp_path / 'v'}",
+        code=2,
+        monkeypatch=monkeypatch,
+    )
+
+
+@row(
+    "recorded-aux-misspelt",
+    "aux state per demonstration under a name the environment does not read",
+    "rmpfusion-validate experiment=recorded_arm data.files=[<dir>/obstacles.csv] "
+    "'data.aux_columns={obstacle_centre: [ox, oy, oz]}' (the shipped Panda recordings with the cylinder's centre "
+    "in three more columns)",
+    _ONE_LINE.format(code=2),
+    shows="error: invalid configuration: 1 problem(s)\n  - data: <dir>/obstacles.csv [demo=demo00]: aux state "
+    "'obstacle_centre' (data.aux_columns / data.aux_keys) is not read by the environment manipulator; its aux state "
+    "(name and width): goal (3), obstacle1_center (3), obstacle1_radius (1), obstacle1_axis (3), "
+    "obstacle1_half_height (1), posture (7); did you mean 'obstacle1_center'?",
+)
+def _aux_misspelt(tmp_path, monkeypatch):
+    lines = (ROOT / "rmpfusion" / "recordings" / "files" / "panda_via_points.csv").read_text().splitlines()
+    rows = [f"{lines[0]},ox,oy,oz", *(f"{line},0.6,0.0,0.5" for line in lines[1:] if line)]
+    (tmp_path / "obstacles.csv").write_text("\n".join(rows) + "\n")
+    return said(
+        _validate_main(),
+        "experiment=recorded_arm",
+        f"data.files=[{tmp_path / 'obstacles.csv'}]",
+        "data.aux_columns={obstacle_centre: [ox, oy, oz]}",
+        f"hydra.run.dir={tmp_path / 'v'}",
+        code=2,
+        monkeypatch=monkeypatch,
+    )
+
+
 def _nan_weight_checkpoint(tmp_path) -> Path:
     """final.pt of a tiny run re-written (valid format and checksum) with one NaN in a weight network."""
     from rmpfusion.learn.checkpoints import save_checkpoint

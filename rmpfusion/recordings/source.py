@@ -9,6 +9,7 @@ Velocities and accelerations come from one place for the whole dataset: the Savi
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import glob
 import hashlib
 import re
@@ -234,14 +235,17 @@ def check_aux(recordings: Sequence[Recording], aux_dims: Mapping[str, int], env:
     for rec in recordings:
         for name, value in rec.aux.items():
             if name not in aux_dims:
+                close = difflib.get_close_matches(name, list(aux_dims), n=1)
+                fix = f"did you mean {close[0]!r}?" if close else "rename it to one of these"
                 raise RecordingError(
                     f"{rec.source}: aux state {name!r} (data.aux_columns / data.aux_keys) is not read by the "
-                    f"environment {env}; its aux state (name and width): {known}"
+                    f"environment {env}; its aux state (name and width): {known}; {fix}"
                 )
             if value.shape != (aux_dims[name],):
                 raise RecordingError(
                     f"{rec.source}: aux state {name!r} has {value.size} value(s) but the environment {env} reads "
-                    f"{aux_dims[name]} (data.aux_columns / data.aux_keys)"
+                    f"{aux_dims[name]} (data.aux_columns / data.aux_keys); list {aux_dims[name]} columns (or an array "
+                    "of that width) for it"
                 )
 
 
