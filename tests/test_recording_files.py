@@ -354,3 +354,45 @@ def test_a_run_stored_before_the_newer_data_keys_resumes():
     now = resolve_and_validate(compose_cfg(["experiment=lasa"])).model_dump(mode="json")
     before = {**now, "data": {k: v for k, v in now["data"].items() if k not in RECORDED_DATA_ADDED}}
     assert config_diff(upgrade_run_config(before), now) == []
+
+
+# ------------------------------------------------------------------------------------------------ comments and gaps
+def test_comment_lines_and_numpys_savetxt_header_read_with_the_files_own_row_numbers(tmp_path):
+    """A logger's ``#`` notes above the header and between samples are skipped; ``numpy.savetxt(..., header=...)``
+    writes the header as the last comment above the numbers (``# t,x,y``), which is the header. Rows keep the
+    file's line numbers, so an error still points at the right line."""
+    noted = tmp_path / "noted.csv"
+    lines = [f"{t},{x},{y}" for t, (x, y) in zip(T, REACH)]
+    noted.write_text("# kinesthetic teaching, 100 Hz\n# operator: A\nt,x,y\n" + "\n".join(lines[:9]) + "\n# pause\n"
+                     + "\n".join(lines[9:]) + "\n")  # fmt: skip
+    saved = tmp_path / "saved.csv"
+    np.savetxt(saved, np.column_stack([T, REACH]), delimiter=",", header="recorded by numpy\nt,x,y")
+    for path in (noted, saved):
+        (rec,) = read_csv(path)
+        assert rec.columns == ("x", "y")
+        np.testing.assert_array_equal(rec.pos, REACH)
+    assert list(read_csv(noted)[0].rows[8:11]) == [12, 14, 15]  # the comment on line 13 is skipped
+    noted.write_text(noted.read_text().replace(lines[20], f"{T[20]},{REACH[20, 0]},oops"))
+    with pytest.raises(RecordingError, match=r"noted\.csv, row 25, column 'y': 'oops' is not a number"):
+        read_csv(noted)
+    only = tmp_path / "only.csv"
+    only.write_text("# nothing was recorded\n")
+    with pytest.raises(RecordingError, match=r"only\.csv: the file is empty but for # comments; it needs a header"):
+        read_csv(only)
+
+
+def test_a_trailing_delimiter_on_every_line_is_not_a_column(tmp_path):
+    path = tmp_path / "trailing.csv"
+    path.write_text(csv_text([[*r, ""] for r in reach_rows()], ["t", "x", "y", ""]))
+    (rec,) = read_csv(path)
+    assert rec.columns == ("x", "y")
+    np.testing.assert_array_equal(rec.pos, REACH)
+
+
+def test_an_empty_cell_is_named_as_a_missing_sample(tmp_path):
+    path = tmp_path / "gap.csv"
+    rows = reach_rows()
+    rows[40][1] = ""
+    path.write_text(csv_text(rows, ["t", "x", "y"]))
+    with pytest.raises(RecordingError, match=r"gap\.csv, row 42, column 'x': the cell is empty .*drop the row"):
+        read_csv(path)

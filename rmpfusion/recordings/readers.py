@@ -9,8 +9,8 @@ one :class:`RecordingError` naming the file, and the row and column where there 
 from __future__ import annotations
 
 import csv
-import io
 from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -78,42 +78,77 @@ def _float(text: str, source: str, row: int, column: str, hint: str = "") -> flo
     try:
         return float(text)
     except ValueError:
+        if not text.strip():
+            raise RecordingError(
+                f"{where(source, row, column)}: the cell is empty (a sample the logger missed?); fill it in, or drop "
+                f"the row (the samples need not be evenly spaced){hint}"
+            ) from None
         if "," in text and "." not in text:
             hint = "; a decimal comma? write the numbers with a decimal point"
         raise RecordingError(f"{where(source, row, column)}: {text!r} is not a number{hint}") from None
 
 
-def _header_and_body(path: Path, source: str, time_column: str) -> tuple[list[str], list[list[str]]]:
-    """The header (names stripped) and the rows, in any of the common delimiters; a byte-order mark (Excel's
-    "CSV UTF-8") is not part of the first name."""
+@dataclass
+class _Table:
+    """A CSV file's header (names stripped), the line it stands on (1-based), and its rows, where ``body[r]`` is
+    line ``r + 2`` of the file: blank rows stand in for comment lines and the lines above the header."""
+
+    header: list[str]
+    header_row: int
+    body: list[list[str]]
+
+
+def _is_number(cell: str) -> bool:
+    try:
+        float(cell)
+    except ValueError:
+        return False
+    return True
+
+
+def _table(path: Path, source: str, time_column: str) -> _Table:
+    """The CSV's table in any of the common delimiters. A byte-order mark (Excel's "CSV UTF-8") is not part of the
+    first name; lines starting with ``#`` are comments (a logger's notes), except that where numbers follow the
+    comments at once the last comment is the header (``numpy.savetxt(..., header="t,x,y")`` writes ``# t,x,y``);
+    a trailing delimiter on every line (an empty last column) is not a column."""
     try:
         with open(path, newline="", encoding="utf-8-sig") as fh:
-            text = fh.read()
+            lines = fh.read().splitlines()
     except UnicodeDecodeError:
         raise RecordingError(
             f"{source}: not a text CSV file (its bytes are not UTF-8); an NPZ or HDF5 file needs data.format=npz or "
             "hdf5, a CSV saved in another encoding needs saving as UTF-8"
         ) from None
-    first = text.split("\n", 1)[0]
-    if not first.strip():
+    comment = [line.lstrip().startswith("#") for line in lines]
+    h = comment.index(False) if False in comment else len(lines)
+    if h == len(lines) or not lines[h].strip():
         raise RecordingError(
-            f"{source}: the file is empty; it needs a header row naming {time_column!r} and the coordinates"
+            f"{source}: the file is empty{' but for # comments' if h else ''}; it needs a header row naming "
+            f"{time_column!r} and the coordinates"
         )
     try:
-        dialect: Any = csv.Sniffer().sniff(first, delimiters=DELIMITERS)
+        dialect: Any = csv.Sniffer().sniff(lines[h], delimiters=DELIMITERS)
     except csv.Error:
         dialect = csv.excel  # one column, or no delimiter to tell: a comma
-    rows = list(csv.reader(io.StringIO(text), dialect))
-    return [h.strip() for h in rows[0]], rows[1:]
+    rows = [[] if c else row for c, row in zip(comment, csv.reader(lines, dialect))]
+    if h > 0 and all(_is_number(cell) for cell in rows[h] if cell.strip()):
+        h -= 1  # numpy.savetxt's header: the comment right above the numbers
+        rows[h] = next(csv.reader([lines[h].lstrip()[1:]], dialect))
+    header = [name.strip() for name in rows[h]]
+    body = [[] for _ in range(h)] + rows[h + 1 :]
+    while header and not header[-1] and all(len(r) < len(header) or not r[-1].strip() for r in body):
+        header = header[:-1]  # a trailing delimiter on every line
+        body = [r[: len(header)] if len(r) > len(header) else r for r in body]
+    return _Table(header, h + 1, body)
 
 
-def _coordinate_columns(header: list[str], used: set, source: str) -> list[str]:
+def _coordinate_columns(header: list[str], used: set, source: str, header_row: int = 1) -> list[str]:
     """Every column that is not time, a demonstration id, a derivative or aux, in the header's order; an unnamed
     one (pandas' index, written by ``to_csv`` unless ``index=False``) is refused rather than read as a coordinate."""
     unnamed = [k + 1 for k, h in enumerate(header) if not h]
     if unnamed:
         raise RecordingError(
-            f"{where(source, 1)}: column {unnamed[0]} of the header has no name (pandas writes its index so: "
+            f"{where(source, header_row)}: column {unnamed[0]} of the header has no name (pandas writes its index so: "
             "to_csv(..., index=False)); name it, or list the coordinates in data.columns"
         )
     return [h for h in header if h not in used]
@@ -146,23 +181,26 @@ def read_csv(
     tab) is read from the header."""
     path = Path(path)
     source = str(path)
-    header, body = _header_and_body(path, source, time_column)
+    table = _table(path, source, time_column)
+    header, body = table.header, table.body
     aux_columns = dict(aux_columns or {})
     derivatives = [*(velocity_columns or ()), *(acceleration_columns or ())]
     used = {time_column, demo_column, *derivatives, *(c for cs in aux_columns.values() for c in cs)}
     guessed = columns is None
-    columns = list(columns) if columns is not None else _coordinate_columns(header, used, source)
+    columns = list(columns) if columns is not None else _coordinate_columns(header, used, source, table.header_row)
     if time_column not in header:
         raise RecordingError(
-            f"{where(source, 1)}: the header has no time column {time_column!r} (data.time_column); it has "
+            f"{where(source, table.header_row)}: the header has no time column {time_column!r} (data.time_column); it has "
             f"{', '.join(header)}{_time_column_hint(header)}"
         )
     for name in [*columns, *derivatives, *(c for cs in aux_columns.values() for c in cs)]:
         if name not in header:
-            raise RecordingError(f"{where(source, 1)}: the header has no column {name!r}; it has {', '.join(header)}")
+            raise RecordingError(
+                f"{where(source, table.header_row)}: the header has no column {name!r}; it has {', '.join(header)}"
+            )
     if demo_column and demo_column not in header:
         raise RecordingError(
-            f"{where(source, 1)}: the header has no column {demo_column!r} (data.demo_column); it has "
+            f"{where(source, table.header_row)}: the header has no column {demo_column!r} (data.demo_column); it has "
             f"{', '.join(header)}"
         )
     index = {h: k for k, h in enumerate(header)}
