@@ -135,7 +135,7 @@ def _table(path: Path, source: str, time_column: str) -> _Table:
         h -= 1  # numpy.savetxt's header: the comment right above the numbers
         rows[h] = next(csv.reader([lines[h].lstrip()[1:]], dialect))
     header = [name.strip() for name in rows[h]]
-    body = [[] for _ in range(h)] + rows[h + 1 :]
+    body: list[list[str]] = [[] for _ in range(h)] + rows[h + 1 :]
     while header and not header[-1] and all(len(r) < len(header) or not r[-1].strip() for r in body):
         header = header[:-1]  # a trailing delimiter on every line
         body = [r[: len(header)] if len(r) > len(header) else r for r in body]
