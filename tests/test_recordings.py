@@ -169,6 +169,8 @@ def test_lasa_shapes_are_read_from_the_installed_files_without_importing_the_pac
     assert len(SINGLE_PATTERN_SHAPES) == 26
     with pytest.raises(RecordingError, match="unknown LASA shape 'Angel'; did you mean 'Angle'"):
         read_lasa("Angel")
+    with pytest.raises(RecordingError, match=r"unknown LASA shape 'sshape'; did you mean 'Sshape'\? shapes"):
+        read_lasa("sshape")  # the dataset's own capitals (Sshape, WShape) are easy to get wrong
 
 
 def test_lasa_derivatives_from_the_file_or_the_filter_agree_roughly():

@@ -60,7 +60,8 @@ def lasa_file(shape: str) -> Path:
     if shape not in SHAPES:
         import difflib
 
-        close = difflib.get_close_matches(shape, SHAPES, n=3)
+        same_letters = [s for s in SHAPES if s.lower() == shape.lower()]  # 'sshape' is Sshape, not Zshape
+        close = same_letters or difflib.get_close_matches(shape, SHAPES, n=3)
         hint = f"did you mean {', '.join(map(repr, close))}? " if close else ""
         raise RecordingError(f"unknown LASA shape {shape!r}; {hint}shapes: {', '.join(SHAPES)}")
     try:
