@@ -18,7 +18,7 @@ from rmpfusion.assembly.errors import ConfigError
 from rmpfusion.pipeline.config import RecordedDataConfig
 from rmpfusion.pipeline.experiment import prepare
 from rmpfusion.pipeline.progress import Progress
-from rmpfusion.pipeline.recorded import evaluation_batch, recorded_splits
+from rmpfusion.pipeline.recorded import evaluation_batch, recorded_splits, told_only_the_scene
 from rmpfusion.pipeline.validate import resolve_and_validate
 from rmpfusion.recordings import RecordingError, read_hdf5, read_npz
 from rmpfusion.recordings.source import SHIPPED_DIR, read_recordings, to_grid
@@ -42,11 +42,11 @@ def panda_with_obstacle_columns(path) -> None:
     path.write_text(out.getvalue())
 
 
-def arm_run(tmp_path, aux: str = "{obstacle1_center:[ox,oy,oz]}"):
+def arm_run(tmp_path, aux: str = "{obstacle1_center:[ox,oy,oz]}", *more: str):
     path = tmp_path / "panda_obstacles.csv"
     panda_with_obstacle_columns(path)
     return resolve_and_validate(
-        compose_cfg(["experiment=recorded_arm", f"data.files=[{path}]", f"data.aux_columns={aux}"])
+        compose_cfg(["experiment=recorded_arm", f"data.files=[{path}]", f"data.aux_columns={aux}", *more])
     )
 
 
@@ -67,6 +67,40 @@ def test_each_demonstrations_obstacle_reaches_training_and_evaluation(tmp_path):
             np.testing.assert_array_equal(batch.aux["obstacle1_center"][n].numpy(), moved(name))
     grid = batch.aux["obstacle1_center"][batch.grid].numpy()  # the starts at rest: the scene's own cylinder
     np.testing.assert_allclose(grid, np.broadcast_to(exp.env.scene.obstacles[0].center, grid.shape))
+
+
+def test_a_policy_not_told_where_the_obstacle_stood_is_judged_where_it_stood(tmp_path):
+    """data.aux_to_policy=false, the baseline that was never told: training samples carry the scene's cylinder for
+    every demonstration, the policy reads the scene's cylinder in evaluation (for the whole batch and for the single
+    rows fault isolation evaluates), while the rollouts' world, where collisions count, keeps each held-out
+    demonstration's own."""
+    run = arm_run(tmp_path, "{obstacle1_center:[ox,oy,oz]}", "data.aux_to_policy=false")
+    exp = prepare(run, tmp_path, Progress(False))
+    splits, demos, every = recorded_splits(exp)
+    scene = np.asarray(exp.env.scene.obstacles[0].center)
+    np.testing.assert_array_equal(np.unique(splits.train.aux["obstacle1_center"].numpy(), axis=0), [scene])
+    batch = evaluation_batch(exp, demos, every)
+    held = [d for k in ("test", "val") for d in batch.demos[k]]
+    own = [moved(re.search(r"demo=(demo\d+)", d.source).group(1)) for d in held]
+    np.testing.assert_array_equal(batch.aux["obstacle1_center"][: len(held)].numpy(), own)  # the world
+    np.testing.assert_array_equal(np.unique(batch.policy_aux()["obstacle1_center"].numpy(), axis=0), [scene])
+    seen = []
+    blind = told_only_the_scene(lambda q, qd, aux: seen.append(aux["obstacle1_center"].clone()), batch.hidden)
+    blind(batch.q0, batch.qd0, batch.aux)
+    blind(batch.q0[:1], batch.qd0[:1], {k: v[:1] for k, v in batch.aux.items()})
+    for told in seen:
+        np.testing.assert_array_equal(np.unique(told.numpy(), axis=0), [scene])
+        np.testing.assert_array_equal(batch.aux["goal"][: len(told)].numpy(), batch.policy_aux()["goal"][: len(told)])
+    told_run = arm_run(tmp_path, "{obstacle1_center:[ox,oy,oz]}")
+    assert evaluation_batch(prepare(told_run, tmp_path / "told", Progress(False)), demos, every).hidden == {}
+
+
+def test_hiding_aux_that_no_file_gives_or_the_goal_is_refused():
+    keys = {"source": "recorded", "format": "csv", "files": ["a.csv"], "aux_to_policy": False}
+    with pytest.raises(ValidationError, match=r"data\.aux_to_policy=false hides .* but no file gives any"):
+        RecordedDataConfig.model_validate(keys)
+    with pytest.raises(ValidationError, match=r"a policy is never blind to its own goal"):
+        RecordedDataConfig.model_validate({**keys, "aux_columns": {"goal": ["gx", "gy"]}})
 
 
 def test_aux_the_environment_does_not_read_is_refused(tmp_path):

@@ -45,6 +45,11 @@ def summary(run, env, expert, learners) -> str:
                 )
                 + (
                     f"; aux per demonstration from the files: {', '.join(from_files)}"
+                    + (
+                        ""
+                        if d.aux_to_policy
+                        else " (where obstacles stood in evaluation; the policy is told the scene's)"
+                    )
                     if (from_files := {**(d.aux_columns or {}), **(d.aux_keys or {})})
                     else ""
                 )

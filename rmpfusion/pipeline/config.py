@@ -136,6 +136,12 @@ class RecordedDataConfig(_Frozen):
         description="npz / hdf5: the same, name -> array key: (k,) or (N, k) for N demonstrations in an NPZ; (k,) "
         "or a constant (T, k) in each HDF5 demonstration group",
     )
+    aux_to_policy: bool = Field(
+        True,
+        description="false: the aux columns (data.aux_columns / data.aux_keys) place each held-out demonstration's "
+        "obstacles in evaluation, where collisions count against them, but the policy is trained and rolled out "
+        "with the scene's values, as if where they stood had not been recorded (the baseline that does not know)",
+    )
     position_key: str = Field("pos", description="npz / hdf5: the positions' key (hdf5: inside each demo group)")
     velocity_columns: list[str] | None = Field(None, description="csv: the velocity columns (derivatives: file)")
     acceleration_columns: list[str] | None = Field(
@@ -218,7 +224,18 @@ class RecordedDataConfig(_Frozen):
             raise ValueError(f"format {self.format} needs data.files, the recorded files to read")
         self._no_setting_the_format_ignores()
         self._file_derivatives_named()
-        if self.goal is not None and "goal" in {**(self.aux_columns or {}), **(self.aux_keys or {})}:
+        from_files = {**(self.aux_columns or {}), **(self.aux_keys or {})}
+        if not self.aux_to_policy and not from_files:
+            raise ValueError(
+                "data.aux_to_policy=false hides the aux state read from the files from the policy, but no file "
+                "gives any: name it in data.aux_columns / data.aux_keys, or drop data.aux_to_policy"
+            )
+        if not self.aux_to_policy and "goal" in from_files:
+            raise ValueError(
+                "data.aux_to_policy=false with a goal aux column: a policy is never blind to its own goal (the "
+                "demonstrations end there); hide the obstacles only, or drop data.aux_to_policy"
+            )
+        if self.goal is not None and "goal" in from_files:
             raise ValueError(
                 "data.goal and a goal aux column (data.aux_columns / data.aux_keys) both give the goal; keep one"
             )
@@ -325,6 +342,7 @@ RECORDED_DATA_ADDED = {
     "topic": None,
     "aux_columns": None,
     "aux_keys": None,
+    "aux_to_policy": True,
 }
 
 

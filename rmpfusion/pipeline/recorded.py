@@ -16,10 +16,11 @@ measures learned dynamical systems (Khansari-Zadeh & Billard 2011; Rana et al. 2
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -106,7 +107,8 @@ def recorded_splits(exp: Experiment) -> tuple[Splits, dict[str, list[States]], l
     split = split_of(d, len(states), exp.run.seed)
     parts = {"train": split.train, "test": split.test, **({"val": split.val} if split.val else {})}
     files = content_hash(d)
-    made = {name: _dataset(exp, files, name, members, states) for name, members in parts.items()}
+    seen = states if d.aux_to_policy else [dataclasses.replace(s, aux={}) for s in states]  # the scene's aux
+    made = {name: _dataset(exp, files, name, members, seen) for name, members in parts.items()}
     for name, (ds, info) in made.items():
         exp.say.say(
             f"data: {name}: {len(info['demonstrations'])} demonstration(s), {info['points']} points"
@@ -194,6 +196,26 @@ class Batch:
     index: dict[str, slice]
     grid: slice
     horizon: float
+    #: aux the policy is not told (``data.aux_to_policy=false``): name -> the scene's value (k,) it reads instead,
+    #: the same for every row; ``aux`` keeps where the obstacles stood, which collisions are counted against
+    hidden: dict[str, torch.Tensor] = dataclasses.field(default_factory=dict)
+
+    def policy_aux(self) -> dict[str, torch.Tensor]:
+        """The aux state the policy reads: ``aux`` with the hidden entries at the scene's values."""
+        return {**self.aux, **{k: v.expand(self.aux[k].shape) for k, v in self.hidden.items()}}
+
+
+def told_only_the_scene(policy: Callable, hidden: Mapping[str, torch.Tensor]) -> Callable:
+    """``policy`` reading the scene's value of each ``hidden`` aux entry whatever the world's (row-independent, so
+    it holds for a rollout's batch and for the single rows fault isolation evaluates)."""
+    if not hidden:
+        return policy
+
+    def blind(q: torch.Tensor, qd: torch.Tensor, aux: Mapping[str, torch.Tensor]):
+        told = {k: v.to(aux[k]).expand(aux[k].shape) for k, v in hidden.items()}
+        return policy(q, qd, {**aux, **told})
+
+    return blind
 
 
 def evaluation_batch(exp: Experiment, demos: dict[str, list[States]], every_demo: list[States]) -> Batch:
@@ -216,6 +238,8 @@ def evaluation_batch(exp: Experiment, demos: dict[str, list[States]], every_demo
     horizon = dt * int(np.ceil(d.horizon_factor * longest / dt - 1e-9))
     aux = {k: v.clone() for k, v in env.recorded_aux(_as_tensor(np.stack(goals))).items()}  # written into below
     held_states = [s for v in held.values() for s in v]
+    from_files = sorted({name for s in every_demo for name in s.aux})
+    hidden = {} if d.aux_to_policy else {name: aux[name][0].clone() for name in from_files}  # the scene's values
     for n, s in enumerate(held_states):  # a demonstration's own aux state (its obstacle, its goal) where it has one
         for name, value in s.aux.items():
             aux[name][n] = _as_tensor(value)
@@ -227,6 +251,7 @@ def evaluation_batch(exp: Experiment, demos: dict[str, list[States]], every_demo
         index,
         slice(at, at + len(grid)),
         horizon,
+        hidden,
     )
 
 
@@ -299,7 +324,7 @@ def held_by(tree: RMPTree, q: torch.Tensor, batch: Batch, rows: torch.Tensor) ->
     """The leaves whose forces balance where rollouts stopped (median size over the stalled states, strongest
     first), the part of each its weights' gradient makes (−Φ∇W, docs/math.md §12 premise 3), and how much of the
     root force at rest their sum leaves unexplained (~0 for a tree of GDS leaves)."""
-    aux = {k: v[rows].to(tree.device) for k, v in batch.aux.items()}
+    aux = {k: v[rows].to(tree.device) for k, v in batch.policy_aux().items()}
     forces = rest_forces(tree, q.to(tree.device), aux)
     strongest = dict(forces.strongest())
     return {
@@ -316,7 +341,13 @@ def evaluate_policy(
     (with ``tree``, the policy's tree: which leaves hold the rollouts that stop short)."""
     d, ev = exp.recorded_data, exp.run.eval
     ro = exp.env.rollout(
-        policy, batch.q0, batch.qd0, batch.aux, batch.horizon, exp.env.dt, progress=exp.say.bar(f"rollout {label}")
+        told_only_the_scene(policy, batch.hidden),
+        batch.q0,
+        batch.qd0,
+        batch.aux,
+        batch.horizon,
+        exp.env.dt,
+        progress=exp.say.bar(f"rollout {label}"),
     )
     to_task = _end_effector(exp.env)
     out = {f"reproduction_{k}": reproduction(batch, ro, k, d.tolerance, to_task) for k in batch.index}
@@ -381,7 +412,7 @@ def evaluate_recorded(exp: Experiment, fitted: dict, batch: Batch) -> tuple[dict
             final, ro = evaluate_policy(exp, name, model.policy, batch, model.tree)
         rollouts[f"{name} after {exp.run.train.iterations} iterations"] = ro
         if model.tree is not None:
-            final["certificate"] = certificate(model, ro, batch.aux, every=certified_every(ro))
+            final["certificate"] = certificate(model, ro, batch.policy_aux(), every=certified_every(ro))
         if learned := model.learned_numbers():
             final["learned_leaf_parameters"] = learned
         res["learners"][name] = {
