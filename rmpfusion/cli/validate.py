@@ -36,7 +36,9 @@ def summary(run, env, expert, learners) -> str:
             what += f": {len(read)} {'bags' if d.format == 'rosbag' else 'files'}"  # a pattern named them
         data_lines = [
             (
-                f"data: recorded demonstrations ({d.format}: {what}), split {d.split}, derivatives "
+                f"data: recorded demonstrations ({d.format}: {what}"
+                + (f", cut at every rest of {d.cut_at_rest:g} s or more" if d.cut_at_rest is not None else "")
+                + f"), split {d.split}, derivatives "
                 f"{d.derivatives}"
                 + (
                     f" (Savitzky-Golay window {d.window}, order {d.polyorder})"

@@ -74,14 +74,14 @@ class DataConfig(_Frozen):
 
 
 #: the data keys each recorded format reads; the others must keep their defaults under that format
-_FILE_KEYS = {"files", "units", "time_units", "columns", "time_column"}
+_FILE_KEYS = {"files", "units", "time_units", "columns", "time_column", "cut_at_rest"}
 _ARRAY_KEYS = _FILE_KEYS | {"position_key", "velocity_key", "acceleration_key", "aux_keys"}
 _FORMAT_KEYS = {
     "lasa": {"shape"},
     "csv": _FILE_KEYS | {"demo_column", "velocity_columns", "acceleration_columns", "aux_columns"},
     "npz": _ARRAY_KEYS,
     "hdf5": _ARRAY_KEYS | {"group", "rate"},
-    "rosbag": {"files", "units", "columns", "topic"},
+    "rosbag": {"files", "units", "columns", "topic", "cut_at_rest"},
 }
 _FORMAT_KEYS_ALL = set().union(*_FORMAT_KEYS.values())
 #: the data keys each split reads
@@ -123,6 +123,13 @@ class RecordedDataConfig(_Frozen):
         None,
         description="rosbag: the topic read, sensor_msgs/JointState (or, for an environment of positions, a "
         "geometry_msgs PoseStamped, PointStamped or TransformStamped); default the bag's only topic of those types",
+    )
+    cut_at_rest: float | None = Field(
+        None,
+        gt=0,
+        description="a recording holding several demonstrations with the arm at rest between them (a whole "
+        "teaching session in one log): cut in the middle of every rest lasting at least this long (s) between two "
+        "motions; rest as trimming finds it (data.rest_fraction of the recording's peak speed); null: no cutting",
     )
     aux_columns: dict[str, list[str]] | None = Field(
         None,
@@ -343,6 +350,7 @@ RECORDED_DATA_ADDED = {
     "aux_columns": None,
     "aux_keys": None,
     "aux_to_policy": True,
+    "cut_at_rest": None,
 }
 
 

@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from ..robots import RobotDescription
+from .cutting import cut_at_rests
 from .joints import check_joint_recordings, check_units
 from .lasa import lasa_file, read_lasa
 from .readers import read_csv, read_hdf5, read_npz
@@ -161,6 +162,8 @@ def read_recordings(d: Any, joints: Sequence[str] | None = None) -> list[Recordi
             out += read_hdf5(path, group=d.group, time_key=time_key, rate=d.rate, **arrays, **common)
     if not out:
         raise RecordingError(f"{', '.join(map(str, source_files(d)))}: no demonstration in the file(s)")
+    if d.cut_at_rest is not None:
+        out = cut_at_rests(out, d.cut_at_rest, d.polyorder, d.rest_fraction)
     check_durations(out, d.time_units)
     return out
 
@@ -177,7 +180,8 @@ def check_durations(recordings: Sequence[Recording], time_units: str) -> None:
         raise RecordingError(
             f"{longest.source}: lasts {longest.duration:.6g} s with its time stamps read in {time_units}; if they "
             "are in another unit, set data.time_units (s, ms, us, ns); if the file holds several demonstrations, "
-            "name the column telling them apart in data.demo_column; cut a longer recording into demonstrations"
+            "name the column telling them apart in data.demo_column, or cut a recording with rests between "
+            "them (data.cut_at_rest)"
         )
 
 

@@ -1,0 +1,75 @@
+"""Cutting one long recording into demonstrations at the rests between them.
+
+A robot's own log (a ROS bag, a controller's CSV) often holds a whole teaching session: the arm moved, was held
+still while the operator reset, moved again. Its samples never pause (the driver keeps publishing at rest), so
+nothing in the time stamps tells the demonstrations apart; the rests do. With ``data.cut_at_rest`` set, a recording
+is cut in the middle of every rest lasting at least that long between two motions, and each piece is a
+demonstration (trimmed, given its goal and split like any other). Rest is what trimming calls rest: speed below
+``data.rest_fraction`` of the recording's peak, here from a Savitzky–Golay filter (``data.polyorder``) spanning about
+half of ``data.cut_at_rest`` on a grid at the recording's own median sample step, so that an encoder's noise at rest
+stays well below it; speed above it for fewer samples than the filter spans is noise, not a motion.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+
+import numpy as np
+
+from .recording import Recording
+from .signals import resample, savgol_derivatives
+
+
+def rest_runs(rest: np.ndarray) -> list[tuple[int, int]]:
+    """(first, last) index, inclusive, of every run of True in ``rest``."""
+    padded = np.concatenate([[False], rest, [False]]).astype(np.int8)
+    edges = np.flatnonzero(np.diff(padded))
+    return [(int(a), int(b) - 1) for a, b in zip(edges[::2], edges[1::2])]
+
+
+def cut_times(rec: Recording, min_rest: float, polyorder: int, rest_fraction: float) -> list[float]:
+    """The times at which ``rec`` is cut: the middle of every rest of at least ``min_rest`` seconds that has motion
+    on both sides (the rests at either end are trimmed later, not cut)."""
+    step = float(np.median(np.diff(rec.t)))
+    window = max(2 * int(0.25 * min_rest / step) + 1, polyorder + 2 + polyorder % 2)  # odd, about min_rest / 2
+    t, raw = resample(rec.t, rec.pos, step)
+    if len(t) < window:
+        return []  # shorter than half the rest asked for: it holds no such rest between two motions
+    _, qd, _ = savgol_derivatives(raw, step, window, polyorder, rec.source)
+    speed = np.linalg.norm(qd, axis=1)
+    moving = speed > rest_fraction * speed.max()
+    for a, b in rest_runs(moving):
+        if b - a + 1 < window:  # shorter than the filter's span: noise (the filter's ends most of all), not a motion
+            moving[a : b + 1] = False
+    rests = rest_runs(~moving)
+    return [0.5 * (t[a] + t[b]) for a, b in rests if a > 0 and b < len(t) - 1 and t[b] - t[a] >= min_rest]
+
+
+def _piece(rec: Recording, keep: np.ndarray, k: int, n: int) -> Recording:
+    rows = rec.rows[keep] if rec.rows is not None else None
+    return dataclasses.replace(
+        rec,
+        t=rec.t[keep],
+        pos=rec.pos[keep],
+        vel=rec.vel[keep] if rec.vel is not None else None,
+        acc=rec.acc[keep] if rec.acc is not None else None,
+        rows=rows,
+        source=f"{rec.source} (motion {k} of {n}, from t={rec.t[keep][0] - rec.t[0]:.3f} s)",
+    )
+
+
+def cut_at_rests(
+    recordings: Sequence[Recording], min_rest: float, polyorder: int, rest_fraction: float
+) -> list[Recording]:
+    """Every recording cut into its motions (a recording with no rest that long between motions stays whole)."""
+    out: list[Recording] = []
+    for rec in recordings:
+        cuts = cut_times(rec, min_rest, polyorder, rest_fraction)
+        if not cuts:
+            out.append(rec)
+            continue
+        piece = np.searchsorted(cuts, rec.t, side="right")  # which piece each sample falls in
+        n = len(cuts) + 1
+        out += [_piece(rec, piece == k, k + 1, n) for k in range(n)]
+    return out
