@@ -1,6 +1,7 @@
 """A whole teaching session in one log, cut into its demonstrations at the rests between them
-(``data.cut_at_rest``): the pieces are exactly the motions' samples, a pause shorter than the setting is no cut, and
-the shipped Panda recordings logged back to back as one session come apart into the 24 they were."""
+(``data.cut_at_rest``, ``data.keep_motions``): the pieces are exactly the motions' samples, a pause shorter than the
+setting is no cut, the shipped Panda recordings logged as one session with the arm's returns between them come apart
+into the 24 they were, and demonstrations logged back to back without the return are refused as a jump."""
 
 from __future__ import annotations
 
@@ -8,12 +9,14 @@ import numpy as np
 import pytest
 from conftest import compose_cfg
 from pydantic import ValidationError
+from sessions import panda_session, shipped_demonstrations
 
 from rmpfusion.assembly.errors import ConfigError
 from rmpfusion.pipeline.config import RecordedDataConfig
 from rmpfusion.pipeline.validate import resolve_and_validate
+from rmpfusion.recordings import RecordingError
 from rmpfusion.recordings.cutting import rest_runs
-from rmpfusion.recordings.source import SHIPPED_DIR, read_recordings
+from rmpfusion.recordings.source import read_recordings
 
 RATE = 100.0
 
@@ -86,42 +89,58 @@ def test_a_pause_shorter_than_the_setting_is_not_a_cut(tmp_path):
     assert len(read_recordings(block(tmp_path / "session.csv", cut_at_rest=0.3))) == 3
 
 
-def test_the_panda_recordings_back_to_back_come_apart_into_the_24(tmp_path):
-    """The shipped recordings (a planner's, 1 mrad of noise, irregular stamps) logged as one session: each
-    demonstration's samples on one clock, the arm held for 2 s between them (noisy, as encoders read at rest),
-    written without a demonstration column. Cut at rests of 1 s, each piece holds exactly one demonstration's
-    samples, and the run validates with 24 demonstrations."""
-    import csv
+def write_session(path, t: np.ndarray, q: np.ndarray) -> None:
+    joints = ",".join(f"panda_joint{k}" for k in range(1, 8))
+    path.write_text(
+        f"t,{joints}\n" + "".join(",".join(map(repr, [a, *b])) + "\n" for a, b in zip(t.tolist(), q.tolist()))
+    )
 
-    with open(SHIPPED_DIR / "panda_via_points.csv", newline="") as fh:
-        rows = list(csv.reader(fh))
-    header, body = rows[0], rows[1:]
-    demos: dict[str, list[list[float]]] = {}
-    for r in body:
-        demos.setdefault(r[0], []).append([float(v) for v in r[1:]])
-    rng = np.random.default_rng(1)
-    lines, owner, clock = [",".join(header[1:])], [], 0.0
-    for name, samples in demos.items():
-        arr = np.asarray(samples)
-        t = arr[:, 0] - arr[0, 0] + clock
-        lines += [",".join(repr(v) for v in (tk, *q)) for tk, q in zip(t.tolist(), arr[:, 1:].tolist())]
-        owner += [name] * len(arr)
-        held = arr[-1, 1:] + rng.normal(0.0, 1e-3, (200, arr.shape[1] - 1))
-        lines += [",".join(repr(v) for v in (float(t[-1]) + 0.01 * (k + 1), *q)) for k, q in enumerate(held.tolist())]
-        owner += [None] * 200
-        clock = t[-1] + 2.01
-    path = tmp_path / "session.csv"
-    path.write_text("\n".join(lines) + "\n")
-    keys = ["experiment=recorded_arm", f"data.files=[{path}]", "data.demo_column=null", "data.cut_at_rest=1.0"]
-    run = resolve_and_validate(compose_cfg(keys))
+
+def test_a_panda_session_comes_apart_into_its_24_demonstrations(tmp_path):
+    """The shipped recordings (a planner's, 1 mrad of noise, irregular stamps) logged as one teaching session
+    (tests/sessions.py: held 2 s, returned to the next start in 3 s, held 2 s) and written as one CSV. Cut at rests
+    of 1 s it is 47 motions, demonstrations and returns in turn; keeping the odd ones, each piece holds exactly one
+    demonstration's samples, all of them, and the run validates with the 24."""
+    t, q, owner = panda_session()
+    write_session(tmp_path / "session.csv", t, q)
+    keys = ["experiment=recorded_arm", f"data.files=[{tmp_path / 'session.csv'}]", "data.demo_column=null"]
+    cut = [*keys, "data.cut_at_rest=1.0"]
+    assert len(read_recordings(resolve_and_validate(compose_cfg(cut)).data)) == 47
+    run = resolve_and_validate(compose_cfg([*cut, "data.keep_motions=odd"]))
     pieces = read_recordings(run.data)
-    assert len(pieces) == 24
+    demos = shipped_demonstrations()
+    assert len(pieces) == 24 and "(motion 47 of 47, from t=" in pieces[-1].source
     for piece, name in zip(pieces, demos):
-        held = {owner[int(r) - 2] for r in piece.rows} - {None}
-        assert held == {name}, (piece.source, held)
-        assert sum(owner[int(r) - 2] == name for r in piece.rows) == len(demos[name])  # all of its samples
+        mine = [owner[int(r) - 2] for r in piece.rows]
+        assert set(mine) - {None} == {name} and mine.count(name) == len(demos[name][0]), piece.source
     with pytest.raises(ConfigError, match=r"cannot split 1 demonstration\(s\) into 4 validation"):
-        resolve_and_validate(compose_cfg(keys[:-1]))  # uncut, the session is one demonstration
+        resolve_and_validate(compose_cfg(keys))  # uncut, the session is one demonstration
+
+
+def test_demonstrations_logged_back_to_back_without_the_return_are_a_jump(tmp_path):
+    """Without the return between them (the next demonstration starting where the last one's start is, a moment
+    after its end), the joints would move at tens of rad/s: refused at the row where they jump, naming the joint
+    and its velocity limit, rather than trimmed into a sliver around the jump."""
+    demos = list(shipped_demonstrations().values())
+    (t0, q0), (t1, q1) = demos[0], demos[1]
+    t = np.concatenate([t0 - t0[0], t1 - t1[0] + (t0[-1] - t0[0]) + 0.01])
+    write_session(tmp_path / "jump.csv", t, np.concatenate([q0, q1]))
+    keys = ["experiment=recorded_arm", f"data.files=[{tmp_path / 'jump.csv'}]", "data.demo_column=null"]
+    with pytest.raises(ConfigError, match=rf"jump\.csv, row {len(t0) + 2}, column 'panda_joint\d': panda_joint\d moves "
+                       r"[-+].* rad in .* ms from the sample before, over 2 times its velocity limit of .* a jump in the recording"):  # fmt: skip
+        resolve_and_validate(compose_cfg(keys))
+
+
+def test_keeping_motions_needs_cutting_and_a_motion_to_keep(tmp_path):
+    with pytest.raises(ValidationError, match=r"data\.keep_motions=odd chooses among .* data\.cut_at_rest is not set"):
+        RecordedDataConfig.model_validate(
+            {"source": "recorded", "format": "csv", "files": ["a.csv"], "keep_motions": "odd"}
+        )
+    pos, _ = session()
+    write(tmp_path / "session.csv", pos)
+    assert len(read_recordings(block(tmp_path / "session.csv", cut_at_rest=1.0, keep_motions="even"))) == 1
+    with pytest.raises(RecordingError, match=r"data\.keep_motions=even: no recording has a motion 2"):
+        read_recordings(block(tmp_path / "session.csv", cut_at_rest=5.0, keep_motions="even"))
 
 
 def test_cutting_is_refused_where_it_cannot_apply():

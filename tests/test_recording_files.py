@@ -396,3 +396,25 @@ def test_an_empty_cell_is_named_as_a_missing_sample(tmp_path):
     path.write_text(csv_text(rows, ["t", "x", "y"]))
     with pytest.raises(RecordingError, match=r"gap\.csv, row 42, column 'x': the cell is empty .*drop the row"):
         read_csv(path)
+
+
+def test_dates_and_times_in_the_time_column_read_as_seconds(tmp_path):
+    """A time column of ISO 8601 dates and times, as pandas writes a DatetimeIndex (with or without a UTC offset):
+    the stamps' differences in seconds, to the microseconds they are written in; a unit set for them, or a row
+    that is not one, is refused."""
+    from datetime import datetime, timedelta, timezone
+
+    start = datetime(2024, 5, 1, 23, 59, 59, tzinfo=timezone(timedelta(hours=2)))  # crosses midnight
+    for name, fmt in (("naive", lambda d: d.replace(tzinfo=None).isoformat(sep=" ", timespec="microseconds")),
+                      ("offset", lambda d: d.isoformat()))  :  # fmt: skip
+        path = tmp_path / f"{name}.csv"
+        stamps = [fmt(start + timedelta(seconds=t)) for t in T.tolist()]
+        path.write_text(csv_text([[s, *p] for s, p in zip(stamps, REACH.tolist())], ["time", "x", "y"]))
+        (rec,) = read_csv(path, time_column="time")
+        np.testing.assert_allclose(rec.t - rec.t[0], T, rtol=0, atol=5e-7)  # float64 seconds since 1970
+        np.testing.assert_array_equal(rec.pos, REACH)
+    with pytest.raises(RecordingError, match=r"row 2, column 'time': the times are dates and times .*drop data\.ti"):
+        read_csv(path, time_column="time", time_units="ms")
+    path.write_text(path.read_text().replace(stamps[7], "later"))
+    with pytest.raises(RecordingError, match=r"row 9, column 'time': 'later' is not a date and time like the first"):
+        read_csv(path, time_column="time")

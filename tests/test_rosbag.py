@@ -21,6 +21,7 @@ from rmpfusion.recordings.source import file_hashes, read_recordings, to_grid
 
 sys.path.insert(0, str(ROOT / "tools"))
 from rosbag_recordings import CLOCK_NS, driver_log, joint_state, main, point_message, typestore, write_bag
+from sessions import panda_session, shipped_demonstrations
 
 PANDA = [f"panda_joint{k}" for k in range(1, 8)]
 KINDS = ["ros1", "ros2-sqlite3", "ros2-mcap"]
@@ -325,33 +326,18 @@ def test_a_rostopic_echo_csv_of_joint_states_reads_with_its_columns_named(tmp_pa
 
 
 def test_a_whole_teaching_session_in_one_bag_is_cut_into_its_demonstrations(tmp_path):
-    """The shipped Panda recordings published back to back as one session, the driver publishing on at rest (2 s
-    held between demonstrations, 1 mrad of encoder noise): one bag, one recording uncut; cut at rests of 1 s
-    (data.cut_at_rest), 24 pieces, each holding exactly the messages of one demonstration and the held ones around
-    it, named by motion."""
-    sys.path.insert(0, str(ROOT / "tools"))
-    from rosbag_recordings import read_csv_demonstrations
-
-    from rmpfusion.recordings.source import SHIPPED_DIR
-
-    _, demos = read_csv_demonstrations(SHIPPED_DIR / "panda_via_points.csv")
-    rng = np.random.default_rng(2)
-    qs, stamps, owner, clock = [], [], [], CLOCK_NS
-    for name, (t, q) in demos.items():
-        ns = clock + np.round((t - t[0]) * 1e9).astype(np.int64)
-        held = q[-1] + rng.normal(0.0, 1e-3, (200, q.shape[1]))
-        qs += [q, held]
-        stamps += [ns, ns[-1] + 10_000_000 * np.arange(1, 201)]
-        owner += [name] * len(q) + [None] * 200
-        clock = int(ns[-1]) + 2_010_000_000
-    q, ns = np.concatenate(qs), np.concatenate(stamps)
+    """The shipped Panda recordings published as one teaching session (tests/sessions.py: the arm held, returned
+    to the next start, held, the driver publishing on): one bag, one recording uncut; cut at rests of 1 s keeping the
+    odd motions (data.keep_motions), 24 pieces, each holding every message of one demonstration and none of
+    another."""
+    t, q, owner = panda_session()
+    ns = CLOCK_NS + np.round(t * 1e9).astype(np.int64)
     bag = write_bag(bag_path(tmp_path, "ros1", "session"), "ros1", driver_log("ros1", q, ns, PANDA))
     assert len(read_recordings(data_block(files=[str(bag)]), PANDA)) == 1
-    pieces = read_recordings(data_block(files=[str(bag)], cut_at_rest=1.0), PANDA)
-    assert len(pieces) == 24 and "(motion 24 of 24, from t=" in pieces[-1].source
-    at = 0
-    for piece, (name, (_, demo)) in zip(pieces, demos.items()):
-        mine = [owner[at + i] for i in range(len(piece.t))]
-        assert set(mine) - {None} == {name} and mine.count(name) == len(demo)
-        at += len(piece.t)
-    assert at == len(q)
+    pieces = read_recordings(data_block(files=[str(bag)], cut_at_rest=1.0, keep_motions="odd"), PANDA)
+    assert len(pieces) == 24 and "(motion 47 of 47, from t=" in pieces[-1].source
+    demos = shipped_demonstrations()
+    for piece, name in zip(pieces, demos):
+        first = int(np.searchsorted(ns, round(piece.t[0] * 1e9) + CLOCK_NS - 1))  # the piece's first message
+        mine = owner[first : first + len(piece.t)]
+        assert set(mine) - {None} == {name} and mine.count(name) == len(demos[name][0]), piece.source

@@ -74,14 +74,14 @@ class DataConfig(_Frozen):
 
 
 #: the data keys each recorded format reads; the others must keep their defaults under that format
-_FILE_KEYS = {"files", "units", "time_units", "columns", "time_column", "cut_at_rest"}
+_FILE_KEYS = {"files", "units", "time_units", "columns", "time_column", "cut_at_rest", "keep_motions"}
 _ARRAY_KEYS = _FILE_KEYS | {"position_key", "velocity_key", "acceleration_key", "aux_keys"}
 _FORMAT_KEYS = {
     "lasa": {"shape"},
     "csv": _FILE_KEYS | {"demo_column", "velocity_columns", "acceleration_columns", "aux_columns"},
     "npz": _ARRAY_KEYS,
     "hdf5": _ARRAY_KEYS | {"group", "rate"},
-    "rosbag": {"files", "units", "columns", "topic", "cut_at_rest"},
+    "rosbag": {"files", "units", "columns", "topic", "cut_at_rest", "keep_motions"},
 }
 _FORMAT_KEYS_ALL = set().union(*_FORMAT_KEYS.values())
 #: the data keys each split reads
@@ -108,7 +108,9 @@ class RecordedDataConfig(_Frozen):
         description="the files' position units (rad / deg: joint angles, for an arm's joint-space env); LASA: "
         "the dataset's own mm, not a setting",
     )
-    time_units: Literal["s", "ms", "us", "ns"] = Field("s", description="csv / npz / hdf5: the time stamps' unit")
+    time_units: Literal["s", "ms", "us", "ns"] = Field(
+        "s", description="csv / npz / hdf5: the time stamps' unit (a csv's dates and times carry their own: keep s)"
+    )
     columns: list[str] | None = Field(
         None,
         description="the coordinates' names, in order (csv: the columns read, default every column but time, "
@@ -130,6 +132,11 @@ class RecordedDataConfig(_Frozen):
         description="a recording holding several demonstrations with the arm at rest between them (a whole "
         "teaching session in one log): cut in the middle of every rest lasting at least this long (s) between two "
         "motions; rest as trimming finds it (data.rest_fraction of the recording's peak speed); null: no cutting",
+    )
+    keep_motions: Literal["all", "odd", "even"] = Field(
+        "all",
+        description="with data.cut_at_rest, which motions of each recording are demonstrations: all, or the odd "
+        "(1st, 3rd, ...) or even ones, for a session that recorded the arm's return to the start between them",
     )
     aux_columns: dict[str, list[str]] | None = Field(
         None,
@@ -231,6 +238,11 @@ class RecordedDataConfig(_Frozen):
             raise ValueError(f"format {self.format} needs data.files, the recorded files to read")
         self._no_setting_the_format_ignores()
         self._file_derivatives_named()
+        if self.keep_motions != "all" and self.cut_at_rest is None:
+            raise ValueError(
+                f"data.keep_motions={self.keep_motions} chooses among the motions data.cut_at_rest cuts a recording "
+                "into, but data.cut_at_rest is not set; set it (the shortest rest between motions, in s)"
+            )
         from_files = {**(self.aux_columns or {}), **(self.aux_keys or {})}
         if not self.aux_to_policy and not from_files:
             raise ValueError(
@@ -351,6 +363,7 @@ RECORDED_DATA_ADDED = {
     "aux_keys": None,
     "aux_to_policy": True,
     "cut_at_rest": None,
+    "keep_motions": "all",
 }
 
 

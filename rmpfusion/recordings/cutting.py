@@ -17,7 +17,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from .recording import Recording
+from .recording import Recording, RecordingError
 from .signals import resample, savgol_derivatives
 
 
@@ -47,6 +47,8 @@ def cut_times(rec: Recording, min_rest: float, polyorder: int, rest_fraction: fl
 
 
 def _piece(rec: Recording, keep: np.ndarray, k: int, n: int) -> Recording:
+    if n == 1:
+        return rec  # nothing to cut: the recording as it was, named as before
     rows = rec.rows[keep] if rec.rows is not None else None
     return dataclasses.replace(
         rec,
@@ -59,17 +61,25 @@ def _piece(rec: Recording, keep: np.ndarray, k: int, n: int) -> Recording:
     )
 
 
+#: which motions (numbered from 1) each choice of ``data.keep_motions`` keeps
+KEPT = {"all": lambda k: True, "odd": lambda k: k % 2 == 1, "even": lambda k: k % 2 == 0}
+
+
 def cut_at_rests(
-    recordings: Sequence[Recording], min_rest: float, polyorder: int, rest_fraction: float
+    recordings: Sequence[Recording], min_rest: float, polyorder: int, rest_fraction: float, keep: str = "all"
 ) -> list[Recording]:
-    """Every recording cut into its motions (a recording with no rest that long between motions stays whole)."""
+    """Every recording cut into its motions (a recording with no rest that long between motions stays whole, as
+    its motion 1), of which ``keep`` are demonstrations: all, or the odd or even ones (a session that recorded the
+    arm's return to the start between demonstrations alternates the two)."""
     out: list[Recording] = []
     for rec in recordings:
         cuts = cut_times(rec, min_rest, polyorder, rest_fraction)
-        if not cuts:
-            out.append(rec)
-            continue
         piece = np.searchsorted(cuts, rec.t, side="right")  # which piece each sample falls in
         n = len(cuts) + 1
-        out += [_piece(rec, piece == k, k + 1, n) for k in range(n)]
+        out += [_piece(rec, piece == k - 1, k, n) for k in range(1, n + 1) if KEPT[keep](k)]
+    if not out:
+        raise RecordingError(
+            f"data.keep_motions={keep}: no recording has a motion {2 if keep == 'even' else 1}, as every one rests "
+            f"less than data.cut_at_rest={min_rest:g} s between motions; lower it, or keep all motions"
+        )
     return out

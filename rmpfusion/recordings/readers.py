@@ -11,6 +11,7 @@ from __future__ import annotations
 import csv
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
+from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
@@ -154,6 +155,37 @@ def _coordinate_columns(header: list[str], used: set, source: str, header_row: i
     return [h for h in header if h not in used]
 
 
+def _clock_times(
+    body: list[list[str]], rows: list[int], at: int, source: str, column: str, time_units: str
+) -> np.ndarray | None:
+    """Seconds since the epoch when the time column (index ``at``) holds dates and times, ISO 8601 as pandas
+    writes a DatetimeIndex (``2024-05-01 12:00:00.010000``, with or without an offset); None when it holds numbers.
+    Only differences between stamps matter, so times without an offset are read as UTC."""
+    first = body[rows[0]][at].strip()
+    if _is_number(first):
+        return None
+    try:
+        datetime.fromisoformat(first)
+    except ValueError:
+        return None  # neither: the number reader names the cell
+    if time_units != "s":
+        raise RecordingError(
+            f"{where(source, rows[0] + 2, column)}: the times are dates and times ({first!r}), which carry their "
+            f"own unit; drop data.time_units={time_units}"
+        )
+    seconds = []
+    for r in rows:
+        cell = body[r][at].strip()
+        try:
+            stamp = datetime.fromisoformat(cell)
+        except ValueError:
+            raise RecordingError(
+                f"{where(source, r + 2, column)}: {cell!r} is not a date and time like the first sample's {first!r}"
+            ) from None
+        seconds.append((stamp if stamp.tzinfo else stamp.replace(tzinfo=timezone.utc)).timestamp())
+    return np.asarray(seconds)
+
+
 def _time_column_hint(header: Sequence[str]) -> str:
     """The fix when one column's name says it holds the time (``time``, ``timestamp``, rostopic's ``%time``)."""
     timed = [h for h in header if "time" in h.lower() or h.lower() in ("stamp", "sec", "secs", "seconds")]
@@ -230,8 +262,9 @@ def read_csv(
     out = []
     for key, rows in groups.items():
         label = f"{source} [{demo_column}={key}]" if demo_column else source
+        clock = _clock_times(body, rows, index[time_column], source, time_column, time_units)
         kwargs = {
-            "t": numbers(rows, [time_column])[:, 0],
+            "t": numbers(rows, [time_column])[:, 0] if clock is None else clock,
             "pos": numbers(rows, columns),
             "vel": numbers(rows, velocity_columns) if velocity_columns else None,
             "acc": numbers(rows, acceleration_columns) if acceleration_columns else None,

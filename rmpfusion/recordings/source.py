@@ -21,7 +21,7 @@ import numpy as np
 
 from ..robots import RobotDescription
 from .cutting import cut_at_rests
-from .joints import check_joint_recordings, check_units
+from .joints import check_joint_recordings, check_joint_speeds, check_units
 from .lasa import lasa_file, read_lasa
 from .readers import read_csv, read_hdf5, read_npz
 from .recording import Recording, RecordingError
@@ -163,7 +163,7 @@ def read_recordings(d: Any, joints: Sequence[str] | None = None) -> list[Recordi
     if not out:
         raise RecordingError(f"{', '.join(map(str, source_files(d)))}: no demonstration in the file(s)")
     if d.cut_at_rest is not None:
-        out = cut_at_rests(out, d.cut_at_rest, d.polyorder, d.rest_fraction)
+        out = cut_at_rests(out, d.cut_at_rest, d.polyorder, d.rest_fraction, d.keep_motions)
     check_durations(out, d.time_units)
     return out
 
@@ -226,6 +226,7 @@ def on_grid_for(
     check_units(d.units, robot is not None)
     if robot is not None:
         check_joint_recordings(recordings, robot, named_columns=d.columns is None)
+        check_joint_speeds(recordings, robot, dt, d.window, d.polyorder)
     check_aux(recordings, aux_dims, env)
     states = to_grid(recordings, d, dt)
     check_dimension(states, dim, env, recordings[0].columns)
