@@ -2112,6 +2112,37 @@ def _aux_misspelt(tmp_path, monkeypatch):
     )
 
 
+@row(
+    "recorded-joint-jump",
+    "an arm's recording in which the joints jump (two demonstrations logged back to back without the return between)",
+    "rmpfusion-validate experiment=recorded_arm data.files=[<dir>/jump.csv] data.demo_column=null (the shipped "
+    "demo00, then demo01 10 ms after its end)",
+    _ONE_LINE.format(code=2),
+    shows="error: invalid configuration: 1 problem(s)\n  - data: <dir>/jump.csv, row 408, column 'panda_joint<num>': "
+    "panda_joint<num> moves <num> rad in <num> ms from the sample before, over 2 times its velocity limit of <num> "
+    "rad/s on the robot 'panda': a jump in the recording (a glitch, or demonstrations logged back to back without the "
+    "motion between them); drop those samples, or cut the recording there",
+)
+def _joint_jump(tmp_path, monkeypatch):
+    import numpy as np
+    from sessions import shipped_demonstrations
+
+    (t0, q0), (t1, q1) = list(shipped_demonstrations().values())[:2]
+    t = np.concatenate([t0 - t0[0], t1 - t1[0] + (t0[-1] - t0[0]) + 0.01])
+    joints = ",".join(f"panda_joint{k}" for k in range(1, 8))
+    lines = [",".join(map(repr, [a, *b])) for a, b in zip(t.tolist(), np.concatenate([q0, q1]).tolist())]
+    (tmp_path / "jump.csv").write_text(f"t,{joints}\n" + "\n".join(lines) + "\n")
+    return said(
+        _validate_main(),
+        "experiment=recorded_arm",
+        f"data.files=[{tmp_path / 'jump.csv'}]",
+        "data.demo_column=null",
+        f"hydra.run.dir={tmp_path / 'v'}",
+        code=2,
+        monkeypatch=monkeypatch,
+    )
+
+
 def _nan_weight_checkpoint(tmp_path) -> Path:
     """final.pt of a tiny run re-written (valid format and checksum) with one NaN in a weight network."""
     from rmpfusion.learn.checkpoints import save_checkpoint
