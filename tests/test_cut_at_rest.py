@@ -15,7 +15,7 @@ from rmpfusion.assembly.errors import ConfigError
 from rmpfusion.pipeline.config import RecordedDataConfig
 from rmpfusion.pipeline.validate import resolve_and_validate
 from rmpfusion.recordings import RecordingError
-from rmpfusion.recordings.cutting import rest_runs
+from rmpfusion.recordings.signals import runs, without_short_runs
 from rmpfusion.recordings.source import read_recordings
 
 RATE = 100.0
@@ -60,9 +60,11 @@ def block(path, **keys) -> RecordedDataConfig:
     return RecordedDataConfig.model_validate({"source": "recorded", "format": "csv", "files": [str(path)], **keys})
 
 
-def test_rest_runs_are_found_whole():
-    assert rest_runs(np.array([1, 1, 0, 0, 1, 0, 1, 1, 1], bool)) == [(0, 1), (4, 4), (6, 8)]
-    assert rest_runs(np.zeros(4, bool)) == []
+def test_runs_are_found_whole_and_short_ones_dropped():
+    mask = np.array([1, 1, 0, 0, 1, 0, 1, 1, 1], bool)
+    assert runs(mask) == [(0, 1), (4, 4), (6, 8)]
+    assert runs(np.zeros(4, bool)) == []
+    assert runs(without_short_runs(mask, 2)) == [(0, 1), (6, 8)]
 
 
 def test_a_session_is_cut_into_its_motions_in_the_middle_of_each_rest(tmp_path):

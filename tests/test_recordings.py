@@ -231,3 +231,22 @@ def test_joint_recordings_are_checked_against_the_robot_file(tmp_path):
         r"panda_joint4's limits",
     ):
         check_joint_recordings(joint_csv(tmp_path, ["t", *joints], [[0.0, *home], [0.1, *past]]), robot)
+
+
+def test_a_noisy_encoders_rest_is_trimmed_with_a_rest_speed():
+    """A 2 s reach with 1 s still before and after, read through an encoder's noise (0.5 mrad at 100 Hz, 0.03 rad/s filtered): the
+    filtered speed of the still arm stays above 2 % of the peak, so the fraction alone trims nothing; with
+    rest_speed above the noise (and its spikes shorter than the filter ignored) the demonstration is the reach,
+    give or take the filter's span, and its goal the still end's mean."""
+    from rmpfusion.recordings.recording import Recording
+
+    t = np.arange(0.0, 4.0, 0.01)
+    s = np.clip(t - 1.0, 0.0, 2.0) / 2.0
+    clean = np.outer(10 * s**3 - 15 * s**4 + 6 * s**5, [0.8, -0.4, 0.3])
+    noisy = clean + np.random.default_rng(0).normal(0.0, 5e-4, clean.shape)
+    rec = Recording(t=t, pos=noisy, source="reach", columns=("a", "b", "c"))
+    kept = to_states(rec, 0.004, window=21, polyorder=3).t[-1]
+    assert kept > 3.9  # all of it
+    trimmed = to_states(rec, 0.004, window=21, polyorder=3, rest_speed=0.05)  # about twice the still arm's
+    assert 1.7 < trimmed.t[-1] < 2.05  # the reach's slowest ends (under 0.05 rad/s) go with the rest
+    np.testing.assert_allclose(trimmed.goal, [0.8, -0.4, 0.3], atol=2e-3)

@@ -194,6 +194,13 @@ class RecordedDataConfig(_Frozen):
         description="speeds below this fraction of the peak at either end are rest, trimmed (above a quarter of "
         "the peak, the motion itself would be cut and the goal taken mid-motion)",
     )
+    rest_speed: float | None = Field(
+        None,
+        ge=0,
+        description="speeds below this (rad/s for joint angles, m/s for positions) are rest too, where it is above "
+        "data.rest_fraction of the peak: an encoder's noise keeps a still arm's filtered speed above a small "
+        "fraction of the peak, so its rests would be kept (1 mrad of noise reads about 0.1 rad/s on a 250 Hz grid)",
+    )
     every: int = Field(1, ge=1, le=1000, description="keep every this-many grid samples for training")
     split: Literal["holdout", "leave_one_out", "all"] = Field(
         "holdout",
@@ -364,6 +371,7 @@ RECORDED_DATA_ADDED = {
     "aux_to_policy": True,
     "cut_at_rest": None,
     "keep_motions": "all",
+    "rest_speed": None,
 }
 
 

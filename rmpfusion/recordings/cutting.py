@@ -5,7 +5,7 @@ still while the operator reset, moved again. Its samples never pause (the driver
 nothing in the time stamps tells the demonstrations apart; the rests do. With ``data.cut_at_rest`` set, a recording
 is cut in the middle of every rest lasting at least that long between two motions, and each piece is a
 demonstration (trimmed, given its goal and split like any other). Rest is what trimming calls rest: speed below
-``data.rest_fraction`` of the recording's peak, here from a Savitzky–Golay filter (``data.polyorder``) spanning about
+``data.rest_fraction`` of the recording's peak (or ``data.rest_speed``), here from a Savitzky–Golay filter (``data.polyorder``) spanning about
 half of ``data.cut_at_rest`` on a grid at the recording's own median sample step, so that an encoder's noise at rest
 stays well below it; speed above it for fewer samples than the filter spans is noise, not a motion.
 """
@@ -18,17 +18,12 @@ from collections.abc import Sequence
 import numpy as np
 
 from .recording import Recording, RecordingError
-from .signals import resample, savgol_derivatives
+from .signals import resample, rest_threshold, runs, savgol_derivatives, without_short_runs
 
 
-def rest_runs(rest: np.ndarray) -> list[tuple[int, int]]:
-    """(first, last) index, inclusive, of every run of True in ``rest``."""
-    padded = np.concatenate([[False], rest, [False]]).astype(np.int8)
-    edges = np.flatnonzero(np.diff(padded))
-    return [(int(a), int(b) - 1) for a, b in zip(edges[::2], edges[1::2])]
-
-
-def cut_times(rec: Recording, min_rest: float, polyorder: int, rest_fraction: float) -> list[float]:
+def cut_times(
+    rec: Recording, min_rest: float, polyorder: int, rest_fraction: float, rest_speed: float | None = None
+) -> list[float]:
     """The times at which ``rec`` is cut: the middle of every rest of at least ``min_rest`` seconds that has motion
     on both sides (the rests at either end are trimmed later, not cut)."""
     step = float(np.median(np.diff(rec.t)))
@@ -38,11 +33,8 @@ def cut_times(rec: Recording, min_rest: float, polyorder: int, rest_fraction: fl
         return []  # shorter than half the rest asked for: it holds no such rest between two motions
     _, qd, _ = savgol_derivatives(raw, step, window, polyorder, rec.source)
     speed = np.linalg.norm(qd, axis=1)
-    moving = speed > rest_fraction * speed.max()
-    for a, b in rest_runs(moving):
-        if b - a + 1 < window:  # shorter than the filter's span: noise (the filter's ends most of all), not a motion
-            moving[a : b + 1] = False
-    rests = rest_runs(~moving)
+    moving = without_short_runs(speed > rest_threshold(speed, rest_fraction, rest_speed), window)
+    rests = runs(~moving)
     return [0.5 * (t[a] + t[b]) for a, b in rests if a > 0 and b < len(t) - 1 and t[b] - t[a] >= min_rest]
 
 
@@ -66,14 +58,19 @@ KEPT = {"all": lambda k: True, "odd": lambda k: k % 2 == 1, "even": lambda k: k 
 
 
 def cut_at_rests(
-    recordings: Sequence[Recording], min_rest: float, polyorder: int, rest_fraction: float, keep: str = "all"
+    recordings: Sequence[Recording],
+    min_rest: float,
+    polyorder: int,
+    rest_fraction: float,
+    keep: str = "all",
+    rest_speed: float | None = None,
 ) -> list[Recording]:
     """Every recording cut into its motions (a recording with no rest that long between motions stays whole, as
     its motion 1), of which ``keep`` are demonstrations: all, or the odd or even ones (a session that recorded the
     arm's return to the start between demonstrations alternates the two)."""
     out: list[Recording] = []
     for rec in recordings:
-        cuts = cut_times(rec, min_rest, polyorder, rest_fraction)
+        cuts = cut_times(rec, min_rest, polyorder, rest_fraction, rest_speed)
         piece = np.searchsorted(cuts, rec.t, side="right")  # which piece each sample falls in
         n = len(cuts) + 1
         out += [_piece(rec, piece == k - 1, k, n) for k in range(1, n + 1) if KEPT[keep](k)]

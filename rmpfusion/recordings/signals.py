@@ -10,7 +10,9 @@ differentiator, and trimming the rest at either end.
   reward over-smoothing.
 * Rest trimming: a demonstration recorded by hand starts and ends at rest, and those samples would dominate a
   dataset; samples before the first and after the last whose speed exceeds ``rest_fraction`` of the
-  demonstration's peak speed are dropped, and the mean of the final rest segment is the demonstration's goal.
+  demonstration's peak speed (and ``rest_speed``, where given: an encoder's noise keeps a still arm's filtered
+  speed above a small fraction of the peak) are dropped, and the mean of the final rest segment is the
+  demonstration's goal.
 """
 
 from __future__ import annotations
@@ -65,10 +67,36 @@ def savgol_derivatives(
     return f(0), f(1), f(2)
 
 
-def moving_span(speed: np.ndarray, rest_fraction: float) -> tuple[int, int]:
+def rest_threshold(speed: np.ndarray, rest_fraction: float, rest_speed: float | None = None) -> float:
+    """The speed at or below which a demonstration is at rest: ``rest_fraction`` of its peak, or ``rest_speed``
+    where that is higher."""
+    return max(rest_fraction * float(speed.max()), rest_speed or 0.0)
+
+
+def runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """(first, last) index, inclusive, of every run of True in ``mask``."""
+    padded = np.concatenate([[False], mask, [False]]).astype(np.int8)
+    edges = np.flatnonzero(np.diff(padded))
+    return [(int(a), int(b) - 1) for a, b in zip(edges[::2], edges[1::2])]
+
+
+def without_short_runs(mask: np.ndarray, shortest: int) -> np.ndarray:
+    """``mask`` with its runs of True shorter than ``shortest`` samples set False: speed above the rest for fewer
+    samples than the filter spans is noise (an encoder's, the filter's ends most of all), not a motion."""
+    out = mask.copy()
+    for a, b in runs(mask):
+        if b - a + 1 < shortest:
+            out[a : b + 1] = False
+    return out
+
+
+def moving_span(
+    speed: np.ndarray, rest_fraction: float, rest_speed: float | None = None, shortest: int = 1
+) -> tuple[int, int]:
     """First and last index (inclusive) of the part between the rest at the start and the rest at the end:
-    one sample of rest is kept at each side, so the demonstration starts from rest and arrives at rest."""
-    moving = np.flatnonzero(speed > rest_fraction * speed.max())
+    one sample of rest is kept at each side, so the demonstration starts from rest and arrives at rest. Moments
+    above the rest threshold lasting fewer than ``shortest`` samples are not motion."""
+    moving = np.flatnonzero(without_short_runs(speed > rest_threshold(speed, rest_fraction, rest_speed), shortest))
     if moving.size == 0:
         return 0, speed.shape[0] - 1
     return max(int(moving[0]) - 1, 0), min(int(moving[-1]) + 1, speed.shape[0] - 1)
@@ -81,6 +109,7 @@ def to_states(
     polyorder: int = 3,
     rest_fraction: float = 0.02,
     goal: np.ndarray | None = None,
+    rest_speed: float | None = None,
 ) -> States:
     """``rec`` on the step grid ``dt`` with its derivatives, the rest at both ends trimmed. Velocities and
     accelerations come from the file when it gave both, else from the Savitzky–Golay filter (all of them: the
@@ -92,7 +121,8 @@ def to_states(
         t, raw = resample(rec.t, rec.pos, dt)
         q, qd, qdd = savgol_derivatives(raw, dt, window, polyorder, rec.source)
     speed = np.linalg.norm(qd, axis=1)
-    first, last = moving_span(speed, rest_fraction)
+    # with rest_speed (a noisy encoder) a noise spike above it must not pass for the start of the motion
+    first, last = moving_span(speed, rest_fraction, rest_speed, window if rest_speed is not None else 1)
     final_rest = q[last:]
     if goal is None:
         goal = final_rest.mean(axis=0)

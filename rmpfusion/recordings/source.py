@@ -163,7 +163,7 @@ def read_recordings(d: Any, joints: Sequence[str] | None = None) -> list[Recordi
     if not out:
         raise RecordingError(f"{', '.join(map(str, source_files(d)))}: no demonstration in the file(s)")
     if d.cut_at_rest is not None:
-        out = cut_at_rests(out, d.cut_at_rest, d.polyorder, d.rest_fraction, d.keep_motions)
+        out = cut_at_rests(out, d.cut_at_rest, d.polyorder, d.rest_fraction, d.keep_motions, d.rest_speed)
     check_durations(out, d.time_units)
     return out
 
@@ -269,5 +269,7 @@ def to_grid(recordings: Sequence[Recording], d: Any, dt: float) -> list[States]:
             rec = dataclasses.replace(rec, vel=None, acc=None)
         own = rec.aux.get("goal")  # a goal column in the configuration's own coordinates (the plane's) is the goal
         at = own if own is not None and own.shape == (rec.dim,) else goal
-        out.append(to_states(rec, dt, window=d.window, polyorder=d.polyorder, rest_fraction=d.rest_fraction, goal=at))
+        out.append(
+            to_states(rec, dt, d.window, d.polyorder, rest_fraction=d.rest_fraction, goal=at, rest_speed=d.rest_speed)
+        )
     return out
