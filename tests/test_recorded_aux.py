@@ -106,7 +106,7 @@ def test_hiding_aux_that_no_file_gives_or_the_goal_is_refused():
 def test_aux_the_environment_does_not_read_is_refused(tmp_path):
     with pytest.raises(
         ConfigError,
-        match=r"aux state 'obstacle_centre' \(data\.aux_columns / data\.aux_keys\) is not read by the environment "
+        match=r"aux state 'obstacle_centre' \(data\.aux_columns / aux_keys / aux_topics\) is not read by the environment "
         r"manipulator; its aux state \(name and width\): goal \(3\), obstacle1_center \(3\), .* posture \(7\)",
     ):
         arm_run(tmp_path, "{obstacle_centre:[ox,oy,oz]}")

@@ -2093,7 +2093,7 @@ def _bag_of_another_arm(tmp_path, monkeypatch):
     "in three more columns)",
     _ONE_LINE.format(code=2),
     shows="error: invalid configuration: 1 problem(s)\n  - data: <dir>/obstacles.csv [demo=demo00]: aux state "
-    "'obstacle_centre' (data.aux_columns / data.aux_keys) is not read by the environment manipulator; its aux state "
+    "'obstacle_centre' (data.aux_columns / aux_keys / aux_topics) is not read by the environment manipulator; its aux state "
     "(name and width): goal (3), obstacle1_center (3), obstacle1_radius (1), obstacle1_axis (3), "
     "obstacle1_half_height (1), posture (7); did you mean 'obstacle1_center'?",
 )

@@ -81,7 +81,7 @@ _FORMAT_KEYS = {
     "csv": _FILE_KEYS | {"demo_column", "velocity_columns", "acceleration_columns", "aux_columns"},
     "npz": _ARRAY_KEYS,
     "hdf5": _ARRAY_KEYS | {"group", "rate"},
-    "rosbag": {"files", "units", "columns", "topic", "cut_at_rest", "keep_motions"},
+    "rosbag": {"files", "units", "columns", "topic", "cut_at_rest", "keep_motions", "aux_topics"},
 }
 _FORMAT_KEYS_ALL = set().union(*_FORMAT_KEYS.values())
 #: the data keys each split reads
@@ -155,6 +155,12 @@ class RecordedDataConfig(_Frozen):
         description="false: the aux columns (data.aux_columns / data.aux_keys) place each held-out demonstration's "
         "obstacles in evaluation, where collisions count against them, but the policy is trained and rolled out "
         "with the scene's values, as if where they stood had not been recorded (the baseline that does not know)",
+    )
+    aux_topics: dict[str, str] | None = Field(
+        None,
+        description="rosbag: the same, name -> a topic of a point (geometry_msgs PoseStamped, PointStamped or "
+        "TransformStamped, e.g. a motion-capture system's tracked obstacle): its x, y, z in m, averaged over the "
+        "bag, e.g. {obstacle1_center: /mocap/cylinder/pose}",
     )
     position_key: str = Field("pos", description="npz / hdf5: the positions' key (hdf5: inside each demo group)")
     velocity_columns: list[str] | None = Field(None, description="csv: the velocity columns (derivatives: file)")
@@ -250,11 +256,12 @@ class RecordedDataConfig(_Frozen):
                 f"data.keep_motions={self.keep_motions} chooses among the motions data.cut_at_rest cuts a recording "
                 "into, but data.cut_at_rest is not set; set it (the shortest rest between motions, in s)"
             )
-        from_files = {**(self.aux_columns or {}), **(self.aux_keys or {})}
+        from_files = {**(self.aux_columns or {}), **(self.aux_keys or {}), **(self.aux_topics or {})}
         if not self.aux_to_policy and not from_files:
             raise ValueError(
                 "data.aux_to_policy=false hides the aux state read from the files from the policy, but no file "
-                "gives any: name it in data.aux_columns / data.aux_keys, or drop data.aux_to_policy"
+                "gives any: name it in data.aux_columns / data.aux_keys / data.aux_topics, or drop "
+                "data.aux_to_policy"
             )
         if not self.aux_to_policy and "goal" in from_files:
             raise ValueError(
@@ -372,6 +379,7 @@ RECORDED_DATA_ADDED = {
     "cut_at_rest": None,
     "keep_motions": "all",
     "rest_speed": None,
+    "aux_topics": None,
 }
 
 

@@ -10,7 +10,8 @@ times the bag recorded them (never a mix), counted from the first message.
 
 An environment of positions (the plane) may instead read a point in space per message: a motion-capture body's
 ``geometry_msgs/PoseStamped`` (as vrpn and mocap drivers publish it), a ``PointStamped`` or a ``TransformStamped``,
-its coordinates chosen among x, y, z by ``data.columns``.
+its coordinates chosen among x, y, z by ``data.columns``. Such a topic may also give a demonstration's aux state
+(``data.aux_topics``): where a tracked obstacle stood, the mean of its positions over the bag.
 
 ROS bags are read by ``rosbags`` (Ternaris's pure-Python reader of both ROS generations, no ROS install needed),
 an optional dependency: ``pip install -e '.[ros]'``.
@@ -18,7 +19,7 @@ an optional dependency: ``pip install -e '.[ros]'``.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -58,18 +59,26 @@ def _any_reader() -> tuple[Any, type[Exception]]:
     return AnyReader, AnyReaderError
 
 
+#: a point read as aux state (an obstacle a motion-capture system tracks) may wander this much (m) from its mean
+#: over a demonstration (tracking noise); more is an obstacle that moved, which one aux value cannot describe
+AUX_STILL = 0.005
+
+
 def read_rosbag(
     path: str | Path,
     topic: str | None = None,
     columns: Sequence[str] | None = None,
     units: str = "rad",
     joint_space: bool = False,
+    aux_topics: Mapping[str, str] | None = None,
 ) -> list[Recording]:
     """The demonstration a bag holds, from the messages on ``topic`` (default: the bag's only topic of a type read):
     for an arm (``joint_space``) ``sensor_msgs/JointState``, the positions of the joints ``columns`` by name
     (default: those its first message names, in its order); for an environment of positions also a point in space
     (``POINT_TYPES``: motion capture, a tracked tool), its coordinates ``columns`` among x, y, z (default all three).
-    Positions are scaled from ``units`` (ROS's own are rad and m)."""
+    Positions are scaled from ``units`` (ROS's own are rad and m). ``aux_topics``: aux name -> a topic of a point
+    (``POINT_TYPES``) whose x, y, z in m, averaged over the bag, are that aux state (where a tracked obstacle
+    stood)."""
     any_reader, reader_error = _any_reader()
     path = Path(path)
     source = str(path)
@@ -80,6 +89,7 @@ def read_rosbag(
             connections = _topic_connections(bag, topic, source, kinds)
             label = f"{source} [{connections[0].topic}]"
             read = [(bag.deserialize(raw, c.msgtype), ns) for c, ns, raw in bag.messages(connections=connections)]
+            aux = {name: _still_point(bag, aux_topic, source) for name, aux_topic in (aux_topics or {}).items()}
     except reader_error as e:
         raise RecordingError(f"{source}: not a readable ROS bag ({e})") from None
     if not read:
@@ -95,13 +105,22 @@ def read_rosbag(
     t = _seconds(stamps if all(s > 0 for s in stamps) else [logged[i] for i in rows])
     return [
         Recording(
-            t=t, pos=positions * scale, source=label, columns=wanted, rows=np.asarray(rows) + 1, row_unit="message"
+            t=t,
+            pos=positions * scale,
+            source=label,
+            columns=wanted,
+            aux=aux,
+            rows=np.asarray(rows) + 1,
+            row_unit="message",
         )
     ]
 
 
-def _topic_connections(bag: Any, topic: str | None, source: str, kinds: Sequence[str]) -> list[Any]:
-    """The bag's connections on the topic read: ``topic`` when given, else the only topic of one of ``kinds``."""
+def _topic_connections(
+    bag: Any, topic: str | None, source: str, kinds: Sequence[str], key: str = "data.topic"
+) -> list[Any]:
+    """The bag's connections on the topic read: ``topic`` (the setting ``key``) when given, else the only topic of
+    one of ``kinds``."""
     types = {c.topic: c.msgtype for c in bag.connections}
     readable = sorted(name for name, kind in types.items() if kind in kinds)
     what = " or ".join(kinds)
@@ -117,12 +136,12 @@ def _topic_connections(bag: Any, topic: str | None, source: str, kinds: Sequence
         topic = readable[0]
     if topic not in types:
         raise RecordingError(
-            f"{source}: no topic {topic!r} (data.topic); "
+            f"{source}: no topic {topic!r} ({key}); "
             + (f"its topics of type {what}: {', '.join(readable)}" if readable else f"the bag holds {held}")
         )
     if types[topic] not in kinds:
         raise RecordingError(
-            f"{source}: the topic {topic!r} (data.topic) carries {types[topic]}, not {what}; "
+            f"{source}: the topic {topic!r} ({key}) carries {types[topic]}, not {what}; "
             + (f"its topics of those types: {', '.join(readable)}" if readable else "the bag has none")
         )
     return [c for c in bag.connections if c.topic == topic]
@@ -183,6 +202,28 @@ def _point_positions(
     positions = np.array([[float(getattr(p, axis)) for axis in wanted] for p in points], dtype=np.float64)
     stamps = [_stamp_ns(msg) for msg in messages]
     return list(range(len(messages))), positions, stamps
+
+
+def _still_point(bag: Any, topic: str, source: str) -> np.ndarray:
+    """The mean x, y, z (m) of the point a topic of ``POINT_TYPES`` carries over the bag, refused where it moves
+    more than ``AUX_STILL`` from it (one aux value per demonstration)."""
+    connections = _topic_connections(bag, topic, source, tuple(POINT_TYPES), key="data.aux_topics")
+    point_of = POINT_TYPES[connections[0].msgtype]
+    messages = [bag.deserialize(raw, c.msgtype) for c, _, raw in bag.messages(connections=connections)]
+    label = f"{source} [{topic}]"
+    if not messages:
+        raise RecordingError(f"{label}: the topic (data.aux_topics) holds no message")
+    xyz = np.array([[float(getattr(point_of(m), axis)) for axis in AXES] for m in messages], dtype=np.float64)
+    mean = xyz.mean(axis=0)
+    off = np.linalg.norm(xyz - mean, axis=1)
+    if off.max() > AUX_STILL:
+        i = int(np.argmax(off))
+        raise RecordingError(
+            f"{where(label, i + 1, unit='message')}: the point is {1e3 * off[i]:.3g} mm from where it stands on "
+            f"average over the bag, more than a tracker's noise ({1e3 * AUX_STILL:g} mm): it moved during the "
+            "demonstration, and aux state (data.aux_topics) holds one value per demonstration"
+        )
+    return mean
 
 
 def _stamp_ns(msg: Any) -> int:

@@ -153,7 +153,12 @@ def read_recordings(d: Any, joints: Sequence[str] | None = None) -> list[Recordi
             )
         elif d.format == "rosbag":
             out += read_rosbag(
-                path, topic=d.topic, columns=d.columns or joints, units=d.units, joint_space=joints is not None
+                path,
+                topic=d.topic,
+                columns=d.columns or joints,
+                units=d.units,
+                joint_space=joints is not None,
+                aux_topics=d.aux_topics,
             )
         elif d.format == "npz":
             out += read_npz(path, time_key=d.time_column, **arrays, **common)
@@ -243,13 +248,13 @@ def check_aux(recordings: Sequence[Recording], aux_dims: Mapping[str, int], env:
                 close = difflib.get_close_matches(name, list(aux_dims), n=1)
                 fix = f"did you mean {close[0]!r}?" if close else "rename it to one of these"
                 raise RecordingError(
-                    f"{rec.source}: aux state {name!r} (data.aux_columns / data.aux_keys) is not read by the "
+                    f"{rec.source}: aux state {name!r} (data.aux_columns / aux_keys / aux_topics) is not read by the "
                     f"environment {env}; its aux state (name and width): {known}; {fix}"
                 )
             if value.shape != (aux_dims[name],):
                 raise RecordingError(
                     f"{rec.source}: aux state {name!r} has {value.size} value(s) but the environment {env} reads "
-                    f"{aux_dims[name]} (data.aux_columns / data.aux_keys); list {aux_dims[name]} columns (or an array "
+                    f"{aux_dims[name]} (data.aux_columns / aux_keys / aux_topics); list {aux_dims[name]} columns (or an array "
                     "of that width) for it"
                 )
 
