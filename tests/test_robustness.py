@@ -2045,6 +2045,12 @@ def _cache_file(tmp_path, monkeypatch):
     )
 
 
+def _validate_recorded_arm(tmp_path: Path, monkeypatch, *overrides: str) -> str:
+    """What rmpfusion-validate says for experiment=recorded_arm with ``overrides`` (exit status 2)."""
+    hydra_dir = f"hydra.run.dir={tmp_path / 'v'}"
+    return said(_validate_main(), "experiment=recorded_arm", *overrides, hydra_dir, code=2, monkeypatch=monkeypatch)
+
+
 _PANDA = ", ".join(f"panda_joint{k}" for k in range(1, 8))
 
 
@@ -2073,15 +2079,8 @@ def _bag_of_another_arm(tmp_path, monkeypatch):
         for k, t in enumerate(stamps)
     ]
     write_bag(tmp_path / "ur5e.bag", "ros1", log)
-    return said(
-        _validate_main(),
-        "experiment=recorded_arm",
-        "data.format=rosbag",
-        "data.demo_column=null",
-        f"data.files=[{tmp_path / 'ur5e.bag'}]",
-        f"hydra.run.dir={tmp_path / 'v'}",
-        code=2,
-        monkeypatch=monkeypatch,
+    return _validate_recorded_arm(
+        tmp_path, monkeypatch, "data.format=rosbag", "data.demo_column=null", f"data.files=[{tmp_path / 'ur5e.bag'}]"
     )
 
 
@@ -2101,14 +2100,11 @@ def _aux_misspelt(tmp_path, monkeypatch):
     lines = (ROOT / "rmpfusion" / "recordings" / "files" / "panda_via_points.csv").read_text().splitlines()
     rows = [f"{lines[0]},ox,oy,oz", *(f"{line},0.6,0.0,0.5" for line in lines[1:] if line)]
     (tmp_path / "obstacles.csv").write_text("\n".join(rows) + "\n")
-    return said(
-        _validate_main(),
-        "experiment=recorded_arm",
+    return _validate_recorded_arm(
+        tmp_path,
+        monkeypatch,
         f"data.files=[{tmp_path / 'obstacles.csv'}]",
         "data.aux_columns={obstacle_centre: [ox, oy, oz]}",
-        f"hydra.run.dir={tmp_path / 'v'}",
-        code=2,
-        monkeypatch=monkeypatch,
     )
 
 
@@ -2132,14 +2128,8 @@ def _joint_jump(tmp_path, monkeypatch):
     joints = ",".join(f"panda_joint{k}" for k in range(1, 8))
     lines = [",".join(map(repr, [a, *b])) for a, b in zip(t.tolist(), np.concatenate([q0, q1]).tolist())]
     (tmp_path / "jump.csv").write_text(f"t,{joints}\n" + "\n".join(lines) + "\n")
-    return said(
-        _validate_main(),
-        "experiment=recorded_arm",
-        f"data.files=[{tmp_path / 'jump.csv'}]",
-        "data.demo_column=null",
-        f"hydra.run.dir={tmp_path / 'v'}",
-        code=2,
-        monkeypatch=monkeypatch,
+    return _validate_recorded_arm(
+        tmp_path, monkeypatch, f"data.files=[{tmp_path / 'jump.csv'}]", "data.demo_column=null"
     )
 
 
