@@ -5,9 +5,10 @@ still while the operator reset, moved again. Its samples never pause (the driver
 nothing in the time stamps tells the demonstrations apart; the rests do. With ``data.cut_at_rest`` set, a recording
 is cut in the middle of every rest lasting at least that long between two motions, and each piece is a
 demonstration (trimmed, given its goal and split like any other). Rest is what trimming calls rest: speed below
-``data.rest_fraction`` of the recording's peak (or ``data.rest_speed``), here from a Savitzky–Golay filter (``data.polyorder``) spanning about
-half of ``data.cut_at_rest`` on a grid at the recording's own median sample step, so that an encoder's noise at rest
-stays well below it; speed above it for fewer samples than the filter spans is noise, not a motion.
+``data.rest_fraction`` of the recording's peak (or ``data.rest_speed``), here from a Savitzky–Golay filter
+(``data.polyorder``) spanning about half of ``data.cut_at_rest`` on a grid at the recording's own median sample
+step, so that an encoder's noise at rest stays well below it; speed above it for fewer samples than the filter
+spans is noise, not a motion.
 """
 
 from __future__ import annotations
@@ -39,6 +40,8 @@ def cut_times(
 
 
 def _piece(rec: Recording, keep: np.ndarray, k: int, n: int) -> Recording:
+    """The samples ``keep`` of ``rec`` as its motion ``k`` of ``n``, named so in every later message (with the
+    file's rows or the bag's message numbers kept, so those messages still point into the file)."""
     if n == 1:
         return rec  # nothing to cut: the recording as it was, named as before
     rows = rec.rows[keep] if rec.rows is not None else None
