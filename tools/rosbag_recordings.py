@@ -5,6 +5,10 @@ messages, for ``data.format=rosbag`` to read back like a robot's own log.
     python tools/rosbag_recordings.py --out bags     # the shipped Panda recordings, one ROS 2 bag (MCAP) each
     rmpfusion-run experiment=recorded_arm data.format=rosbag data.demo_column=null 'data.files=["bags/demo*"]'
 
+    python tools/rosbag_recordings.py --out session --session   # all of them in one bag, as one teaching session
+    rmpfusion-run experiment=recorded_arm data.format=rosbag data.demo_column=null 'data.files=["session/session"]' \
+        data.cut_at_rest=1.0 data.keep_motions=odd
+
 The messages are laid out the way real drivers publish them, not the way the robot file lists the joints: the joints
 in another order (last to first), the gripper's fingers inside the arm's messages, and after every third one a
 gripper-only message on the same topic (a second publisher); the header stamps are the recording's own times on a
@@ -142,28 +146,78 @@ def read_csv_demonstrations(path: Path) -> tuple[list[str], dict[str, tuple[np.n
     return joints, {name: (np.asarray(r)[:, 0], np.asarray(r)[:, 1:]) for name, r in rows.items()}
 
 
+#: a teaching session: the arm held this long (s) after each demonstration and before the next, and brought back
+#: to the next one's start in RETURN_S, at the recordings' nominal rate with this much encoder noise (rad)
+HOLD_S, RETURN_S, SESSION_RATE, ENCODER_NOISE = 2.0, 3.0, 100.0, 1e-3
+
+
+def session(
+    demos: dict[str, tuple[np.ndarray, np.ndarray]], seed: int = 0
+) -> tuple[np.ndarray, np.ndarray, list[str | None]]:
+    """The demonstrations one after another as a person teaching the arm records them in one log: each one's own
+    samples and stamps, then the arm held still (``HOLD_S``), brought back to the next one's start by a
+    minimum-jerk motion (``RETURN_S``) and held there (``HOLD_S``), the driver publishing on at ``SESSION_RATE``
+    with ``ENCODER_NOISE``. Returns the times (s, from 0), the angles, and which demonstration each sample belongs
+    to (None: held or returning)."""
+    rng = np.random.default_rng(seed)
+    items = list(demos.items())
+    times, angles, owner, clock = [], [], [], 0.0
+    for k, (name, (t, q)) in enumerate(items):
+        parts: list[tuple[np.ndarray, str | None]] = [(q, name), (_held(q[-1], rng), None)]
+        if k + 1 < len(items):
+            start = items[k + 1][1][1][0]
+            parts += [(_returned(q[-1], start, rng), None), (_held(start, rng), None)]
+        for segment, who in parts:
+            if who is None:
+                stamps = clock + np.arange(1, len(segment) + 1) / SESSION_RATE
+            else:
+                stamps = clock + (t - t[0]) + (1 / SESSION_RATE if times else 0.0)
+            times.append(stamps)
+            angles.append(segment)
+            owner += [who] * len(segment)
+            clock = float(stamps[-1])
+    return np.concatenate(times), np.concatenate(angles), owner
+
+
+def _held(q: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    return q + rng.normal(0.0, ENCODER_NOISE, (int(HOLD_S * SESSION_RATE), q.shape[0]))
+
+
+def _returned(a: np.ndarray, b: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    s = np.linspace(0.0, 1.0, int(RETURN_S * SESSION_RATE) + 1)[1:-1, None]
+    return a + (b - a) * (10 * s**3 - 15 * s**4 + 6 * s**5) + rng.normal(0.0, ENCODER_NOISE, (len(s), a.shape[0]))
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--csv", type=Path, default=SHIPPED_DIR / "panda_via_points.csv", help="the recordings to log")
     ap.add_argument("--out", type=Path, required=True, help="a new directory for the bags")
     ap.add_argument("--kind", choices=KINDS, default="ros2-mcap")
     ap.add_argument("--compressed", action="store_true", help="LZ4 chunks (ROS 1) or zstd messages (ROS 2)")
+    ap.add_argument(
+        "--session",
+        action="store_true",
+        help="one bag of the whole teaching session (the arm held and brought back between demonstrations) "
+        "instead of one per demonstration; read with data.cut_at_rest=1.0 data.keep_motions=odd",
+    )
     a = ap.parse_args(argv)
     if a.out.exists():
         print(f"{a.out} exists; give a new directory (nothing is overwritten)", file=sys.stderr)
         return 1
     joints, demos = read_csv_demonstrations(a.csv)
     staging = Path(tempfile.mkdtemp(prefix=f".{a.out.name}.", dir=a.out.resolve().parent))
+    logs = {"session": session(demos)[:2]} if a.session else {name: (t - t[0], q) for name, (t, q) in demos.items()}
     try:
-        for name, (t, q) in demos.items():
-            stamps = CLOCK_NS + np.round((t - t[0]) * 1e9).astype(np.int64)
+        for name, (t, q) in logs.items():
+            stamps = CLOCK_NS + np.round(t * 1e9).astype(np.int64)
             bag = staging / (f"{name}.bag" if a.kind == "ros1" else name)
             write_bag(bag, a.kind, driver_log(a.kind, q, stamps, joints), a.compressed)
         staging.rename(a.out)  # every bag or none: no half-written directory under the name asked for
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
         raise
-    print(f"{a.out}: {len(demos)} {a.kind} bags of {JOINT_STATE} on /joint_states, from {a.csv}")
+    what = f"1 {a.kind} bag of a session of {len(demos)} demonstrations" if a.session else f"{len(demos)} {a.kind} bags"
+    print(f"{a.out}: {what} of {JOINT_STATE} on /joint_states, from {a.csv}")
     return 0
 
 
