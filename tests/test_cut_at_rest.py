@@ -12,7 +12,9 @@ from pydantic import ValidationError
 from sessions import panda_session, shipped_demonstrations
 
 from rmpfusion.assembly.errors import ConfigError
+from rmpfusion.cli.validate import summary
 from rmpfusion.pipeline.config import RecordedDataConfig
+from rmpfusion.pipeline.construct import build_all
 from rmpfusion.pipeline.validate import resolve_and_validate
 from rmpfusion.recordings import RecordingError
 from rmpfusion.recordings.signals import runs, without_short_runs
@@ -109,6 +111,7 @@ def test_a_panda_session_comes_apart_into_its_24_demonstrations(tmp_path):
     cut = [*keys, "data.cut_at_rest=1.0"]
     assert len(read_recordings(resolve_and_validate(compose_cfg(cut)).data)) == 47
     run = resolve_and_validate(compose_cfg([*cut, "data.keep_motions=odd"]))
+    assert "cut at every rest of 1 s or more: 24 demonstrations" in summary(run, *build_all(run))  # rmpfusion-validate
     pieces = read_recordings(run.data)
     demos = shipped_demonstrations()
     assert len(pieces) == 24 and "(motion 47 of 47, from t=" in pieces[-1].source

@@ -9,11 +9,18 @@ from __future__ import annotations
 from omegaconf import DictConfig
 
 from ..assembly.spec import weight_label
+from ..envs.protocol import JointSpace
 from ..evaluate.weights import learned_edges
 from ..pipeline.construct import build_all
 from ..pipeline.validate import resolve_and_validate
-from ..recordings.source import source_files
+from ..recordings.source import read_recordings, source_files
 from ._common import discard_unclaimed, hydra_app, hydra_run_dir, user_errors_exit
+
+
+def _cut(d, env) -> str:
+    """What cutting at rests made of the files: how many demonstrations (read again: they are small)."""
+    joints = env.robot_description.joints if isinstance(env, JointSpace) else None
+    return f", cut at every rest of {d.cut_at_rest:g} s or more: {len(read_recordings(d, joints))} demonstrations"
 
 
 def summary(run, env, expert, learners) -> str:
@@ -37,7 +44,7 @@ def summary(run, env, expert, learners) -> str:
         data_lines = [
             (
                 f"data: recorded demonstrations ({d.format}: {what}"
-                + (f", cut at every rest of {d.cut_at_rest:g} s or more" if d.cut_at_rest is not None else "")
+                + (_cut(d, env) if d.cut_at_rest is not None else "")
                 + f"), split {d.split}, derivatives "
                 f"{d.derivatives}"
                 + (
