@@ -5,11 +5,12 @@ tree, and every bad input is one error naming the key or file."""
 from __future__ import annotations
 
 import json
+import sys
 
 import numpy as np
 import pytest
 import torch
-from conftest import compose_cfg
+from conftest import ROOT, compose_cfg
 
 from rmpfusion.assembly.errors import ConfigError
 from rmpfusion.envs.rollout import Rollout
@@ -249,3 +250,19 @@ def test_the_latent_figure_finds_the_learned_map_and_only_it():
         run = validated(TINY_LASA + ["data.shape=Sshape", f"tree={tree}"])
         learner = build_learners(run, make_env(run).aux_dims())["rmp"]
         assert learned_map_nodes(learner.tree) == expected, tree
+
+
+@pytest.mark.slow
+def test_a_finished_run_re_evaluates_on_a_finer_step_without_training(tmp_path):
+    """tools/recorded_step_check.py: the trained learner of a finished run on its own step reproduces the run's own
+    metrics (the same learner, demonstrations and starts), and on half the step integrates twice as finely."""
+    sys.path.insert(0, str(ROOT / "tools"))
+    from recorded_step_check import check
+
+    run = validated(TINY_LASA + ["data.shape=Sshape"])
+    m = run_experiment(run, tmp_path, progress=False)
+    own, finer = check(tmp_path, 1.0), check(tmp_path, 2.0)
+    rmp = m["learners"]["rmp"]
+    assert own["test_dtw"] == pytest.approx(rmp["reproduction_test"]["dtw"], rel=1e-12)
+    assert own["monotone"] == rmp["convergence"]["lyapunov_monotone_fraction"] == 1.0
+    assert finer["dt"] == pytest.approx(own["dt"] / 2) and finer["monotone"] == 1.0 and finer["worst_rise"] <= 0
