@@ -364,9 +364,11 @@ def evaluate_policy(
     if monotone is not None and monotone < 1.0:
         exp.say.say(
             f"WARNING: {label}: V_r rose on {1 - monotone:.0%} of the rollouts from rest, which Theorem 2 forbids "
-            f"for a tree in continuous time: the integrator's step (env.dt = {exp.env.dt:g} s) is too coarse "
-            "for this policy there (the certificate checks the identity at each record); rerun with a smaller "
-            "env.dt to tell integration error from a bug (metrics.json: convergence.lyapunov_monotone_fraction)"
+            f"for a tree in continuous time: either the integrator's step (env.dt = {exp.env.dt:g} s) is too "
+            "coarse for this policy there, or a term of the tree is wrong (the certificate checks the identity at "
+            "each record). Integration error shrinks with the step, a wrong term does not: python "
+            "tools/recorded_step_check.py <run dir> re-evaluates this learner on finer steps without training "
+            "again (metrics.json: convergence.lyapunov_monotone_fraction)"
         )
     if conv["stalled_count"]:
         held = conv.get("held_by")
