@@ -59,7 +59,7 @@ def summary(run, env, expert, learners) -> str:
                         if d.aux_to_policy
                         else " (where obstacles stood in evaluation; the policy is told the scene's)"
                     )
-                    if (from_files := {**(d.aux_columns or {}), **(d.aux_keys or {}), **(d.aux_topics or {})})
+                    if (from_files := d.aux_from_files)
                     else ""
                 )
             ),

@@ -256,7 +256,7 @@ class RecordedDataConfig(_Frozen):
                 f"data.keep_motions={self.keep_motions} chooses among the motions data.cut_at_rest cuts a recording "
                 "into, but data.cut_at_rest is not set; set it (the shortest rest between motions, in s)"
             )
-        from_files = {**(self.aux_columns or {}), **(self.aux_keys or {}), **(self.aux_topics or {})}
+        from_files = self.aux_from_files
         if not self.aux_to_policy and not from_files:
             raise ValueError(
                 "data.aux_to_policy=false hides the aux state read from the files from the policy, but no file "
@@ -277,6 +277,11 @@ class RecordedDataConfig(_Frozen):
                 f"data.window ({self.window}) must be odd and larger than data.polyorder ({self.polyorder})"
             )
         return self
+
+    @property
+    def aux_from_files(self) -> dict[str, Any]:
+        """Aux name -> where the files give it (columns, an array key or a topic): whichever the format reads."""
+        return {**(self.aux_columns or {}), **(self.aux_keys or {}), **(self.aux_topics or {})}
 
     def _no_setting_the_format_ignores(self) -> None:
         """A key the chosen format or split does not read, set away from its default, is refused rather than

@@ -202,7 +202,12 @@ class Batch:
 
     def policy_aux(self) -> dict[str, torch.Tensor]:
         """The aux state the policy reads: ``aux`` with the hidden entries at the scene's values."""
-        return {**self.aux, **{k: v.expand(self.aux[k].shape) for k, v in self.hidden.items()}}
+        return with_scene_values(self.aux, self.hidden)
+
+
+def with_scene_values(aux: Mapping[str, torch.Tensor], hidden: Mapping[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+    """``aux`` (rows of any count) with each ``hidden`` entry at its one scene value (k,) in every row."""
+    return {**aux, **{k: v.to(aux[k]).expand(aux[k].shape) for k, v in hidden.items()}}
 
 
 def told_only_the_scene(policy: Callable, hidden: Mapping[str, torch.Tensor]) -> Callable:
@@ -210,12 +215,7 @@ def told_only_the_scene(policy: Callable, hidden: Mapping[str, torch.Tensor]) ->
     it holds for a rollout's batch and for the single rows fault isolation evaluates)."""
     if not hidden:
         return policy
-
-    def blind(q: torch.Tensor, qd: torch.Tensor, aux: Mapping[str, torch.Tensor]):
-        told = {k: v.to(aux[k]).expand(aux[k].shape) for k, v in hidden.items()}
-        return policy(q, qd, {**aux, **told})
-
-    return blind
+    return lambda q, qd, aux: policy(q, qd, with_scene_values(aux, hidden))
 
 
 def evaluation_batch(exp: Experiment, demos: dict[str, list[States]], every_demo: list[States]) -> Batch:

@@ -213,7 +213,7 @@ def _still_point(bag: Any, topic: str, source: str) -> np.ndarray:
     label = f"{source} [{topic}]"
     if not messages:
         raise RecordingError(f"{label}: the topic (data.aux_topics) holds no message")
-    xyz = np.array([[float(getattr(point_of(m), axis)) for axis in AXES] for m in messages], dtype=np.float64)
+    xyz = _point_positions(messages, point_of, AXES, label)[1]
     mean = xyz.mean(axis=0)
     off = np.linalg.norm(xyz - mean, axis=1)
     if off.max() > AUX_STILL:
