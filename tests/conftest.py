@@ -10,7 +10,8 @@ from pathlib import Path
 
 import pytest
 import torch
-from hydra import compose, initialize_config_dir
+
+from rmpfusion.pipeline.compose import compose_config
 
 os.environ.setdefault("WANDB_MODE", "disabled")
 os.environ.setdefault("MPLBACKEND", "Agg")
@@ -67,8 +68,7 @@ TINY = ["data=tiny", "train=tiny", "eval=fast", "logger=disabled"]
 def compose_cfg(overrides=(), hydra_cfg: bool = False):
     """conf/config.yaml composed with ``overrides`` as the entry points compose it (neither resolved nor validated);
     ``hydra_cfg`` includes the ``hydra`` node."""
-    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        return compose("config", overrides=list(overrides), return_hydra_config=hydra_cfg)
+    return compose_config(list(overrides), conf=CONF, hydra_config=hydra_cfg)
 
 
 @pytest.fixture(scope="session")

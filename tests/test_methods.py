@@ -573,19 +573,12 @@ SMOKE = {"bc": "tiny", "dagger": "dagger_smoke", "apg": "apg_smoke", "pg": "pg_s
 
 def test_every_registered_method_has_a_smoke_preset_that_validates_with_tiny_data():
     """The README's smoke run works for every method: ``train=<preset> data=tiny`` is a valid run of that method."""
-    from pathlib import Path
-
-    from hydra import compose, initialize_config_dir
-
-    from rmpfusion.pipeline.validate import resolve_and_validate
-    from rmpfusion.registry import TRAIN_METHODS
+    from rmpfusion.pipeline.compose import compose_run
 
     assert set(SMOKE) == set(TRAIN_METHODS.names())
-    conf = Path(__file__).resolve().parents[1] / "conf"
     for method, preset in SMOKE.items():
-        with initialize_config_dir(config_dir=str(conf), version_base="1.3"):
-            cfg = compose("config", overrides=["experiment=2d1level", "data=tiny", f"train={preset}", "eval=fast"])
-        assert resolve_and_validate(cfg).train.method == method
+        run = compose_run(["experiment=2d1level", "data=tiny", f"train={preset}", "eval=fast"])
+        assert run.train.method == method
 
 
 @pytest.mark.slow

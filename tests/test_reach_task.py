@@ -8,7 +8,6 @@ from types import SimpleNamespace
 
 import pytest
 import torch
-from hydra import compose, initialize_config_dir
 
 pytest.importorskip("pybullet")
 
@@ -20,7 +19,7 @@ from rmpfusion.envs.manipulator import Manipulator
 from rmpfusion.envs.manipulator.layout import ReachLayout
 from rmpfusion.envs.manipulator_tree import manipulator_tree_spec
 from rmpfusion.pipeline.collect import check_task
-from rmpfusion.pipeline.validate import resolve_and_validate
+from rmpfusion.pipeline.compose import compose_run
 from rmpfusion.scenes.crossing import summarize
 
 CONF = Path(__file__).resolve().parents[1] / "conf"
@@ -35,8 +34,7 @@ EXPERT = {
 
 
 def _validated(*overrides: str):
-    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        return resolve_and_validate(compose("config", overrides=["logger=disabled", *overrides]))
+    return compose_run(["logger=disabled", *overrides], conf=CONF)
 
 
 @pytest.mark.parametrize("name", ["panda", "xarm6"])

@@ -1127,15 +1127,11 @@ _REFUSED = "ConfigError at validation naming the key, what was given and what is
 def validation_issue(overrides) -> str:
     """The one problem ``resolve_and_validate`` (what every entry point runs first) finds in conf/config.yaml
     composed with ``overrides``, as the line a user reads."""
-    from hydra import compose, initialize_config_dir
-
     from rmpfusion.assembly.errors import ConfigError
-    from rmpfusion.pipeline.validate import resolve_and_validate
+    from rmpfusion.pipeline.compose import compose_run
 
-    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        cfg = compose("config", overrides=list(overrides))
     with pytest.raises(ConfigError) as info:
-        resolve_and_validate(cfg)
+        compose_run(list(overrides), conf=CONF)
     issues = info.value.issues
     assert len(issues) == 1, [str(i) for i in issues]  # the bad value is the only problem, and it is found
     return str(issues[0])
@@ -2666,19 +2662,16 @@ def _compile_said(tmp_path, monkeypatch):
     import contextlib
     import io
 
-    from hydra import compose, initialize_config_dir
-
     from rmpfusion.core.tree import RMPTree
+    from rmpfusion.pipeline.compose import compose_run
     from rmpfusion.pipeline.experiment import prepare
     from rmpfusion.pipeline.progress import Progress
-    from rmpfusion.pipeline.validate import resolve_and_validate
 
     monkeypatch.setattr(RMPTree, "compile", lambda self, *a, **k: self)
-    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        cfg = compose("config", overrides=["data=tiny", "eval.compile=true"])
+    run = compose_run(["data=tiny", "eval.compile=true"], conf=CONF)
     out = io.StringIO()
     with contextlib.redirect_stdout(out), contextlib.redirect_stderr(out):
-        prepare(resolve_and_validate(cfg), tmp_path, Progress(True))
+        prepare(run, tmp_path, Progress(True))
     return next(ln for ln in out.getvalue().splitlines() if ln.startswith("compiling"))
 
 

@@ -584,16 +584,12 @@ def test_package_versions_are_recorded(sweep):
 def test_same_seed_same_dataset_and_losses_in_another_process_and_directory(sweep, tmp_path):
     """Job 0's exact overrides, rerun here in-process in a fresh directory: byte-identical datasets (checksums),
     identical losses and weights. Seed 1 differs, so the equality is not vacuous."""
-    from hydra import compose, initialize_config_dir
-
-    from rmpfusion.cli import CONF_DIR
+    from rmpfusion.pipeline.compose import compose_run
     from rmpfusion.pipeline.run import run_experiment
-    from rmpfusion.pipeline.validate import resolve_and_validate
 
     job0, job1 = sweep / JOBS[0], sweep / JOBS[1]
     overrides = yaml.safe_load((job0 / ".hydra" / "overrides.yaml").read_text())
-    with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
-        run = resolve_and_validate(compose("config", overrides=overrides + ["eval.figures=false"]))
+    run = compose_run(overrides + ["eval.figures=false"])
     # the jobs ran in fresh interpreters (default dtype float32), this one under tests/conftest.py (float64):
     # the same numbers prove that nothing depends on torch's global default dtype
     assert torch.get_default_dtype() == torch.float64

@@ -30,13 +30,12 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 from scipy.interpolate import CubicSpline
 
-from rmpfusion.cli import CONF_DIR
 from rmpfusion.envs.manipulator.worlds import sample_aux
 from rmpfusion.files import atomic_write_bytes
+from rmpfusion.pipeline.compose import compose_config
 from rmpfusion.recordings.source import SHIPPED_DIR
 from rmpfusion.registry import ENVS
 
@@ -53,8 +52,7 @@ CYLINDER = "obstacle1_center"
 def environment(overrides: list[str]):
     """The recorded_arm experiment's environment (robot, scene, start centre, goal region), built from its env
     block alone: the experiment's data are what this tool makes."""
-    with initialize_config_dir(config_dir=str(CONF_DIR), version_base=None):
-        cfg = compose("config", overrides=["experiment=recorded_arm", *overrides])
+    cfg = compose_config(["experiment=recorded_arm", *overrides])
     block = OmegaConf.to_container(cfg.env, resolve=True)
     kind = ENVS.get(block.pop("type")).obj
     return kind(kind.Params.model_validate(block))

@@ -98,16 +98,9 @@ def row(
 
 # ---------------------------------------------------------------------------------------------- configs
 def compose(experiment: str, overrides: list[str] | None = None):
-    from hydra import compose as hcompose
-    from hydra import initialize_config_dir
+    from rmpfusion.pipeline.compose import compose_run
 
-    from rmpfusion.cli import CONF_DIR
-    from rmpfusion.pipeline.validate import resolve_and_validate
-
-    with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
-        return resolve_and_validate(
-            hcompose("config", overrides=[f"experiment={experiment}", "logger=disabled", *(overrides or [])])
-        )
+    return compose_run([f"experiment={experiment}", "logger=disabled", *(overrides or [])])
 
 
 def learner_2d2level(seed: int = 0):
@@ -123,17 +116,14 @@ def franka_subject(n_obstacles: int = 1):
     """The Franka experiment's expert tree among ``n_obstacles`` standing cylinders (14 control points each, the
     experiment's cylinder's size, spread in a row in front of the robot, beyond the goals so every goal stays clear
     of them), and the environment of that scene."""
-    from hydra import compose as hcompose
-    from hydra import initialize_config_dir
     from omegaconf import OmegaConf
 
     from rmpfusion.assembly.generated import expand_tree
     from rmpfusion.assembly.weighting import tree_with_weights
-    from rmpfusion.cli import CONF_DIR
+    from rmpfusion.pipeline.compose import compose_config
     from rmpfusion.registry import ENVS
 
-    with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):  # the tree as declared: its generator
-        raw = OmegaConf.to_container(hcompose("config", overrides=["experiment=franka"]), resolve=True)
+    raw = OmegaConf.to_container(compose_config(["experiment=franka"]), resolve=True)  # the tree as declared
     cylinder = raw["env"]["scene"]["obstacles"][0]
     scene = {
         "obstacles": [

@@ -20,12 +20,10 @@ import sys
 from pathlib import Path
 
 import torch
-from hydra import compose, initialize_config_dir
 
-from rmpfusion.cli import CONF_DIR
 from rmpfusion.pipeline.collect import SPLIT_SEED_OFFSET
+from rmpfusion.pipeline.compose import compose_run
 from rmpfusion.pipeline.construct import make_env
-from rmpfusion.pipeline.validate import resolve_and_validate
 from rmpfusion.scenes.crossing import QUANTILES, summarize
 
 SPLITS = ("train", "val", "test")
@@ -65,10 +63,7 @@ def main(argv=None) -> int:
     ap.add_argument("overrides", nargs="*", help="further Hydra overrides, e.g. robot=iiwa seed=1")
     a = ap.parse_args(argv)
     torch.set_num_threads(1)
-    with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
-        run = resolve_and_validate(
-            compose("config", overrides=[f"experiment={a.experiment}", "logger=disabled", *a.overrides])
-        )
+    run = compose_run([f"experiment={a.experiment}", "logger=disabled", *a.overrides])
     env = make_env(run)
     summaries = split_summaries(run, env)
     env.close()

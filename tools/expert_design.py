@@ -32,15 +32,13 @@ import time
 from pathlib import Path
 
 import torch
-from hydra import compose, initialize_config_dir
 
 from rmpfusion.assembly.tree import build_tree
-from rmpfusion.cli import CONF_DIR
 from rmpfusion.files import atomic_write_json
 from rmpfusion.pipeline.collect import SPLIT_SEED_OFFSET
+from rmpfusion.pipeline.compose import compose_run
 from rmpfusion.pipeline.construct import build_all, build_learners, expert_spec
 from rmpfusion.pipeline.experiment import learner_seed
-from rmpfusion.pipeline.validate import resolve_and_validate
 
 
 def variants(expert: dict) -> dict[str, dict]:
@@ -114,8 +112,7 @@ def main(argv=None) -> int:
         f"env.control_rate={a.rate}",
         *a.overrides,
     ]
-    with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
-        run = resolve_and_validate(compose("config", overrides=over))
+    run = compose_run(over)
     env, _, _ = build_all(run)
     gen = torch.Generator().manual_seed(run.seed + SPLIT_SEED_OFFSET["val"])
     q0, qd0, aux = env.sample_initial_states(env.sample_envs(1, gen, split="val"), a.trajectories, gen)

@@ -22,19 +22,16 @@ from pathlib import Path
 import numpy as np
 import torch
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
 CASES = {"franka": [], "franka_three_obstacles": [], "reach": ["robot=ur5"]}
 
 
 def fingerprint(sim: str = "pybullet") -> dict:
-    from rmpfusion.gym.task import compose_run
+    from rmpfusion.pipeline.compose import compose_run
     from rmpfusion.pipeline.construct import build_expert, make_env
 
     out = {}
     for experiment, overrides in CASES.items():
-        run = compose_run(experiment, [*overrides, *([f"sim={sim}"] if sim != "pybullet" else [])])
+        run = compose_run([f"experiment={experiment}", *overrides, *([f"sim={sim}"] if sim != "pybullet" else [])])
         env = make_env(run)
         tree = build_expert(run, env.aux_dims()).double()
         g = torch.Generator().manual_seed(3)

@@ -23,20 +23,15 @@ import argparse
 import sys
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import torch
-
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
 from rmpfusion import build_tree
 from rmpfusion.assembly.generated import expand_tree
 from rmpfusion.assembly.weighting import plain_data, tree_with_weights, weights_by_name
 from rmpfusion.envs.manipulator.worlds import TaskWorld
+from rmpfusion.pipeline.compose import compose_config
 from rmpfusion.pipeline.validate import resolve_and_validate
 from rmpfusion.robots.robot import build_robot
 from rmpfusion.scenes import ObstacleSet, SetsSource, World, set_dims, sets_read
@@ -67,8 +62,7 @@ def controller(sets: list[ObstacleSet] = SETS):
     """The expert of experiment=franka (its weights by role) on the Panda's Fig. 1b tree generated with the obstacle
     ``sets`` and no fixed obstacle, and the robot. The environment does not yet provide the sets (their bodies in
     pybullet are future work), so the tree is built from the run's tree declaration here."""
-    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
-        cfg = compose("config", overrides=["experiment=franka"])
+    cfg = compose_config(["experiment=franka"])
     run = resolve_and_validate(cfg)
     decl = OmegaConf.to_container(cfg.tree, resolve=True)
     decl["scene"] = {"obstacles": []}  # every obstacle is the world's

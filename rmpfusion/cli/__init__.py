@@ -2,10 +2,11 @@
 
 ``rmpfusion.cli.CONF_DIR`` is the conf/ directory the commands compose from, for composing the same configs from
 Python: ``$RMPFUSION_CONF`` if set, else the conf/ of the source checkout rmpfusion is imported from (a clone or an
-editable install; see ``_common.conf_dir``). It is looked up when read, so importing a submodule never needs it.
+editable install; see ``rmpfusion.pipeline.compose``, whose ``compose_config`` and ``compose_run`` compose them). It
+is looked up when read, so importing a submodule never needs it.
 """
 
-from ._common import conf_dir
+from ..pipeline.compose import conf_dir
 
 __all__ = ["CONF_DIR"]  # the console scripts are the package's interface; CONF_DIR is looked up when read
 

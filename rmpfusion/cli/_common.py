@@ -1,9 +1,5 @@
-"""What every entry point shares: where conf/ is, the run directory, and turning config errors into exit codes.
-
-conf/ lives at the repository root (docs/architecture.md §1), outside the package, so the apps resolve it from this
-file's location: that works for a source checkout and an editable install from any working directory.
-``RMPFUSION_CONF`` points the apps at another conf/ (a wheel install, or a project's own copy).
-"""
+"""What every entry point shares: the Hydra app over conf/ (found by ``pipeline/compose.py::conf_dir``), the run
+directory, and turning config errors into exit codes."""
 
 from __future__ import annotations
 
@@ -27,6 +23,7 @@ from ..files import DiskFullError, atomic_write_bytes, remove_stale_temporaries
 from ..learn.checkpoints import CheckpointError
 from ..learn.loop import TrainingDivergedError
 from ..pipeline.collect import ExpertDivergedError
+from ..pipeline.compose import conf_dir
 from ..pipeline.fit import NotTrainedError
 from ..pipeline.validate import resolve_and_validate
 from ..recordings.recording import RecordingError
@@ -51,42 +48,8 @@ from .rundir import (
 CONFIG_ERROR_EXIT = 2
 
 
-def conf_dir() -> str:
-    """conf/ of the checkout (or ``RMPFUSION_CONF``). A ``RMPFUSION_CONF`` that holds no config.yaml is an error,
-    never passed over for the checkout's: the user meant that directory."""
-    env = os.environ.get("RMPFUSION_CONF")
-    if env:
-        if (Path(env) / "config.yaml").is_file():
-            return env
-        what = "does not exist" if not Path(env).exists() else "holds no config.yaml"
-        raise FileNotFoundError(
-            f"RMPFUSION_CONF={env} {what}; point it at a conf/ directory (one with config.yaml, "
-            "like the checkout's conf/) or unset it to use the checkout's"
-        )
-    candidates = []
-    here = Path(__file__).resolve()
-    candidates += [here.parents[2] / "conf", here.parents[1] / "conf"]
-    for c in candidates:
-        if (c / "config.yaml").is_file():
-            return str(c)
-    tried = ", ".join(str(c) for c in candidates)
-    raise FileNotFoundError(
-        f"rmpfusion: no conf/config.yaml found (tried {tried}); set RMPFUSION_CONF to your conf/ directory"
-    )
-
-
 #: Exit code of a run stopped by Ctrl-C (128 + SIGINT, what a shell reports for it).
 INTERRUPTED_EXIT = 130
-
-
-def compose_config(overrides: list[str], config_dir: Path | None = None) -> Any:
-    """conf/config.yaml composed with ``overrides`` as the commands compose it, outside a Hydra app (neither resolved
-    nor validated); ``config_dir`` joins the search path as Hydra's ``--config-dir`` does (a user's robot files)."""
-    from hydra import compose, initialize_config_dir
-
-    search = [f"hydra.searchpath=[file://{config_dir.resolve()}]"] if config_dir is not None else []
-    with initialize_config_dir(config_dir=conf_dir(), version_base="1.3"):
-        return compose(config_name="config", overrides=[*overrides, *search])
 
 
 def debug_enabled() -> bool:

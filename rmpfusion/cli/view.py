@@ -25,6 +25,7 @@ from ..envs.manipulator import Manipulator
 from ..learn.checkpoints import CheckpointError, latest_checkpoint, load_checkpoint
 from ..learn.loop import load_snapshot
 from ..pipeline.collect import SPLIT_SEED_OFFSET
+from ..pipeline.compose import compose_config
 from ..pipeline.config import DataConfig, RunConfig, upgrade_run_config
 from ..pipeline.construct import build_unit_weights
 from ..pipeline.experiment import Experiment, prepare
@@ -33,7 +34,7 @@ from ..pipeline.progress import Progress
 from ..pipeline.validate import parse_run_config, resolve_and_validate
 from ..plots.viewer import PolicyTrack, ViewerInput, viewer_figure, write_viewer
 from ..registry import RegistryError
-from ._common import compose_config, one_line
+from ._common import one_line
 from .rundir import RESOLVED
 
 

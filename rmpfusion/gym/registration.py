@@ -16,7 +16,7 @@ from typing import Any
 
 import gymnasium as gym
 
-from ..cli._common import conf_dir
+from ..pipeline.compose import compose_config, conf_dir
 from .env import RMPfusionEnv, RMPfusionVectorEnv
 from .task import build_task
 
@@ -38,15 +38,12 @@ def gym_id(experiment: str) -> str:
 def simulated_experiments(conf: Path | None = None) -> list[str]:
     """The experiments of conf/experiment/ whose environment a Gymnasium task can step: each composed as
     ``rmpfusion-run`` would (its environment and data may come from another experiment it extends), ~0.2 s each."""
-    from hydra import compose, initialize_config_dir
-
     root = Path(conf or conf_dir())
     out = []
-    with initialize_config_dir(config_dir=str(root), version_base="1.3"):
-        for path in sorted((root / "experiment").glob("*.yaml")):
-            cfg = compose(config_name="config", overrides=[f"experiment={path.stem}"])
-            if cfg.env.type in SIMULATED and cfg.data.get("source", "expert") == "expert":
-                out.append(path.stem)
+    for path in sorted((root / "experiment").glob("*.yaml")):
+        cfg = compose_config([f"experiment={path.stem}"], conf=root)
+        if cfg.env.type in SIMULATED and cfg.data.get("source", "expert") == "expert":
+            out.append(path.stem)
     return out
 
 

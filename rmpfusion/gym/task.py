@@ -14,14 +14,13 @@ from typing import Literal
 import torch
 from torch import Tensor
 
-from ..cli._common import compose_config
 from ..core.tree import RMPTree
 from ..envs.protocol import Env
 from ..learn.task_cost import TaskCost
+from ..pipeline.compose import compose_run
 from ..pipeline.config import DataConfig, RunConfig
 from ..pipeline.construct import build_expert, build_unit_weights, make_env
 from ..pipeline.experiment import evaluation_horizon
-from ..pipeline.validate import resolve_and_validate
 
 Base = Literal["unit_weights", "expert", "none"]
 
@@ -66,11 +65,6 @@ class GymTask:
         return torch.cat([q, qd, *(aux[k] for k in self.aux_names)], dim=-1)
 
 
-def compose_run(experiment: str, overrides: Sequence[str] = ()) -> RunConfig:
-    """The validated run config of ``experiment=<experiment>`` with ``overrides``, as ``rmpfusion-run`` composes it."""
-    return resolve_and_validate(compose_config([f"experiment={experiment}", *overrides]))
-
-
 def build_task(
     experiment: str,
     overrides: Sequence[str] = (),
@@ -84,7 +78,7 @@ def build_task(
     """The task of an experiment. ``horizon`` defaults to the experiment's evaluation horizon (``eval.horizon``, else
     its demonstrations' length); ``cost`` sets the task cost's weights (``rmpfusion.learn.task_cost.TaskCost``,
     default the distance to the goal integrated over time)."""
-    run = compose_run(experiment, overrides)
+    run = compose_run([f"experiment={experiment}", *overrides])
     if not isinstance(run.data, DataConfig):
         raise TaskError(f"experiment '{experiment}' learns from recorded demonstrations: it has no simulated task")
     env = make_env(run)
