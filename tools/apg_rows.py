@@ -1,17 +1,18 @@
 #!/usr/bin/env python
-"""Policy optimisation through the simulator on 2d2level (experiment=2d2level_apg): the tree optimised by APG
-against the expert and against the same tree with unit weights (RMPflow), on the test split's starts.
+"""Policy optimisation through the simulator on 2d2level (experiment=2d2level train=apg): the tree optimised by APG
+against the expert and against the same tree with unit weights (RMPflow), on the test split's starts: one run of
+the training_methods study (conf/study/training_methods.yaml).
 
 Runs the experiment (no expert data in training; conf/train/apg.yaml), then evaluates the unit-weight tree with
 the pipeline's own evaluation, and the task cost APG minimises on the test starts for every policy. Writes
 <out>/table.md and <out>/metrics.json (the rows, with the run's command, seed and wall time: what results/ stores and
-tests/test_results.py turns back into the documentation's table with ``table_of``) beside the run directory <out>/run/
+``rmpfusion-study table training_methods`` turns back into the documentation's table) beside the run directory <out>/run/
 (its own metrics.json; figures/learning_curve_rmp.png is the learning curve, figures/progression_rmp.png the
 snapshots' trajectories).
 
-    python tools/apg_table.py                     # conf/train/apg.yaml as it is
-    python tools/apg_table.py --table-only        # the table of the run already in --out
-    python tools/apg_table.py train.iterations=20 train.snapshots=[0,20]   # any overrides
+    python tools/apg_rows.py                     # conf/train/apg.yaml as it is
+    python tools/apg_rows.py --table-only        # the table of the run already in --out
+    python tools/apg_rows.py train.iterations=20 train.snapshots=[0,20]   # any overrides
 """
 
 from __future__ import annotations
@@ -35,21 +36,20 @@ from rmpfusion.pipeline.collect import collect
 from rmpfusion.pipeline.construct import UNIT_WEIGHT_LEARNER
 from rmpfusion.pipeline.evaluation import evaluate_model
 from rmpfusion.pipeline.fit import fit
+from rmpfusion.pipeline.compose import compose_run
 from rmpfusion.pipeline.run import run_experiment, start
+from rmpfusion.studies.tables.apg import table
 
 TASK = ("time", "path_length", "final_distance", "min_clearance")
 
 
-def config(extra: list[str], experiment: str = "2d2level_apg"):
-    from hydra import compose, initialize_config_dir
+#: the run this tool makes unless told otherwise: 2d2level trained by APG
+DEFAULT_RUN = ["experiment=2d2level", "train=apg", "eval=eager", "name=2d2level_apg"]
 
-    from rmpfusion.cli import CONF_DIR
-    from rmpfusion.pipeline.validate import resolve_and_validate
 
-    with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
-        return resolve_and_validate(
-            compose("config", overrides=[f"experiment={experiment}", "logger=disabled", *extra])
-        )
+def config(overrides: list[str]):
+    """The validated run of ``overrides`` (the whole run: experiment and method), wandb off."""
+    return compose_run([*overrides, "logger=disabled"])
 
 
 def unit_weights(exp):
@@ -128,46 +128,15 @@ def rows(run_dir: Path, cfg, fine_dt: float) -> list[dict]:
     return out
 
 
-def _f(x, pct: bool = False) -> str:
-    if x is None:
-        return "–"
-    return f"{100 * x:.0f} %" if pct else f"{x:.3g}"
 
 
-def table(rs: list[dict], dt: float, fine_dt: float) -> str:
-    """The Markdown table of the rows ``rs``; a run that learns leaf numbers gets a column of them."""
-    leaves = any(r.get("leaves") for r in rs)
-    head = (
-        "| policy | task cost (APG's, test starts) | success | collisions | time to 0.1 (s) | path length "
-        f"| final distance | closest approach to an obstacle | V_r monotone (RK4 at {dt} s) "
-        f"| V_r monotone (RK4 at {fine_dt} s) |" + (" learned leaf numbers |" if leaves else "")
-    )
-    lines = [head, "|---" * (head.count("|") - 1) + "|"]
-    for r in rs:
-        learned = ", ".join(f"{k} = {v:.3g}" for k, v in (r.get("leaves") or {}).items()) or "–"
-        lines.append(
-            f"| {r['policy']} | {_f(r['cost'])} | {_f(r['success'], True)} | {_f(r['collision'], True)} "
-            f"| {_f(r.get('time'))} | {_f(r.get('path_length'))} | {_f(r.get('final_distance'))} "
-            f"| {_f(r.get('min_clearance'))} | {_f(r['lyapunov'], True)} | {_f(r['lyapunov_fine'], True)} |"
-            + (f" {learned} |" if leaves else "")
-        )
-    return "\n".join(lines) + "\n"
 
 
-def table_of(runs: dict[str, dict]) -> str:
-    """The table of the (one) stored run in ``runs`` ({label: the metrics.json this tool wrote})."""
-    (m,) = runs.values()
-    return table(m["rows"], m["dt"], m["fine_dt"])
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--out", type=Path, default=Path("outputs/apg_table"))
-    ap.add_argument(
-        "--experiment",
-        default="2d2level_apg",
-        help="2d2level_apg, 2d2level_apg_leaves, or another experiment trained by apg",
-    )
+    ap.add_argument("--out", type=Path, default=Path("outputs/apg_rows"))
     ap.add_argument("--table-only", action="store_true", help="run nothing new: the table of <out>/run")
     ap.add_argument(
         "--fine-dt",
@@ -175,10 +144,13 @@ def main(argv=None) -> int:
         default=0.002,
         help="the finer RK4 step on which every policy's V_r is checked again (s)",
     )
-    ap.add_argument("overrides", nargs="*", help="Hydra overrides of experiment=2d2level_apg")
+    ap.add_argument(
+        "overrides", nargs="*", help=f"the run's Hydra overrides (default: {' '.join(DEFAULT_RUN)}); train must be apg"
+    )
     a = ap.parse_args(argv)
     t0 = time.time()
-    cfg = config(a.overrides, a.experiment)
+    overrides = a.overrides or DEFAULT_RUN
+    cfg = config(overrides)
     if not a.table_only:
         run_experiment(cfg, a.out / "run")
     rs = rows(a.out / "run", cfg, a.fine_dt)
@@ -187,14 +159,14 @@ def main(argv=None) -> int:
         f"# {cfg.name}: the tree optimised through the simulator vs the expert and unit weights "
         f"({time.time() - t0:.0f} s)\n\n" + table(rs, cfg.env.dt, a.fine_dt)
     )
-    command = "python tools/apg_table.py " + shlex.join(
-        [f"--experiment={a.experiment}", f"--fine-dt={a.fine_dt}", *a.overrides]
+    command = "python tools/apg_rows.py " + shlex.join(
+        [f"--fine-dt={a.fine_dt}", *overrides]
     )
     atomic_write_json(
         a.out / "metrics.json",
         {
             "command": command,
-            "experiment": a.experiment,
+            "experiment": cfg.name,
             "seed": run["seed"],
             "timing": {"total_s": run["timing"]["total_s"]},
             "dt": cfg.env.dt,

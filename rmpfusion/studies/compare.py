@@ -1,25 +1,19 @@
-"""Compare two runs' metrics.json number by number: did a change keep the results?
+"""Two runs' metrics number by number: did a change keep the results? (``rmpfusion-study check``, and
+``rmpfusion-study compare A B`` for any two runs.)
 
-    python tools/compare_metrics.py outputs/a/metrics.json outputs/b/metrics.json [--rtol 1e-12]
-    python tools/compare_metrics.py results/2d1level outputs/2d1level/<time>   # a fresh run against a stored one
-
-Every number present in both files is compared (nested keys flattened to paths like
+Every number present in both is compared (nested keys flattened to paths like
 ``learners.rmp.snapshots.60.online_loss``), except what says how a run went rather than what it found:
 wall-clock times, file paths, whether data was reused or training resumed, and the config hash (which
 changes with the config's spelling, not its meaning). Dataset checksums are compared: equal checksums mean
 bit-identical demonstrations. Residuals that are zero in exact arithmetic (the certificate's energy-identity
 error, a finite difference of V_r against −q̇ᵀB_r q̇) are rounding and truncation error, whose relative
-differences say nothing: they are compared by absolute difference, ``--residual-atol``, far below the
-certificate's own tolerance. Prints the count compared, the largest relative difference, every number that
-differs beyond its tolerance and every key only one side has; exits 1 when any number differs.
+differences say nothing: they are compared by absolute difference, far below the certificate's own tolerance.
 """
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
-import sys
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -97,21 +91,6 @@ def metrics_path(p: Path) -> Path:
     return p / "metrics.json" if p.is_dir() else p
 
 
-def read_labelled_runs(ap: argparse.ArgumentParser, items: list[str], form: str = "LABEL=PATH") -> dict[str, dict]:
-    """``{label: metrics}`` of command-line items ``LABEL=PATH`` (PATH a metrics.json or the directory holding it), in
-    order; a malformed item or a missing or damaged file ends the command with one line (``ap.error``)."""
-    runs = {}
-    for item in items:
-        label, sep, path = item.partition("=")
-        if not sep:
-            ap.error(f"'{item}': give each run as {form}")
-        try:
-            runs[label] = read_metrics(metrics_path(Path(path)))
-        except ValueError as e:
-            ap.error(str(e))
-    return runs
-
-
 def read_metrics(path: Path) -> dict:
     """A run's metrics.json, or a ValueError naming the file and what is wrong with it (missing, cut short)."""
     try:
@@ -127,34 +106,3 @@ def read_metrics(path: Path) -> dict:
         # ValueError, not TypeError: callers catch ValueError for a bad file, whatever is wrong with it
         raise ValueError(f"{path} holds {type(data).__name__}, not the mapping a metrics.json holds")  # noqa: TRY004
     return data
-
-
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("first", type=Path, help="a metrics.json, or the directory holding one (e.g. results/2d1level)")
-    ap.add_argument("second", type=Path, help="the same")
-    ap.add_argument("--rtol", type=float, default=1e-12, help="largest relative difference counted as equal")
-    ap.add_argument(
-        "--residual-atol",
-        type=float,
-        default=1e-7,
-        help="largest absolute difference of two residuals counted as equal",
-    )
-    args = ap.parse_args(argv)
-    try:
-        a, b = (read_metrics(metrics_path(p)) for p in (args.first, args.second))
-    except ValueError as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
-    n, worst, differ, one_sided = compare(a, b, args.rtol, args.residual_atol)
-    print(
-        f"{n} values compared, largest relative difference {worst:.3g}; {len(differ)} differ beyond "
-        f"rtol={args.rtol:g}; {len(one_sided)} keys on one side only"
-    )
-    for line in differ + one_sided:
-        print(line)
-    return 1 if differ else 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())
