@@ -112,7 +112,7 @@ def _panda_tree(sets: list[ObstacleSet]):
     from rmpfusion import build_tree
     from rmpfusion.assembly.generated import expand_tree
 
-    decl = yaml.safe_load((ROOT / "conf/tree/fig1b.yaml").read_text())
+    decl = yaml.safe_load((ROOT / "conf/tree/arm_reach.yaml").read_text())
     decl.pop("defaults", None)
     decl.update(
         robot=yaml.safe_load((ROOT / "conf/robot/panda.yaml").read_text()),

@@ -17,8 +17,8 @@ from rmpfusion.scenes.nearest import member_distances, nearest_members, selectio
 from rmpfusion.scenes.sets import set_distances
 
 N, K = 30, 4
-#: the obstacle barrier's support in conf/tree/fig1b.yaml (obstacle_rmp.r_w)
-SUPPORT = yaml.safe_load((ROOT / "conf/tree/fig1b.yaml").read_text())["obstacle_rmp"]["r_w"]
+#: the obstacle barrier's support in conf/tree/arm_reach.yaml (obstacle_rmp.r_w)
+SUPPORT = yaml.safe_load((ROOT / "conf/tree/arm_reach.yaml").read_text())["obstacle_rmp"]["r_w"]
 
 
 def panda():

@@ -1,4 +1,4 @@
-"""Trees declared as a generator and its parameters (assembly/generated.py): conf/tree/franka.yaml (conf/tree/fig1b.yaml
+"""Trees declared as a generator and its parameters (assembly/generated.py): conf/tree/franka.yaml (conf/tree/arm_reach.yaml
 for the Panda of conf/robot/panda.yaml and the cylinder of conf/scene/franka_cylinder.yaml) expands to the paper's
 Panda tree, and bad declarations are refused with the path of the key at fault."""
 
@@ -34,8 +34,8 @@ PANDA_LIMITS = [
 
 
 def declaration(scene: str = "franka_cylinder") -> dict:
-    """conf/tree/fig1b.yaml with the robot and scene experiment=franka composes into it, as experiment=franka does."""
-    decl = yaml.safe_load((CONF / "tree" / "fig1b.yaml").read_text())
+    """conf/tree/arm_reach.yaml with the robot and scene experiment=franka composes into it, as experiment=franka does."""
+    decl = yaml.safe_load((CONF / "tree" / "arm_reach.yaml").read_text())
     decl.update(yaml.safe_load((CONF / "tree" / "franka.yaml").read_text()))
     decl.pop("defaults")
     decl["robot"] = yaml.safe_load((CONF / "robot" / "panda.yaml").read_text())
@@ -50,12 +50,12 @@ def issues_of(spec) -> dict[str, str]:
 
 
 def test_the_panda_generator_is_registered_by_importing_rmpfusion():
-    assert "fig1b" in TREE_GENERATORS
-    assert declaration()["generator"] == "fig1b"
+    assert "arm_reach" in TREE_GENERATORS
+    assert declaration()["generator"] == "arm_reach"
 
 
 @needs_panda
-def test_franka_declaration_expands_to_the_fig1b_tree():
+def test_franka_declaration_expands_to_the_arm_reach_tree():
     tree = expand_tree(declaration())
     nodes = tree["nodes"]
     # ee + attractor, 2 limits x 7 joints, 14 control points with one obstacle each, damper, identity metric
@@ -166,10 +166,10 @@ def test_a_written_tree_passes_through_unchanged():
 
 
 def test_unknown_generator_gets_did_you_mean():
-    issues = issues_of({"generator": "fig1", "scene": {}})
+    issues = issues_of({"generator": "arm_rech", "scene": {}})
     assert list(issues) == ["tree.generator"]
-    assert "unknown tree generator 'fig1'" in issues["tree.generator"]
-    assert "did you mean 'fig1b'" in issues["tree.generator"]
+    assert "unknown tree generator 'arm_rech'" in issues["tree.generator"]
+    assert "did you mean 'arm_reach'" in issues["tree.generator"]
 
 
 @needs_panda

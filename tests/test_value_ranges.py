@@ -2,7 +2,7 @@
 value in YAML is refused at validation, naming its path, instead of running into NaN or nonsense later.
 
 The walk covers every entry of every registry (and the models their fields nest, such as the Franka obstacles or
-the leaf settings of the ``franka_fig1b`` generator) plus the run config's data/train/eval blocks. A field is
+the leaf settings of the ``arm_reach`` generator) plus the run config's data/train/eval blocks. A field is
 *physical* when its name has one of ``PHYSICAL`` as a ``_``-separated word; a new one added without a range fails
 here. Deliberate exceptions go in ``EXEMPT`` with the reason.
 """

@@ -20,7 +20,7 @@ SETS = [ObstacleSet(shape="sphere", n_max=3), ObstacleSet(shape="box", n_max=2)]
 
 
 def declaration(scene: dict, sets: list[ObstacleSet]) -> dict:
-    decl = yaml.safe_load((CONF / "tree" / "fig1b.yaml").read_text())
+    decl = yaml.safe_load((CONF / "tree" / "arm_reach.yaml").read_text())
     decl.pop("defaults", None)
     decl["robot"] = yaml.safe_load((CONF / "robot" / "panda.yaml").read_text())
     decl["scene"] = scene

@@ -49,7 +49,7 @@ def _panda_spec(scene: dict) -> dict:
 
     from rmpfusion.assembly.generated import expand_tree
 
-    decl = yaml.safe_load((ROOT / "conf/tree/fig1b.yaml").read_text())
+    decl = yaml.safe_load((ROOT / "conf/tree/arm_reach.yaml").read_text())
     decl.pop("defaults", None)
     decl.update(robot=yaml.safe_load((ROOT / "conf/robot/panda.yaml").read_text()), scene=scene)
     return expand_tree(decl)

@@ -217,7 +217,7 @@ class TreeSpec(_Strict):
     roles: dict[str, list[str]] = Field(
         default_factory=dict,
         description="role -> the nodes and shared weights that play it (a generator declares "
-        "them, e.g. fig1b's attractor, ground and obstacle), so an expert can weight "
+        "them, e.g. arm_reach's attractor, ground and obstacle), so an expert can weight "
         "them by role whatever their number",
     )
 

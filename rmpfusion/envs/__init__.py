@@ -1,6 +1,6 @@
 """Environments; importing this package registers them in ``rmpfusion.registry.ENVS``."""
 
-from . import manipulator_tree  # noqa: F401  (imported to register the tree generator fig1b)
+from . import manipulator_tree  # noqa: F401  (imported to register the tree generator arm_reach)
 from .demonstrations import Dataset, DatasetError, collect, dataset_meta, load_dataset, save_dataset
 from .manipulator import Manipulator
 from .particle2d import Particle2D

@@ -6,8 +6,8 @@ raise or lower: a sphere at a fixed height, on a shoulder that only spins, gets 
 shoulder axis that reaches below the ground in every configuration). Generating the spec keeps those nodes
 consistent, and lets a tree trained in one scene be rebuilt for another: the obstacle weight on a control point is
 one entry of ``shared_weights`` used by all of that point's obstacle edges, each edge binding the generic aux names
-``obstacle_center``/``obstacle_radius`` to its own obstacle. The generator is registered as ``fig1b``, so
-``conf/tree/fig1b.yaml`` declares it and its parameters (``build.generated.expand_tree``); its robot and scene are
+``obstacle_center``/``obstacle_radius`` to its own obstacle. The generator is registered as ``arm_reach``, so
+``conf/tree/arm_reach.yaml`` declares it and its parameters (``build.generated.expand_tree``); its robot and scene are
 the environment's (``${env.robot}``, ``${env.scene}``), so the two cannot disagree.
 """
 
@@ -29,7 +29,7 @@ from ..core.tree import RMPTree
 from ..core.weight import BoundWeight
 from ..maps.kinematics import Chain
 from ..maps.orientation import check_direction
-from ..maps.robot import Vector3
+from ..maps.robot_params import Vector3
 from ..maps.self_collision import non_adjacent_link_pairs
 from ..registry import TREE_GENERATORS, WEIGHTS, Params
 from ..rmps.gds_leaves import CollisionAvoidance, Damper, GoalAttractor, IdentityMetric, JointLimitBarrier
@@ -359,8 +359,8 @@ def _control_point_nodes(p: ManipulatorTreeParams, i: int, cp, ground: bool) -> 
     return nodes, shared
 
 
-@TREE_GENERATORS.register("fig1b", params=ManipulatorTreeParams)
-def fig1b(p: ManipulatorTreeParams) -> dict[str, Any]:
+@TREE_GENERATORS.register("arm_reach", params=ManipulatorTreeParams)
+def arm_reach(p: ManipulatorTreeParams) -> dict[str, Any]:
     """The tree spec (docs/architecture.md §2) of paper Fig. 1b for the robot and scene, from validated parameters.
 
     Weighted edges (learnable, MLPs): ee→attractor, every control point→obstacle edge (shared across obstacles
@@ -530,12 +530,12 @@ def manipulator_tree_spec(
     robot: Mapping[str, Any], scene: Mapping[str, Any] | Scene | None = None, **settings: Any
 ) -> dict[str, Any]:
     """The tree spec for a robot description and a scene (Python callers' entry; ``settings`` are the other
-    :class:`ManipulatorTreeParams` keys). Checked by the same model as ``generator: fig1b`` in YAML, so a bad
+    :class:`ManipulatorTreeParams` keys). Checked by the same model as ``generator: arm_reach`` in YAML, so a bad
     value raises pydantic's ValidationError (a ValueError) naming the key."""
     given: dict[str, Any] = {"robot": robot, **settings}
     if scene is not None:
         given["scene"] = scene
-    return fig1b(ManipulatorTreeParams.model_validate(given))
+    return arm_reach(ManipulatorTreeParams.model_validate(given))
 
 
 def copy_weights(src: RMPTree, dst: RMPTree) -> list[str]:

@@ -25,7 +25,7 @@ from torch import nn
 from ..files import remove_stale_temporaries
 from .checkpoints import CHECKPOINT_NAME, CheckpointError, latest_checkpoint, load_checkpoint, save_checkpoint
 from .config import TrainParams, upgrade_train_config
-from .signals import StopOnSignal
+from .interrupts import StopOnSignal
 
 #: The largest magnitude a trained parameter may reach. No weight network or leaf number of a working tree comes
 #: near it (float32 itself overflows at 3.4e38); a parameter beyond it, or a non-finite one, means the optimiser

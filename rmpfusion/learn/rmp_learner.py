@@ -39,7 +39,7 @@ class RMPLearner(Learner["RMPLearner.Params"]):
         edges: list[str] | None = Field(
             None,
             description="edges this learner puts `weights` on; default: those the expert weights, else every edge "
-            "except regulariser leaves. Weights the tree spec declares itself (fig1b's attractor, obstacle and ground "
+            "except regulariser leaves. Weights the tree spec declares itself (arm_reach's attractor, obstacle and ground "
             "weights) are learned too, whatever this lists: [] removes only the learner's own",
         )
         edge_weights: dict[str, dict[str, Any]] = Field(

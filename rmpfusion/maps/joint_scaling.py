@@ -20,7 +20,7 @@ from ..examples import Example
 from ..registry import TASK_MAPS, numbers_repr
 from .basic import Linear
 from .kinematics import KUKA_IIWA, PANDA_ARM, joint_limit_states, robot_chain
-from .robot import RobotParams
+from .robot_params import RobotParams
 
 
 @TASK_MAPS.register(

@@ -20,7 +20,7 @@ from ..core.algebra import matvec
 from ..core.taskmap import TaskMap
 from ..examples import Example, StateSampler
 from ..registry import TASK_MAPS, Params, numbers_repr
-from .robot import RobotParams
+from .robot_params import RobotParams
 from .urdf import URDFModel, parse_urdf, resolve_urdf_path
 
 FIXED, REVOLUTE, PRISMATIC = 0, 1, 2

@@ -27,7 +27,7 @@ from ..examples import Example
 from ..registry import TASK_MAPS, Params, numbers_repr
 from .distances import _radial
 from .kinematics import KUKA_IIWA, PANDA_ARM, Chain, ForwardKinematics, joint_limit_states, robot_chain
-from .robot import RobotParams, Vector3, rigid_body_of
+from .robot_params import RobotParams, Vector3, rigid_body_of
 
 
 class LinkSphere(Params):

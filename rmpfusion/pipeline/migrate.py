@@ -19,9 +19,11 @@ RETIRED = {
     ("env", "type", "franka"): "the environment 'franka' became 'manipulator', which takes its robot and scene from "
     "conf/robot/ and conf/scene/; compose the experiment anew (experiment=franka keeps "
     "its name and protocol)",
-    ("tree", "generator", "franka_fig1b"): "the generator 'franka_fig1b' became 'fig1b', which takes the robot and the "
-    "scene (conf/tree/fig1b.yaml reads the environment's); compose the "
-    "experiment anew (tree=franka keeps its name)",
+    ("tree", "generator", "franka_fig1b"): "the generator 'franka_fig1b' became 'arm_reach', which takes the robot and "
+    "the scene (conf/tree/arm_reach.yaml reads the environment's); compose the experiment anew (tree=franka keeps its "
+    "name)",
+    ("tree", "generator", "fig1b"): "the generator 'fig1b' (named after the paper's figure) became 'arm_reach', the "
+    "same tree for any robot and scene; write generator: arm_reach (tree=arm_reach for conf/tree/arm_reach.yaml)",
 }
 
 

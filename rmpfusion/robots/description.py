@@ -18,7 +18,7 @@ from typing import Literal
 
 from pydantic import Field, field_validator, model_validator
 
-from ..maps.robot import Mount
+from ..maps.robot_params import Mount
 from ..maps.urdf import URDFModel, parse_urdf, resolve_urdf_path
 from ..registry import Params
 from .packages import package_folder

@@ -13,7 +13,7 @@ from ...sims import SimulationError
 from ..common import evaluate_policy, qdd_of, rk4, semi_implicit_euler
 from ..faults import IsolatingPolicy
 from ..rollout import Rollout
-from .recording import GoalTracker, Recorder, finish
+from .rollout_records import GoalTracker, Recorder, finish
 from .worlds import sample_aux
 
 if TYPE_CHECKING:

@@ -15,7 +15,7 @@ from ...sims import SimulationError, WorldSettings
 from ..common import evaluate_policy
 from ..faults import IsolatingPolicy
 from ..rollout import Rollout
-from .recording import GoalTracker, Recorder, finish
+from .rollout_records import GoalTracker, Recorder, finish
 from .worlds import TaskWorld, sample_aux
 
 if TYPE_CHECKING:
