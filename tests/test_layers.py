@@ -30,8 +30,9 @@ RANK = {
     "evaluate": 5,
     "plots": 6,
     "pipeline": 7,
-    "cli": 8,
-    "gym": 9,  # Gymnasium environments over experiments composed as the command line composes them
+    "studies": 8,  # the runs behind a results page: run, stored, tabled and checked over the pipeline's commands
+    "cli": 9,
+    "gym": 10,  # Gymnasium environments over experiments composed as the command line composes them
 }
 SIDE_BY_SIDE = {frozenset({"learn", "evaluate"})}
 #: what core/ may import besides itself: the math needs torch and the standard library only
@@ -189,3 +190,107 @@ def test_the_simulator_check_sees_an_import_inside_a_function():
         "rmpfusion.envs.manipulator.torque:5 imports pybullet",
     ]
     assert simulator_imports("rmpfusion.sims.pybullet_backend", source) == []
+
+
+def _import_targets(module: str, is_package: bool, node: ast.Import | ast.ImportFrom, known: set[str]) -> set[str]:
+    """The modules of the package an import statement names: a name imported from a package that is itself a module
+    of it (``from . import sets``, ``from .maps import kinematics``) is that module, anything else its package."""
+    if isinstance(node, ast.Import):
+        names = [a.name for a in node.names]
+    else:
+        base = _target(module, is_package, node)
+        names = [f"{base}.{a.name}" if f"{base}.{a.name}" in known else base for a in node.names]
+    out = set()
+    for name in names:
+        while name and name not in known:  # ``import rmpfusion.maps.kinematics.Chain`` style: the longest module
+            name = name.rpartition(".")[0]
+        if name:
+            out.add(name)
+    return out
+
+
+def import_graph(sources) -> dict[str, set[str]]:
+    """Module -> the package's modules it imports, from the source: every import statement, those under ``if
+    TYPE_CHECKING:`` and inside functions included (an import only a type checker runs still ties the modules)."""
+    sources = list(sources)
+    known = {module for module, _, _ in sources}
+    graph: dict[str, set[str]] = {module: set() for module in known}
+    for module, source, is_package in sources:
+        for node in ast.walk(ast.parse(source)):
+            if isinstance(node, ast.Import | ast.ImportFrom):
+                graph[module] |= _import_targets(module, is_package, node, known) - {module}
+    return graph
+
+
+def import_cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """One cycle per strongly connected group of modules (Tarjan's algorithm), each as the path ``a -> b -> ... ->
+    a`` found by walking the group from its first module."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    groups: list[list[str]] = []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on_stack.add(v)
+        for w in sorted(graph[v]):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            group = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                group.append(w)
+                if w == v:
+                    break
+            if len(group) > 1:
+                groups.append(sorted(group))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return [_cycle_in(group, graph) for group in sorted(groups)]
+
+
+def _cycle_in(group: list[str], graph: dict[str, set[str]]) -> list[str]:
+    """A path from the group's first module back to it, inside the group (breadth first: the shortest)."""
+    members, start = set(group), group[0]
+    came_from: dict[str, str] = {}
+    frontier = [start]
+    while frontier:
+        nxt = []
+        for v in frontier:
+            for w in sorted(graph[v] & members):
+                if w == start:
+                    path = [v]
+                    while path[-1] != start:
+                        path.append(came_from[path[-1]])
+                    return [*reversed(path), start]
+                if w not in came_from:
+                    came_from[w] = v
+                    nxt.append(w)
+        frontier = nxt
+    raise AssertionError(f"no cycle through {start} in {group}")
+
+
+def test_no_module_imports_itself_through_others():
+    """No import circle, not even one a type checker alone walks (``if TYPE_CHECKING:``): a type two modules share
+    lives in the lower one, or in a small module both import."""
+    cycles = import_cycles(import_graph(_sources()))
+    assert not cycles, "import cycles:\n" + "\n".join(" -> ".join(c) for c in cycles)
+
+
+def test_the_cycle_check_names_a_circle_made_only_for_type_checking():
+    sources = [
+        ("rmpfusion.envs.arm", "from .rollout import record\n", False),
+        ("rmpfusion.envs.rollout", "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from .arm import Arm\n", False),
+        ("rmpfusion.envs.plain", "from . import rollout\n", False),
+        ("rmpfusion.envs", "from .plain import x\n", True),
+    ]
+    assert import_cycles(import_graph(sources)) == [["rmpfusion.envs.arm", "rmpfusion.envs.rollout", "rmpfusion.envs.arm"]]

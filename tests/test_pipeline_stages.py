@@ -4,18 +4,15 @@ metrics of one ``run_experiment``, and an evaluation before training is refused 
 from __future__ import annotations
 
 import json
-import sys
 
 import pytest
-from conftest import ROOT, TINY, compose_cfg
+from conftest import TINY, compose_cfg
 
 from rmpfusion.pipeline.collect import collect
 from rmpfusion.pipeline.fit import NotTrainedError, fit
 from rmpfusion.pipeline.run import evaluate_and_report, run_experiment, start
 from rmpfusion.pipeline.validate import resolve_and_validate
-
-sys.path.insert(0, str(ROOT / "tools"))
-from compare_metrics import compare
+from rmpfusion.studies.compare import compare
 
 
 def _run_config(overrides=()):

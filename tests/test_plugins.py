@@ -143,10 +143,9 @@ def test_readme_leaf_recipe_runs_compiled_at_every_batch_size_like_eager(readme_
         timeout=600,
     )
     assert eager.returncode == 0, eager.stderr[-3000:]
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
     import json
 
-    from compare_metrics import compare
+    from rmpfusion.studies.compare import compare
 
     n, _worst, differ, _ = compare(
         *(json.loads((tmp_path / d / "metrics.json").read_text()) for d in ("compiled", "eager")), rtol=1e-9

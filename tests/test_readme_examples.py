@@ -126,7 +126,7 @@ FORMULA_PAGES = {"docs/math.md", "docs/architecture.md"}
 #: Commands that fail on purpose, with their exit status.
 FAILS = {"rmpfusion-validate expert.goal.type=rfb +tree.nodes.goal.rmp.gian=2 tree.nodes.goal.map.origin=gaol": 2}
 
-#: Appended to every command that runs the pipeline (rmpfusion-run, tools/reproduce_2d.py): tiny data, 3 training
+#: Appended to every command that runs the pipeline (rmpfusion-run, rmpfusion-study run): tiny data, 3 training
 #: steps, evaluation without figures or torch.compile, no wandb. The documented commands stay as written before them.
 TINY = [*TINY_RUN, "eval.compile=false"]
 #: Appended to commands on recorded demonstrations (experiment=lasa): 3 training steps, 4 starts, rollouts as long
@@ -190,7 +190,14 @@ class Unit:
             if self.needs_plugin:
                 return False
             if c.startswith(
-                ("rmpfusion-validate", "rmpfusion-fit-spheres", "python tools/tracking_demo.py", "rmpfusion-view")
+                (
+                    "rmpfusion-validate",
+                    "rmpfusion-fit-spheres",
+                    "python tools/tracking_demo.py",
+                    "rmpfusion-view",
+                    "rmpfusion-study table",
+                    "rmpfusion-study list",
+                )
             ):
                 return True  # the tracking demo runs 0.1 s of its rollouts here (appended)
             return c.startswith("rmpfusion-run ") and " -m " not in c and "data=tiny train=tiny" in c  # the smoke run
@@ -239,26 +246,7 @@ def appended(cmd: str, out: Path) -> list[str]:
         return ["--horizon", "0.1", "--out", str(out / "viewer.html")]  # a tenth of a second of each rollout
     if cmd.startswith("rmpfusion-fit-spheres"):
         return []  # writes where the page says: under outputs/, which git ignores
-    if cmd.startswith("python tools/reproduce_2d.py"):
-        return ["--scale", "0.0005", "--out", str(out), *TINY]  # 10 iterations of each experiment
-    if cmd.startswith("python tools/dagger_table.py"):  # 30 iterations, 2 demonstrations per environment
-        return ["--scale", "0.0015", "--out", str(out), *TINY_EVAL, "train.compile=false"]
-    if cmd.startswith("python tools/pg_franka.py"):
-        return [
-            "--out",
-            str(out),
-            *TINY_EVAL,
-            "data.train_trajectories=2",
-            "train.iterations=2",
-            "train.snapshots=[0,2]",
-            "train.horizon=0.1",
-            "train.episodes=2",
-            "train.log_every=1",
-            "train.checkpoint_every=1",
-            "eval.horizon=0.1",
-            "eval.figures=false",
-        ]
-    if cmd.startswith("python tools/apg_table.py"):
+    if cmd.startswith("python tools/apg_rows.py"):
         return [
             "--out",
             str(out),
@@ -275,8 +263,10 @@ def appended(cmd: str, out: Path) -> list[str]:
         ]
     if cmd.startswith("python tools/sim_agreement.py"):
         return ["--samples", "1"]  # one configuration and state per robot
-    if cmd.startswith("python tools/lasa_table.py"):
-        return ["--out", str(out), "--", *TINY_RECORDED]
+    if cmd.startswith(("rmpfusion-study table", "rmpfusion-study list")):
+        return []  # reads results/ and the pages only
+    if cmd.startswith("rmpfusion-study run"):  # the study's runs at tiny sizes, below pytest's tmp_path
+        return ["--out", str(out), *(TINY_RECORDED if " lasa" in cmd else TINY)]
     if cmd.startswith("rmpfusion-run"):
         extra = list(TINY_RECORDED if "experiment=lasa" in cmd else TINY)
         if " -m " in f" {cmd} ":

@@ -1304,7 +1304,7 @@ for _id, _fault, _overrides, _shows, _needs in [
     (
         "match-torque-not-differentiable",
         "trajectory matching of an arm's recordings rolled out in pybullet's torque loop",
-        ["experiment=recorded_arm_match", "env.mode=torque"],
+        ["experiment=recorded_arm", "train=match_arm_recordings", "env.mode=torque"],
         (
             "train.method: match back-propagates through rollouts, which the environment 'Manipulator' does not offer "
             "(env.mode=torque steps pybullet outside torch; set env.mode=kinematic); use method bc, or an environment "
@@ -2250,8 +2250,8 @@ def _tool(name: str):
 
 @row(
     "compare-truncated-metrics",
-    "tools/compare_metrics.py on a truncated metrics.json",
-    "python tools/compare_metrics.py <dir>/a.json <dir>/b.json, b.json cut in the middle",
+    "rmpfusion-study compare on a truncated metrics.json",
+    "rmpfusion-study compare <dir>/a.json <dir>/b.json, b.json cut in the middle",
     _ONE_LINE.format(code=2),
     shows="error: <dir>/b.json is not readable JSON (<text>): a run killed while writing it, or a damaged copy; rerun "
     "that run (it resumes and writes metrics.json again)",
@@ -2260,8 +2260,9 @@ def _compare_truncated(tmp_path, monkeypatch):
     text = '{"learners": {"rmp": {"online_loss": 0.5, "success": 1.0}}}'
     (tmp_path / "a.json").write_text(text)
     (tmp_path / "b.json").write_text(text[:30])
-    tool = _tool("compare_metrics")
-    return said(lambda: tool.main([str(tmp_path / "a.json"), str(tmp_path / "b.json")]), code=2)
+    from rmpfusion.cli import study
+
+    return said(lambda: study.main(["compare", str(tmp_path / "a.json"), str(tmp_path / "b.json")]), code=2)
 
 
 @row(

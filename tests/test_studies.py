@@ -55,7 +55,9 @@ def test_every_marked_table_belongs_to_one_study_and_is_on_its_page():
             assert tid not in owners, f"table {tid} is listed by studies {owners.get(tid)} and {name}"
             owners[tid] = name
             assert tid in marked, f"study {name} lists table {tid}, which no page marks"
-            assert marked[tid].page == s.page_of(tid), f"{tid}: on {marked[tid].page}, study {name} says {s.page_of(tid)}"
+            assert marked[tid].page == s.page_of(tid), (
+                f"{tid}: on {marked[tid].page}, study {name} says {s.page_of(tid)}"
+            )
     assert set(marked) <= set(owners), f"marked tables no study makes: {sorted(set(marked) - set(owners))}"
 
 
@@ -83,9 +85,13 @@ def test_every_stored_job_says_how_it_was_made_and_is_read_by_a_table(study):
     s, made = STUDIES[study], provenance(ROOT, study)
     jobs = {j.id for j in s.jobs()}
     used = {job for t in s.tables.values() for job in t.rows.values()}
-    stored = {str(p.parent.relative_to(results_dir(ROOT, study))) for p in results_dir(ROOT, study).rglob("metrics.json")}
+    stored = {
+        str(p.parent.relative_to(results_dir(ROOT, study))) for p in results_dir(ROOT, study).rglob("metrics.json")
+    }
     assert stored <= jobs, f"results/{study} holds jobs the study does not make: {sorted(stored - jobs)[:5]}"
-    assert stored == set(made), f"results/{study}/runs.yaml and the stored jobs differ: {sorted(stored ^ set(made))[:5]}"
+    assert stored == set(made), (
+        f"results/{study}/runs.yaml and the stored jobs differ: {sorted(stored ^ set(made))[:5]}"
+    )
     assert stored == used, f"stored but read by no table, or read but not stored: {sorted(stored ^ used)[:5]}"
     for job, info in made.items():
         assert set(PROVENANCE_KEYS) <= set(info), job
@@ -130,10 +136,14 @@ def _study_dir(tmp_path: Path, text: str) -> Path:
         ("description: x\npage: p.md\nruns: {a: {experiment: franka, seeds: [1, 1]}}\n", "runs.a.seeds"),
         ("description: x\npage: p.md\nruns: {a: {experiment: franka, command: ls}}\n", "either experiment"),
         ("description: x\npage: p.md\nruns: {a: {experiment: franka, overides: []}}\n", "runs.a.overides"),
-        ("description: x\npage: p.md\nruns: {a: {experiment: franka}}\ntables: {t: {kind: tasks, rows: {r: a}}}\n",
-         "unknown table kind 'tasks'"),
-        ("description: x\npage: p.md\nruns: {a: {experiment: franka}}\ntables: {t: {kind: task, rows: {r: b}}}\n",
-         "which no run of the study makes"),
+        (
+            "description: x\npage: p.md\nruns: {a: {experiment: franka}}\ntables: {t: {kind: tasks, rows: {r: a}}}\n",
+            "unknown table kind 'tasks'",
+        ),
+        (
+            "description: x\npage: p.md\nruns: {a: {experiment: franka}}\ntables: {t: {kind: task, rows: {r: b}}}\n",
+            "which no run of the study makes",
+        ),
         ("description: x\npage: p.md\nruns: {a: {command: 'python t.py {ckpt}'}}\n", "inputs do not declare"),
     ],
 )

@@ -33,10 +33,10 @@ from rmpfusion.learn.learners import build_learner
 from rmpfusion.learn.loop import load_snapshot
 from rmpfusion.learn.methods.apg import RolloutCost
 from rmpfusion.pipeline.collect import collect
+from rmpfusion.pipeline.compose import compose_run
 from rmpfusion.pipeline.construct import UNIT_WEIGHT_LEARNER
 from rmpfusion.pipeline.evaluation import evaluate_model
 from rmpfusion.pipeline.fit import fit
-from rmpfusion.pipeline.compose import compose_run
 from rmpfusion.pipeline.run import run_experiment, start
 from rmpfusion.studies.tables.apg import table
 
@@ -128,12 +128,6 @@ def rows(run_dir: Path, cfg, fine_dt: float) -> list[dict]:
     return out
 
 
-
-
-
-
-
-
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", type=Path, default=Path("outputs/apg_rows"))
@@ -159,9 +153,7 @@ def main(argv=None) -> int:
         f"# {cfg.name}: the tree optimised through the simulator vs the expert and unit weights "
         f"({time.time() - t0:.0f} s)\n\n" + table(rs, cfg.env.dt, a.fine_dt)
     )
-    command = "python tools/apg_rows.py " + shlex.join(
-        [f"--fine-dt={a.fine_dt}", *overrides]
-    )
+    command = "python tools/apg_rows.py " + shlex.join([f"--fine-dt={a.fine_dt}", *overrides])
     atomic_write_json(
         a.out / "metrics.json",
         {

@@ -62,7 +62,9 @@ def _list(root: Path, config: Path) -> int:
         study = load_study(name, config)
         jobs = study.jobs()
         stored = sum((results_dir(root, name) / j.id / "metrics.json").is_file() for j in jobs)
-        print(f"{name}: {study.description} ({len(study.runs)} runs, {stored} of {len(jobs)} jobs stored; {study.page})")
+        print(
+            f"{name}: {study.description} ({len(study.runs)} runs, {stored} of {len(jobs)} jobs stored; {study.page})"
+        )
     return 0
 
 
@@ -126,9 +128,13 @@ def _check(a: argparse.Namespace, root: Path, config: Path) -> int:
         raise StudyError(f"no finished job of study {a.study} below {out}; run it first: rmpfusion-study run {a.study}")
     failed = 0
     for job_id, run_dir in fresh.items():
-        n, worst, differ, one_sided = compare(stored_metrics(root, a.study, job_id), read_metrics(run_dir / "metrics.json"), a.rtol)
+        n, worst, differ, one_sided = compare(
+            stored_metrics(root, a.study, job_id), read_metrics(run_dir / "metrics.json"), a.rtol
+        )
         verdict = "same" if not differ else f"{len(differ)} DIFFER"
-        print(f"{job_id}: {n} numbers, largest relative difference {worst:.3g}: {verdict}; {len(one_sided)} keys on one side only")
+        print(
+            f"{job_id}: {n} numbers, largest relative difference {worst:.3g}: {verdict}; {len(one_sided)} keys on one side only"
+        )
         for line in differ[:20]:
             print(f"  {line}")
         failed += bool(differ)
@@ -138,8 +144,10 @@ def _check(a: argparse.Namespace, root: Path, config: Path) -> int:
 def _compare(a: argparse.Namespace) -> int:
     first, second = (read_metrics(metrics_path(p)) for p in (a.first, a.second))
     n, worst, differ, one_sided = compare(first, second, a.rtol)
-    print(f"{n} values compared, largest relative difference {worst:.3g}; {len(differ)} differ beyond rtol={a.rtol:g}; "
-          f"{len(one_sided)} keys on one side only")
+    print(
+        f"{n} values compared, largest relative difference {worst:.3g}; {len(differ)} differ beyond rtol={a.rtol:g}; "
+        f"{len(one_sided)} keys on one side only"
+    )
     for line in differ + one_sided:
         print(line)
     return 1 if differ else 0

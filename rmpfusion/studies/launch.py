@@ -26,9 +26,7 @@ def _tool_argv(argv: list[str]) -> list[str]:
     return [sys.executable, *argv[1:]] if argv and argv[0] in ("python", "python3") else argv
 
 
-def experiment_command(
-    run: StudyRun, run_dir: Path, inputs: Mapping[str, str], extra: Sequence[str]
-) -> list[str]:
+def experiment_command(run: StudyRun, run_dir: Path, inputs: Mapping[str, str], extra: Sequence[str]) -> list[str]:
     """One ``rmpfusion-run --multirun`` over every job of an experiment run, its jobs under ``run_dir``."""
     assert run.experiment is not None
     axes = [f"{key}={','.join(values)}" for key, values in run.sweep.items()]

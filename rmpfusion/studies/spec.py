@@ -49,6 +49,7 @@ class StudyRun(_Strict):
     prepare: list[str] = Field(
         default_factory=list, description="commands run once before the run's jobs ({out}: the run's directory)"
     )
+
     @model_validator(mode="after")
     def _one_kind(self) -> StudyRun:
         if (self.experiment is None) == (self.command is None):

@@ -5,7 +5,6 @@ one.
 
 from __future__ import annotations
 
-import math
 
 def _f(x, pct: bool = False) -> str:
     if x is None:

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 
+
 def _policy_label(settings: dict) -> str:
     """What a camera row's tree was fed, from the settings it ran with."""
     if settings["reduction"] == "nearest":

@@ -4,8 +4,6 @@ reference rows (the expert, unit weights, each learner untrained) above them.
 
 from __future__ import annotations
 
-import math
-
 LEARNERS = {"rmp": "learner-rmp", "un": "learner-un"}
 
 

@@ -4,8 +4,6 @@
 
 from __future__ import annotations
 
-import math
-
 HEADER = (
     "| robot | policy | reached | time (s) | goal distance at 10 s (m) | collisions | close passes | clearance (cm) |\n"
     "|---|---|---|---|---|---|---|---|\n"

@@ -4,8 +4,6 @@ iterate, the trajectory-matching iterate), validation first, from the runs' metr
 
 from __future__ import annotations
 
-import math
-
 HEADER = (
     "| run | shape | iteration | validation DTW (mm) | test DTW (mm) | test swept area (mm²) | test final distance (mm) "
     "| converged | V_r monotone | train s |"

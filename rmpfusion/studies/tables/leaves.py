@@ -5,8 +5,6 @@ monitor, from its metrics.json; above them the expert and its tree with every we
 
 from __future__ import annotations
 
-import math
-
 #: (column, the learned parameter's name in metrics.json)
 COLUMNS = (("goal gain", "goal.gain"), ("goal damping η", "goal.eta"), ("obstacle support r_w", "obstacle.r_w"))
 

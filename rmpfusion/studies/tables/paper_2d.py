@@ -5,8 +5,6 @@ ours where it printed them. Row labels are the experiments' names as the paper's
 
 from __future__ import annotations
 
-import math
-
 PAPER = {  # (experiment, learner): batch, online, success, collision   (None = not reported)
     ("2d1level", "learner-rmp"): (5.42e-5, 5.82e-5, None, None),
     ("2d2level", "learner-rmp"): (2.45e-4, 2.78e-4, 1.00, None),

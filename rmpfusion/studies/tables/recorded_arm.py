@@ -1,9 +1,6 @@
-"""The table of an arm run on joint-space recordings (``experiment=recorded_arm``) from its metrics.json.
-"""
+"""The table of an arm run on joint-space recordings (``experiment=recorded_arm``) from its metrics.json."""
 
 from __future__ import annotations
-
-import math
 
 HEADER = (
     "| run | policy | test DTW (rad) | test end-effector DTW (mm) | test final distance (mm) | test reached "

@@ -1,9 +1,6 @@
-"""The table of a manipulator experiment (paper Fig. 5b as numbers) from the metrics.json of one or more runs.
-"""
+"""The table of a manipulator experiment (paper Fig. 5b as numbers) from the metrics.json of one or more runs."""
 
 from __future__ import annotations
-
-import math
 
 RATIOS = ("time", "cspace_length", "ee_length")
 
