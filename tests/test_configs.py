@@ -61,7 +61,24 @@ VARIANTS = {
     ("tree", "lasa"): ["experiment=lasa", "tree=lasa"],  # LASA's weights-only baseline
     ("data", "recorded"): ["experiment=lasa", "data=recorded", "data.format=lasa", "data.shape=Angle"],
     ("train", "match_lasa"): ["experiment=lasa", "train=match_lasa"],  # trajectory matching in place of BC
+    ("train", "apg"): ["experiment=2d2level", "train=apg", "eval=eager"],  # training without demonstrations
+    ("train", "match_arm_recordings"): ["experiment=recorded_arm", "train=match_arm_recordings"],
+    ("data", "panda_moved_cylinder"): ["experiment=recorded_arm", "data=panda_moved_cylinder"],
+    ("data", "panda_moved_cylinder_blind"): ["experiment=recorded_arm", "data=panda_moved_cylinder_blind"],
+    # the variant groups (conf/config.yaml: after experiment), each option with an experiment whose tree it fits
+    ("learned_leaves", "2d1level"): ["experiment=2d1level", "learned_leaves=2d1level"],
+    ("learned_leaves", "2d2level"): ["experiment=2d2level", "learned_leaves=2d2level"],
+    ("learned_leaves", "arm_reach"): ["experiment=recorded_arm", "learned_leaves=arm_reach"],
+    ("per_edge_aux", "2d1level"): ["experiment=2d1level", "per_edge_aux=2d1level"],
+    ("per_edge_aux", "2d2level"): ["experiment=2d2level", "per_edge_aux=2d2level"],
+    ("attractor_weight", "radial"): ["experiment=recorded_iiwa", "attractor_weight=radial"],
+    ("attractor_weight", "constant"): ["experiment=recorded_arm", "attractor_weight=constant"],
+    ("obstacle_weight", "constant"): ["experiment=recorded_arm", "obstacle_weight=constant"],
+    ("weight_init", "unit"): ["experiment=franka", "weight_init=unit"],
 }
+
+#: the groups whose options vary an experiment (conf/config.yaml lists them after it, so they change its keys)
+VARIANT_GROUPS = ("learned_leaves", "per_edge_aux", "attractor_weight", "obstacle_weight", "weight_init")
 
 
 CONFIG_FILES = sorted((p.parent.name, p.stem) for p in CONF.glob("*/*.yaml") if p.parent.name not in ("experiment",))
@@ -97,6 +114,52 @@ def test_every_config_file_composes_validates_builds(group, option):
         assert cfg.hydra.sweeper.params, "a sweep recipe must set hydra.sweeper.params"
     if group == "launcher":
         assert option.split("_")[0] in cfg.hydra.launcher._target_.lower()
+
+
+def _defaults_of(experiment: str) -> list:
+    import yaml
+
+    return (yaml.safe_load((CONF / "experiment" / f"{experiment}.yaml").read_text()) or {}).get("defaults", [])
+
+
+def _group_of(entry: str) -> str:
+    """``override /learner@learners.un`` -> ``learner``; a bare name (``2d1level``) is an option of the file's own
+    group, the experiment group."""
+    entry = entry.removeprefix("override ").strip()
+    return entry.lstrip("/").split("@")[0].split("/")[0] if entry.startswith("/") else "experiment"
+
+
+@pytest.mark.parametrize("experiment", EXPERIMENTS)
+def test_no_experiment_extends_another(experiment):
+    """Experiments are flat: none names another in its defaults list; a variant of one is a config group option that
+    composes with any experiment (conf/config.yaml: learned_leaves, per_edge_aux, attractor_weight, ...)."""
+    for entry in _defaults_of(experiment):
+        if isinstance(entry, str):
+            assert entry == "_self_", f"conf/experiment/{experiment}.yaml extends experiment {entry!r}"
+        else:
+            for key, option in entry.items():
+                assert _group_of(key) != "experiment", f"conf/experiment/{experiment}.yaml names {key}: {option}"
+
+
+def test_the_extension_check_reads_every_way_to_name_another_experiment():
+    assert [_group_of(e) for e in ("2d1level", "/experiment", "override /experiment", "/experiment@x")] == [
+        "experiment"
+    ] * 4
+    assert _group_of("override /train") == "train" and _group_of("/learner@learners.un") == "learner"
+
+
+def test_every_variant_group_is_chosen_after_the_experiment_and_every_option_is_composed_with_one():
+    """The variant groups sit after ``experiment`` in conf/config.yaml's defaults (so their keys win over the
+    experiment's) with no option chosen by default, and each option is composed above with an experiment it fits."""
+    import yaml
+
+    listed = yaml.safe_load((CONF / "config.yaml").read_text())["defaults"]
+    chosen = dict(next(iter(e.items())) if isinstance(e, dict) else (e, None) for e in listed)
+    order = list(chosen)
+    assert all(order.index(g) > order.index("experiment") and chosen[g] is None for g in VARIANT_GROUPS)
+    for group in VARIANT_GROUPS:
+        options = {o for g, o in CONFIG_FILES if g == group}
+        assert options and all((group, o) in VARIANTS for o in options), group
 
 
 @pytest.mark.parametrize("experiment", EXPERIMENTS)

@@ -24,7 +24,7 @@ def test_every_simulated_experiment_has_a_versioned_id_and_recorded_data_has_non
     for name, env_id in (
         ("2d1level", "rmpfusion/2d1level-v0"),
         ("franka", "rmpfusion/Franka-v0"),
-        ("xarm6_reach", "rmpfusion/Xarm6Reach-v0"),
+        ("franka_three_obstacles", "rmpfusion/FrankaThreeObstacles-v0"),
         ("reach", "rmpfusion/Reach-v0"),
     ):
         assert rgym.gym_id(name) == env_id and env_id in gym.registry and env_id in rgym.IDS

@@ -539,7 +539,8 @@ def test_a_sweep_over_a_method_s_setting_runs_every_job_with_that_method(tmp_pat
     cmd = [
         str(script),
         "-m",
-        "experiment=2d2level_apg",
+        "experiment=2d2level",
+        "train=apg",
         "data=tiny",
         "eval=fast",
         "logger=disabled",

@@ -195,9 +195,10 @@ def test_a_tiny_recorded_arm_run_end_to_end(tmp_path):
 @pytest.mark.slow
 def test_a_tiny_trajectory_matching_run_on_the_arm_end_to_end(tmp_path):
     """Cloning, then matching through the kinematic simulator's rollouts, then the evaluation: the whole pipeline of
-    experiment=recorded_arm_match at smoke size."""
+    the Panda's kept tree trained by train=match_arm_recordings at smoke size."""
     matching = ["train.pretrain_iterations=2", "train.iterations=4", "train.snapshots=[0,4]", "train.batch_size=2"]
-    m = tiny_run(tmp_path, "recorded_arm_match", *matching, "train.horizon_factor=1.0", "train.log_every=2")
+    kept = ["learned_leaves=arm_reach", "obstacle_weight=constant", "train=match_arm_recordings"]
+    m = tiny_run(tmp_path, "recorded_arm", *kept, *matching, "train.horizon_factor=1.0", "train.log_every=2")
     train = yaml.safe_load((tmp_path / "config.resolved.yaml").read_text())["train"]
     assert train["method"] == "match" and train["pretrain_iterations"] == 2 and train["dt"] == 0.02
     learner = m["learners"]["rmp"]

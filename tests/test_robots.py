@@ -235,7 +235,8 @@ def test_every_environment_setting_is_listed_in_conf_env_manipulator():
     check_command_line(
         str(CONF),
         [
-            "experiment=xarm6_reach",
+            "experiment=reach",
+            "robot=xarm6",
             "env.start_clearance=0.03",
             "env.max_tries=50",
             "env.robot.home=[0.8,0.3,-1.2,0.0,0.9,0.0]",

@@ -378,7 +378,8 @@ def test_where_a_tracked_obstacle_stood_is_read_from_its_topic(tmp_path):
     recs = read_recordings(data_block(files=[str(tmp_path / "demo*")], topic="/joint_states", aux_topics=aux), PANDA)
     for rec, name in zip(recs, centres):
         np.testing.assert_allclose(rec.aux["obstacle1_center"], centres[name], rtol=0, atol=5e-5)
-    overrides = ["experiment=recorded_arm_moved", "data.format=rosbag", "data.demo_column=null", "data.aux_columns=null",
+    overrides = ["experiment=recorded_arm", "learned_leaves=arm_reach", "obstacle_weight=constant",
+                 "data=panda_moved_cylinder", "data.format=rosbag", "data.demo_column=null", "data.aux_columns=null",
                  "data.val=1", "data.test=1", f"data.files=[{tmp_path}/demo*]", "data.topic=/joint_states",
                  "data.aux_topics={obstacle1_center: /mocap/cylinder/pose}"]  # fmt: skip
     run = resolve_and_validate(compose_cfg(overrides))

@@ -267,7 +267,7 @@ def test_the_fitted_robot_validates_with_a_shipped_experiment(config_dir, tmp_pa
     done = _rmpfusion(
         "validate",
         config_dir,
-        "experiment=xarm6_reach",
+        "experiment=reach",
         "robot=testarm",
         f"env.robot.packages.{PACKAGE}={config_dir / 'nowhere'}",
         f"hydra.run.dir={tmp_path}",
@@ -281,7 +281,7 @@ def test_the_fitted_robot_validates_with_a_shipped_experiment(config_dir, tmp_pa
     done = _rmpfusion(
         "validate",
         config_dir,
-        "experiment=xarm6_reach",
+        "experiment=reach",
         "robot=testarm",
         "env.start_clearance=0.04",
         f"env.robot.packages.{PACKAGE}={package_root}",

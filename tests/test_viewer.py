@@ -249,7 +249,7 @@ def test_command_refuses_what_it_cannot_draw_in_one_line(tmp_path):
 
 def test_command_draws_a_config_expert_and_unit_weights(tmp_path):
     out = tmp_path / "xarm6.html"
-    r = _view("experiment=xarm6_reach", "--horizon", "0.2", "--out", str(out))
+    r = _view("experiment=reach", "robot=xarm6", "--horizon", "0.2", "--out", str(out))
     assert r.returncode == 0, r.stderr
     html = out.read_text()
     for label in ('"expert"', '"unit weights"', "obstacle 1 (cylinder)", '"goal"', "xarm6"):

@@ -2,11 +2,13 @@
 
 Every experiment of conf/experiment/ whose environment is simulated (the 2-D particle, the manipulators) gets an id
 made of its name in CamelCase (``franka`` → ``rmpfusion/Franka-v0``, ``2d1level`` → ``rmpfusion/2d1level-v0``,
-``xarm6_reach`` → ``rmpfusion/Xarm6Reach-v0``); ``gymnasium.make`` passes its keyword arguments on to
-``build_task`` (overrides, base, decision_interval, action_scale, horizon, cost, split), plus ``num_envs`` for the
-vector version (``gymnasium.make_vec``). Gymnasium 1.x no longer reads plugin entry points, so the ids are
-registered when ``rmpfusion.gym`` is imported, which ``gymnasium.make("rmpfusion.gym:rmpfusion/Franka-v0")`` does
-by itself. A change to what an id's environment observes, rewards or accepts gets a new version, never the same id.
+``franka_three_obstacles`` → ``rmpfusion/FrankaThreeObstacles-v0``); ``gymnasium.make`` passes its keyword arguments
+on to ``build_task`` (overrides, base, decision_interval, action_scale, horizon, cost, split), plus ``num_envs`` for
+the vector version (``gymnasium.make_vec``). A variant of an experiment (its config groups, e.g. ``robot=xarm6``) is
+its id with ``overrides``: ``gymnasium.make("rmpfusion/Reach-v0", overrides=["robot=xarm6"])``. Gymnasium 1.x no
+longer reads plugin entry points, so the ids are registered when ``rmpfusion.gym`` is imported, which
+``gymnasium.make("rmpfusion.gym:rmpfusion/Franka-v0")`` does by itself. A change to what an id's environment
+observes, rewards or accepts gets a new version, never the same id.
 """
 
 from __future__ import annotations
@@ -27,7 +29,7 @@ SIMULATED = ("particle2d", "manipulator")
 
 
 def gym_name(experiment: str) -> str:
-    """``xarm6_reach`` → ``Xarm6Reach``: an experiment's name as Gymnasium ids spell environments."""
+    """``franka_three_obstacles`` → ``FrankaThreeObstacles``: an experiment's name as Gymnasium ids spell them."""
     return "".join(part[:1].upper() + part[1:] for part in experiment.split("_"))
 
 
@@ -37,7 +39,7 @@ def gym_id(experiment: str) -> str:
 
 def simulated_experiments(conf: Path | None = None) -> list[str]:
     """The experiments of conf/experiment/ whose environment a Gymnasium task can step: each composed as
-    ``rmpfusion-run`` would (its environment and data may come from another experiment it extends), ~0.2 s each."""
+    ``rmpfusion-run`` would (its environment and data come from the groups it chooses), ~0.2 s each."""
     root = Path(conf or conf_dir())
     out = []
     for path in sorted((root / "experiment").glob("*.yaml")):

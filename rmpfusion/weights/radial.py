@@ -2,9 +2,10 @@
 
 A weight w(x) on an attractor's edge adds −Φ∇w to the attractor's force at rest (docs/math.md §12, premise 3). A
 weight of the whole configuration can point that term anywhere, and balance the attractor short of the goal (the
-LASA ``both`` variant, the arm's ``recorded_arm_leaves``). A weight of the distance ρ from the attractor's own centre,
-never decreasing in it, has ∇w along the attractor's ∇Φ (both radial about the same point), so the two add and the
-goal stays the only equilibrium, while the weight still sets how the metric and the pull grow with the distance.
+LASA ``both`` variant, the recorded arm's with ``learned_leaves=arm_reach``). A weight of the distance ρ from the
+attractor's own centre, never decreasing in it, has ∇w along the attractor's ∇Φ (both radial about the same point),
+so the two add and the goal stays the only equilibrium, while the weight still sets how the metric and the pull grow
+with the distance.
 """
 
 from __future__ import annotations
