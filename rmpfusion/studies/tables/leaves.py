@@ -1,6 +1,7 @@
 """The learnable-leaves table: a run whose learner learns leaf parameters (e.g. experiment=2d1level
 learned_leaves=2d1level) as one row per snapshot: the learned goal gain, goal damping and obstacle support,
-batch-loss, success and the Lyapunov monitor, from its metrics.json; above them the expert and its tree with every weight 1 (RMPflow) on the same starts.
+batch-loss, success and the Lyapunov monitor, from its metrics.json; above them the expert and its tree with every
+weight 1 (RMPflow) on the same starts.
 """
 
 from __future__ import annotations
