@@ -289,8 +289,14 @@ def test_no_module_imports_itself_through_others():
 def test_the_cycle_check_names_a_circle_made_only_for_type_checking():
     sources = [
         ("rmpfusion.envs.arm", "from .rollout import record\n", False),
-        ("rmpfusion.envs.rollout", "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from .arm import Arm\n", False),
+        (
+            "rmpfusion.envs.rollout",
+            "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from .arm import Arm\n",
+            False,
+        ),
         ("rmpfusion.envs.plain", "from . import rollout\n", False),
         ("rmpfusion.envs", "from .plain import x\n", True),
     ]
-    assert import_cycles(import_graph(sources)) == [["rmpfusion.envs.arm", "rmpfusion.envs.rollout", "rmpfusion.envs.arm"]]
+    assert import_cycles(import_graph(sources)) == [
+        ["rmpfusion.envs.arm", "rmpfusion.envs.rollout", "rmpfusion.envs.arm"]
+    ]

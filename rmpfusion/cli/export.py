@@ -37,7 +37,8 @@ from ..pipeline.fit import learners
 from ..pipeline.progress import Progress
 from ..robots.robot import build_robot
 from ..scenes import ObstacleSet, with_slots
-from ..scenes.sets import PARKED, sets_given
+from ..scenes.aux import PARKED
+from ..scenes.sets import sets_given
 from ._common import user_errors_exit
 from .from_checkpoint import _load, _not_a_checkpoint
 

@@ -29,8 +29,8 @@ from ..core.auxstate import AuxOrValue, AuxParam, constant
 from ..core.taskmap import TaskMap
 from ..examples import AuxInput, Example
 from ..registry import TASK_MAPS, numbers_repr
-from .kinematics import KUKA_IIWA, PANDA_ARM, joint_limit_states, robot_chain
-from .robot_params import RobotParams, Vector3, path_joints
+from .kinematics import KUKA_IIWA, PANDA_ARM, joint_limit_states, path_joints, robot_chain
+from .robot_params import RobotParams, Vector3
 
 TargetFormat = Literal["quaternion_xyzw", "quaternion_wxyz", "matrix", "axes"]
 TARGET_DIMS = {

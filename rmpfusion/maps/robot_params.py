@@ -10,14 +10,11 @@ tree writes them into every such map.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Annotated
+from typing import Annotated
 
 from pydantic import Field, model_validator
 
 from ..registry import Params
-
-if TYPE_CHECKING:
-    from .kinematics import Chain
 
 #: A point or direction in a link frame.
 Vector3 = Annotated[list[float], Field(min_length=3, max_length=3)]
@@ -58,35 +55,3 @@ class RobotParams(Params):
     def source(self) -> str:
         """How error messages name the robot."""
         return f"URDF '{self.urdf}'"
-
-
-def path_joints(chain: Chain, link: str) -> tuple[list[int], list[bool]]:
-    """The actuated joints from the root to ``link``, root first: (their coordinates in q, whether each is revolute).
-
-    The same joints, in the same order, as the world axes ``Chain.path_frames`` returns for ``link``.
-    """
-    q_index, revolute = [], []
-    for joint in chain.model.path_to(link):
-        if joint.name in chain.followers:
-            raise ValueError(
-                f"link '{link}' is moved by joint '{joint.name}', which follows another (URDF <mimic>); "
-                f"orientation maps do not follow mimic joints: choose a link above it"
-            )
-        if joint.name in chain.actuated:
-            q_index.append(chain.actuated.index(joint.name))
-            revolute.append(joint.type != "prismatic")
-    return q_index, revolute
-
-
-def rigid_body_of(chain: Chain) -> dict[str, int]:
-    """Link -> the rigid body it belongs to (numbered from the root's, 0): links joined by fixed joints or by
-    movable joints that no actuated joint drives (frozen by the chain) move as one body."""
-    body = {chain.model.root: 0}
-    count = 1
-    for joint in chain.model.joints:  # parents before children
-        if joint.name in chain.actuated or joint.name in chain.followers:
-            body[joint.child] = count
-            count += 1
-        else:
-            body[joint.child] = body[joint.parent]
-    return body

@@ -26,8 +26,8 @@ from ..core.taskmap import TaskMap
 from ..examples import Example
 from ..registry import TASK_MAPS, Params, numbers_repr
 from .distances import _radial
-from .kinematics import KUKA_IIWA, PANDA_ARM, Chain, ForwardKinematics, joint_limit_states, robot_chain
-from .robot_params import RobotParams, Vector3, rigid_body_of
+from .kinematics import KUKA_IIWA, PANDA_ARM, Chain, ForwardKinematics, joint_limit_states, rigid_body_of, robot_chain
+from .robot_params import RobotParams, Vector3
 
 
 class LinkSphere(Params):

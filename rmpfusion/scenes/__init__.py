@@ -3,7 +3,8 @@ sets whose members come and go between calls."""
 
 from .aux import aux_at, obstacle_aux_names, scene_aux, scene_aux_dims
 from .distance import SHAPE_MAPS, distances, obstacle_map
-from .sets import SET_SHAPES, ObstacleSet, SetsSource, every_shape, set_dims, sets_read, with_slots
+from .obstacle_set import SET_SHAPES, ObstacleSet
+from .sets import SetsSource, every_shape, set_dims, sets_read, with_slots
 from .spec import SHAPES, Box, Capsule, Cylinder, Ground, Scene, Sphere, same_layout
 from .world import World, WorldError
 

@@ -26,7 +26,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from .sets import ObstacleSet
+from .obstacle_set import ObstacleSet
 
 
 def voxel_centroids(points: Tensor, voxel: float) -> Tensor:

@@ -22,16 +22,13 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Mapping
-from typing import TYPE_CHECKING
 
 import torch
 from torch import Tensor
 
 from ..registry import TASK_MAPS
 from .aux import PARKED
-
-if TYPE_CHECKING:
-    from .sets import ObstacleSet
+from .obstacle_set import ObstacleSet
 
 
 class NearestSelection:

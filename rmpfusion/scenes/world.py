@@ -18,8 +18,10 @@ from collections.abc import Mapping, Sequence
 import torch
 from torch import Tensor
 
+from .aux import PARKED
 from .clouds import cloud_members, member_velocities
-from .sets import PARKED, ObstacleSet, with_slots
+from .obstacle_set import ObstacleSet
+from .sets import with_slots
 
 #: the fields that give an obstacle its size (``resize``), the others are its pose (``move``)
 SIZE_FIELDS = ("radius", "half_extents", "half_height", "half_length")

@@ -4,7 +4,7 @@ the goal, from the split's obstacle placement, with a goal per trajectory."""
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import torch
 from torch import Tensor
@@ -12,9 +12,7 @@ from torch import Tensor
 from ..demonstrations import Dataset
 from ..rollout import Rollout
 from .params import ManipulatorParams
-
-if TYPE_CHECKING:
-    from .env import Manipulator
+from .task import ManipulatorTask
 
 
 def demonstration_lengths(p: ManipulatorParams, ro: Rollout) -> Tensor:
@@ -40,7 +38,7 @@ def demonstration_lengths(p: ManipulatorParams, ro: Rollout) -> Tensor:
 
 
 def demonstrations(
-    env: Manipulator,
+    env: ManipulatorTask,
     expert: Callable[..., Any],
     n_envs: int,
     n_traj: int,

@@ -4,7 +4,7 @@ data collection), then every integration step replayed in the simulator (``env.s
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import torch
 from torch import Tensor
@@ -14,14 +14,12 @@ from ..common import evaluate_policy, qdd_of, rk4, semi_implicit_euler
 from ..faults import IsolatingPolicy
 from ..rollout import Rollout
 from .rollout_records import GoalTracker, Recorder, finish
+from .task import ManipulatorTask
 from .worlds import sample_aux
-
-if TYPE_CHECKING:
-    from .env import Manipulator
 
 
 def rollout_kinematic(
-    env: Manipulator,
+    env: ManipulatorTask,
     policy: Callable[..., Any],
     q0: Tensor,
     qd0: Tensor,
@@ -42,7 +40,7 @@ def rollout_kinematic(
     return finish(env, "kinematic", rec, aux, min_clear, first_hit, goal_hit, errors)
 
 
-def _integrate(env: Manipulator, policy: IsolatingPolicy, q0, qd0, aux, n_steps, every, monitor, errors):
+def _integrate(env: ManipulatorTask, policy: IsolatingPolicy, q0, qd0, aux, n_steps, every, monitor, errors):
     """The torch integration: (records, q at every integration step, goal tracker, alive). Semi-implicit Euler
     evaluates the policy once a step (the recorded evaluation drives the step); RK4 reuses it at record steps."""
     dt, B, p = env.dt, q0.shape[0], env.params
@@ -82,7 +80,7 @@ def _integrate(env: Manipulator, policy: IsolatingPolicy, q0, qd0, aux, n_steps,
 
 
 def _replay_collisions(
-    env: Manipulator,
+    env: ManipulatorTask,
     Q: Tensor,
     aux,
     n_steps: int,

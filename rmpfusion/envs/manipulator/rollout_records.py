@@ -4,15 +4,12 @@
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import TYPE_CHECKING
 
 import torch
 from torch import Tensor
 
 from ..rollout import Rollout
-
-if TYPE_CHECKING:
-    from .env import Manipulator
+from .task import ManipulatorTask
 
 
 def _kept(x: Tensor) -> Tensor:
@@ -98,7 +95,7 @@ class GoalTracker:
 
 
 def finish(
-    env: Manipulator,
+    env: ManipulatorTask,
     mode: str,
     rec: Recorder,
     aux: Mapping[str, Tensor],

@@ -5,7 +5,7 @@ simulated robot is then the paper's feedback-linearised system, integrated by th
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 import torch
@@ -16,14 +16,12 @@ from ..common import evaluate_policy
 from ..faults import IsolatingPolicy
 from ..rollout import Rollout
 from .rollout_records import GoalTracker, Recorder, finish
+from .task import ManipulatorTask
 from .worlds import TaskWorld, sample_aux
-
-if TYPE_CHECKING:
-    from .env import Manipulator
 
 
 def rollout_torque(
-    env: Manipulator,
+    env: ManipulatorTask,
     policy: Callable[..., Any],
     q0: Tensor,
     qd0: Tensor,
@@ -65,7 +63,7 @@ class _Worlds:
     """The batch's simulated worlds, one a sample, and what each has seen: its state (q, q̇ of the actuated joints,
     the held joints' apart), whether it is still alive and why not, its smallest clearance and first collision time."""
 
-    def __init__(self, env: Manipulator, policy: IsolatingPolicy, q0: Tensor, qd0: Tensor):
+    def __init__(self, env: ManipulatorTask, policy: IsolatingPolicy, q0: Tensor, qd0: Tensor):
         B = q0.shape[0]
         self.env, self.policy, self.q0, self.qd0 = env, policy, q0, qd0
         self.errors: list[str | None] = [None] * B
