@@ -6,6 +6,7 @@ a ``_draw_*`` returns, so the tests inspect the ``Figure`` without writing a fil
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TypedDict
 
@@ -379,6 +380,27 @@ def manipulator_figures(
 ) -> list[Path]:
     """All the figures of a manipulator experiment; see the module docstring. ``expert``/``stages``: ``StageResult``s."""
     fig_dir = Path(fig_dir)
+    b = _example(env, expert)
+    policies = [expert, *stages]
+    ex_aux = {k: v[b : b + 1] for k, v in aux.items()}
+    out = _test_set_figures(fig_dir, expert, stages, b, title)
+    out.append(
+        plot_ee_paths(
+            fig_dir / "task_ee_paths.png",
+            ex_aux,
+            {st.label: st.rollout.ee[:, b] for st in policies},
+            title=f"{title}: end-effector paths, test execution {b} (top view)",
+        )
+    )
+    execution = _Execution(env, policies, b, ex_aux, float(expert.rollout.times[-1]))
+    out.append(_execution_strip(execution, fig_dir / "task_execution.png", title))
+    out.append(_execution_gif(execution, fig_dir / "task_execution.gif", title))
+    return out
+
+
+def _test_set_figures(fig_dir: Path, expert, stages, b: int, title: str) -> list[Path]:
+    """The figures over the whole test set: learner/expert ratios (when there are any), goal distances, and V_r(t)
+    of every tree policy with the rendered execution ``b`` drawn thick."""
     out: list[Path] = []
     ratios = {st.label: st.ratios for st in stages if st.ratios}
     if ratios:
@@ -397,11 +419,9 @@ def manipulator_figures(
             title=f"{title}: goal distance on the test set (mean ± std over trajectories)",
         )
     )
-    b = _example(env, expert)
-    policies = [expert, *stages]
     panels = [
         {"label": st.label, "times": st.rollout.times, "V": st.rollout.V, "highlight": b}
-        for st in policies
+        for st in [expert, *stages]
         if st.rollout.V is not None
     ]
     if panels:
@@ -412,21 +432,26 @@ def manipulator_figures(
                 title=f"{title}: $V_r(t)$ on the test set (thick: the rendered execution {b})",
             )
         )
-    ex_aux = {k: v[b : b + 1] for k, v in aux.items()}
-    out.append(
-        plot_ee_paths(
-            fig_dir / "task_ee_paths.png",
-            ex_aux,
-            {st.label: st.rollout.ee[:, b] for st in policies},
-            title=f"{title}: end-effector paths, test execution {b} (top view)",
-        )
-    )
-    settings = env.render_settings
-    w, h = settings.size
-    goal_px = env.project(ex_aux["goal"].reshape(1, 3).cpu().numpy(), w, h)[0]
+    return out
 
-    def frame(st, t: float, width: int, height: int, goal) -> dict:
-        ro = st.rollout
+
+@dataclass
+class _Execution:
+    """The rendered test execution ``b`` of every policy: what the strip and the animation draw."""
+
+    env: Renders
+    policies: list
+    b: int
+    aux: dict[str, torch.Tensor]  # the execution's own aux state (batch of one)
+    horizon: float  # s: the expert's rollout's length
+
+    def goal_pixel(self, width: int, height: int):
+        return self.env.project(self.aux["goal"].reshape(1, 3).cpu().numpy(), width, height)[0]
+
+    def frame(self, st, t: float, width: int, height: int, goal) -> dict:
+        """Policy ``st`` at the record nearest ``t`` (its last valid state where its rollout ended early): the
+        render, the end effector's trail so far in pixels, and the goal's pixel."""
+        ro, b = st.rollout, self.b
         i = _index_at(ro.times, t)
         q = ro.q[i, b]
         if not bool(q.isfinite().all()):  # the rollout ended early: show its last valid state
@@ -437,27 +462,36 @@ def manipulator_figures(
         ee = ee[ee.isfinite().all(-1)].cpu().numpy()
         return {
             "t": float(ro.times[i]),
-            "image": env.render(q, ex_aux, width=width, height=height, sample=0),
-            "trail": env.project(ee, width, height) if len(ee) else None,
+            "image": self.env.render(q, self.aux, width=width, height=height, sample=0),
+            "trail": self.env.project(ee, width, height) if len(ee) else None,
             "goal": goal,
         }
 
-    horizon = float(expert.rollout.times[-1])
-    times = [t for t in settings.times if t <= horizon + 1e-9] or [0.0]
-    rows = [{"label": st.label, "frames": [frame(st, t, w, h, goal_px) for t in times]} for st in policies]
-    out.append(
-        plot_render_strip(
-            fig_dir / "task_execution.png", rows, title=f"{title}: test execution {b}, left to right in time"
-        )
-    )
-    # the animation: policies side by side, real time
+
+def _execution_strip(execution: _Execution, path: Path, title: str) -> Path:
+    """The execution at the configured times, one row per policy, left to right in time."""
+    settings = execution.env.render_settings
+    w, h = settings.size
+    goal_px = execution.goal_pixel(w, h)
+    times = [t for t in settings.times if t <= execution.horizon + 1e-9] or [0.0]
+    rows = [
+        {"label": st.label, "frames": [execution.frame(st, t, w, h, goal_px) for t in times]}
+        for st in execution.policies
+    ]
+    return plot_render_strip(path, rows, title=f"{title}: test execution {execution.b}, left to right in time")
+
+
+def _execution_gif(execution: _Execution, path: Path, title: str) -> Path:
+    """The animation: the policies side by side, in real time, each tile with its trail, the goal and its time."""
+    settings = execution.env.render_settings
+    w, h = settings.size
     gw, gh = (w * 3) // 4, (h * 3) // 4
-    goal_g = env.project(ex_aux["goal"].reshape(1, 3).cpu().numpy(), gw, gh)[0]
-    n_frames = int(np.floor(horizon * settings.gif_fps + 1e-9)) + 1
+    goal_g = execution.goal_pixel(gw, gh)
+    n_frames = int(np.floor(execution.horizon * settings.gif_fps + 1e-9)) + 1
     caption = _caption(
-        gw * len(policies),
+        gw * len(execution.policies),
         [
-            f"{title}: test execution {b}, policies side by side, real time",
+            f"{title}: test execution {execution.b}, policies side by side, real time",
             f"yellow line: {TRAIL_LABEL}; orange ring: {GOAL_LABEL}; red: obstacles",
         ],
     )
@@ -465,12 +499,11 @@ def manipulator_figures(
     for k in range(n_frames):
         t = k / settings.gif_fps
         tiles = []
-        for st in policies:
-            f = frame(st, t, gw, gh, goal_g)
+        for st in execution.policies:
+            f = execution.frame(st, t, gw, gh, goal_g)
             tiles.append(_label(_draw_trail(f["image"], f["trail"], goal_g), f"{st.label}, t = {f['t']:.1f} s"))
         frames.append(np.concatenate([caption, np.concatenate(tiles, axis=1)], axis=0))
-    out.append(save_gif(fig_dir / "task_execution.gif", frames, settings.gif_fps))
-    return out
+    return save_gif(path, frames, settings.gif_fps)
 
 
 def _draw_trail(img: np.ndarray, trail, goal) -> np.ndarray:
