@@ -1694,7 +1694,7 @@ def command_line_message(*argv: str) -> str:
     "rmpfusion-run experimnt=2d1level",
     _SAID,
     shows="error: 'experimnt' is neither a config group nor a key of the config; did you mean 'experiment', "
-    "'expert'? config groups: data, env, eval, experiment, expert, <text>; top-level keys: env, tree, expert, "
+    "'expert'? config groups: attractor_weight, data, env, eval, experiment, expert, <text>; top-level keys: env, tree, expert, "
     "learners, data, train, eval, logger, name, seed, device (to add a new key on purpose write +experimnt=...)",
 )
 def _cli_misspelt_group(tmp_path, monkeypatch):
