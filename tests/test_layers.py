@@ -15,6 +15,7 @@ RANK = {
     "core": 0,
     "files": 0,
     "resolvers": 0,  # OmegaConf resolvers the shipped configs use
+    "confdir": 0,  # where conf/ is (the configs, the robot files)
     "registry": 1,
     "examples": 1,
     "maps": 1,

@@ -19,15 +19,16 @@ from ..core.auxstate import CONSTANT_DTYPE
 from ..examples import Example
 from ..registry import TASK_MAPS, numbers_repr
 from .basic import Linear
-from .kinematics import KUKA_IIWA, PANDA_ARM, joint_limit_states, robot_chain
+from .kinematics import joint_limit_states, robot_chain
+from .robot_files import IIWA, PANDA
 from .robot_params import RobotParams
 
 
 @TASK_MAPS.register(
     "velocity_scaled_joints",
     examples=[
-        Example(PANDA_ARM, 7, joint_limit_states(PANDA_ARM)),
-        Example({**KUKA_IIWA, "velocity_limit": [1.0, 2.0, 1.5, 1.0, 3.0, 2.0, 2.5]}, 7, joint_limit_states(KUKA_IIWA)),
+        Example(PANDA, 7, joint_limit_states(PANDA)),
+        Example(IIWA(velocity_limit=[1.0, 2.0, 1.5, 1.0, 3.0, 2.0, 2.5]), 7, joint_limit_states(IIWA)),
     ],
 )
 class VelocityScaledJoints(Linear):

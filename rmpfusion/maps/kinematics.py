@@ -10,7 +10,7 @@ from __future__ import annotations
 import difflib
 import math
 from collections.abc import Mapping, Sequence
-from typing import TypedDict
+from typing import Any
 
 import torch
 from pydantic import Field
@@ -20,6 +20,7 @@ from ..core.algebra import matvec
 from ..core.taskmap import TaskMap
 from ..examples import Example, StateSampler
 from ..registry import TASK_MAPS, Params, numbers_repr
+from .robot_files import PANDA
 from .robot_params import RobotParams
 from .urdf import URDFModel, parse_urdf, resolve_urdf_path
 
@@ -368,28 +369,10 @@ def robot_chain(p: RobotParams, in_dim: int, what: str) -> Chain:
     return chain
 
 
-class _RobotURDF(TypedDict):
-    urdf: str
-
-
-class RobotSpec(_RobotURDF, total=False):
-    """A robot as a map's parameters name it: its ``urdf`` and, optionally, its actuated ``joints``."""
-
-    joints: list[str]
-
-
-#: The robots the examples of the maps on a joint space are checked on (``rmpfusion.examples``): pybullet_data's
-#: Panda arm (its fingers frozen) and KUKA iiwa, as a map's ``urdf`` and ``joints``.
-PANDA_ARM: RobotSpec = {
-    "urdf": "pkg://pybullet_data/franka_panda/panda.urdf",
-    "joints": [f"panda_joint{i}" for i in range(1, 8)],
-}
-KUKA_IIWA: RobotSpec = {"urdf": "pkg://pybullet_data/kuka_iiwa/model.urdf"}
-
-
-def joint_limit_states(robot: RobotSpec) -> StateSampler:
-    """Examples' states of a robot (``{"urdf": ..., "joints": ...}``): q uniform inside its joint limits, q̇ ~ N(0, I).
-    The URDF is read when states are drawn, never when the example is declared (at import)."""
+def joint_limit_states(robot: Mapping[str, Any]) -> StateSampler:
+    """Examples' states of a robot (``{"urdf": ..., "joints": ...}``, a ``robot_files.RobotFile``): q uniform inside its
+    joint limits, q̇ ~ N(0, I). The robot is read when states are drawn, never when the example is declared (at
+    import)."""
 
     def states(gen: torch.Generator, n: int, dim: int) -> tuple[Tensor, Tensor]:
         lo, hi = Chain(parse_urdf(robot["urdf"]), robot.get("joints")).joint_limits()
@@ -401,8 +384,8 @@ def joint_limit_states(robot: RobotSpec) -> StateSampler:
 @TASK_MAPS.register(
     "forward_kinematics",
     examples=[
-        Example({**PANDA_ARM, "link": "panda_hand", "offset": [0.05, -0.01, 0.02]}, 7, joint_limit_states(PANDA_ARM)),
-        Example({**PANDA_ARM, "link": "panda_link4"}, 7, joint_limit_states(PANDA_ARM)),
+        Example(PANDA(link="panda_hand", offset=[0.05, -0.01, 0.02]), 7, joint_limit_states(PANDA)),
+        Example(PANDA(link="panda_link4"), 7, joint_limit_states(PANDA)),
     ],
 )
 class ForwardKinematics(TaskMap):

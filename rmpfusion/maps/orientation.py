@@ -29,7 +29,8 @@ from ..core.auxstate import AuxOrValue, AuxParam, constant
 from ..core.taskmap import TaskMap
 from ..examples import AuxInput, Example
 from ..registry import TASK_MAPS, numbers_repr
-from .kinematics import KUKA_IIWA, PANDA_ARM, joint_limit_states, path_joints, robot_chain
+from .kinematics import joint_limit_states, path_joints, robot_chain
+from .robot_files import IIWA, PANDA
 from .robot_params import RobotParams, Vector3
 
 TargetFormat = Literal["quaternion_xyzw", "quaternion_wxyz", "matrix", "axes"]
@@ -93,40 +94,33 @@ class _Orientation(RobotParams):
 @TASK_MAPS.register(
     "link_orientation",
     examples=[
-        Example({**PANDA_ARM, "link": "panda_hand", "target": [0.0, 1.0, 0.0, 0.0]}, 7, joint_limit_states(PANDA_ARM)),
+        Example(PANDA(link="panda_hand", target=[0.0, 1.0, 0.0, 0.0]), 7, joint_limit_states(PANDA)),
         Example(
-            {
-                **PANDA_ARM,
-                "link": "panda_hand",
-                "target": "quaternion",
-                "target_format": "quaternion_wxyz",
-                "axes": [[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]],
-            },
+            PANDA(
+                link="panda_hand",
+                target="quaternion",
+                target_format="quaternion_wxyz",
+                axes=[[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]],
+            ),
             7,
-            joint_limit_states(PANDA_ARM),
+            joint_limit_states(PANDA),
             aux={"quaternion": AuxInput.normal(4)},
         ),
         Example(
-            {
-                **KUKA_IIWA,
-                "link": "lbr_iiwa_link_6",
-                "target": "directions",
-                "target_format": "axes",
-                "axes": [[0.0, 1.0, 0.0], [1.0, 1.0, 0.0]],
-            },
+            IIWA(
+                link="lbr_iiwa_link_6",
+                target="directions",
+                target_format="axes",
+                axes=[[0.0, 1.0, 0.0], [1.0, 1.0, 0.0]],
+            ),
             7,
-            joint_limit_states(KUKA_IIWA),
+            joint_limit_states(IIWA),
             aux={"directions": AuxInput.normal(6)},
         ),
         Example(
-            {
-                **KUKA_IIWA,
-                "link": "lbr_iiwa_link_7",
-                "target": [0.0, -1.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0],
-                "target_format": "matrix",
-            },
+            IIWA(link="lbr_iiwa_link_7", target=[0.0, -1.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0], target_format="matrix"),
             7,
-            joint_limit_states(KUKA_IIWA),
+            joint_limit_states(IIWA),
         ),
     ],
 )
@@ -269,16 +263,16 @@ def _check_constant_target(t: Tensor, fmt: str, k: int, what: str) -> None:
 @TASK_MAPS.register(
     "link_axis",
     examples=[
-        Example({**PANDA_ARM, "link": "panda_hand", "axis": [0.0, 0.0, 1.0]}, 7, joint_limit_states(PANDA_ARM)),
+        Example(PANDA(link="panda_hand", axis=[0.0, 0.0, 1.0]), 7, joint_limit_states(PANDA)),
         Example(
-            {**PANDA_ARM, "link": "panda_link5", "axis": [1.0, -2.0, 0.5], "target": [0.0, 0.0, -1.0]},
+            PANDA(link="panda_link5", axis=[1.0, -2.0, 0.5], target=[0.0, 0.0, -1.0]),
             7,
-            joint_limit_states(PANDA_ARM),
+            joint_limit_states(PANDA),
         ),
         Example(
-            {**KUKA_IIWA, "link": "lbr_iiwa_link_7", "target": "c3"},
+            IIWA(link="lbr_iiwa_link_7", target="c3"),
             7,
-            joint_limit_states(KUKA_IIWA),
+            joint_limit_states(IIWA),
             aux={"c3": AuxInput.normal(3)},
         ),
     ],

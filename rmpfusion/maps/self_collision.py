@@ -26,7 +26,8 @@ from ..core.taskmap import TaskMap
 from ..examples import Example
 from ..registry import TASK_MAPS, Params, numbers_repr
 from .distances import _radial
-from .kinematics import KUKA_IIWA, PANDA_ARM, Chain, ForwardKinematics, joint_limit_states, rigid_body_of, robot_chain
+from .kinematics import Chain, ForwardKinematics, joint_limit_states, rigid_body_of, robot_chain
+from .robot_files import IIWA, PANDA
 from .robot_params import RobotParams, Vector3
 
 
@@ -93,22 +94,19 @@ def _ancestors(n: int, parent: Mapping[int, int]) -> list[int]:
     "link_sphere_distance",
     examples=[
         Example(
-            {
-                **PANDA_ARM,
-                "a": {"link": "panda_link3", "offset": [0.1, 0.07, 0.0], "radius": 0.1},
-                "b": {"link": "panda_hand", "offset": [0.0, 0.0, 0.09], "radius": 0.09},
-            },
+            PANDA(
+                a={"link": "panda_link3", "offset": [0.1, 0.07, 0.0], "radius": 0.1},
+                b={"link": "panda_hand", "offset": [0.0, 0.0, 0.09], "radius": 0.09},
+            ),
             7,
-            joint_limit_states(PANDA_ARM),
+            joint_limit_states(PANDA),
         ),
         Example(
-            {
-                **KUKA_IIWA,
-                "a": {"link": "lbr_iiwa_link_2"},
-                "b": {"link": "lbr_iiwa_link_6", "offset": [0.0, 0.05, 0.0], "radius": 0.08},
-            },
+            IIWA(
+                a={"link": "lbr_iiwa_link_2"}, b={"link": "lbr_iiwa_link_6", "offset": [0.0, 0.05, 0.0], "radius": 0.08}
+            ),
             7,
-            joint_limit_states(KUKA_IIWA),
+            joint_limit_states(IIWA),
         ),
     ],
 )
