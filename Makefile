@@ -35,7 +35,7 @@ docs: install  ## the documentation site, strictly: any warning (a broken link o
 	@echo "docs: docs/_build/html/index.html"
 
 bench: install
-	$(PY) tools/bench.py
+	$(PY) -m tools.bench
 
 clean:
 	rm -rf $(VENV) .pytest_cache docs/_build docs/reference

@@ -4,13 +4,10 @@ tests that cut a session into its demonstrations."""
 
 from __future__ import annotations
 
-import sys
-
 import numpy as np
 from conftest import ROOT
 
-sys.path.insert(0, str(ROOT / "tools"))
-from rosbag_recordings import read_csv_demonstrations, session
+from tools.rosbag_recordings import read_csv_demonstrations, session
 
 #: the recordings the session is made of
 SHIPPED = ROOT / "rmpfusion" / "recordings" / "files" / "panda_via_points.csv"

@@ -4,14 +4,10 @@ the hand-fused reference it compares the training step against still computes th
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
 import pytest
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
-import bench
+from tools import bench
 
 
 @pytest.mark.parametrize("n_obstacles", [1, 3])

@@ -212,11 +212,9 @@ def test_cloud_velocities_exact_for_separate_points_and_zero_for_what_appears():
 def test_the_camera_fed_policy_gives_its_moving_members_the_clouds_velocity():
     """tools/camera_run.py's camera-fed tree with ``--velocities``: each frame's members get their displacement from
     the previous frame's over the frames' interval (at rest in the first frame), as World.set_cloud does."""
-    import sys
     from types import SimpleNamespace
 
-    sys.path.insert(0, str(ROOT / "tools"))
-    from camera_run import CameraFed
+    from tools.camera_run import CameraFed
 
     period, dt, shift = 4, 0.01, torch.tensor([0.01, 0.0, 0.0], dtype=torch.float64)
     pts = box_surface(3000, seed=2)

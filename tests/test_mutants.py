@@ -10,8 +10,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tools"))
-import mutants
+from tools import mutants
 
 
 def test_every_mutant_names_a_line_that_is_in_its_file_once_and_tests_that_exist():

@@ -187,10 +187,8 @@ def test_an_upright_home_starts_leaning_out_and_an_upright_nominal_q_is_refused(
 def test_where_stopped_names_the_joints_that_hold_a_rollout_at_a_limit():
     """tools/expert_design.py --where-stopped: a rollout that missed its goal is described by its distance from the
     goal and the joints within AT_LIMIT of a limit; a reached one is not described."""
-    import sys
 
-    sys.path.insert(0, str(CONF.parent / "tools"))
-    from expert_design import AT_LIMIT, stopped_short
+    from tools.expert_design import AT_LIMIT, stopped_short
 
     lower, upper = torch.tensor([-1.0, -2.0, -3.0], dtype=torch.float64), torch.tensor([1.0, 2.0, 3.0])
     arm = SimpleNamespace(

@@ -5,12 +5,11 @@ tree, and every bad input is one error naming the key or file."""
 from __future__ import annotations
 
 import json
-import sys
 
 import numpy as np
 import pytest
 import torch
-from conftest import ROOT, compose_cfg
+from conftest import compose_cfg
 
 from rmpfusion.assembly.errors import ConfigError
 from rmpfusion.envs.rollout import Rollout
@@ -256,8 +255,7 @@ def test_the_latent_figure_finds_the_learned_map_and_only_it():
 def test_a_finished_run_re_evaluates_on_a_finer_step_without_training(tmp_path):
     """tools/recorded_step_check.py: the trained learner of a finished run on its own step reproduces the run's own
     metrics (the same learner, demonstrations and starts), and on half the step integrates twice as finely."""
-    sys.path.insert(0, str(ROOT / "tools"))
-    from recorded_step_check import check
+    from tools.recorded_step_check import check
 
     run = validated(TINY_LASA + ["data.shape=Sshape"])
     m = run_experiment(run, tmp_path, progress=False)

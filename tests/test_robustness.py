@@ -1317,7 +1317,7 @@ for _id, _fault, _overrides, _shows, _needs in [
         "a user's file given to the LASA experiment, whose data block reads the LASA shape",
         ["experiment=lasa", "data.files=[my_demos.csv]"],
         (
-            "data: data.files=['my_demos.csv'] is not read by format lasa (read by: csv, npz, hdf5, rosbag); set data.files=[], "
+            "data: data.files=['my_demos.csv'] is not read by format lasa (read by: csv, hdf5, npz, rosbag); set data.files=[], "
             "or a data.format that reads it (for your own files start from data=recorded: no preset's values) "
             "(given: {'source': 'recorded', 'format': 'lasa', 'shape': 'Angle', 'files': ['my_demo...)"
         ),
@@ -2065,8 +2065,7 @@ _PANDA = ", ".join(f"panda_joint{k}" for k in range(1, 8))
 def _bag_of_another_arm(tmp_path, monkeypatch):
     import numpy as np
 
-    sys.path.insert(0, str(ROOT / "tools"))
-    from rosbag_recordings import CLOCK_NS, joint_state, typestore, write_bag
+    from tools.rosbag_recordings import CLOCK_NS, joint_state, typestore, write_bag
 
     ur = ["shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint", "wrist_1_joint", "wrist_2_joint", "wrist_3_joint"]
     store, stamps = typestore("ros1"), CLOCK_NS + 10_000_000 * np.arange(20)

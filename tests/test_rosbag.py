@@ -12,16 +12,14 @@ import numpy as np
 import pytest
 from conftest import ROOT, compose_cfg
 from pydantic import ValidationError
+from sessions import panda_session, shipped_demonstrations
 
 from rmpfusion.assembly.errors import ConfigError
 from rmpfusion.pipeline.config import RecordedDataConfig
 from rmpfusion.pipeline.validate import resolve_and_validate
 from rmpfusion.recordings import RecordingError, read_lasa
 from rmpfusion.recordings.source import file_hashes, read_recordings, to_grid
-
-sys.path.insert(0, str(ROOT / "tools"))
-from rosbag_recordings import CLOCK_NS, driver_log, joint_state, main, point_message, typestore, write_bag
-from sessions import panda_session, shipped_demonstrations
+from tools.rosbag_recordings import CLOCK_NS, driver_log, joint_state, main, point_message, typestore, write_bag
 
 PANDA = [f"panda_joint{k}" for k in range(1, 8)]
 KINDS = ["ros1", "ros2-sqlite3", "ros2-mcap"]

@@ -5,27 +5,11 @@ import numpy as np
 import pytest
 import rmpflow_reference as ref
 import torch
-from trees import TWO_LEVEL, two_level_inputs
+from trees import TEST_VECTOR_SPEC, TWO_LEVEL, two_level_inputs
 
 import rmpfusion
 from rmpfusion.assembly import ConfigError
 from rmpfusion.core.algebra import Edge, NodeRMP, pullback_star, resolve
-
-TEST_VECTOR_SPEC = {
-    "root": {"name": "q", "dim": 2},
-    "nodes": {
-        "obstacle": {
-            "parent": "q",
-            "map": {"type": "sphere_distance", "center": [0, 0], "radius": 1.0, "normalized": True},
-            "rmp": {"type": "rmpflow_collision_avoidance"},
-        },
-        "goal": {
-            "parent": "q",
-            "map": {"type": "offset", "origin": [-3, 3]},
-            "rmp": {"type": "rmpflow_goal_attractor"},
-        },
-    },
-}
 
 
 def test_issue_test_vector():

@@ -277,9 +277,7 @@ def test_a_generator_registered_from_outside_expands_the_same_way():
 
 
 def _panda_spec(**options):
-    import sys
 
-    sys.path.insert(0, str(Path(__file__).parent))
     from manipulators import robot, scene
 
     from rmpfusion.envs.manipulator_tree import manipulator_tree_spec
@@ -310,16 +308,13 @@ def test_the_arm_leaves_are_options_of_the_manipulator_tree():
 
 
 def test_self_collision_pairs_leave_out_spheres_that_overlap_at_home():
-    import sys
 
     import torch
+    from manipulators import robot
 
     from rmpfusion.envs.manipulator_tree import self_collision_pairs
     from rmpfusion.maps.kinematics import Chain
     from rmpfusion.robots.description import RobotDescription
-
-    sys.path.insert(0, str(Path(__file__).parent))
-    from manipulators import robot
 
     desc = RobotDescription.model_validate(robot("panda"))
     pairs, overlapping = self_collision_pairs(desc, 2)

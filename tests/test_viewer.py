@@ -28,9 +28,7 @@ from rmpfusion.plots.viewer import (
 )
 from rmpfusion.robots import RobotDescription
 from rmpfusion.scenes import Scene, scene_aux
-
-sys.path.insert(0, str(ROOT / "tools"))
-from viewer_screenshot import browser_missing, screenshot
+from tools.viewer_screenshot import browser_missing, screenshot
 
 F64 = torch.float64
 

@@ -158,10 +158,7 @@ def test_one_compiled_controller_serves_a_world_that_changes_while_it_reaches():
     """tools/world_demo.py: the Panda's expert tree with obstacle sets, compiled once, reaches goals that move while
     obstacles appear in its way, move and vanish (8 changes in 6 s): nothing compiles after the first call, no
     control sphere touches an obstacle, V_r never rises between changes, and it ends at the last goal."""
-    import sys
-
-    sys.path.insert(0, str(CONF.parent / "tools"))
-    from world_demo import run_demo
+    from tools.world_demo import run_demo
 
     r = run_demo(compiled=True, seconds=6.0, dt=0.002)
     assert r.changes == 8 and r.compiles_after_first_call == 0

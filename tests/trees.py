@@ -281,3 +281,22 @@ def grouping_tree_spec(seed: int, dim: int = 3) -> dict:
         "shared_weights": {"goal_weight": mlp(["goal"]), "near": mlp(["c"])},
         "nodes": nodes,
     }
+
+
+#: the test vector of RMPflow's reference leaves (tests/test_tree.py; tools/bench.py times it beside
+#: tests/rmpflow_reference.py)
+TEST_VECTOR_SPEC = {
+    "root": {"name": "q", "dim": 2},
+    "nodes": {
+        "obstacle": {
+            "parent": "q",
+            "map": {"type": "sphere_distance", "center": [0, 0], "radius": 1.0, "normalized": True},
+            "rmp": {"type": "rmpflow_collision_avoidance"},
+        },
+        "goal": {
+            "parent": "q",
+            "map": {"type": "offset", "origin": [-3, 3]},
+            "rmp": {"type": "rmpflow_goal_attractor"},
+        },
+    },
+}

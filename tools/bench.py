@@ -3,9 +3,12 @@
 by side with its reference in the same process, so the ratios hold whatever else the machine is doing. Rows with
 a target say whether it is met.
 
-    python tools/bench.py                 # the whole table (~10 min on 2 cores, most of it torch.compile)
-    python tools/bench.py --only latency  # one section: latency, compile, scaling, sets, clouds, batched, train, cuda, robots, memory
-    python tools/bench.py --no-compile    # eager only
+    python -m tools.bench                 # the whole table (~10 min on 2 cores, most of it torch.compile)
+    python -m tools.bench --only latency  # one section: latency, compile, scaling, sets, clouds, batched, train, cuda, robots, memory
+    python -m tools.bench --no-compile    # eager only
+
+Run it from the repository root as a module (``-m``): it reads the test-vector tree and the numpy RMPflow oracle
+from tests/ and the world demo's controller from tools/ (both packages of the checkout).
 
 Sections:
   latency  B = 1, the control-loop case: the test-vector tree (RMPflow's two reference leaves) beside an
@@ -47,10 +50,9 @@ from pathlib import Path
 import torch
 import torch.nn.functional as F
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tests"))  # the numpy RMPflow oracle lives with the tests
-
 import rmpfusion
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 # ---------------------------------------------------------------------------------------------- timing
@@ -410,7 +412,8 @@ def section_batched(compile_: bool) -> None:
 
 def _rmpflow_numpy_latency() -> float:
     import numpy as np
-    import rmpflow_reference as ref
+
+    from tests import rmpflow_reference as ref
 
     children = [
         (ref.sphere_map(np.array([0.0, 0.0]), 1.0), ref.collision_avoidance),
@@ -435,7 +438,7 @@ def _compiled_time(tree, args, policy: bool = False) -> tuple[float, float]:
 
 def section_latency(compile_: bool) -> None:
     print("\nsingle-state latency (B = 1, the control loop)")
-    from test_tree import TEST_VECTOR_SPEC
+    from tests.trees import TEST_VECTOR_SPEC
 
     t_np = _rmpflow_numpy_latency()
     tv = rmpfusion.build_tree(TEST_VECTOR_SPEC)
@@ -522,9 +525,8 @@ def _exported_latency(
 
 COMPILE_CHILD = """
 import sys, time, torch
-sys.path.insert(0, {tools!r}); sys.path.insert(0, {tests!r})
 torch.set_num_threads(1)
-import bench
+from tools import bench
 tree, q, qd, aux = bench.franka_states(*bench.LATENCY_STATES)
 tree.compile(dynamic=False, fixed_structure=True, vectorize=False)
 t0 = time.perf_counter()
@@ -540,10 +542,11 @@ def section_compile(compile_: bool) -> None:
     print("\ntime to compile, Franka expert tree, B = 1 (a fresh process, an empty inductor cache)")
     import tempfile
 
-    code = COMPILE_CHILD.format(tools=str(ROOT / "tools"), tests=str(ROOT / "tests"))
     with tempfile.TemporaryDirectory() as cache:
         env = {**os.environ, "TORCHINDUCTOR_CACHE_DIR": cache}
-        out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, env=env)
+        out = subprocess.run(  # from the repository root, where ``tools`` is a package
+            [sys.executable, "-c", COMPILE_CHILD], capture_output=True, text=True, check=True, env=env, cwd=ROOT
+        )
     s = float(out.stdout.split()[-1])
     row("compile", "Franka expert tree, first call after compile()", f"{s:.1f} s", "", "", "≤ 30 s", s <= 30)
 
@@ -584,10 +587,9 @@ def franka_set_states(n_max: int, batch: int, seed: int, nearest: int | None = N
     its slot entries itself (``SetsSource``): ``aux`` is the goal and the set's tensors and mask, as a World holds
     them. With ``nearest`` every control point reads its ``nearest`` members, selected inside the tree; ``exact``
     is the fraction of the states where the selection equals the whole set (1.0 without ``nearest``)."""
-    from world_demo import controller
-
     from rmpfusion.scenes import ObstacleSet, SetsSource
     from rmpfusion.scenes.nearest import nearest_members, selection_exact
+    from tools.world_demo import controller
 
     sets = [ObstacleSet(shape="sphere", n_max=n_max, nearest=nearest)]
     tree, robot, run = controller(sets)
@@ -664,9 +666,8 @@ def franka_cloud_step(seed: int = 0):
     """(tree, q, q̇, aux): the Franka expert on the Panda's tree whose control points each read their ``CLOUD_K``
     nearest points of a ``CLOUD_POINTS``-point cloud (3 cm spheres): the cloud is a sphere set with ``nearest``, so
     a step is one call of the tree given the cloud (the selection and the slots are made inside it)."""
-    from world_demo import controller
-
     from rmpfusion.scenes import ObstacleSet, SetsSource
+    from tools.world_demo import controller
 
     cloud_set = ObstacleSet(shape="sphere", n_max=CLOUD_POINTS, nearest=CLOUD_K, name="points")
     tree, robot, run = controller([cloud_set])
@@ -735,9 +736,8 @@ def section_cuda(compile_: bool) -> None:
 _PEAK_PRELUDE = """
 import sys, torch
 sys.argv = ['bench']
-sys.path.insert(0, {tools!r})
 torch.set_num_threads(1)
-import bench
+from tools import bench
 
 
 def status(key):  # KiB, from the kernel's accounting of this process
@@ -751,15 +751,15 @@ def peak_in_child(setup: str, work: str) -> tuple[int, int]:
     """(resident KiB after ``setup``, peak resident KiB while ``work`` ran after it), both Python source run in a
     child process (a fresh interpreter: no other section's memory in its peak)."""
     code = (
-        _PEAK_PRELUDE.format(tools=str(ROOT / "tools"))
+        _PEAK_PRELUDE
         + setup
         + "\nbefore = status('VmRSS:')\n"
         + "open('/proc/self/clear_refs', 'w').write('5')  # the peak (VmHWM) starts again from what is resident now\n"
         + work
         + "\nprint(before, status('VmHWM:'))\n"
     )
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
-    return int(out[-2]), int(out[-1])
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT).stdout
+    return int(out.split()[-2]), int(out.split()[-1])
 
 
 def _memory_row(label: str, before: int, peak: int) -> None:
