@@ -81,7 +81,11 @@ VARIANTS = {
 VARIANT_GROUPS = ("learned_leaves", "per_edge_aux", "attractor_weight", "obstacle_weight", "weight_init")
 
 
-CONFIG_FILES = sorted((p.parent.name, p.stem) for p in CONF.glob("*/*.yaml") if p.parent.name not in ("experiment",))
+#: every file of a config group; conf/study/ holds studies, not run configs (tests/test_studies.py composes every run
+#: of every study)
+CONFIG_FILES = sorted(
+    (p.parent.name, p.stem) for p in CONF.glob("*/*.yaml") if p.parent.name not in ("experiment", "study")
+)
 
 
 def test_every_group_file_is_listed():

@@ -45,19 +45,15 @@ from pathlib import Path
 import numpy as np
 import torch
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from hydra import compose, initialize_config_dir
-
 from rmpfusion.envs.manipulator_tree import copy_weights
 from rmpfusion.files import atomic_write_json
 from rmpfusion.learn.checkpoints import load_checkpoint
 from rmpfusion.learn.loop import load_snapshot
 from rmpfusion.pipeline.collect import SPLIT_SEED_OFFSET
+from rmpfusion.pipeline.compose import compose_run
 from rmpfusion.pipeline.config import upgrade_run_config
 from rmpfusion.pipeline.construct import UNIT_WEIGHT_LEARNER, build_learners, learner_over_sets, make_env
-from rmpfusion.pipeline.validate import parse_run_config, resolve_and_validate
+from rmpfusion.pipeline.validate import parse_run_config
 from rmpfusion.scenes import ObstacleSet, sets_read, with_slots
 from rmpfusion.scenes.clouds import cloud_members, member_velocities, nearest_per_point, per_point_aux
 
@@ -92,9 +88,7 @@ def unit_weight_run(run, name: str):
 
 
 def three_obstacle_run(overrides: list[str]):
-    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
-        cfg = compose("config", overrides=["experiment=franka_three_obstacles", *overrides])
-    return resolve_and_validate(cfg)
+    return compose_run(["experiment=franka_three_obstacles", *overrides])
 
 
 class CameraFed:
@@ -180,7 +174,7 @@ def report(env, ro) -> dict:
     }
 
 
-def main(argv=None) -> int:
+def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("checkpoint", type=Path)
     ap.add_argument("--sim", default="pybullet")
@@ -211,11 +205,11 @@ def main(argv=None) -> int:
         help="the checkpoint's learner; its random initialisation (snapshot 0); or its tree with every weight 1 (RMPflow)",
     )
     ap.add_argument("overrides", nargs="*", help="Hydra overrides of experiment=franka_three_obstacles")
-    a = ap.parse_args(argv)
-    if a.velocities and a.reduction != "voxel":
-        ap.error("--velocities needs --reduction voxel (a per-control-point set's members have no velocities)")
-    started = time.time()
-    torch.set_num_threads(1)
+    return ap
+
+
+def _policies(a: argparse.Namespace):
+    """(env, exact learner, camera-fed tree, how many weights were copied) for the run's settings."""
     learner, _, name = trained_learner(a.checkpoint, 0 if a.policy == "learner-0" else None)
     run3 = three_obstacle_run([f"sim={a.sim}", *a.overrides])
     env = make_env(run3)
@@ -230,48 +224,63 @@ def main(argv=None) -> int:
     else:
         sets, radius = [ObstacleSet(shape="sphere", n_max=a.k, name="points", per_control_point=True)], a.point_radius
     cam, _ = learner_over_sets(run3, name, learner, sets)  # the exact tree's obstacle edges, given sets
+    camera = env.params.depth_camera
+    period = max(1, round(1.0 / (camera.rate * env.dt)))
+    fed = CameraFed(cam, env, env.robot, sets[0], a.voxel, radius, period, round(camera.latency / env.dt))
+    return env, exact, fed, copied, period
+
+
+def _evaluate(env, label: str, policy, fed, starts, a: argparse.Namespace, record: float = 0.01) -> dict:
+    """One policy's rollouts from ``starts`` and where V_r rose between changes of its aux."""
+    q0, qd0, aux = starts
+    n_records = round(a.horizon / record) + 1
+    step_of_record = np.arange(n_records) * round(record / env.dt)
+    # the moving sphere moves at every step: V_r is held to Theorem 2 only where nothing moves
+    changed = np.full(n_records, bool(env.moving))
+    t0 = time.time()
+    with torch.no_grad():
+        ro = env.rollout(policy, q0, qd0, aux, horizon=a.horizon, record_every=record, mode="torque")
+    if label == "camera":  # the camera tree's aux changes only at a frame: the moving sphere moves in the frames
+        frames = np.array(fed.frames + [10**12])
+        changed = np.searchsorted(frames, step_of_record, side="right") != np.searchsorted(
+            frames, np.r_[-1, step_of_record[:-1]], side="right"
+        )
+    rises, worst = rises_between_changes(ro.V, changed) if ro.V is not None else (None, None)
+    free = ro.times[:, None] < ro.first_collision_time[None, :]  # before the sample's first contact
+    rises_free, worst_free = rises_between_changes(ro.V, changed, free) if ro.V is not None else (None, None)
+    out = report(env, ro) | {
+        "vr_rises_between_changes": rises,
+        "vr_max_relative_rise": worst,
+        "vr_rises_before_contact": rises_free,
+        "vr_max_relative_rise_before_contact": worst_free,
+        "records_checked": int((~changed[1:]).sum()) * ro.V.shape[1] if ro.V is not None else 0,
+        "seconds": round(time.time() - t0, 1),
+    }
+    if label == "camera":
+        out["members_per_frame"] = float(np.mean(fed.members)) if fed.members else 0.0
+    return out
+
+
+def main(argv=None) -> int:
+    ap = _parser()
+    a = ap.parse_args(argv)
+    if a.velocities and a.reduction != "voxel":
+        ap.error("--velocities needs --reduction voxel (a per-control-point set's members have no velocities)")
+    started = time.time()
+    torch.set_num_threads(1)
+    env, exact, fed, copied, period = _policies(a)
     g = torch.Generator().manual_seed(a.seed + SPLIT_SEED_OFFSET["test"])
     q0, qd0, aux = env.sample_initial_states(env.sample_envs(1, g, split="test"), a.starts, g)
-    dt, record = env.dt, 0.01
-    camera = env.params.depth_camera
-    period = max(1, round(1.0 / (camera.rate * dt)))
-    fed = CameraFed(cam, env, env.robot, sets[0], a.voxel, radius, period, round(camera.latency / dt))
     out = {
         "command": "python tools/camera_run.py CHECKPOINT " + " ".join(argv if argv is not None else sys.argv[2:]),
         "seed": a.seed,
         "copied_weights": copied,
-        "camera_hz": 1.0 / (period * dt),
+        "camera_hz": 1.0 / (period * env.dt),
         "settings": {k: str(v) if isinstance(v, Path) else v for k, v in vars(a).items()},
     }
-    n_records = round(a.horizon / record) + 1
-    step_of_record = np.arange(n_records) * round(record / dt)
-    moving = np.zeros(n_records, dtype=bool)
-    if env.moving:  # the moving sphere moves at every step: V_r is held to Theorem 2 only where nothing moves
-        moving[:] = True
     policies = (("exact", exact.policy), ("camera", fed))
     for label, policy in policies[1:] if a.camera_only else policies:
-        t0 = time.time()
-        with torch.no_grad():
-            ro = env.rollout(policy, q0, qd0, aux, horizon=a.horizon, record_every=record, mode="torque")
-        changed = moving.copy()  # the exact tree reads the moving sphere's aux, which changes at every step
-        if label == "camera":  # the camera tree's aux changes only at a frame: the moving sphere moves in the frames
-            frames = np.array(fed.frames + [10**12])
-            changed = np.searchsorted(frames, step_of_record, side="right") != np.searchsorted(
-                frames, np.r_[-1, step_of_record[:-1]], side="right"
-            )
-        rises, worst = rises_between_changes(ro.V, changed) if ro.V is not None else (None, None)
-        free = ro.times[:, None] < ro.first_collision_time[None, :]  # before the sample's first contact
-        rises_free, worst_free = rises_between_changes(ro.V, changed, free) if ro.V is not None else (None, None)
-        out[label] = report(env, ro) | {
-            "vr_rises_between_changes": rises,
-            "vr_max_relative_rise": worst,
-            "vr_rises_before_contact": rises_free,
-            "vr_max_relative_rise_before_contact": worst_free,
-            "records_checked": int((~changed[1:]).sum()) * ro.V.shape[1] if ro.V is not None else 0,
-            "seconds": round(time.time() - t0, 1),
-        }
-        if label == "camera":
-            out[label]["members_per_frame"] = float(np.mean(fed.members)) if fed.members else 0.0
+        out[label] = _evaluate(env, label, policy, fed, (q0, qd0, aux), a)
         print(label, json.dumps(out[label]), flush=True)
     env.close()
     out["timing"] = {"total_s": round(time.time() - started, 1)}
