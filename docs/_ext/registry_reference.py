@@ -24,7 +24,13 @@ from pydantic import BaseModel
 from pydantic_core import PydanticUndefined
 
 #: The packages whose import registers the built-in entries (the registries themselves know no modules).
-REGISTERING_PACKAGES = ("rmpfusion.assembly", "rmpfusion.envs", "rmpfusion.learn", "rmpfusion.robots")
+REGISTERING_PACKAGES = (
+    "rmpfusion.assembly",
+    "rmpfusion.envs",
+    "rmpfusion.learn",
+    "rmpfusion.recordings",
+    "rmpfusion.robots",
+)
 
 _BOUNDS = {"gt": ">", "ge": "≥", "lt": "<", "le": "≤"}  # annotated_types' Gt, Ge, Lt, Le, by their attribute
 

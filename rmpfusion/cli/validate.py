@@ -44,7 +44,7 @@ def summary(run, env, expert, learners) -> str:
         data_lines = [
             (
                 f"data: recorded demonstrations ({d.format}: {what}"
-                + (_cut(d, env) if d.cut_at_rest is not None else "")
+                + (_cut(d, env) if getattr(d, "cut_at_rest", None) is not None else "")
                 + f"), split {d.split}, derivatives "
                 f"{d.derivatives}"
                 + (

@@ -39,6 +39,7 @@ from ..files import atomic_write_json
 from ..learn.loop import load_snapshot
 from ..plots.recorded import View, recorded_figures
 from ..recordings import recorded_dataset, split_of
+from ..recordings.formats import flat_dump
 from ..recordings.recording import RecordingError
 from ..recordings.signals import States
 from ..recordings.source import content_hash, on_grid_for, read_recordings
@@ -52,12 +53,16 @@ TREE = "tree"
 
 
 # ------------------------------------------------------------------ data
+#: data keys that change the evaluation only, never a split's dataset
+EVALUATION_ONLY = frozenset({"cache_dir", "starts", "enlarge", "horizon_factor", "tolerance"})
+
+
 def _cache_key(exp: Experiment, files: str, split: str, members: tuple[int, ...]) -> str:
     """What determines a split's dataset: the files' content hash, the data settings, the step and its members."""
     d = exp.run.data
     key = {
         "files": files,
-        "data": d.model_dump(exclude={"cache_dir", "starts", "enlarge", "horizon_factor", "tolerance"}),
+        "data": {k: v for k, v in flat_dump(d).items() if k not in EVALUATION_ONLY},
         "dt": exp.env.dt,
         "env": exp.run.env.model_dump(mode="json"),  # the aux state (an arm's goal, obstacles) depends on it
         "split": split,

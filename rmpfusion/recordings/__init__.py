@@ -3,6 +3,7 @@ one :class:`Recording` type, resampled onto a step grid, differentiated by one s
 rest at either end, and split by whole demonstration."""
 
 from .dataset import recorded_dataset
+from .formats import CsvData, Hdf5Data, LasaData, NpzData, RecordedDataConfig, RosbagData
 from .joints import check_joint_recordings, check_units
 from .lasa import SHAPES, SINGLE_PATTERN_SHAPES, lasa_file, read_lasa
 from .readers import UNITS, read_csv, read_hdf5, read_npz
@@ -15,8 +16,14 @@ __all__ = [
     "SHAPES",
     "SINGLE_PATTERN_SHAPES",
     "UNITS",
+    "CsvData",
+    "Hdf5Data",
+    "LasaData",
+    "NpzData",
+    "RecordedDataConfig",
     "Recording",
     "RecordingError",
+    "RosbagData",
     "Split",
     "States",
     "TimeOrderError",

@@ -10,84 +10,27 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
-import glob
 import hashlib
-import re
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from ..registry import RECORDING_FORMATS
 from ..robots import RobotDescription
 from .cutting import cut_at_rests
+from .formats import RecordedDataConfig  # noqa: F401  (the built-in formats register their readers)
 from .joints import check_joint_recordings, check_joint_speeds, check_units
-from .lasa import lasa_file, read_lasa
-from .readers import read_csv, read_hdf5, read_npz
+from .paths import SHIPPED, SHIPPED_DIR, matching_files, source_file  # noqa: F401  (where they were first)
 from .recording import Recording, RecordingError
-from .rosbag import ROS2_METADATA, is_ros2_bag, read_rosbag
 from .signals import States, to_states
-
-#: a ``data.files`` entry starting with this names a recording shipped with rmpfusion (rmpfusion/recordings/files/)
-SHIPPED = "rmpfusion:"
-SHIPPED_DIR = Path(__file__).resolve().parent / "files"
-
-
-def source_file(f: str, file_format: str = "csv") -> Path:
-    """One ``data.files`` entry as a path: ``rmpfusion:NAME`` is a recording shipped with the package, anything else
-    a path relative to the directory the command runs in (or absolute); a ROS 2 bag is a directory."""
-    if f.startswith(SHIPPED):
-        path = SHIPPED_DIR / f[len(SHIPPED) :]
-        if not path.is_file():
-            shipped = sorted(p.name for p in SHIPPED_DIR.glob("*") if p.is_file())
-            raise RecordingError(
-                f"{f}: rmpfusion ships no such recording (data.files); it ships {', '.join(shipped) or 'none'}"
-            )
-        return path
-    if is_ros2_bag(Path(f)):  # a ROS 2 bag is a directory (its metadata and storage files)
-        return Path(f)
-    if Path(f).is_dir() and file_format == "rosbag":
-        raise RecordingError(
-            f"{f}: a directory without {ROS2_METADATA}, so not a ROS 2 bag (data.files); name the bags in it (ROS 1 "
-            f".bag files or ROS 2 bag directories), all of them with a pattern: 'data.files=[\"{f}/*\"]'"
-        )
-    if Path(f).is_dir():
-        raise RecordingError(
-            f"{f}: a directory (data.files); name the recorded files in it, e.g. data.files=[{f}/demo_0.csv,...], "
-            f"or all of them with a pattern: 'data.files=[\"{f}/*.csv\"]'"
-        )
-    if not Path(f).is_file():
-        raise RecordingError(
-            f"{f}: no such file (data.files); give the path of a recorded file, relative to the "
-            f"directory the command runs in or absolute (or {SHIPPED}NAME for one rmpfusion ships)"
-        )
-    return Path(f)
-
-
-def _natural(name: str) -> list:
-    """Sort key putting episode_2 before episode_10, as the files were recorded."""
-    return [int(part) if part.isdigit() else part for part in re.split(r"(\d+)", name)]
-
-
-def matching_files(pattern: str) -> list[str]:
-    """The files a ``data.files`` entry with wildcards names (``episodes/*.hdf5``), in natural order; a pattern
-    that matches no file is refused, not read as an empty dataset."""
-    found = sorted((p for p in glob.glob(pattern) if Path(p).is_file() or is_ros2_bag(Path(p))), key=_natural)
-    if not found:
-        raise RecordingError(
-            f"{pattern}: no file matches this pattern (data.files), relative to the directory the command runs in "
-            f"({Path.cwd()}); check the path, or quote the list on the command line: 'data.files=[\"{pattern}\"]'"
-        )
-    return found
 
 
 def named_files(d: Any) -> list[tuple[str, Path]]:
     """Each file the block reads with the name runs record it by: the LASA shape and its ``.mat`` file, or every
-    ``data.files`` entry (wildcards expanded), each one that exists."""
-    if d.format == "lasa":
-        return [(d.shape, lasa_file(d.shape))]
-    names = [m for f in d.files for m in (matching_files(f) if any(c in f for c in "*?[") else [f])]
-    return [(n, source_file(n, d.format)) for n in names]
+    ``data.files`` entry (wildcards expanded), each one that exists (the format's model says which)."""
+    return d.named_files()
 
 
 def source_files(d: Any) -> list[Path]:
@@ -127,49 +70,16 @@ def _feed(h: Any, path: Path) -> None:
 
 
 def read_recordings(d: Any, joints: Sequence[str] | None = None) -> list[Recording]:
-    """Every demonstration the block names, in file order, positions in SI units and times in seconds. ``joints``:
-    the robot's joints in its file's order, which a ROS bag's joint states are read by name in (a bag names each
-    value; ``data.columns`` chooses others)."""
-    if d.format == "lasa":
-        return read_lasa(d.shape, use_file_derivatives=d.derivatives == "file")
-    out: list[Recording] = []
-    common = {"columns": d.columns, "units": d.units, "time_units": d.time_units}
-    arrays = {
-        "position_key": d.position_key,
-        "velocity_key": d.velocity_key,
-        "acceleration_key": d.acceleration_key,
-        "aux_keys": d.aux_keys,
-    }
-    for path in source_files(d):
-        if d.format == "csv":
-            out += read_csv(
-                path,
-                time_column=d.time_column,
-                demo_column=d.demo_column,
-                velocity_columns=d.velocity_columns,
-                acceleration_columns=d.acceleration_columns,
-                aux_columns=d.aux_columns,
-                **common,
-            )
-        elif d.format == "rosbag":
-            out += read_rosbag(
-                path,
-                topic=d.topic,
-                columns=d.columns or joints,
-                units=d.units,
-                joint_space=joints is not None,
-                aux_topics=d.aux_topics,
-            )
-        elif d.format == "npz":
-            out += read_npz(path, time_key=d.time_column, **arrays, **common)
-        else:
-            time_key = None if d.rate is not None else d.time_column
-            out += read_hdf5(path, group=d.group, time_key=time_key, rate=d.rate, **arrays, **common)
+    """Every demonstration the block names, in file order, positions in SI units and times in seconds, read by
+    the reader its format registered (``RECORDING_FORMATS``). ``joints``: the robot's joints in its file's order,
+    which a ROS bag's joint states are read by name in (a bag names each value; ``data.columns`` chooses others)."""
+    reader = RECORDING_FORMATS.get(d.format).obj
+    out: list[Recording] = [rec for path in source_files(d) for rec in reader(d, path, joints)]
     if not out:
         raise RecordingError(f"{', '.join(map(str, source_files(d)))}: no demonstration in the file(s)")
-    if d.cut_at_rest is not None:
-        out = cut_at_rests(out, d.cut_at_rest, d.polyorder, d.rest_fraction, d.keep_motions, d.rest_speed)
-    check_durations(out, d.time_units)
+    if (cut := getattr(d, "cut_at_rest", None)) is not None:
+        out = cut_at_rests(out, cut, d.polyorder, d.rest_fraction, d.keep_motions, d.rest_speed)
+    check_durations(out, getattr(d, "time_units", "s"))
     return out
 
 
@@ -230,7 +140,7 @@ def on_grid_for(
     and the dimension. Validation and the run call this one function."""
     check_units(d.units, robot is not None)
     if robot is not None:
-        check_joint_recordings(recordings, robot, named_columns=d.columns is None)
+        check_joint_recordings(recordings, robot, named_columns=getattr(d, "columns", None) is None)
         check_joint_speeds(recordings, robot, dt, d.window, d.polyorder)
     check_aux(recordings, aux_dims, env)
     states = to_grid(recordings, d, dt)
