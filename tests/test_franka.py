@@ -3,6 +3,7 @@ kinematic integration, collision checks, shared obstacle weights with several ob
 
 from __future__ import annotations
 
+import io
 import os
 
 import numpy as np
@@ -25,6 +26,7 @@ from rmpfusion.envs.manipulator_tree import (
     with_weights,
 )
 from rmpfusion.evaluate import lyapunov_monotone, max_relative_increase
+from rmpfusion.pipeline.progress import Progress
 from rmpfusion.registry import ENVS
 
 F64 = torch.float64
@@ -129,8 +131,8 @@ def test_kinematic_batch_equals_single_rollouts(env, expert):
 
 
 def test_kinematic_progress_counts_the_records_then_each_samples_collision_replay(env, expert):
-    """A kinematic rollout's long part after the records (each sample's path replayed for collisions) is reported
-    too: progress climbs to records + samples, one unit per sample replayed, never back."""
+    """A kinematic rollout's long part after the records (each sample's path checked for collisions) is reported
+    too: to a plain callback, progress climbs to records + samples, one unit per sample checked, never back."""
     q0, qd0, aux = env.sample(3, 1, seed=2)
     calls: list[tuple[int, int]] = []
     with torch.no_grad():
@@ -139,6 +141,35 @@ def test_kinematic_progress_counts_the_records_then_each_samples_collision_repla
     assert {n for _, n in calls} == {records + samples}
     done = [i for i, _ in calls]
     assert done == sorted(done) and done[-samples:] == [records + 1, records + 2, records + 3]
+
+
+def test_kinematic_progress_reports_the_collision_check_as_a_stage_of_its_own(env, expert):
+    """A callback with stages (pipeline/progress.py::Bar) counts the records to their own total, then the collision
+    check on ``stage("collision check")``, from 0 to the samples: no bar waits at 99 % of another's count."""
+    q0, qd0, aux = env.sample(3, 1, seed=2)
+    calls: dict[str, list[tuple[int, int]]] = {"records": [], "collision check": []}
+
+    class Staged:
+        def __call__(self, done, total):
+            calls["records"].append((done, total))
+
+        def stage(self, name):
+            return lambda done, total: calls[name].append((done, total))
+
+    with torch.no_grad():
+        env.rollout(expert, q0, qd0, aux, horizon=0.1, record_every=0.05, progress=Staged())
+    assert calls["records"] == [(0, 2), (1, 2), (2, 2)]
+    assert calls["collision check"] == [(0, 3), (1, 3), (2, 3), (3, 3)]
+
+
+def test_a_progress_bar_draws_each_stage_under_its_own_label():
+    stream = io.StringIO()
+    bar = Progress(stream=stream).bar("rollout expert")
+    bar(2, 2)
+    bar.stage("collision check")(3, 3)
+    lines = stream.getvalue().splitlines()
+    assert lines[0].startswith("rollout expert [") and "2/2 100%" in lines[0]
+    assert lines[1].startswith("rollout expert: collision check [") and "3/3 100%" in lines[1]
 
 
 def test_collision_detection_on_hand_made_configurations(env):

@@ -4,7 +4,7 @@ by side with its reference in the same process, so the ratios hold whatever else
 a target say whether it is met.
 
     python -m tools.bench                 # the whole table (~10 min on 2 cores, most of it torch.compile)
-    python -m tools.bench --only latency  # one section: latency, compile, scaling, sets, clouds, batched, train, cuda, robots, memory
+    python -m tools.bench --only latency  # one section: latency, compile, scaling, sets, clouds, batched, train, cuda, robots, collisions, memory
     python -m tools.bench --no-compile    # eager only
 
 Run it from the repository root as a module (``-m``): it reads the test-vector tree and the numpy RMPflow oracle
@@ -26,6 +26,11 @@ Sections:
   cuda     with a CUDA device only: 2d2level at B = 65,536 and the training step, on the GPU.
   robots   rmpfusion-fit-spheres on a 7-joint arm with meshes (the xArm7 of example-robot-data, else the iiwa of
            pybullet_data), as a user runs it: one fresh process, its wall time (target ≤ 60 s on two cores).
+  collisions  the collision check of a kinematic evaluation: the Franka expert's rollouts from 100 starts over
+           5,871 steps of 4 ms (the recorded-arm evaluation's size; --collision-steps N for fewer), checked by the
+           per-configuration pybullet replay and by the batched check (sphere bounds in torch, pybullet where they
+           cannot decide), side by side; both are checked to agree (flags, first collision times, clearances within
+           the check's 1 mm) before the times are printed (target: the batched check ≤ 10 s).
   memory   the peak resident memory of a 2d2level training run (a child process) while it trains, over what was
            resident before its first step (the kernel's high-water mark, reset at that point); and the same of one
            eager call of the Franka tree with a run-time sphere set of N_max = 1 and 100 members at B = 1024.
@@ -924,6 +929,51 @@ def section_lasa(compile_: bool) -> None:
             )
 
 
+#: the collision section's rollout length (steps of 1/250 s) and starts: the recorded-arm evaluation's
+#: (--collision-steps sets the steps)
+COLLISIONS = {"steps": 5871, "starts": 100}
+
+
+def section_collisions(compile_: bool) -> None:
+    """The batched collision check against the per-configuration replay, on the Franka expert's kinematic rollouts
+    (every step recorded), each timed once (the replay takes minutes at full size)."""
+    from rmpfusion.envs.manipulator.collisions import CLEARANCE_TOLERANCE, check_collisions, replay_collisions
+
+    n, steps = COLLISIONS["starts"], COLLISIONS["steps"]
+    print(f"\ncollision check of a kinematic evaluation: the Franka expert, {n} starts x {steps} steps (4 ms)")
+    tree, env = franka_subject(1)
+    env = env.with_step(1.0 / 250.0)
+    q0, qd0, aux = env.sample(10, n // 10, generator=torch.Generator().manual_seed(0))
+    t0 = time.perf_counter()
+    with torch.no_grad():
+        ro = env.rollout(tree, q0, qd0, aux, horizon=steps * env.dt, record_every=env.dt, mode="kinematic")
+    rollout = time.perf_counter() - t0
+    Q, B = ro.q, ro.q.shape[1]
+    timed = {}
+    for name, check in (("batched", check_collisions), ("replay", replay_collisions)):
+        t0 = time.perf_counter()
+        timed[name] = check(env, Q, aux, steps, [steps] * B, [None] * B)
+        timed[name + " s"] = time.perf_counter() - t0
+    (got, got_t), (ref, ref_t) = timed["batched"], timed["replay"]
+    if not (torch.equal(got_t, ref_t) and ((got <= 0) == (ref <= 0)).all()) or not (
+        (got >= ref).all() and (got <= ref + CLEARANCE_TOLERANCE).all()
+    ):
+        raise RuntimeError("the batched collision check disagrees with the per-configuration replay")
+    env.close()
+    configurations = f"{B} x {steps + 1}"
+    row("collisions", f"rollouts to check ({configurations} configurations)", f"{rollout:.1f} s")
+    batched, replay = timed["batched s"], timed["replay s"]
+    row(
+        "collisions",
+        f"batched check, {configurations} ({int((ref <= 0).sum())} collide)",
+        f"{batched:.1f} s",
+        f"replay {replay:.1f} s",
+        f"{replay / batched:.1f}x",
+        "≤ 10 s" if (B, steps) == (100, 5871) else "",
+        batched <= 10.0 if (B, steps) == (100, 5871) else None,
+    )
+
+
 SECTIONS = {
     "batched": section_batched,
     "train": section_train,
@@ -935,6 +985,7 @@ SECTIONS = {
     "cuda": section_cuda,
     "robots": section_robots,
     "lasa": section_lasa,
+    "collisions": section_collisions,
 }
 
 
@@ -943,8 +994,10 @@ def main(argv=None) -> int:
     ap.add_argument("--only", choices=[*SECTIONS, "memory"], action="append")
     ap.add_argument("--no-compile", action="store_true", help="skip the torch.compile rows")
     ap.add_argument("--json", type=Path, help="also write the rows here")
+    ap.add_argument("--collision-steps", type=int, default=COLLISIONS["steps"], help="the collision section's steps")
     ap.add_argument("--markdown", type=Path, help="also write the table as markdown here (the README's table)")
     args = ap.parse_args(argv)
+    COLLISIONS["steps"] = args.collision_steps
     torch.set_num_threads(1)
     info = {
         "torch": torch.__version__,

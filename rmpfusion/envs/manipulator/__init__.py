@@ -8,8 +8,8 @@ Two ways to run a policy q̈ = π(q, q̇, aux):
 - ``kinematic`` (``kinematic.py``): the same closed loop integrated in torch for the whole batch at once (data
   collection).
 Collision means some robot link is at distance ≤ 0 from an obstacle (or, for the links the joints move, from the
-ground plane) by pybullet's closest points, in both modes (kinematic rollouts are replayed in pybullet at every
-integration step after the fact; ``scene.py``). Moving obstacles move in both modes along the paths of the scene.
+ground plane) by pybullet's closest points, in both modes (kinematic rollouts are checked at every integration step
+after the fact, the simulator asked where the robot's spheres cannot clear the step; ``collisions.py``). Moving obstacles move in both modes along the paths of the scene.
 
 The environment (``env.py``) serves the pipeline's ``Env`` protocol and its capabilities: demonstrations of 5–10 s
 (``demonstrations.py``), task metrics and ratios to the expert (``metrics.py``), rendering (``render.py``), and

@@ -328,8 +328,9 @@ class Manipulator(ComputesOnDevice, SeededSampling):
 
         ``policy`` returns a (B, dof) tensor or a TreeOutput (then V and q̇ᵀBq̇ are recorded from the same
         evaluation). ``record_every`` and ``horizon`` must be multiples of 1/control_rate. ``mode`` overrides the
-        env's. ``monitor(i, t, q, qd, qdd, V)`` is called at each record, and ``progress(done, total)`` too (in kinematic
-        mode also once per sample replayed for collisions after the records).
+        env's. ``monitor(i, t, q, qd, qdd, V)`` is called at each record, and ``progress(done, total)`` too; in kinematic
+        mode the collision check after the records is reported once per sample, on ``progress.stage("collision
+        check")`` where the callback has stages (``pipeline/progress.py::Bar``), else as more units of ``progress``.
         """
         n_steps, every = time_grid(horizon, record_every, self.dt, "1/control_rate")
         check_initial_states(q0, qd0, self.dim)
@@ -345,13 +346,9 @@ class Manipulator(ComputesOnDevice, SeededSampling):
                 if progress is not None:  # progress(records done, records in all), reported at every record
                     monitor = _reporting(monitor, progress, records)
                 return rollout_torque(self, policy, q0, qd0, aux, n_steps, every, monitor)
-            # kinematic: after the records, every sample's path is replayed in the simulator for collisions (minutes
-            # for a large batch at 1 kHz), one unit of progress per sample
-            total = records + q0.shape[0]
-            if progress is not None:
-                monitor = _reporting(monitor, progress, total)
-            replayed = None if progress is None else (lambda b: progress(records + b + 1, total))
-            return rollout_kinematic(self, policy, q0, qd0, aux, n_steps, every, monitor, replayed)
+            # kinematic: after the records, every sample's path is checked for collisions, one unit per sample
+            monitor, checked = _staged(monitor, progress, records, q0.shape[0])
+            return rollout_kinematic(self, policy, q0, qd0, aux, n_steps, every, monitor, checked)
 
     # ------------------------------------------------------------------ demonstrations and task metrics
     def demonstration_lengths(self, ro: Rollout) -> Tensor:
@@ -475,3 +472,30 @@ def _reporting(
         progress(i, total)
 
     return both
+
+
+def _staged(
+    monitor: Callable[..., Any] | None, progress: Callable[[int, int], Any] | None, records: int, samples: int
+) -> tuple[Callable[..., Any] | None, Callable[[int], Any] | None]:
+    """(monitor, checked(b)) of a kinematic rollout reporting ``progress``: the records, then the collision check
+    sample by sample on a stage of its own where ``progress`` has stages (a stage whose count is the samples, not
+    the last percent of the records'), else counted on after the records."""
+    if progress is None:
+        return monitor, None
+    stage = getattr(progress, "stage", None)
+    if stage is None:
+        total = records + samples
+        return _reporting(monitor, progress, total), lambda b: progress(records + b + 1, total)
+    check = stage("collision check")
+
+    def checked(b: int) -> None:
+        check(b + 1, samples)
+
+    def records_then_check(i, *rest):
+        if monitor is not None:
+            monitor(i, *rest)
+        progress(i, records)
+        if i == records:  # the check starts now (its torch bound first, then the samples one by one)
+            check(0, samples)
+
+    return records_then_check, checked

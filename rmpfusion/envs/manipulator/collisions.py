@@ -1,0 +1,345 @@
+"""Collision checking of a whole batch of kinematic rollouts: every configuration bounded in torch by spheres,
+the simulator's closest-point query asked only where the bounds cannot decide.
+
+Why: replaying every configuration of every rollout in the simulator is one closest-point query per sample and step
+(600,000 for 100 starts of 5,871 steps), minutes in which nothing else happens. The robot's spheres and the scene's
+distance maps (``scenes/distance.py``, the maps the tree itself uses) measure the same configurations for the whole
+batch at once.
+
+The sphere bound: every robot link's collision geometry lies inside the spheres that cover it (``cover_spheres``:
+the robot's control spheres, and for a link without any, one sphere around its collision mesh), so a sphere's
+distance to an obstacle (or the ground) is at most that of the geometry it covers. Hence, for every configuration
+clear of the obstacles,
+
+    sphere clearance − SPHERE_SLACK ≤ mesh clearance (the simulator's),
+
+the slack absorbing what the control spheres' fit leaves out (tests/test_collisions.py measures it on every shipped
+robot: under a millimetre). A configuration whose bound exceeds 0 cannot collide, and one whose bound is at least the
+smallest clearance found cannot lower it. In penetration the simulator reports a penetration depth, which the
+spheres do not bound (a sphere may sink 2 cm less deep than the link it covers), so every step whose bound is ≤ 0 is
+asked of the simulator, and a sample that collides reports the deepest of them.
+
+Continuity does the rest: no point of the robot moves further between two steps than the joints' motion times their
+reach (``joint_reach``), so the spheres are measured at every few steps only, and every answer c_k ≥ 0 of the
+simulator bounds the steps around k from below too. The steps are asked in
+increasing order of their bound until every bound left is at least the smallest clearance found less
+``CLEARANCE_TOLERANCE`` (``check_collisions``): the collision flags and first collision times are the
+per-configuration replay's (``replay_collisions``, kept as the reference), the smallest clearances the replay's or
+at most ``CLEARANCE_TOLERANCE`` above them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from ...robots import URDFRobot
+from ...robots.geometry import collision_meshes, links_with_geometry
+from ...scenes.distance import distances
+from ...sims import SimulationError
+from .task import ManipulatorTask
+from .worlds import sample_aux
+
+#: how far (m) a link's collision geometry may reach outside the spheres that cover it; the bound is lowered by it
+SPHERE_SLACK = 0.005
+#: how far (m) above the smallest clearance the reported one may be: the steps near the closest one need not all be
+#: asked (module docstring, continuity)
+CLEARANCE_TOLERANCE = 1e-3
+#: the sphere bound is measured at every STRIDE-th step, continuity bounds the steps between (``clearance_bounds``)
+STRIDE = 8
+#: configurations bounded per torch call (memory: configurations × spheres × the aux state's width)
+CHUNK = 8192
+
+
+@dataclass(frozen=True)
+class CoverSpheres:
+    """Spheres that together contain every link's collision geometry: each in the frame of ``links[i]``."""
+
+    links: list[str]
+    offsets: Tensor  # (S, 3), in the link's frame
+    radii: Tensor  # (S,)
+
+
+_COVERS: dict[tuple, CoverSpheres] = {}
+
+
+def cover_spheres(robot: URDFRobot) -> CoverSpheres:
+    """The robot's control spheres, and for every link with collision geometry but no control sphere the smallest
+    sphere about its mesh's bounding-box centre holding every vertex (the convex hull a simulator collides with lies
+    inside it). Found once per robot in a process (the meshes are read)."""
+    p = robot.params
+    key = (p.urdf, tuple(p.joints), repr(p.control_points), repr(p.packages))
+    if key in _COVERS:
+        return _COVERS[key]
+    links = [cp.link for cp in p.control_points]
+    offsets = [list(cp.offset) for cp in p.control_points]
+    radii = [float(cp.radius) for cp in p.control_points]
+    bare = [link for link in links_with_geometry(p.urdf) if link not in set(links)]
+    for link, mesh in collision_meshes(p.urdf, bare, p.packages).items():
+        v = np.asarray(mesh.vertices, dtype=np.float64)  # type: ignore[attr-defined]
+        if not len(v):
+            continue
+        c = (v.min(0) + v.max(0)) / 2
+        links.append(link)
+        offsets.append(c.tolist())
+        radii.append(float(np.linalg.norm(v - c, axis=1).max()))
+    cover = CoverSpheres(
+        links,
+        torch.tensor(offsets, dtype=torch.float64).reshape(-1, 3),
+        torch.tensor(radii, dtype=torch.float64),
+    )
+    _COVERS[key] = cover
+    return cover
+
+
+def _centres(robot: URDFRobot, cover: CoverSpheres, q: Tensor) -> Tensor:
+    """(M, S, 3) world centres of the cover spheres at configurations ``q`` (M, dof)."""
+    names = sorted(set(cover.links))
+    poses = robot.chain.forward_kinematics(q, names)
+    which = torch.tensor([names.index(n) for n in cover.links])
+    R = torch.stack([poses[n][0] for n in names], 1)[:, which]
+    p = torch.stack([poses[n][1] for n in names], 1)[:, which]
+    return p + (R @ cover.offsets.to(q).unsqueeze(-1)).squeeze(-1)
+
+
+_REACH: dict[tuple, Tensor | None] = {}
+
+
+def joint_reach(robot: URDFRobot) -> Tensor | None:
+    """(dof,) ρ: no point of the cover spheres (hence of the robot's geometry) moves more than Σᵢ ρᵢ·|Δqᵢ| between
+    two configurations; None for an arm with a sliding joint (no such bound is used then). ρᵢ is, over the spheres
+    joint i moves, the farthest any of them reaches from joint i's axis: the fixed distances from each joint's
+    origin to the next one's on the sphere's path, then to its centre, plus its radius (the triangle inequality,
+    valid in every configuration; a joint that follows joint i adds its gain times its own reach)."""
+    p = robot.params
+    key = (p.urdf, tuple(p.joints), repr(p.control_points), repr(p.packages), repr(p.mount))
+    if key in _REACH:
+        return _REACH[key]
+    chain, cover = robot.chain, cover_spheres(robot)
+    rho: Tensor | None = None
+    if not chain.has_slides:
+        q = torch.zeros(1, robot.dof, dtype=torch.float64)
+        origins_all, centres = chain.frames(q)[1][0], _centres(robot, cover, q)[0]
+        rho = torch.zeros(robot.dof, dtype=torch.float64)
+        for s, link in enumerate(cover.links):
+            joints = [k for k in chain.path_joints(link) if chain._kind[k] != 0]  # the joints that move it
+            if not joints:
+                continue
+            o = origins_all[joints]
+            tail = (centres[s] - o[-1]).norm() + cover.radii[s] + SPHERE_SLACK
+            reach = torch.cat([(o[1:] - o[:-1]).norm(dim=-1), tail[None]]).flip(0).cumsum(0).flip(0)
+            per_q = torch.zeros(robot.dof, dtype=torch.float64)
+            for m, k in enumerate(joints):
+                per_q[chain._qidx[k]] += abs(chain._gain[k]) * reach[m]
+            rho = torch.maximum(rho, per_q)
+    _REACH[key] = rho
+    return rho
+
+
+def sphere_clearance(env: ManipulatorTask, q: Tensor, aux: Mapping[str, Tensor]) -> Tensor:
+    """(M,) smallest distance from the cover spheres at configurations ``q`` (M, dof) to the obstacles of aux rows
+    ``aux`` (one per configuration) and, for the spheres of the links the simulator's clearance checks against the
+    ground (``TaskWorld.ground_reach``), to the ground: a lower bound of the simulator's clearance up to
+    ``SPHERE_SLACK`` where it is ≥ 0 (module docstring)."""
+    cover = cover_spheres(env.robot)
+    radii = cover.radii.to(q)
+    centres = _centres(env.robot, cover, q)
+    M, S = centres.shape[:2]
+    best = torch.full((M,), float("inf"), dtype=q.dtype)
+    if env.scene.obstacles:
+        rows = {k: v.repeat_interleave(S, 0) for k, v in aux.items()}
+        d = distances(env.scene, rows, centres.reshape(-1, 3)).reshape(M, S, -1).amin(-1) - radii
+        best = d.amin(-1)
+    grounded = torch.tensor([link in env.checker().ground_reach for link in cover.links], dtype=torch.bool)
+    if env.scene.ground is not None and bool(grounded.any()):
+        z = centres[:, grounded, 2] - radii[grounded] - env.scene.ground.height
+        best = torch.minimum(best, z.amin(-1))
+    return best
+
+
+def clearance_bounds(
+    env: ManipulatorTask, Q: Tensor, aux: Mapping[str, Tensor], stride: int = STRIDE
+) -> tuple[Tensor, Tensor | None]:
+    """(T, B) lower bounds of the simulator's clearance of the configurations Q (T, B, dof), step k with the
+    obstacles where they are at t = k·dt; and (T, B, n, 3) the centres of the n moving obstacles at each step (None
+    when none moves). The sphere clearance less ``SPHERE_SLACK`` is measured at every ``stride``-th step (and the
+    last); a step between two measured ones k takes the larger of their bounds less how far the spheres can have
+    moved from there (``joint_reach``) and the obstacles have (forward kinematics is most of the cost: a rollout
+    at rest is bounded as tightly at a stride's fraction of it)."""
+    T, B, dof = Q.shape
+    Q = Q.to(env.dtype)
+    ks = torch.unique(torch.cat([torch.arange(0, T, stride), torch.tensor([T - 1])]))
+    moving = [f"obstacle{k}_center" for k, o in enumerate(env.scene.obstacles, start=1) if o.moving]
+    where = None
+    if moving:  # every step's obstacle centres (cheap: no kinematics)
+        at = env.aux_at(
+            {n: aux[n].repeat(T, 1) for n in moving}, torch.arange(T, dtype=env.dtype).repeat_interleave(B) * env.dt
+        )
+        where = torch.stack([at[n] for n in moving], 1).reshape(T, B, len(moving), 3)
+    measured = torch.empty(len(ks), B, dtype=env.dtype)
+    flat = Q[ks].reshape(-1, dof)
+    for lo in range(0, len(flat), CHUNK):
+        hi = min(lo + CHUNK, len(flat))
+        rows = {k: v[torch.arange(lo, hi) % B] for k, v in aux.items()}
+        if moving:
+            rows = env.aux_at(rows, ks[torch.arange(lo, hi) // B].to(env.dtype) * env.dt)
+        measured.view(-1)[lo:hi] = sphere_clearance(env, flat[lo:hi], rows)
+    measured = measured - SPHERE_SLACK
+    rho = joint_reach(env.robot)
+    if len(ks) == T:
+        return measured, where
+    if rho is None:  # no continuity bound: measure every step
+        return clearance_bounds(env, Q, aux, 1)
+    left = torch.div(torch.arange(T), stride, rounding_mode="floor")
+    lower = torch.full((T, B), -float("inf"), dtype=env.dtype)
+    for side in (left, (left + 1).clamp(max=len(ks) - 1)):
+        moved = (Q - Q[ks[side]]).abs() @ rho.to(Q)
+        if where is not None:
+            moved = moved + (where - where[ks[side]]).norm(dim=-1).amax(-1)
+        lower = torch.maximum(lower, measured[side] - moved)
+    return lower, where
+
+
+class _Replay:
+    """One sample's configurations asked of the simulator, each at most once."""
+
+    def __init__(self, env: ManipulatorTask, Q: Tensor, aux, b: int):
+        self.env, self.Q, self.aux, self.b = env, Q, aux, b
+        self.sc = env.checker()
+        self.sc.set_env(env.scene, sample_aux(aux, b))
+        self.seen: dict[int, float] = {}
+
+    def __call__(self, k: int) -> float:
+        if k not in self.seen:
+            env, b = self.env, self.b
+            if env.moving:
+                at = env.aux_at({n: v[b : b + 1] for n, v in self.aux.items()}, k * env.dt)
+                self.sc.move_obstacles(env.scene, sample_aux(at, 0))
+            self.sc.reset(self.Q[k, b].cpu().numpy())
+            self.seen[k] = self.sc.clearance(env.params.clearance_query)
+        return self.seen[k]
+
+
+def check_collisions(
+    env: ManipulatorTask,
+    Q: Tensor,
+    aux,
+    n_steps: int,
+    death: list[int],
+    errors: list[str | None],
+    checked: Callable[[int], Any] | None = None,
+) -> tuple[Tensor, Tensor]:
+    """(smallest clearance, first collision time) of every sample from its configurations Q (n_steps+1, B, dof) up
+    to the step it died at, as ``replay_collisions`` finds them (the smallest clearance within
+    ``CLEARANCE_TOLERANCE`` above), with the simulator asked only where the bounds cannot decide (``_Bounded``).
+    ``checked(b)`` is called once sample b is done."""
+    dt, B, query = env.dt, Q.shape[1], float(env.params.clearance_query)
+    lower, moved = clearance_bounds(env, Q, aux)
+    rho = joint_reach(env.robot)
+    min_clear = torch.full((B,), query, dtype=env.dtype)
+    first_hit = torch.full((B,), float("inf"), dtype=env.dtype)
+    for b in range(B):
+        last = n_steps if errors[b] is None else death[b]
+        bound = lower[: last + 1, b]
+        try:
+            if bool((bound < query - CLEARANCE_TOLERANCE).any()):
+                where = None if moved is None else moved[: last + 1, b]
+                search = _Bounded(_Replay(env, Q, aux, b), bound, Q[: last + 1, b], rho, where)
+                min_clear[b], first_hit[b] = search.run(query, dt)
+        except SimulationError as e:
+            errors[b] = f"simulator error during collision check: {e}"
+            env.worlds.discard_checker()  # a broken world is not reused
+        if checked is not None:
+            checked(b)
+    return min_clear, first_hit
+
+
+class _Bounded:
+    """One sample's search: a lower bound of every step's clearance, raised by each answer of the simulator.
+
+    Two bounds: the spheres' (``clearance_bounds``), and continuity: between steps k and j no point of the robot
+    moves further than Σᵢ ρᵢ·|qⱼᵢ − qₖᵢ| (``joint_reach``) nor a moving obstacle further than its centre, and a
+    clearance changes by no more than what its point sets move, so an answer c_k ≥ 0 gives c_j ≥ c_k − D(k, j).
+    Each answer raises the bounds around k, in blocks growing away from it while they still raise some bound."""
+
+    def __init__(self, mesh: _Replay, bound: Tensor, q: Tensor, rho: Tensor | None, moved: Tensor | None):
+        self.mesh, self.lower, self.q, self.rho, self.moved = mesh, bound.clone(), q.to(bound), rho, moved
+        self.asked = torch.zeros(len(bound), dtype=torch.bool)
+
+    def ask(self, k: int) -> float:
+        c = self.mesh(k)
+        self.asked[k] = True
+        if c > 0 and self.rho is not None:
+            for direction in (1, -1):
+                edge, size = k, 64
+                while 0 <= edge < len(self.lower) and self._raise(k, c, *sorted((edge, edge + direction * size))):
+                    edge, size = edge + direction * size, 2 * size
+        return c
+
+    def _raise(self, k: int, c: float, a: int, b: int) -> bool:
+        """Raise the bounds of steps a..b-1 (clipped) by the answer c at step k; whether any rose."""
+        a, b = max(a, 0), min(b, len(self.lower))
+        reach = (self.q[a:b] - self.q[k]).abs() @ self.rho.to(self.q)  # type: ignore[union-attr]
+        if self.moved is not None:
+            reach = reach + (self.moved[a:b] - self.moved[k]).norm(dim=-1).amax(-1)
+        new = c - reach
+        rose = new > self.lower[a:b]
+        self.lower[a:b] = torch.where(rose, new, self.lower[a:b])
+        return bool(rose.any())
+
+    def run(self, query: float, dt: float) -> tuple[float, float]:
+        """(smallest clearance capped at ``query``, first collision time). First every step whose bound is ≤ 0, in
+        time order (only these can collide, and a penetration depth is not bounded by the spheres, so a colliding
+        sample's smallest clearance is among them); then, while nothing collides, the open step of lowest bound
+        until every bound is within ``CLEARANCE_TOLERANCE`` of the smallest clearance found, or above it."""
+        best, first = query, float("inf")
+        for k in (self.lower <= 0).nonzero().flatten().tolist():
+            if self.lower[k] > 0:  # cleared by continuity from a step asked since
+                continue
+            c = self.ask(k)
+            best = min(best, c)
+            if c <= 0 and first == float("inf"):
+                first = k * dt
+        if best <= 0:
+            return best, first
+        while True:
+            open_ = torch.where(self.asked, float("inf"), self.lower)
+            k = int(open_.argmin())
+            if float(open_[k]) >= best - CLEARANCE_TOLERANCE:
+                return best, first
+            best = min(best, self.ask(k))
+
+
+def replay_collisions(
+    env: ManipulatorTask,
+    Q: Tensor,
+    aux,
+    n_steps: int,
+    death: list[int],
+    errors: list[str | None],
+    checked: Callable[[int], Any] | None = None,
+) -> tuple[Tensor, Tensor]:
+    """``check_collisions`` by the simulator alone, one query per sample and step (moving obstacles where they were
+    at each step): the reference the bounded check must equal, and the benchmark's baseline."""
+    dt, B, query = env.dt, Q.shape[1], float(env.params.clearance_query)
+    min_clear = torch.full((B,), query, dtype=env.dtype)
+    first_hit = torch.full((B,), float("inf"), dtype=env.dtype)
+    for b in range(B):
+        try:
+            mesh = _Replay(env, Q, aux, b)
+            last = n_steps if errors[b] is None else death[b]
+            for k in range(last + 1):
+                min_clear[b] = min(float(min_clear[b]), mesh(k))
+                if min_clear[b] <= 0.0 and first_hit[b].isinf():
+                    first_hit[b] = k * dt
+        except SimulationError as e:
+            errors[b] = f"simulator error during collision check: {e}"
+            env.worlds.discard_checker()  # a broken world is not reused
+        if checked is not None:
+            checked(b)
+    return min_clear, first_hit
