@@ -59,11 +59,14 @@ def _near_the_robot(env: Manipulator, n: int, seed: int) -> tuple[torch.Tensor, 
 def test_spheres_bound_the_simulators_clearance_on_every_robot(name):
     """Sphere clearance − SPHERE_SLACK ≤ the simulator's (mesh) clearance wherever that is ≥ 0, each shape and the
     ground: the relation the batched check rests on. A configuration in collision is never clear by the spheres."""
-    for shape, obstacle in SHAPES.items():
+    for shape, obstacle in [*SHAPES.items(), ("ground", SHAPES["sphere"])]:
+        ground = 0.0 if shape == "ground" else -0.2
         env = Manipulator(
-            robot=robot(name), scene={"obstacles": [obstacle], "ground": {"height": -0.2}}, clearance_query=1.0
+            robot=robot(name), scene={"obstacles": [obstacle], "ground": {"height": ground}}, clearance_query=1.0
         )
         q, aux = _near_the_robot(env, 40, seed=len(shape))
+        if shape == "ground":  # the obstacle out of reach: the ground alone
+            aux["obstacle1_center"] = aux["obstacle1_center"] + 5.0
         spheres = sphere_clearance(env, q, aux)
         world, mesh = env.checker(), []
         for b in range(q.shape[0]):
