@@ -139,11 +139,14 @@ def main(argv=None) -> int:
         help="the finer RK4 step on which every policy's V_r is checked again (s)",
     )
     ap.add_argument(
-        "overrides", nargs="*", help=f"the run's Hydra overrides (default: {' '.join(DEFAULT_RUN)}); train must be apg"
+        "overrides",
+        nargs="*",
+        help=f"Hydra overrides: the whole run where they name its experiment, else added to {' '.join(DEFAULT_RUN)}",
     )
     a = ap.parse_args(argv)
     t0 = time.time()
-    overrides = a.overrides or DEFAULT_RUN
+    names_its_run = any(o.startswith("experiment=") for o in a.overrides)
+    overrides = a.overrides if names_its_run else [*DEFAULT_RUN, *a.overrides]
     cfg = config(overrides)
     if not a.table_only:
         run_experiment(cfg, a.out / "run")
