@@ -8,6 +8,7 @@ and range; an entry registered later (a plugin) appears without a page written f
 
 from __future__ import annotations
 
+import importlib.util
 import shutil
 import subprocess
 import sys
@@ -19,8 +20,18 @@ from pydantic import Field
 from rmpfusion.core.gds import GDS
 from rmpfusion.registry import LEAF_RMPS, Params, Registry
 
-sys.path.insert(0, str(ROOT / "docs" / "_ext"))
-import registry_reference as ref
+
+def _load_extension(name: str):
+    """A module of docs/_ext, the folder Sphinx loads the site's extensions from, loaded from its file."""
+    spec = importlib.util.spec_from_file_location(name, ROOT / "docs" / "_ext" / f"{name}.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module  # dataclasses and pydantic look their module up by name
+    spec.loader.exec_module(module)
+    return module
+
+
+ref = _load_extension("registry_reference")
 
 
 @pytest.fixture(scope="module")

@@ -21,6 +21,7 @@ What is checked, on every example:
 from __future__ import annotations
 
 import importlib
+import importlib.util
 import sys
 from contextlib import contextmanager
 from pathlib import Path
@@ -50,12 +51,18 @@ def plugin_example_loaded():
     rest of the suite (tests/test_plugins.py) still meets an rmpfusion without the plugin."""
     before = {reg: set(reg.names()) for reg, _ in KINDS.values()}
     had_module = "rmpfusion_spring" in sys.modules
-    sys.path.insert(0, str(PLUGIN_EXAMPLE))
+    package = PLUGIN_EXAMPLE / "rmpfusion_spring"
+    spec = importlib.util.spec_from_file_location(
+        "rmpfusion_spring", package / "__init__.py", submodule_search_locations=[str(package)]
+    )
+    assert spec is not None and spec.loader is not None
     try:
-        importlib.import_module("rmpfusion_spring")
+        if not had_module:  # loaded from its folder as its entry point would import it once installed
+            module = importlib.util.module_from_spec(spec)
+            sys.modules["rmpfusion_spring"] = module
+            spec.loader.exec_module(module)
         yield
     finally:
-        sys.path.remove(str(PLUGIN_EXAMPLE))
         if not had_module:
             for reg, names in before.items():
                 for name in set(reg.names()) - names:

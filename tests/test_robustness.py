@@ -1,5 +1,5 @@
 """Robustness: one table of bad inputs and faults, each with how it is triggered, what must happen,
-and the message a user actually sees. Every row runs as a test; ``python tests/test_robustness.py`` runs them
+and the message a user actually sees. Every row runs as a test; ``PYTHONPATH=. python tests/test_robustness.py`` runs them
 all and prints the table as markdown (docs/troubleshooting.md, "When things go wrong", is that output).
 
 Rows marked ``known gap`` are strict xfails: they document behaviour that is still wrong (and who can fix it);
@@ -2730,7 +2730,9 @@ def markdown_table(messages: dict[str, str]) -> str:
 def test_the_documentation_lists_every_row():
     page, section = section_of("# When things go wrong")
     missing = [r.id for r in ROWS if f"| {r.fault.replace('|', chr(92) + '|')} |" not in section]
-    assert not missing, f"{page}'s table lacks rows {missing}; regenerate it with python tests/test_robustness.py"
+    assert not missing, (
+        f"{page}'s table lacks rows {missing}; regenerate it with PYTHONPATH=. python tests/test_robustness.py"
+    )
 
 
 def test_table_rows_are_unique_and_described():
@@ -2758,6 +2760,5 @@ def main() -> None:
     print(markdown_table(messages))
 
 
-if __name__ == "__main__":
-    sys.path.insert(0, str(Path(__file__).resolve().parent))
+if __name__ == "__main__":  # PYTHONPATH=. python tests/test_robustness.py: rmpfusion's tools/ import from the root
     main()
