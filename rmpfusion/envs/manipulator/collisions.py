@@ -173,6 +173,9 @@ def clearance_bounds(
     at rest is bounded as tightly at a stride's fraction of it)."""
     T, B, dof = Q.shape
     Q = Q.to(env.dtype)
+    rho = joint_reach(env.robot)
+    if rho is None:  # no continuity bound: every step is measured
+        stride = 1
     ks = torch.unique(torch.cat([torch.arange(0, T, stride), torch.tensor([T - 1])]))
     moving = [f"obstacle{k}_center" for k, o in enumerate(env.scene.obstacles, start=1) if o.moving]
     where = None
@@ -190,11 +193,8 @@ def clearance_bounds(
             rows = env.aux_at(rows, ks[torch.arange(lo, hi) // B].to(env.dtype) * env.dt)
         measured.view(-1)[lo:hi] = sphere_clearance(env, flat[lo:hi], rows)
     measured = measured - SPHERE_SLACK
-    rho = joint_reach(env.robot)
-    if len(ks) == T:
+    if len(ks) == T or rho is None:
         return measured, where
-    if rho is None:  # no continuity bound: measure every step
-        return clearance_bounds(env, Q, aux, 1)
     left = torch.div(torch.arange(T), stride, rounding_mode="floor")
     lower = torch.full((T, B), -float("inf"), dtype=env.dtype)
     for side in (left, (left + 1).clamp(max=len(ks) - 1)):
