@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import time
@@ -12,8 +13,13 @@ import torch
 
 from ..assembly.weighting import plain_data
 from ..envs.demonstrations import Dataset, load_dataset, save_dataset
-from ..envs.protocol import Reaches
+from ..envs.protocol import JointSpace, LearnsFromRecordings, Reaches
 from ..evaluate.divergence import Divergence, divergence_of_records
+from ..recordings import recorded_dataset, split_of
+from ..recordings.formats import flat_dump
+from ..recordings.recording import RecordingError
+from ..recordings.signals import States
+from ..recordings.source import content_hash, on_grid_for, read_recordings
 from ..scenes.crossing import summarize
 from .config import RunConfig
 from .experiment import Experiment
@@ -42,6 +48,10 @@ class Splits:
 
     data: dict[str, Dataset]
     info: dict[str, dict]
+    #: recorded demonstrations (``data.source: recorded``): each split's on the step grid, and every one (the
+    #: evaluation's starts and horizon are made from them); None for the expert's rollouts
+    demos: dict[str, list[States]] | None = None
+    every_demo: list[States] | None = None
 
     @property
     def train(self) -> Dataset:
@@ -189,7 +199,11 @@ def load_or_collect(exp: Experiment, split: str) -> tuple[Dataset, dict]:
 
 def collect(exp: Experiment, splits: tuple[str, ...] | None = None) -> Splits:
     """Every split the run uses (or those named): the one place that decides the splits, for
-    ``rmpfusion-run`` and the stage commands alike."""
+    ``rmpfusion-run`` and the stage commands alike; recorded demonstrations are split by demonstration
+    (``recorded_splits``), every split at once."""
+    if exp.run.data.source == "recorded":  # the recorded source supplies every split at once
+        made, demos, every_demo = recorded_splits(exp)
+        return dataclasses.replace(made, demos=demos, every_demo=every_demo)
     names = splits or (("train", "test", "val") if exp.expert_data.val_envs else ("train", "test"))
     t0 = time.time()
     loaded = {s: load_or_collect(exp, s) for s in names}
@@ -198,3 +212,75 @@ def collect(exp: Experiment, splits: tuple[str, ...] | None = None) -> Splits:
     if "train" in collected.info:
         check_task(exp, collected)
     return collected
+
+
+# ------------------------------------------------------------------ the recorded source
+#: data keys that change the evaluation only, never a split's dataset
+EVALUATION_ONLY = frozenset({"cache_dir", "starts", "enlarge", "horizon_factor", "tolerance"})
+
+
+def _cache_key(exp: Experiment, files: str, split: str, members: tuple[int, ...]) -> str:
+    """What determines a split's dataset: the files' content hash, the data settings, the step and its members."""
+    d = exp.run.data
+    key = {
+        "files": files,
+        "data": {k: v for k, v in flat_dump(d).items() if k not in EVALUATION_ONLY},
+        "dt": exp.env.dt,
+        "env": exp.run.env.model_dump(mode="json"),  # the aux state (an arm's goal, obstacles) depends on it
+        "split": split,
+        "members": members,
+    }
+    return hashlib.sha256(json.dumps(key, sort_keys=True, default=str).encode()).hexdigest()
+
+
+def _dataset(
+    exp: Experiment, files: str, split: str, members: tuple[int, ...], states: list[States]
+) -> tuple[Dataset, dict]:
+    """The split's dataset, from the cache when the files (``files``: their content hash) and settings are the
+    same, else made and cached."""
+    d = exp.recorded_data
+    h = _cache_key(exp, files, split, members)
+    path = (Path(d.cache_dir) if d.cache_dir else exp.dir / "data") / f"{split}-{h[:16]}.pt"
+    meta = {"seed": exp.run.seed, "config_hash": h, "split": split}
+    info = {"path": str(path), "demonstrations": [states[i].source for i in members]}
+    if path.exists():
+        ds = load_dataset(path, meta)
+        return ds, {**info, "sha256": ds.checksum(), "points": len(ds), "reused": True}
+    ds = recorded_dataset(
+        [states[i] for i in members], every=d.every if split == "train" else 1, aux_of=recording_env(exp).recorded_aux
+    )
+    return ds, {**info, "sha256": save_dataset(path, ds, meta), "points": len(ds), "reused": False}
+
+
+def recording_env(exp: Experiment) -> LearnsFromRecordings:
+    """The run's environment as one that learns from recordings (what the tree reads besides the configuration)."""
+    env = exp.env
+    if not isinstance(env, LearnsFromRecordings):
+        raise RecordingError(
+            f"env.type={exp.run.env.type} cannot learn from recorded demonstrations (data.source: recorded): it "
+            "does not say what aux state a recording implies; use env=plane or an arm's env=manipulator"
+        )
+    return env
+
+
+def recorded_splits(exp: Experiment) -> tuple[Splits, dict[str, list[States]], list[States]]:
+    """The run's splits as datasets, the demonstrations of each split on the step grid, and all of them."""
+    d = exp.recorded_data
+    t0 = time.time()
+    recording_env(exp)
+    robot = exp.env.robot_description if isinstance(exp.env, JointSpace) else None
+    recordings = read_recordings(d, robot.joints if robot is not None else None)
+    states = on_grid_for(recordings, d, exp.env.dt, exp.env.dim, exp.run.env.type, robot, exp.env.aux_dims())
+    split = split_of(d, len(states), exp.run.seed)
+    parts = {"train": split.train, "test": split.test, **({"val": split.val} if split.val else {})}
+    files = content_hash(d)
+    seen = states if d.aux_to_policy else [dataclasses.replace(s, aux={}) for s in states]  # the scene's aux
+    made = {name: _dataset(exp, files, name, members, seen) for name, members in parts.items()}
+    for name, (ds, info) in made.items():
+        exp.say.say(
+            f"data: {name}: {len(info['demonstrations'])} demonstration(s), {info['points']} points"
+            f"{' (reused)' if info['reused'] else ''}"
+        )
+    exp.timing["data_s"] = time.time() - t0
+    splits = Splits({k: ds for k, (ds, _) in made.items()}, {k: info for k, (_, info) in made.items()})
+    return splits, {k: [states[i] for i in m] for k, m in parts.items()}, states

@@ -16,17 +16,18 @@ from torch import Tensor
 
 from ..envs.demonstrations import Dataset
 from ..envs.protocol import HasTaskMetrics
-from ..evaluate.certificate import certify_rollout
 from ..evaluate.divergence import divergence
 from ..evaluate.metrics import StageResult, evaluate_learner, online_loss, rollout_rates, task_stage
 from ..evaluate.weights import edge_weights, learned_edges, summarize_weights
 from ..learn.learner import Learner
 from ..learn.loop import load_snapshot
 from ..learn.objectives import dataset_loss
+from .certificates import certificate
 from .collect import Splits, expert_diverged
 from .construct import build_unit_weights
 from .experiment import COMPILING, Experiment, clean
 from .fit import Fitted
+from .recorded import RecordedEval, evaluate_recorded, evaluation_batch
 
 
 @dataclass
@@ -218,20 +219,6 @@ def evaluate_model(exp: Experiment, model: Learner, splits: Splits, label: str):
     return _SnapshotEvaluator(exp, label, splits, ExpertEval(None, {}, None)).metrics(model, label)
 
 
-def certificate(model: Learner, rollout, aux, every: int = 1) -> dict:
-    """Theorem 2's premises and identity checked at every (``every``-th) record of the trained tree's test rollouts
-    (``evaluate/certificate.py``): positive weights, positive-definite M_r, dV_r/dt = −q̇ᵀB_r q̇ ≤ 0. What a
-    trained tree (learned weights, learnable leaf parameters) must still satisfy; the failing records counted."""
-    assert model.tree is not None, "only a learner that is a tree has a certificate"
-    d = certify_rollout(model.tree, rollout, aux, every=every).as_dict()
-    return {
-        **d,
-        "every_record": every,
-        "failing_states": len(d["failing_states"]),
-        "non_finite_states": len(d["non_finite_states"]),
-    }
-
-
 def evaluate_fitted(exp: Experiment, name: str, fitted: Fitted, splits: Splits, expert: ExpertEval) -> LearnerEval:
     """Every snapshot of one trained learner, in float64 (docs/math.md §11); the model is left in its dtype."""
     t0 = time.time()
@@ -282,7 +269,10 @@ def flag_divergence(exp: Experiment, name: str, out: LearnerEval) -> None:
 
 def evaluate(
     exp: Experiment, splits: Splits, fitted: dict[str, Fitted], expert: ExpertEval | None = None
-) -> tuple[ExpertEval, dict[str, LearnerEval]]:
-    """The expert (unless its evaluation is given), then every learner in config order."""
+) -> tuple[ExpertEval, dict[str, LearnerEval]] | RecordedEval:
+    """The expert (unless its evaluation is given), then every learner in config order; on recorded demonstrations
+    (no expert), the configured tree and every learner against the held-out demonstrations (``recorded.py``)."""
+    if splits.demos is not None and splits.every_demo is not None:
+        return evaluate_recorded(exp, fitted, evaluation_batch(exp, splits.demos, splits.every_demo))
     expert = expert if expert is not None else evaluate_expert(exp, splits.test)
     return expert, {name: evaluate_fitted(exp, name, f, splits, expert) for name, f in fitted.items()}

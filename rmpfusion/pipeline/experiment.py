@@ -61,14 +61,15 @@ class Experiment:
 
     @property
     def expert_data(self) -> DataConfig:
-        """``data`` of a run on the expert's demonstrations, which the collect and evaluate stages read; a run on
-        recorded demonstrations has stages of its own (``pipeline/recorded.py``) that never ask for it."""
+        """``data`` of a run on the expert's demonstrations, which the collect and evaluate stages read; on recorded
+        demonstrations the same stages read ``recorded_data`` instead."""
         assert isinstance(self.run.data, DataConfig), "a run on recorded demonstrations has no expert's data"
         return self.run.data
 
     @property
     def recorded_data(self) -> RecordedDataConfig:
-        """``data`` of a run on recorded demonstrations, which that run's stages (``pipeline/recorded.py``) read."""
+        """``data`` of a run on recorded demonstrations, which the collect stage (the recorded source) and the
+        evaluation's recorded part (``pipeline/recorded.py``) read."""
         assert isinstance(self.run.data, RecordedDataConfig), "a run on the expert's demonstrations has no recordings"
         return self.run.data
 

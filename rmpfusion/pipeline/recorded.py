@@ -1,5 +1,7 @@
-"""An experiment on recorded demonstrations (``data.source: recorded``): read -> split by demonstration -> train
-(behavior cloning on the recorded accelerations) -> evaluate against the held-out demonstrations -> report.
+"""What the evaluate and report stages add on recorded demonstrations (``data.source: recorded``), which go
+through the same stages as the expert's: the collect stage reads and splits them by demonstration
+(``collect.recorded_splits``), the fit stage trains on them, and the evaluation measures each policy against the
+held-out demonstrations.
 
 There is no expert. The reference beside the learners is the tree as configured with every weight 1 (``tree``):
 what the structure alone does before anything is learned. Each policy is measured the way the LASA literature
@@ -17,19 +19,15 @@ measures learned dynamical systems (Khansari-Zadeh & Billard 2011; Rana et al. 2
 from __future__ import annotations
 
 import dataclasses
-import hashlib
-import json
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
 
 from ..core.tree import RMPTree
-from ..envs.demonstrations import Dataset, load_dataset, save_dataset
 from ..envs.protocol import JointSpace, LearnsFromRecordings
 from ..envs.rollout import Rollout
 from ..evaluate.lyapunov import lyapunov_monotone
@@ -38,90 +36,14 @@ from ..evaluate.rest_forces import rest_forces
 from ..files import atomic_write_json
 from ..learn.loop import load_snapshot
 from ..plots.recorded import View, recorded_figures
-from ..recordings import recorded_dataset, split_of
-from ..recordings.formats import flat_dump
-from ..recordings.recording import RecordingError
 from ..recordings.signals import States
-from ..recordings.source import content_hash, on_grid_for, read_recordings
-from .collect import Splits
-from .evaluation import certificate
+from .certificates import certificate
+from .collect import Splits, recorded_splits, recording_env  # noqa: F401  (recorded_splits: where tools and tests find it)
 from .experiment import Experiment, clean
-from .fit import fit
+from .fit import Fitted
 
 #: the reference policy's name: the configured tree with every weight 1, nothing learned
 TREE = "tree"
-
-
-# ------------------------------------------------------------------ data
-#: data keys that change the evaluation only, never a split's dataset
-EVALUATION_ONLY = frozenset({"cache_dir", "starts", "enlarge", "horizon_factor", "tolerance"})
-
-
-def _cache_key(exp: Experiment, files: str, split: str, members: tuple[int, ...]) -> str:
-    """What determines a split's dataset: the files' content hash, the data settings, the step and its members."""
-    d = exp.run.data
-    key = {
-        "files": files,
-        "data": {k: v for k, v in flat_dump(d).items() if k not in EVALUATION_ONLY},
-        "dt": exp.env.dt,
-        "env": exp.run.env.model_dump(mode="json"),  # the aux state (an arm's goal, obstacles) depends on it
-        "split": split,
-        "members": members,
-    }
-    return hashlib.sha256(json.dumps(key, sort_keys=True, default=str).encode()).hexdigest()
-
-
-def _dataset(
-    exp: Experiment, files: str, split: str, members: tuple[int, ...], states: list[States]
-) -> tuple[Dataset, dict]:
-    """The split's dataset, from the cache when the files (``files``: their content hash) and settings are the
-    same, else made and cached."""
-    d = exp.recorded_data
-    h = _cache_key(exp, files, split, members)
-    path = (Path(d.cache_dir) if d.cache_dir else exp.dir / "data") / f"{split}-{h[:16]}.pt"
-    meta = {"seed": exp.run.seed, "config_hash": h, "split": split}
-    info = {"path": str(path), "demonstrations": [states[i].source for i in members]}
-    if path.exists():
-        ds = load_dataset(path, meta)
-        return ds, {**info, "sha256": ds.checksum(), "points": len(ds), "reused": True}
-    ds = recorded_dataset(
-        [states[i] for i in members], every=d.every if split == "train" else 1, aux_of=recording_env(exp).recorded_aux
-    )
-    return ds, {**info, "sha256": save_dataset(path, ds, meta), "points": len(ds), "reused": False}
-
-
-def recording_env(exp: Experiment) -> LearnsFromRecordings:
-    """The run's environment as one that learns from recordings (what the tree reads besides the configuration)."""
-    env = exp.env
-    if not isinstance(env, LearnsFromRecordings):
-        raise RecordingError(
-            f"env.type={exp.run.env.type} cannot learn from recorded demonstrations (data.source: recorded): it "
-            "does not say what aux state a recording implies; use env=plane or an arm's env=manipulator"
-        )
-    return env
-
-
-def recorded_splits(exp: Experiment) -> tuple[Splits, dict[str, list[States]], list[States]]:
-    """The run's splits as datasets, the demonstrations of each split on the step grid, and all of them."""
-    d = exp.recorded_data
-    t0 = time.time()
-    recording_env(exp)
-    robot = exp.env.robot_description if isinstance(exp.env, JointSpace) else None
-    recordings = read_recordings(d, robot.joints if robot is not None else None)
-    states = on_grid_for(recordings, d, exp.env.dt, exp.env.dim, exp.run.env.type, robot, exp.env.aux_dims())
-    split = split_of(d, len(states), exp.run.seed)
-    parts = {"train": split.train, "test": split.test, **({"val": split.val} if split.val else {})}
-    files = content_hash(d)
-    seen = states if d.aux_to_policy else [dataclasses.replace(s, aux={}) for s in states]  # the scene's aux
-    made = {name: _dataset(exp, files, name, members, seen) for name, members in parts.items()}
-    for name, (ds, info) in made.items():
-        exp.say.say(
-            f"data: {name}: {len(info['demonstrations'])} demonstration(s), {info['points']} points"
-            f"{' (reused)' if info['reused'] else ''}"
-        )
-    exp.timing["data_s"] = time.time() - t0
-    splits = Splits({k: ds for k, (ds, _) in made.items()}, {k: info for k, (_, info) in made.items()})
-    return splits, {k: [states[i] for i in m] for k, m in parts.items()}, states
 
 
 # ------------------------------------------------------------------ evaluation
@@ -402,7 +324,17 @@ def certified_every(ro: Rollout) -> int:
     return max(1, -(-T * B // CERTIFIED_STATES))
 
 
-def evaluate_recorded(exp: Experiment, fitted: dict, batch: Batch) -> tuple[dict, dict]:
+@dataclass
+class RecordedEval:
+    """The evaluation stage on recorded demonstrations: the results (the tree with every weight 1, each learner at
+    each snapshot), each policy's final rollout (for the figures) and the batch they were rolled out from."""
+
+    results: dict
+    rollouts: dict[str, Rollout]
+    batch: Batch
+
+
+def evaluate_recorded(exp: Experiment, fitted: dict, batch: Batch) -> RecordedEval:
     """The configured tree (every weight 1) and every learner at every training snapshot; the results and the
     final rollout of each policy (for the figures)."""
     res: dict[str, Any] = {"learners": {}}
@@ -428,7 +360,7 @@ def evaluate_recorded(exp: Experiment, fitted: dict, batch: Batch) -> tuple[dict
             "train_seconds": f.seconds,
             "final_train_loss": f.result.curve[-1][1] if f.result.curve else None,
         }
-    return res, rollouts
+    return RecordedEval(res, rollouts, batch)
 
 
 # ------------------------------------------------------------------ the run
@@ -452,14 +384,12 @@ def objective(results: dict) -> float | None:
     return None
 
 
-def run_recorded(exp: Experiment, require_trained: bool = False) -> dict:
-    """The whole experiment on recorded demonstrations in ``exp.dir``; returns (and writes) metrics.json."""
-    started = time.time()
-    splits, demos, every_demo = recorded_splits(exp)
-    fitted = fit(exp, splits, require_trained=require_trained)
-    batch = evaluation_batch(exp, demos, every_demo)
-    results, rollouts = evaluate_recorded(exp, fitted, batch)
-    results["objective"] = objective(results)
+def report_recorded(
+    exp: Experiment, splits: Splits, fitted: dict[str, Fitted], evaluated: RecordedEval, started: float
+) -> dict:
+    """The report stage on recorded demonstrations: metrics.json (and the figures); returns the metrics."""
+    assert splits.demos is not None, "a report on recorded demonstrations needs them"
+    results = {**evaluated.results, "objective": objective(evaluated.results)}
     metrics = clean(
         {
             "name": exp.run.name,
@@ -472,6 +402,8 @@ def run_recorded(exp: Experiment, require_trained: bool = False) -> dict:
     )
     if exp.run.eval.figures:
         trees = {name: f.model.tree for name, f in fitted.items() if f.model.tree is not None}
-        metrics["figures"] = recorded_figures(exp.dir / "figures", rollouts, batch, demos, _arm_views(exp.env), trees)
+        metrics["figures"] = recorded_figures(
+            exp.dir / "figures", evaluated.rollouts, evaluated.batch, splits.demos, _arm_views(exp.env), trees
+        )
     atomic_write_json(exp.dir / "metrics.json", metrics)
     return metrics

@@ -24,7 +24,7 @@ from .evaluation import ExpertEval, evaluate, evaluate_expert
 from .experiment import Experiment, Log, prepare
 from .fit import Fitted, fit
 from .progress import Progress
-from .recorded import run_recorded
+from .recorded import RecordedEval, report_recorded
 from .report import report
 
 
@@ -51,8 +51,10 @@ def evaluate_and_report(
 ) -> dict:
     """Stages 3 and 4 over trained learners: what ``rmpfusion-run`` and ``rmpfusion-evaluate`` end with
     (``expert``: its evaluation when it was done already)."""
-    expert, evals = evaluate(exp, splits, fitted, expert)
-    return report(exp, splits, fitted, expert, evals, started)
+    evaluated = evaluate(exp, splits, fitted, expert)
+    if isinstance(evaluated, RecordedEval):  # recorded demonstrations: measured against the held-out ones
+        return report_recorded(exp, splits, fitted, evaluated, started)
+    return report(exp, splits, fitted, *evaluated, started)
 
 
 def run_experiment(
@@ -68,9 +70,8 @@ def run_experiment(
     started = time.time()
     with _threads(threads):
         exp = start(run, run_dir, progress, log)
-        if run.data.source == "recorded":
-            return run_recorded(exp, require_trained)
-        splits = collect(exp)
-        expert = evaluate_expert(exp, splits.test)  # before training: an expert that diverges stops the run here
+        splits = collect(exp)  # the expert's rollouts, or the recorded demonstrations split by demonstration
+        # before training: an expert that diverges stops the run here (recorded demonstrations have no expert)
+        expert = evaluate_expert(exp, splits.test) if splits.demos is None else None
         fitted = fit(exp, splits, require_trained=require_trained)
         return evaluate_and_report(exp, splits, fitted, started, expert)
