@@ -192,6 +192,43 @@ def _time_column_hint(header: Sequence[str]) -> str:
     return f"; set data.time_column={timed[0]}" if len(timed) == 1 else ""
 
 
+def _check_header(
+    header: Sequence[str], source: str, header_row: int, time_column: str, demo_column: str | None, named: list[str]
+) -> None:
+    """Every column the settings name is in the header; otherwise one message naming the setting and the header."""
+    if time_column not in header:
+        raise RecordingError(
+            f"{where(source, header_row)}: the header has no time column {time_column!r} (data.time_column); it has "
+            f"{', '.join(header)}{_time_column_hint(header)}"
+        )
+    for name in named:
+        if name not in header:
+            raise RecordingError(
+                f"{where(source, header_row)}: the header has no column {name!r}; it has {', '.join(header)}"
+            )
+    if demo_column and demo_column not in header:
+        raise RecordingError(
+            f"{where(source, header_row)}: the header has no column {demo_column!r} (data.demo_column); it has "
+            f"{', '.join(header)}"
+        )
+
+
+def _rows_by_demonstration(
+    body: Sequence[Sequence[str]], width: int, demo_index: int | None, source: str
+) -> dict[str, list[int]]:
+    """{demonstration id: its rows} (one id, "", without a demonstration column); blank lines are no samples, and a
+    row of another width than the header's names its line."""
+    groups: dict[str, list[int]] = {}
+    for r, line in enumerate(body):
+        if not any(cell.strip() for cell in line):
+            continue  # a blank line (a trailing newline) is not a sample
+        if len(line) != width:
+            raise RecordingError(f"{where(source, r + 2)}: {len(line)} values for the header's {width} columns")
+        key = line[demo_index].strip() if demo_index is not None else ""
+        groups.setdefault(key, []).append(r)
+    return groups
+
+
 def read_csv(
     path: str | Path,
     columns: Sequence[str] | None = None,
@@ -217,33 +254,13 @@ def read_csv(
     header, body = table.header, table.body
     aux_columns = dict(aux_columns or {})
     derivatives = [*(velocity_columns or ()), *(acceleration_columns or ())]
-    used = {time_column, demo_column, *derivatives, *(c for cs in aux_columns.values() for c in cs)}
+    used_aux = [c for cs in aux_columns.values() for c in cs]
+    used = {time_column, demo_column, *derivatives, *used_aux}
     guessed = columns is None
     columns = list(columns) if columns is not None else _coordinate_columns(header, used, source, table.header_row)
-    if time_column not in header:
-        raise RecordingError(
-            f"{where(source, table.header_row)}: the header has no time column {time_column!r} (data.time_column); it has "
-            f"{', '.join(header)}{_time_column_hint(header)}"
-        )
-    for name in [*columns, *derivatives, *(c for cs in aux_columns.values() for c in cs)]:
-        if name not in header:
-            raise RecordingError(
-                f"{where(source, table.header_row)}: the header has no column {name!r}; it has {', '.join(header)}"
-            )
-    if demo_column and demo_column not in header:
-        raise RecordingError(
-            f"{where(source, table.header_row)}: the header has no column {demo_column!r} (data.demo_column); it has "
-            f"{', '.join(header)}"
-        )
+    _check_header(header, source, table.header_row, time_column, demo_column, [*columns, *derivatives, *used_aux])
     index = {h: k for k, h in enumerate(header)}
-    groups: dict[str, list[int]] = {}
-    for r, line in enumerate(body):
-        if not any(cell.strip() for cell in line):
-            continue  # a blank line (a trailing newline) is not a sample
-        if len(line) != len(header):
-            raise RecordingError(f"{where(source, r + 2)}: {len(line)} values for the header's {len(header)} columns")
-        key = line[index[demo_column]].strip() if demo_column else ""
-        groups.setdefault(key, []).append(r)
+    groups = _rows_by_demonstration(body, len(header), index[demo_column] if demo_column else None, source)
     scale, seconds = unit_scale(units, source), time_scale(time_units, source)
     as_coordinate = (
         f"; every column but time{', ' + repr(demo_column) if demo_column else ''} is read as a coordinate unless "
