@@ -38,6 +38,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from ...registry import TASK_MAPS
 from ...robots import URDFRobot
 from ...robots.geometry import collision_meshes, links_with_geometry
 from ...scenes.distance import distances
@@ -157,8 +158,10 @@ def sphere_clearance(env: ManipulatorTask, q: Tensor, aux: Mapping[str, Tensor])
         best = d.amin(-1)
     grounded = torch.tensor([link in env.checker().ground_reach for link in cover.links], dtype=torch.bool)
     if env.scene.ground is not None and bool(grounded.any()):
-        z = centres[:, grounded, 2] - radii[grounded] - env.scene.ground.height
-        best = torch.minimum(best, z.amin(-1))
+        entry = TASK_MAPS.get("plane_distance")  # the tree's ground map (envs/manipulator_tree.py)
+        plane = entry.obj(entry.validate({"normal": [0.0, 0.0, 1.0], "height": env.scene.ground.height}), 3, {})
+        above = plane.to(q.dtype).psi(centres[:, grounded].reshape(-1, 3), {}).reshape(M, -1) - radii[grounded]
+        best = torch.minimum(best, above.amin(-1))
     return best
 
 
