@@ -271,15 +271,19 @@ class _Bounded:
     Each answer raises the bounds around k, in blocks growing away from it while they still raise some bound."""
 
     def __init__(self, mesh: _Replay, bound: Tensor, q: Tensor, rho: Tensor | None, moved: Tensor | None):
-        self.mesh, self.lower, self.q, self.rho, self.moved = mesh, bound.clone(), q.to(bound), rho, moved
-        self.asked = torch.zeros(len(bound), dtype=torch.bool)
+        # numpy: thousands of small updates per sample, where torch's per-call overhead would dominate
+        self.mesh, self.lower = mesh, bound.detach().cpu().numpy().astype(np.float64)
+        self.q = q.detach().cpu().numpy().astype(np.float64)
+        self.rho = None if rho is None else rho.cpu().numpy()
+        self.moved = None if moved is None else moved.detach().cpu().numpy()
+        self.open = np.ones(len(self.lower), dtype=bool)
 
     def ask(self, k: int) -> float:
         c = self.mesh(k)
-        self.asked[k] = True
+        self.open[k] = False
         if c > 0 and self.rho is not None:
             for direction in (1, -1):
-                edge, size = k, 64
+                edge, size = k, 256
                 while 0 <= edge < len(self.lower) and self._raise(k, c, *sorted((edge, edge + direction * size))):
                     edge, size = edge + direction * size, 2 * size
         return c
@@ -287,12 +291,12 @@ class _Bounded:
     def _raise(self, k: int, c: float, a: int, b: int) -> bool:
         """Raise the bounds of steps a..b-1 (clipped) by the answer c at step k; whether any rose."""
         a, b = max(a, 0), min(b, len(self.lower))
-        reach = (self.q[a:b] - self.q[k]).abs() @ self.rho.to(self.q)  # type: ignore[union-attr]
+        reach = np.abs(self.q[a:b] - self.q[k]) @ self.rho
         if self.moved is not None:
-            reach = reach + (self.moved[a:b] - self.moved[k]).norm(dim=-1).amax(-1)
+            reach = reach + np.linalg.norm(self.moved[a:b] - self.moved[k], axis=-1).max(-1)
         new = c - reach
         rose = new > self.lower[a:b]
-        self.lower[a:b] = torch.where(rose, new, self.lower[a:b])
+        np.maximum(self.lower[a:b], new, out=self.lower[a:b])
         return bool(rose.any())
 
     def run(self, query: float, dt: float) -> tuple[float, float]:
@@ -301,7 +305,7 @@ class _Bounded:
         sample's smallest clearance is among them); then, while nothing collides, the open step of lowest bound
         until every bound is within ``CLEARANCE_TOLERANCE`` of the smallest clearance found, or above it."""
         best, first = query, float("inf")
-        for k in (self.lower <= 0).nonzero().flatten().tolist():
+        for k in np.flatnonzero(self.lower <= 0).tolist():
             if self.lower[k] > 0:  # cleared by continuity from a step asked since
                 continue
             c = self.ask(k)
@@ -311,9 +315,9 @@ class _Bounded:
         if best <= 0:
             return best, first
         while True:
-            open_ = torch.where(self.asked, float("inf"), self.lower)
-            k = int(open_.argmin())
-            if float(open_[k]) >= best - CLEARANCE_TOLERANCE:
+            left = np.where(self.open, self.lower, np.inf)
+            k = int(left.argmin())
+            if left[k] >= best - CLEARANCE_TOLERANCE:
                 return best, first
             best = min(best, self.ask(k))
 
