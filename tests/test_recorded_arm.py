@@ -262,10 +262,12 @@ def test_the_iiwa_recording_without_joint_names_asks_for_them(tmp_path):
 
 
 def test_the_shipped_iiwa_recording_is_what_the_tool_makes(tmp_path, iiwa_env):
-    """The tool's first demonstration at seed 0 is the shipped file's first (the draws are sequential)."""
+    """The tool's first demonstration at seed 0 is the shipped file's first (the draws are sequential), to rounding:
+    its inverse kinematics and splines are pybullet's and scipy's, whose releases may change the last bits (2.7e-15
+    rad seen on a fresh install), never a demonstration."""
     out = one_demonstration_of("tools/iiwa_recordings.py", tmp_path / "one.hdf5")
     made = read_hdf5(out, "obs/robot0_joint_pos", rate=20.0)[0]
-    np.testing.assert_array_equal(made.pos, iiwa_recordings(iiwa_env)[0].pos)
+    np.testing.assert_allclose(made.pos, iiwa_recordings(iiwa_env)[0].pos, rtol=0, atol=1e-12)
 
 
 @pytest.mark.slow

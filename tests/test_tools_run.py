@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-TOOLS = sorted((Path(__file__).resolve().parents[1] / "tools").glob("*.py"))
+TOOLS = sorted(p for p in (Path(__file__).resolve().parents[1] / "tools").glob("*.py") if p.name != "__init__.py")
 
 
 def _calls_main_when_run(tree: ast.Module) -> bool:
