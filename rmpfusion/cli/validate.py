@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from omegaconf import DictConfig
 
+from ..assembly.premises import check_premises
 from ..assembly.spec import weight_label
 from ..envs.protocol import JointSpace
 from ..evaluate.weights import learned_edges
@@ -33,9 +34,12 @@ def summary(run, env, expert, learners) -> str:
     ]
     if run.expert:
         lines.append("expert weights: " + ", ".join(f"{n}={weight_label(w)}" for n, w in run.expert.items()))
+    lines.append(f"premises (tree): {check_premises(expert).line()}")
     for name, model in learners.items():
         extra = f", learns the weights of edges {learned_edges(model.tree)}" if model.tree is not None else ""
         lines.append(f"learner {name}: {run.learners[name].type}, {model.num_parameters()} parameters{extra}")
+        if model.tree is not None:
+            lines.append(f"premises ({name}): {check_premises(model.tree).line()}")
     d, t = run.data, run.train
     if d.source == "recorded":
         what = f"LASA shape {d.shape}" if d.format == "lasa" else ", ".join(d.files)
@@ -65,7 +69,8 @@ def summary(run, env, expert, learners) -> str:
             ),
             (
                 f"eval: rollouts from the held-out demonstrations' starts and {d.starts} starts at rest, "
-                f"{d.horizon_factor:g} times the longest demonstration; figures {'on' if run.eval.figures else 'off'} "
+                f"{d.horizon_factor:g} times the longest demonstration (the starts at rest on to "
+                f"{max(d.horizon_factor, d.convergence_horizon_factor):g} times); figures {'on' if run.eval.figures else 'off'} "
                 "(eval.compile and eval.unit_weights are for expert data: the tree with every weight 1 is always the "
                 "reference here)"
             ),

@@ -7,6 +7,7 @@ M = G + Ξ_G,   f = −∇Φ − B ẏ − ξ_G,   L = ½ ẏᵀGẏ − Φ,   V
 
 from __future__ import annotations
 
+import torch
 from torch import Tensor, nn
 
 from . import autodiff
@@ -23,6 +24,15 @@ class LeafRMP(Stackable, nn.Module):
 
     dim: int | None = None  # None: any dimension
     coordinates: str | None = None  # the map output it reads when not plain coordinates (TaskMap.coordinates)
+    #: Its potential Φ, for the premise check of docs/math.md §12 (``assembly/premises.py``): "none" (Φ = 0),
+    #: "attractor" (radially unbounded, its only minimum at the origin of its space, for any numbers: premise 2),
+    #: "other" (a barrier's, a moving goal's, ...) or "unknown" (undeclared, or not a GDS: the check assumes the worst).
+    potential_kind: str = "unknown"
+
+    def damps(self) -> bool:
+        """Whether its damping B is positive definite on its whole space with its numbers as they are (premise 4
+        of docs/math.md §12); False unless a leaf says otherwise."""
+        return False
 
     def __init_subclass__(cls, **kwargs):
         """Each number the class declares (``stack_fields``) may be learned (``core/learnable.py``): reading it
@@ -49,6 +59,11 @@ class LeafRMP(Stackable, nn.Module):
 def quad(v: Tensor, A: Tensor) -> Tensor:
     """vᵀ A v per sample (any leading dimensions)."""
     return (matvec(A, v) * v).sum(-1)
+
+
+def positive(number) -> bool:
+    """A leaf's number (a float, or a learned number's current value) > 0 everywhere."""
+    return bool((torch.as_tensor(number) > 0).all())
 
 
 class GDS(LeafRMP):

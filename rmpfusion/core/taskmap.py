@@ -29,6 +29,9 @@ class TaskMap(Stackable, nn.Module):
     # followed by the goal's velocity. A leaf reads such an output only if it declares the same (LeafRMP.coordinates),
     # and a leaf that declares one reads nothing else; the tree builder checks both.
     coordinates: str | None = None
+    #: A diffeomorphism of ℝⁿ onto ℝⁿ for any parameters (J invertible everywhere, every point reached): premise 1
+    #: of docs/math.md §12, read by the premise check (``assembly/premises.py``). False unless a map declares it.
+    bijective: bool = False
 
     def __init__(self, in_dim: int, aux_dims: Mapping[str, int] | None = None):
         super().__init__()

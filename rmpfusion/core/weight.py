@@ -21,6 +21,12 @@ class WeightFunction(Stackable, nn.Module):
     """
 
     is_constant = False
+    #: What w reads, for the premise check of docs/math.md §12 (``assembly/premises.py``): "nothing" (a constant),
+    #: "aux" (aux state only, never the configuration), "radial" (only the distance from ``radial_center``, never
+    #: decreasing with it, whatever its learned numbers) or "configuration" (anything else: the safe default).
+    reads: str = "configuration"
+    #: for a weight that reads "radial": the point it is radial about (numbers or an aux name)
+    radial_center: AuxParam | None = None
 
     def __init__(self, in_dim: int, aux_dims: Mapping[str, int] | None = None):
         super().__init__()

@@ -42,6 +42,7 @@ class Identity(TaskMap):
     """y = x: attach several RMPs to the same space, or weight a whole subtree."""
 
     identity_jacobian = True
+    bijective = True
     stack_fields = ()
 
     class Params(Params):
@@ -72,6 +73,7 @@ class Offset(TaskMap):
     """y = x − origin: an attractor space with the goal at 0 (origin may be aux state)."""
 
     identity_jacobian = True
+    bijective = True
     stack_fields = ("origin",)
 
     class Params(Params):
@@ -138,6 +140,12 @@ class Linear(_Affine):
         if b.numel() != A.shape[0]:
             raise ValueError(f"linear.bias must have {A.shape[0]} entries, got {b.numel()}")
         self._set(A, b)
+
+    @property
+    def bijective(self) -> bool:  # type: ignore[override]
+        """A square matrix of full rank: y = A x + b is then a diffeomorphism of ℝⁿ onto itself."""
+        n, m = self.A.shape[-2:]
+        return n == m and int(torch.linalg.matrix_rank(self.A.double())) == n
 
 
 @TASK_MAPS.register("select", examples=[Example({"indices": [2, 0]}, 3, scale=3.0)])
@@ -263,6 +271,11 @@ class Compose(TaskMap):
         self.stages = torch.nn.ModuleList(stages)
         self.out_dim = dim
         self.coordinates = stages[-1].coordinates  # the composition's output is its last stage's
+
+    @property
+    def bijective(self) -> bool:  # type: ignore[override]
+        """Every stage a diffeomorphism of ℝⁿ onto ℝⁿ: so is their composition."""
+        return all(bool(m.bijective) for m in self.stages)
 
     def psi(self, x, aux):
         for m in self.stages:

@@ -112,6 +112,8 @@ class Diffeomorphism(TaskMap):
     ``origin`` (a goal: constant or aux) maps to 0, where an attractor leaf puts its equilibrium; ``inverse``
     gives x back from y."""
 
+    bijective = True  # coupling layers: a bijection of ℝⁿ for any parameters (docs/math.md §12, premise 1)
+
     class Params(Params):
         layers: int = Field(4, ge=1, description="coupling layers (alternating halves: ≥ 2 moves every coordinate)")
         hidden: tuple[int, ...] = Field((32, 32), description="hidden widths of each layer's scale/shift network")
@@ -200,6 +202,8 @@ class Diffeomorphism(TaskMap):
 )
 class Normalize(TaskMap):
     """y = (x − shift) / scale: constants (a number for every coordinate, or one per coordinate)."""
+
+    bijective = True  # every scale > 0
 
     shift: Tensor  # buffers, one number per coordinate
     scale: Tensor

@@ -15,7 +15,7 @@ import torch
 from pydantic import Field, model_validator
 from torch import Tensor
 
-from ..core.gds import GDS
+from ..core.gds import GDS, positive
 from ..core.stacking import spread
 from ..examples import Example
 from ..registry import LEAF_RMPS, numbers_repr
@@ -50,6 +50,10 @@ class RadialMetricAttractor(GDS):
     def __init__(self, params: RadialMetricParams, dim: int):
         super().__init__(dim)
         self.eta, self.w_u, self.w_l, self.sigma = params.eta, params.w_u, params.w_l, params.sigma
+
+    def damps(self) -> bool:
+        """B = η·w·I with w ≥ min(w_u, w_l) > 0: positive definite when η > 0."""
+        return positive(self.eta)
 
     def _w(self, y: Tensor) -> tuple[Tensor, Tensor]:
         beta = torch.exp(-(y * y).sum(-1) / (2 * self.sigma**2))
@@ -109,6 +113,8 @@ class GoalAttractor(RadialMetricAttractor):
     damping B = η·w·I.
     """
 
+    potential_kind = "attractor"  # gain, α > 0: log cosh(α|y|) grows without bound, its only minimum at y = 0
+
     class Params(LeafParams):
         gain: float = Field(1.0, gt=0)
         alpha: float = Field(1.0, gt=0, description="softness: 1/alpha is the distance where Φ turns linear")
@@ -153,6 +159,7 @@ class Barrier1D(GDS):
     """
 
     dim = 1
+    potential_kind = "other"  # a barrier: its force can balance an attractor's (docs/math.md §12, premise 5)
 
     class Params(LeafParams):
         r_w: float = Field(1.0, gt=0, description="support radius: no effect beyond this distance")
@@ -293,6 +300,12 @@ class JointLimitBarrier(Barrier1D):
 @LEAF_RMPS.register("damper", examples=[Example({"w": 2.0, "eta": 3.0}, 2)])
 class Damper(GDS):
     """G = w·I, B = η·w·I, Φ = 0: damps motion in its space."""
+
+    potential_kind = "none"
+
+    def damps(self) -> bool:
+        """B = η·w·I: positive definite when η > 0 (an identity metric's η is 0)."""
+        return positive(self.eta) and positive(self.w)
 
     class Params(LeafParams):
         w: float = Field(1.0, gt=0)

@@ -22,6 +22,7 @@ class Constant(WeightFunction):
     """w = value > 0 everywhere; ∇w = 0, so pullback* skips h_i."""
 
     is_constant = True
+    reads = "nothing"
     stack_fields = ("c",)
 
     class Params(registry.Params):  # registry.Params: this class takes its base's name

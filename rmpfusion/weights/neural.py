@@ -196,6 +196,11 @@ class MLPWeight(WeightFunction):
         )
         return w.reshape(lead), None if grad is None else grad.reshape(*lead, -1)
 
+    @property
+    def reads(self) -> str:  # type: ignore[override]
+        """Reads "aux" only when the configuration is not among the network's inputs (``use_config: false``)."""
+        return "configuration" if self.use_config else "aux"
+
     def value(self, x, aux):
         return self.forward(x, aux)[0]
 

@@ -67,6 +67,14 @@ class Radial(WeightFunction):
         self.positions = nn.Parameter(torch.linspace(0.0, p.reach, K, dtype=CONSTANT_DTYPE))
         self.smoothing, self.floor = p.smoothing, p.floor
 
+    reads = "radial"  # w(ρ) non-decreasing in ρ = |x − center| by construction (docs/math.md §12, premise 3)
+
+    @property
+    def radial_center(self) -> AuxParam:  # type: ignore[override]
+        """The point w is radial about: numbers or an aux name (what the premise check compares with the
+        attractor's centre)."""
+        return self.center
+
     def profile(self, rho: Tensor) -> tuple[Tensor, Tensor]:
         """w(ρ) and dw/dρ ≥ 0, for ρ of any shape."""
         h, s = F.softplus(self.heights), F.softplus(self.slopes)
