@@ -27,6 +27,7 @@ TINY_LASA = [
     "train.snapshots=[0,20]",
     "data.starts=4",
     "data.horizon_factor=1.0",
+    "data.convergence_horizon_factor=3.0",
 ]
 
 
@@ -45,6 +46,15 @@ def test_a_tiny_lasa_run_end_to_end_then_resumed(tmp_path):
         assert policy["convergence"]["lyapunov_monotone_fraction"] == 1.0  # Theorem 2, any parameters
         assert policy["reproduction_test"]["dtw"] > 0 and policy["reproduction_val"]["dtw"] > 0
     assert rmp["certificate"]["ok"] and rmp["certificate"]["failing_states"] == 0
+    assert m["tree"]["premises"]["goal_only_equilibrium"]  # every weight 1: §12's premises hold
+    assert rmp["premises"]["broken"] == [3]  # the learned weight on the attractor reads the position
+    for policy in (m["tree"], rmp):  # the starts at rest went on to 3 durations, each told apart
+        o = policy["convergence"]["at_long_horizon"]
+        assert (
+            o["starts"] == policy["convergence"]["starts"] and o["horizon_s"] > 2.9 * policy["convergence"]["horizon_s"]
+        )
+        assert o["converged"] + o["at_rest_away"] + o["still_moving"] + o["ended_early"] == o["starts"]
+    assert "at_long_horizon" not in rmp["snapshots"]["0"]["convergence"]  # only the final policy goes on
     assert set(rmp["learned_leaf_parameters"]) == {"attractor.gain", "attractor.alpha", "attractor.eta"}
     assert m["objective"] == rmp["reproduction_val"]["dtw"]  # a sweep chooses on validation
     assert (tmp_path / "figures" / "rollouts.png").stat().st_size > 0

@@ -216,7 +216,9 @@ def collect(exp: Experiment, splits: tuple[str, ...] | None = None) -> Splits:
 
 # ------------------------------------------------------------------ the recorded source
 #: data keys that change the evaluation only, never a split's dataset
-EVALUATION_ONLY = frozenset({"cache_dir", "starts", "enlarge", "horizon_factor", "tolerance"})
+EVALUATION_ONLY = frozenset(
+    {"cache_dir", "starts", "enlarge", "horizon_factor", "convergence_horizon_factor", "at_rest_rate", "tolerance"}
+)
 
 
 def _cache_key(exp: Experiment, files: str, split: str, members: tuple[int, ...]) -> str:

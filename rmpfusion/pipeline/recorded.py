@@ -12,7 +12,12 @@ measures learned dynamical systems (Khansari-Zadeh & Billard 2011; Rana et al. 2
   ``horizon_factor`` durations, and the time to come within ``tolerance``;
 * convergence, from ``starts`` states at rest on a regular grid over the demonstrations' bounding box enlarged by
   ``enlarge``, over ``horizon_factor`` times the longest demonstration: the fraction within ``tolerance`` of the
-  goal at the end, V_r non-increasing (Theorem 2), and where the others stopped nearly at rest;
+  goal at the end, V_r non-increasing (Theorem 2), and where the others stopped nearly at rest; then the same starts
+  go on to ``convergence_horizon_factor`` times the longest demonstration, where each is told converged, at rest
+  away from the goal (where, how far) or still moving, with the time each took to come within ``tolerance``
+  (``convergence.at_long_horizon``, ``evaluate/convergence.py``);
+* whether the goal is the tree's only equilibrium for any parameters: the premises of docs/math.md §12 read off the
+  tree (``premises``, ``assembly/premises.py``);
 * the trained tree's certificate (Theorem 2's premises and energy identity) at every record of those rollouts.
 """
 
@@ -27,9 +32,11 @@ from typing import Any
 import numpy as np
 import torch
 
+from ..assembly.premises import check_premises
 from ..core.tree import RMPTree
 from ..envs.protocol import JointSpace, LearnsFromRecordings
 from ..envs.rollout import Rollout
+from ..evaluate.convergence import convergence_outcomes, outcomes_line
 from ..evaluate.lyapunov import lyapunov_monotone
 from ..evaluate.reproduction import dtw_distance, swept_error_area
 from ..evaluate.rest_forces import rest_forces
@@ -126,6 +133,8 @@ class Batch:
     #: aux the policy is not told (``data.aux_to_policy=false``): name -> the scene's value (k,) it reads instead,
     #: the same for every row; ``aux`` keeps where the obstacles stood, which collisions are counted against
     hidden: dict[str, torch.Tensor] = dataclasses.field(default_factory=dict)
+    #: how long the starts at rest go on (``data.convergence_horizon_factor``), at least ``horizon``
+    long_horizon: float | None = None
 
     def policy_aux(self) -> dict[str, torch.Tensor]:
         """The aux state the policy reads: ``aux`` with the hidden entries at the scene's values."""
@@ -163,6 +172,7 @@ def evaluation_batch(exp: Experiment, demos: dict[str, list[States]], every_demo
     goals += [goal] * len(grid)
     longest = max(float(s.t[-1]) for s in every_demo)
     horizon = dt * int(np.ceil(d.horizon_factor * longest / dt - 1e-9))
+    long_horizon = max(horizon, dt * int(np.ceil(d.convergence_horizon_factor * longest / dt - 1e-9)))
     aux = {k: v.clone() for k, v in env.recorded_aux(_as_tensor(np.stack(goals))).items()}  # written into below
     held_states = [s for v in held.values() for s in v]
     from_files = sorted({name for s in every_demo for name in s.aux})
@@ -179,6 +189,7 @@ def evaluation_batch(exp: Experiment, demos: dict[str, list[States]], every_demo
         slice(at, at + len(grid)),
         horizon,
         hidden,
+        long_horizon,
     )
 
 
@@ -243,6 +254,37 @@ def convergence(batch: Batch, ro, d, rtol: float, atol: float, dt: float, tree: 
     return out
 
 
+#: about this many records of the starts at rest past the reproduction's horizon (the distance to the goal, for the
+#: time each start first comes within the tolerance and the rate it changes at the end)
+LONG_RECORDS = 2000
+
+
+def long_horizon_outcomes(exp: Experiment, policy: Callable, batch: Batch, ro: Rollout, label: str) -> dict:
+    """The starts at rest continued from where ``ro`` left them to ``batch.long_horizon``, then each told converged,
+    at rest away from the goal or still moving there (``evaluate/convergence.py``)."""
+    d, g, dt = exp.recorded_data, batch.grid, exp.env.dt
+    assert ro.goal_distance is not None, "an environment for recorded demonstrations measures the distance to the goal"
+    times, dist, q_end = ro.times, ro.goal_distance[:, g], ro.q[-1, g]
+    steps = round(((batch.long_horizon or batch.horizon) - batch.horizon) / dt)
+    if steps > 0 and g.stop > g.start:
+        every = max(1, steps // LONG_RECORDS)
+        steps = every * -(-steps // every)  # the last record at the horizon's end
+        more = exp.env.rollout(
+            told_only_the_scene(policy, batch.hidden),
+            ro.q[-1, g],
+            ro.qd[-1, g],
+            {k: v[g] for k, v in batch.aux.items()},
+            steps * dt,
+            every * dt,
+            progress=exp.say.bar(f"rollout {label} from rest, to {batch.horizon + steps * dt:.4g} s"),
+        )
+        times = torch.cat([times, times[-1] + more.times[1:].to(times)])
+        assert more.goal_distance is not None
+        dist = torch.cat([dist, more.goal_distance[1:].to(dist)])
+        q_end = more.q[-1]
+    return convergence_outcomes(times, q_end, dist, d.tolerance, d.at_rest_rate)
+
+
 #: the stalled rollouts whose rest forces are examined (the first ones; a spurious equilibrium is usually shared)
 STALLED_EXAMINED = 10
 
@@ -262,10 +304,11 @@ def held_by(tree: RMPTree, q: torch.Tensor, batch: Batch, rows: torch.Tensor) ->
 
 
 def evaluate_policy(
-    exp: Experiment, label: str, policy: Callable, batch: Batch, tree: RMPTree | None = None
+    exp: Experiment, label: str, policy: Callable, batch: Batch, tree: RMPTree | None = None, long: bool = True
 ) -> tuple[dict, Rollout]:
     """One policy on the evaluation batch: reproduction of the held-out demonstrations, convergence from the grid
-    (with ``tree``, the policy's tree: which leaves hold the rollouts that stop short)."""
+    (with ``tree``, the policy's tree: which leaves hold the rollouts that stop short); with ``long``, the starts at
+    rest go on to the long horizon (``convergence.at_long_horizon``)."""
     d, ev = exp.recorded_data, exp.run.eval
     ro = exp.env.rollout(
         told_only_the_scene(policy, batch.hidden),
@@ -279,6 +322,9 @@ def evaluate_policy(
     to_task = _end_effector(exp.env)
     out = {f"reproduction_{k}": reproduction(batch, ro, k, d.tolerance, to_task) for k in batch.index}
     out["convergence"] = conv = convergence(batch, ro, d, ev.lyapunov_rtol, ev.lyapunov_atol, exp.env.dt, tree)
+    if long:
+        conv["at_long_horizon"] = long_horizon_outcomes(exp, policy, batch, ro, label)
+        exp.say.say(f"{label}: {outcomes_line(conv['at_long_horizon'], d.tolerance)} (convergence.at_long_horizon)")
     rep = out["reproduction_test"]
     monotone = conv.get("lyapunov_monotone_fraction")
     unit, area = ("rad", "rad²") if to_task else ("m", "m²")
@@ -300,7 +346,7 @@ def evaluate_policy(
     if conv["stalled_count"]:
         held = conv.get("held_by")
         exp.say.say(
-            f"{label}: {conv['stalled_count']} start(s) nearly at rest away from the goal at the horizon (a "
+            f"{label}: {conv['stalled_count']} start(s) nearly at rest away from the goal at {batch.horizon:.4g} s (a "
             f"spurious equilibrium, or a region the policy makes extremely slow), e.g. at {conv['stalled'][0]}"
             + (
                 "; held there by the forces of "
@@ -334,24 +380,35 @@ class RecordedEval:
     batch: Batch
 
 
+def premises(exp: Experiment, label: str, tree: RMPTree) -> dict:
+    """Whether ``tree``'s goal is its only equilibrium for any parameters (docs/math.md §12), said in the log:
+    the premise report metrics.json records beside the convergence measured."""
+    report = check_premises(tree)
+    exp.say.say(f"{label}: {report.line()}")
+    return report.as_dict()
+
+
 def evaluate_recorded(exp: Experiment, fitted: dict, batch: Batch) -> RecordedEval:
     """The configured tree (every weight 1) and every learner at every training snapshot; the results and the
     final rollout of each policy (for the figures)."""
     res: dict[str, Any] = {"learners": {}}
     rollouts: dict[str, Rollout] = {}
     res[TREE], rollouts[f"{TREE} (every weight 1)"] = evaluate_policy(exp, TREE, exp.expert_at(), batch, exp.expert)
+    res[TREE]["premises"] = premises(exp, TREE, exp.expert)
     for name, f in fitted.items():
         model = f.model.to(torch.float64)
         snaps = {}
         for it in sorted(f.result.snapshots):
             snap = load_snapshot(model, f.result.snapshots[it]).to(torch.float64)
-            snaps[str(it)], ro = evaluate_policy(exp, f"{name}-{it}", snap.policy, batch, snap.tree)
+            last = it == exp.run.train.iterations  # only the final policy goes on to the long horizon
+            snaps[str(it)], ro = evaluate_policy(exp, f"{name}-{it}", snap.policy, batch, snap.tree, last)
         final = snaps.get(str(exp.run.train.iterations))
         if final is None:
             final, ro = evaluate_policy(exp, name, model.policy, batch, model.tree)
         rollouts[f"{name} after {exp.run.train.iterations} iterations"] = ro
         if model.tree is not None:
             final["certificate"] = certificate(model, ro, batch.policy_aux(), every=certified_every(ro))
+            final["premises"] = premises(exp, name, model.tree)
         if learned := model.learned_numbers():
             final["learned_leaf_parameters"] = learned
         res["learners"][name] = {

@@ -116,6 +116,19 @@ class RecordedDataConfig(Params):
         description="the box of those starts: the demonstrations' bounding box, each side longer by this fraction",
     )
     horizon_factor: float = Field(3.0, gt=0, le=100, description="their horizon: this times the longest demonstration")
+    convergence_horizon_factor: float = Field(
+        10.0,
+        gt=0,
+        le=1000,
+        description="the starts at rest go on to this times the longest demonstration (at least horizon_factor), "
+        "where each is told converged, at rest away from the goal, or still moving",
+    )
+    at_rest_rate: float | None = Field(
+        None,
+        gt=0,
+        description="a start is at rest there when its distance to the goal changes slower than this (m/s; default "
+        "the tolerance per that horizon)",
+    )
     tolerance: float = Field(
         0.001,
         gt=0,
