@@ -137,6 +137,7 @@ TINY_RECORDED = [
     "train.snapshots=[0,3]",
     "data.starts=4",
     "data.horizon_factor=1.0",
+    "data.convergence_horizon_factor=2.0",
     "eval.figures=false",
 ]
 #: The tools that compare training methods choose the method themselves: tiny splits and evaluation only.

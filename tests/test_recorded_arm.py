@@ -175,7 +175,8 @@ def tiny_run(tmp_path: Path, experiment: str, *overrides: str) -> dict:
     """metrics.json of ``rmpfusion-run experiment=<experiment>`` at smoke size (3 starts at rest, short horizons) with
     ``overrides``, run as a user runs it; a failed run fails the test with its stderr."""
     command = [sys.executable, "-m", "rmpfusion.cli.run", f"experiment={experiment}", *overrides]
-    command += ["data.starts=3", "data.horizon_factor=0.3", "logger=disabled", f"hydra.run.dir={tmp_path}"]
+    command += ["data.starts=3", "data.horizon_factor=0.3", "data.convergence_horizon_factor=0.6"]
+    command += ["logger=disabled", f"hydra.run.dir={tmp_path}"]
     r = subprocess.run(command, capture_output=True, text=True, cwd=ROOT)
     assert r.returncode == 0, r.stderr[-3000:]
     return json.loads((tmp_path / "metrics.json").read_text())

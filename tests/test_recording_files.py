@@ -328,6 +328,7 @@ def test_a_rerun_after_the_recording_changed_is_refused_and_resumes_once_it_is_b
         "train.snapshots=[0,3]",
         "data.starts=2",
         "data.horizon_factor=0.5",
+        "data.convergence_horizon_factor=1.0",
         "logger=disabled",
         f"hydra.run.dir={tmp_path / 'run'}",
     ]
