@@ -155,6 +155,9 @@ def _compare(a: argparse.Namespace) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     a, extra = _parser().parse_known_args(argv)
+    if a.verb == "run":  # a Hydra override after --only RUN ... is an override, not a run's name
+        extra = [*(x for x in a.only if "=" in x), *extra]
+        a.only = [x for x in a.only if "=" not in x]
     if extra and a.verb != "run":
         _parser().error(f"unrecognized arguments: {' '.join(extra)}")
     root = a.root.resolve()
