@@ -76,10 +76,11 @@ def _run(a: argparse.Namespace, extra: list[str], root: Path, config: Path) -> i
     if status or a.dry_run or not a.store:
         return status
     machine = f"{platform.node()}, {platform.processor() or platform.machine()}"
+    jobs = {j.id: j for j in study.jobs()}
     for job_id, run_dir in job_dirs(study, out).items():
-        if a.only and study.runs and job_id.split("/")[0] not in a.only:
+        job = jobs[job_id]
+        if a.only and job.run not in a.only:
             continue
-        job = next(j for j in study.jobs() if j.id == job_id)
         replaced = (results_dir(root, a.study) / job_id / "metrics.json").is_file()
         store_job(root, a.study, job_id, run_dir, job_command_line(study, job), machine)
         print(f"stored {job_id}{' (replacing the stored one)' if replaced else ''}")
