@@ -58,7 +58,9 @@ def _overrides_for(group: str, option: str) -> list[str]:
 
 #: files that are an experiment's documented variants, used with it
 VARIANTS = {
-    ("tree", "lasa"): ["experiment=lasa", "tree=lasa"],  # LASA's weights-only baseline
+    ("tree", "lasa"): ["experiment=lasa", "lasa_variant=cloned", "tree=lasa"],  # LASA's weights-only baseline
+    ("tree", "lasa_map"): ["experiment=lasa", "lasa_variant=cloned"],  # the tree LASA's cloned variant learns
+    ("train", "bc_lasa"): ["experiment=lasa", "lasa_variant=cloned"],
     ("data", "recorded"): ["experiment=lasa", "data=recorded", "data.format=lasa", "data.shape=Angle"],
     ("train", "match_lasa"): ["experiment=lasa", "train=match_lasa"],  # trajectory matching in place of BC
     ("train", "apg"): ["experiment=2d2level", "train=apg", "eval=eager"],  # training without demonstrations
@@ -75,10 +77,18 @@ VARIANTS = {
     ("attractor_weight", "constant"): ["experiment=recorded_arm", "attractor_weight=constant"],
     ("obstacle_weight", "constant"): ["experiment=recorded_arm", "obstacle_weight=constant"],
     ("weight_init", "unit"): ["experiment=franka", "weight_init=unit"],
+    ("lasa_variant", "cloned"): ["experiment=lasa", "lasa_variant=cloned"],
 }
 
 #: the groups whose options vary an experiment (conf/config.yaml lists them after it, so they change its keys)
-VARIANT_GROUPS = ("learned_leaves", "per_edge_aux", "attractor_weight", "obstacle_weight", "weight_init")
+VARIANT_GROUPS = (
+    "learned_leaves",
+    "per_edge_aux",
+    "attractor_weight",
+    "obstacle_weight",
+    "weight_init",
+    "lasa_variant",
+)
 
 
 #: every file of a config group; conf/study/ holds studies, not run configs (tests/test_studies.py composes every run

@@ -136,7 +136,7 @@ def test_bad_training_blocks_are_refused_at_their_key():
     assert [(i.path, i.message) for i in err.value.issues] == [
         (
             "train.method",
-            "unknown training method 'dager'; did you mean 'dagger', 'apg'? registered: apg, bc, dagger, match, pg",
+            "unknown training method 'dager'; did you mean 'dagger', 'apg'? registered: apg, bc, dagger, field, match, pg",
         )
     ]
     with pytest.raises(ConfigError) as err:
@@ -569,7 +569,7 @@ def test_a_sweep_over_a_method_s_setting_runs_every_job_with_that_method(tmp_pat
 
 
 # ------------------------------------------------------------------------------------------------ smoke presets
-SMOKE = {"bc": "tiny", "dagger": "dagger_smoke", "apg": "apg_smoke", "pg": "pg_smoke", "match": "match_smoke"}
+SMOKE = {"bc": "tiny", "dagger": "dagger_smoke", "apg": "apg_smoke", "pg": "pg_smoke", "match": "match_smoke", "field": "field_smoke"}
 
 
 def test_every_registered_method_has_a_smoke_preset_that_validates_with_tiny_data():

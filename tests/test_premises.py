@@ -111,16 +111,22 @@ def test_maps_dampers_and_barriers_break_premises_1_4_and_5():
 
 
 #: the lasa study's both_radial variant: the attractor's weight a radial profile about the latent origin
-RADIAL_LASA = ["~learners.rmp.weights", "+learners.rmp.weights={type: radial, center: [0.0, 0.0], reach: 3.0}"]
+RADIAL_LASA = [
+    "lasa_variant=cloned",
+    "~learners.rmp.weights",
+    "+learners.rmp.weights={type: radial, center: [0.0, 0.0], reach: 3.0}",
+]
 
 
 @pytest.mark.parametrize(
     "overrides, tree_broken, learner_broken",
     [
-        # the reference (every weight 1) meets every premise; the default learner's attractor weight is an MLP of
-        # the latent position: premise 3 broken, and spurious equilibria are possible
-        (["experiment=lasa"], [], [3]),
-        (["experiment=lasa", "learners.rmp.edges=[]"], [], []),  # the learned map alone
+        # the default: the learned flow, every weight 1, for the reference and the learner alike
+        (["experiment=lasa"], [], []),
+        # the cloned variant's attractor weight is an MLP of the latent position: premise 3 broken, and spurious
+        # equilibria are possible
+        (["experiment=lasa", "lasa_variant=cloned"], [], [3]),
+        (["experiment=lasa", "lasa_variant=cloned", "learners.rmp.edges=[]"], [], []),  # its learned map alone
         (["experiment=lasa", *RADIAL_LASA], [], []),  # the lasa study's both_radial
         # an arm: forward kinematics onto the end effector, a posture attractor beside the end effector's, joint
         # limits and obstacle barriers

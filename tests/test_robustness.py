@@ -1259,7 +1259,7 @@ for _id, _fault, _overrides, _shows, _needs in [
         "method-unknown",
         "a training method that is not registered",
         ["train.method=dager"],
-        "train.method: unknown training method 'dager'; did you mean 'dagger', 'apg'? registered: apg, bc, dagger, match, pg",
+        "train.method: unknown training method 'dager'; did you mean 'dagger', 'apg'? registered: apg, bc, dagger, field, match, pg",
         (),
     ),
     (

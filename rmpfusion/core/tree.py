@@ -204,6 +204,18 @@ class RMPTree(nn.Module):
         G, B, Phi, L, V = r.monitored()
         return TreeOutput(qdd=qdd, f=r.f, M=r.M, G=G, B=B, Phi=Phi, V=V, L=L, nodes=nodes)
 
+    def overdamped_field(self, q: Tensor, aux: AuxDict | None = None) -> Tensor:
+        """v(q) = B_r⁻¹ f_r(q, 0) = −B_r⁻¹ ∇Φ_r (B, d): the velocity the tree's motion follows where its damping
+        dominates its inertia, a first-order field every tree with B_r ≻ 0 carries.
+
+        At q̇ = 0 every curvature term and every damping force vanishes and pullback* leaves f_r = −∇_q Σ W_i Φ_i
+        (the weights' gradients included, docs/math.md §12), so one evaluation at rest gives it. Learning this field
+        from recorded velocities fits the tree the way first-order learners are fitted (Euclideanizing flows: through
+        a learned diffeomorphism with damping B it is the natural gradient descent −(JᵀBJ)⁻¹Jᵀ∇Φ), while the tree
+        stays the second-order GDS it is, with Theorem 2 and its other leaves. Differentiable in the parameters."""
+        out = self(q, torch.zeros_like(q), aux)
+        return torch.linalg.solve(out.B, out.f.unsqueeze(-1)).squeeze(-1)
+
     def _resolved(
         self, q: Tensor, qd: Tensor, aux: AuxDict | None, r: NodeRMP, qdd: Tensor | None, ok: Tensor | bool
     ) -> Tensor:

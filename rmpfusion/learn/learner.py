@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from collections.abc import Mapping
-from typing import TYPE_CHECKING, Any, Generic, TypeVar
+from typing import TYPE_CHECKING, Any, ClassVar, Generic, TypeVar
 
 from torch import Tensor, nn
 
@@ -57,6 +57,15 @@ class Learner(nn.Module, ABC, Generic[P]):
     @abstractmethod
     def tree(self) -> RMPTree | None:
         """The RMP tree the learner's policy is, or None for a network with no tree structure."""
+
+    #: whether ``first_order_field`` gives a field (a tree's overdamped one, a first-order learner's own); the
+    #: field-fitting method (``train.method=field``) refuses a learner without one before it trains
+    has_first_order_field: ClassVar[bool] = False
+
+    def first_order_field(self, q: Tensor, aux: Mapping[str, Tensor]) -> Tensor:
+        """v(q) (B, d): the velocity field the policy's motion follows, which ``train.method=field`` fits to
+        recorded velocities. Only learners with ``has_first_order_field`` have one."""
+        raise NotImplementedError(f"{type(self).__name__} has no first-order field (has_first_order_field is False)")
 
     def initialise(self, train: Dataset) -> None:
         """Set what the learner starts from that is made from its training data (SEDS's mixture, fitted by EM);

@@ -125,6 +125,12 @@ class RMPLearner(Learner["RMPLearner.Params"]):
         learned = self.learned_numbers()
         return {"learned_leaf_parameters": learned} if learned else {}
 
+    has_first_order_field = True
+
+    def first_order_field(self, q: Tensor, aux: Mapping[str, Tensor]) -> Tensor:
+        """The tree's overdamped field −B_r⁻¹∇Φ_r (``RMPTree.overdamped_field``)."""
+        return self.tree.overdamped_field(q, aux)
+
     def policy(self, q: Tensor, qd: Tensor, aux: Mapping[str, Tensor] | None = None) -> TreeOutput:
         """The full TreeOutput, so rollouts can record V_r and q̇ᵀBq̇."""
         return self.tree(q, qd, aux)

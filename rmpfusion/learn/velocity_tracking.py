@@ -65,6 +65,12 @@ class TrackedField(Learner[PT]):
     def field(self, q: Tensor, aux: Mapping[str, Tensor]) -> Tensor:
         """f(q) (B, d): the velocity the field asks for at q."""
 
+    has_first_order_field = True
+
+    def first_order_field(self, q: Tensor, aux: Mapping[str, Tensor]) -> Tensor:
+        """The field itself: what the tracking follows."""
+        return self.field(q, aux)
+
     def normalised(self, q: Tensor, aux: Mapping[str, Tensor]) -> Tensor:
         """n = (q − goal)/scale: where every field is computed (the leaves' numbers suit coordinates of order one)."""
         return (q - aux[self.params.goal].to(q)) / self.params.scale

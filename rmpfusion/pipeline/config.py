@@ -332,7 +332,8 @@ class RunConfig(_Frozen):
                     (
                         f"train.method={method} needs an expert or the environment's "
                         "task cost, which recorded demonstrations do not give; use a method that learns from "
-                        f"recordings: {', '.join(able)} (bc: behavior cloning on the recorded accelerations)"
+                        f"recordings: {', '.join(able)} (field: the first-order field fitted to the recorded "
+                        "velocities; bc: behavior cloning on the recorded accelerations)"
                     ),
                 )
             )
