@@ -8,7 +8,13 @@ import math
 import numpy as np
 import pytest
 
-from rmpfusion.evaluate.reproduction import dtw_distance, final_distance, swept_error_area, time_to_tolerance
+from rmpfusion.evaluate.reproduction import (
+    dtw_distance,
+    final_distance,
+    overshoot,
+    swept_error_area,
+    time_to_tolerance,
+)
 
 
 def brute_force_dtw(a, b):
@@ -54,3 +60,14 @@ def test_final_distance_and_time_to_tolerance():
     assert final_distance(path, [0.0, 0.0]) == pytest.approx(0.0, abs=1e-15)
     assert time_to_tolerance(t, path, [0.0, 0.0], 0.25) == pytest.approx(0.8)
     assert time_to_tolerance(t, path, [5.0, 0.0], 0.1) == math.inf
+
+
+def test_overshoot_is_how_far_a_path_swings_back_out_after_having_been_closer():
+    t = np.linspace(0.0, 1.0, 201)
+    approach = np.stack([1.0 - t, np.zeros_like(t)], -1)  # straight at the goal (the origin), stopping on it
+    assert overshoot(np.linalg.norm(approach, axis=-1)) == 0.0
+    passing = np.stack([1.0 - 1.5 * t, 0.02 * np.ones_like(t)], -1)  # passes 2 cm beside it, ends 0.5 beyond
+    d = np.linalg.norm(passing, axis=-1)
+    assert overshoot(d) == pytest.approx(math.hypot(0.5, 0.02) - 0.02, abs=1e-3)  # out to the end from the closest sample
+    wiggle = np.array([3.0, 2.0, 2.5, 1.0, 1.2, 0.0])
+    assert overshoot(wiggle) == pytest.approx(0.5)  # the larger of the two rises over the running minimum

@@ -38,7 +38,7 @@ from ..envs.protocol import JointSpace, LearnsFromRecordings
 from ..envs.rollout import Rollout
 from ..evaluate.convergence import convergence_outcomes, outcomes_line
 from ..evaluate.lyapunov import lyapunov_monotone
-from ..evaluate.reproduction import dtw_distance, swept_error_area
+from ..evaluate.reproduction import dtw_distance, overshoot, swept_error_area
 from ..evaluate.rest_forces import rest_forces
 from ..files import atomic_write_json
 from ..learn.loop import load_snapshot
@@ -193,9 +193,18 @@ def evaluation_batch(exp: Experiment, demos: dict[str, list[States]], every_demo
     )
 
 
+def _goal_distance(demo: States, to_task: ToTask | None) -> np.ndarray:
+    """(T,) a demonstration's distance to its goal, measured where the rollouts' is (an arm: its end effector)."""
+    if to_task is None:
+        return np.linalg.norm(demo.q - demo.goal, axis=-1)
+    return np.linalg.norm(to_task(demo.q) - to_task(demo.goal[None]), axis=-1)
+
+
 def reproduction(batch: Batch, ro, split: str, tolerance: float, to_task: ToTask | None = None) -> dict:
     """DTW per sample and swept error area over each demonstration's duration, the distance to the goal at the
-    horizon, the time to within ``tolerance``: the mean over the split's demonstrations and each one's own. With
+    horizon, the time to within ``tolerance``, how far the rollout swings back out after having been closer to the goal
+    (``overshoot``, beside the demonstrations' own largest): the mean over the split's demonstrations and each one's
+    own. With
     ``to_task`` (an arm: configurations -> end-effector points), also the DTW of the end-effector paths (m) beside
     the joint-space one (rad)."""
     path, dist = ro.q.numpy(), ro.goal_distance.numpy()
@@ -210,10 +219,12 @@ def reproduction(batch: Batch, ro, split: str, tolerance: float, to_task: ToTask
                 "swept_error_area": swept_error_area(path[:T, n], demo.q),
                 "final_distance": float(dist[-1, n]),
                 "time_to_tolerance": float(ro.times[within[0]]) if within.size else float("inf"),
+                "overshoot": overshoot(dist[:, n]),
+                "demonstration_overshoot": overshoot(_goal_distance(demo, to_task)),
                 **({"ee_dtw": dtw_distance(to_task(path[:T, n]), to_task(demo.q))} if to_task else {}),
             }
         )
-    keys = ("dtw", "swept_error_area", "final_distance", *(("ee_dtw",) if to_task else ()))
+    keys = ("dtw", "swept_error_area", "final_distance", "overshoot", *(("ee_dtw",) if to_task else ()))
     mean = {k: float(np.mean([p[k] for p in per])) for k in keys}
     reached = [p["time_to_tolerance"] for p in per if np.isfinite(p["time_to_tolerance"])]
     rows = batch.index[split]
@@ -222,6 +233,7 @@ def reproduction(batch: Batch, ro, split: str, tolerance: float, to_task: ToTask
         "collisions": int(ro.collided[rows].sum()),
         "reached": len(reached) / len(per),
         "time_to_tolerance": float(np.mean(reached)) if reached else None,
+        "demonstration_overshoot": max(p["demonstration_overshoot"] for p in per),
         "per_demonstration": per,
     }
 

@@ -44,6 +44,13 @@ class FieldParams(TrainParams):
     batch_size: int | None = Field(
         None, ge=1, description="training points per step, drawn uniformly with replacement; null: all of them"
     )
+    settle: float = Field(
+        0.0,
+        ge=0,
+        description="seconds after each demonstration's start whose velocities are not fitted: a demonstration "
+        "starts at rest, and there its velocity is still building up towards the motion's, as a tree's relaxes onto "
+        "its field within a few 1/η",
+    )
 
     def describe(self) -> str:
         batch = "full batch" if self.batch_size is None else f"batch={self.batch_size}"
@@ -60,6 +67,12 @@ def field_loss(model: Learner, ds: Dataset, rows: Tensor | None, speed: float, l
     return (err * err).sum(-1).mean()
 
 
+def fitted_rows(ds: Dataset, settle: float) -> Tensor:
+    """The rows of ``ds`` whose velocities are fitted: those at least ``settle`` s after their demonstration's
+    start."""
+    return torch.nonzero(ds.t >= settle).squeeze(1)
+
+
 class FieldSteps(Steps):
     """One step: the field's loss on a batch of training points (all of them by default), one optimiser step.
     Held out: the same loss on the validation and test points."""
@@ -72,13 +85,19 @@ class FieldSteps(Steps):
             )
         self.model, self.params, self.ctx, self.opt, self.gen = model, params, ctx, opt, gen
         self.data: Dataset = ctx.train
-        self.speed = float(self.data.qd.norm(dim=-1).mean().clamp(min=1e-12))
+        self.rows = fitted_rows(self.data, params.settle)
+        if self.rows.numel() == 0:
+            raise ValueError(
+                f"train.settle={params.settle} s leaves no training point to fit (every demonstration is shorter); "
+                "lower it"
+            )
+        self.speed = float(self.data.qd[self.rows].norm(dim=-1).mean().clamp(min=1e-12))
 
     def step(self, it: int) -> float:
-        p, N = self.params, len(self.data)
-        rows = None
+        p, N = self.params, len(self.rows)
+        rows = self.rows
         if p.batch_size is not None and p.batch_size < N:
-            rows = torch.randint(N, (p.batch_size,), generator=self.gen).to(self.data.q.device)
+            rows = rows[torch.randint(N, (p.batch_size,), generator=self.gen).to(rows.device)]
         self.opt.zero_grad(set_to_none=True)
         loss = field_loss(self.model, self.data, rows, self.speed, p.loss)
         loss.backward()
@@ -90,11 +109,12 @@ class FieldSteps(Steps):
         for key, ds in (("val", self.ctx.val), ("test", self.ctx.test)):
             if ds is not None:
                 with torch.no_grad():
-                    out[key] = float(field_loss(self.model, ds, None, self.speed, self.params.loss))
+                    rows = fitted_rows(ds, self.params.settle)
+                    out[key] = float(field_loss(self.model, ds, rows, self.speed, self.params.loss))
         return out
 
     def info(self) -> dict[str, Any]:
-        return {"expert_queries": 0, "training_points": len(self.data), "speed_unit": self.speed}
+        return {"expert_queries": 0, "training_points": len(self.rows), "speed_unit": self.speed}
 
 
 @TRAIN_METHODS.register("field")

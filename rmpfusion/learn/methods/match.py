@@ -34,10 +34,12 @@ from ...envs.protocol import DifferentiableRollouts, Env
 from ...registry import TRAIN_METHODS
 from ..alignment import scaled_square_distances, soft_dtw
 from ..config import BCParams, TrainParams, registered_objective
+from ..learner import Learner
 from ..loop import Steps, optimizer_step
 from ..method import MethodContext, TrainingMethod
 from .apg import gradient_refusal, not_differentiable, on_grid
 from .bc import MinibatchSteps
+from .field import FieldParams, FieldSteps
 
 
 @runtime_checkable
@@ -84,10 +86,15 @@ class MatchParams(TrainParams):
     pretrain_iterations: int = Field(
         0,
         ge=0,
-        description="the first this many iterations are behavior cloning on the recorded accelerations (cheap, "
-        "and a start near the demonstrations), the rest trajectory matching",
+        description="the first this many iterations fit the demonstrations' states (``pretrain``: cheap, and a "
+        "start near the demonstrations), the rest trajectory matching",
     )
-    pretrain_objective: str = Field("normalised_mse", description="the OBJECTIVES entry of those iterations")
+    pretrain: Literal["bc", "field"] = Field(
+        "bc",
+        description="what those iterations fit: bc, the recorded accelerations (behavior cloning); field, the "
+        "learner's first-order field to the recorded velocities (train.method=field, full batch)",
+    )
+    pretrain_objective: str = Field("normalised_mse", description="the OBJECTIVES entry of bc's iterations")
     pretrain_batch_size: int = Field(256, ge=1, description="samples per behavior-cloning iteration")
 
     @field_validator("pretrain_objective")
@@ -101,13 +108,27 @@ class MatchParams(TrainParams):
             f"spreads floored at {self.spread_floor:g} of the largest) "
             f"every {self.record_every}s over {self.horizon_factor}x the longest demonstration"
             f"{f', integrated at dt={self.dt}' if self.dt else ''}"
-            f"{f', after {self.pretrain_iterations} iterations of behavior cloning' if self.pretrain_iterations else ''}"
+            f"{f', after {self.pretrain_iterations} iterations of {self.pretrain}' if self.pretrain_iterations else ''}"
         )
 
     def cloning(self) -> BCParams:
         """The settings of the behavior-cloning iterations: this block's optimiser, schedule and clipping."""
         shared = self.model_dump(include=set(TrainParams.model_fields))
         return BCParams(**shared, objective=self.pretrain_objective, batch_size=self.pretrain_batch_size)
+
+    def field_fit(self) -> FieldParams:
+        """The settings of the field-fitting iterations: this block's optimiser, schedule and clipping, every
+        training point at each step."""
+        return FieldParams(**self.model_dump(include=set(TrainParams.model_fields)))
+
+    def pretraining(self, model: nn.Module, ctx: MethodContext, opt, gen: torch.Generator) -> Steps | None:
+        """The steps of the first ``pretrain_iterations`` (None without any)."""
+        if not self.pretrain_iterations:
+            return None
+        if self.pretrain == "field":
+            assert isinstance(model, Learner), "the field fit needs a learner's first-order field"
+            return FieldSteps(model, self.field_fit(), ctx, opt, gen)
+        return MinibatchSteps(model, self.cloning(), ctx, opt, gen)
 
 
 class DemonstrationPaths:
@@ -198,7 +219,7 @@ class MatchSteps(Steps):
         self.val = DemonstrationPaths(ctx.val, params.record_every) if ctx.val is not None else None
         longest = max(self.train.duration, self.val.duration) if self.val is not None else self.train.duration
         self.cost = MatchingCost(ctx.env, params, self.train.spread(params.spread_floor), longest)
-        self.cloning = MinibatchSteps(model, params.cloning(), ctx, opt, gen) if params.pretrain_iterations else None
+        self.cloning = params.pretraining(model, ctx, opt, gen)
         if params.batch_size > len(self.train):
             ctx.tell(
                 f"train.batch_size={params.batch_size} is more than the {len(self.train)} training demonstrations: "

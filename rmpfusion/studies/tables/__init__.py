@@ -22,6 +22,7 @@ TABLE_KINDS: dict[str, TableKind] = {
     "expert_design": expert_design.table,
     "lasa": lasa.table_of,
     "lasa_choice": lasa.choice_table,
+    "lasa_peer": lasa.peer_table,
     "lasa_methods": lasa_methods.table,
     "recorded_arm": recorded_arm.table,
     "camera": camera.table,
