@@ -179,15 +179,50 @@ class SingularInertiaWarning(RuntimeWarning):
     """
 
 
-def lu_solve(M: Tensor, f: Tensor) -> tuple[Tensor, Tensor]:
-    """M⁻¹f by an LU factorisation, and per sample whether it can be trusted: the factorisation succeeded, the
-    result is finite, and no pivot is negligible (|u_ii| > n·eps·max|u_jj|), so M is not singular up to rounding,
-    where an LU solve would return an arbitrary null-space component instead of failing."""
-    LU, piv, info = torch.linalg.lu_factor_ex(M)
+#: Up to this many coordinates, a traced solve (``torch.compile``, ``torch.export``) is written out in tensor
+#: operations (``_eliminated``) instead of calling LAPACK: a compiled graph fuses them into its kernel, while each
+#: LAPACK call leaves the graph through inductor's generic shim, which cost 26 of a 65 µs compiled call of a 2-D tree
+#: (``make bench``, latency). Larger roots call LAPACK traced too (an unrolled elimination grows as n²).
+TRACED_ELIMINATION_MAX_DIM = 12
+
+
+def _eliminated(M: Tensor, f: Tensor) -> tuple[Tensor, Tensor]:
+    """(M⁻¹f, |pivots|) by Gauss–Jordan elimination of [M | f] with LAPACK's partial pivoting (the row of largest
+    |a_ik|, i ≥ k, the first of equals), unrolled over the n columns: the same pivots as an LU factorisation, in
+    tensor operations only, so that a compiler fuses the solve with the rest of the tree."""
+    n = M.shape[-1]
+    A = torch.cat([M, f.unsqueeze(-1)], -1)  # (..., n, n + 1)
+    rows = torch.arange(n, device=M.device)
+    pivots = []
+    for k in range(n):
+        p = k + A[..., k:, k].abs().argmax(-1)  # (...,): the pivot's row
+        row_p = A.gather(-2, p[..., None, None].expand(*p.shape, 1, n + 1))  # (..., 1, n + 1)
+        row_k = A[..., k : k + 1, :]
+        at_k = (rows == k)[:, None]
+        A = torch.where(at_k, row_p, torch.where((rows == p[..., None])[..., None], row_k, A))  # rows k, p swapped
+        pivots.append(row_p[..., 0, k])
+        unit = row_p / row_p[..., k : k + 1]
+        A = torch.where(at_k, unit, A - A[..., :, k : k + 1] * unit)
+    return A[..., n], torch.stack(pivots, -1).abs()
+
+
+def _factorised(M: Tensor, f: Tensor) -> tuple[Tensor, Tensor]:
+    """(M⁻¹f, |pivots|) by LAPACK's LU factorisation and solve (an exact zero pivot, LAPACK's info > 0, is a zero
+    among the pivots, which the pivot test refuses)."""
+    LU, piv, _ = torch.linalg.lu_factor_ex(M)
     a = torch.linalg.lu_solve(LU, piv, f.unsqueeze(-1)).squeeze(-1)
-    pivots = LU.diagonal(dim1=-2, dim2=-1).abs()
+    return a, LU.diagonal(dim1=-2, dim2=-1).abs()
+
+
+def lu_solve(M: Tensor, f: Tensor) -> tuple[Tensor, Tensor]:
+    """M⁻¹f by LU with partial pivoting, and per sample whether it can be trusted: the result is finite and no
+    pivot is negligible (|u_ii| > n·eps·max|u_jj|), so M is not singular up to rounding, where an LU solve would
+    return an arbitrary null-space component instead of failing. Eagerly LAPACK's; traced for a compiler, the same
+    elimination written out (``TRACED_ELIMINATION_MAX_DIM``)."""
+    traced = torch.compiler.is_compiling() and M.shape[-1] <= TRACED_ELIMINATION_MAX_DIM
+    a, pivots = _eliminated(M, f) if traced else _factorised(M, f)
     tiny = M.shape[-1] * torch.finfo(M.dtype).eps * pivots.amax(-1)
-    good = (info == 0) & torch.isfinite(a).all(-1) & (pivots.amin(-1) > tiny)
+    good = torch.isfinite(a).all(-1) & (pivots.amin(-1) > tiny)
     return a, good
 
 

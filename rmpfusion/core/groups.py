@@ -16,7 +16,7 @@ Where a group's inputs come from is a ``Rows``: rows of one earlier group, or of
 from __future__ import annotations
 
 from collections.abc import Callable, Hashable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Generic, Protocol, TypeVar
 
 import torch
@@ -198,12 +198,12 @@ class WeightGroup:
 class Plan:
     groups: list[Group]  # depth by depth: parents' groups before their children's
     weights: list[WeightGroup]
+    #: No weight varies with the configuration: no h_i asks for a child's L and G, so a policy that is not monitored
+    #: needs only f and M from every leaf (decided once, from ``groups``: a policy asks at every call).
+    lean: bool = field(init=False)
 
-    @property
-    def lean(self) -> bool:
-        """No weight varies with the configuration: no h_i asks for a child's L and G, so a policy that is not
-        monitored needs only f and M from every leaf."""
-        return all(g.weights is None or g.constant_weights for g in self.groups)
+    def __post_init__(self) -> None:
+        self.lean = all(g.weights is None or g.constant_weights for g in self.groups)
 
 
 def _key(module: Any, node: str) -> Hashable:

@@ -200,18 +200,18 @@ class RMPTree(nn.Module):
         else:
             f, M, G, B, Phi, L, V, qdd, ok = self._root_rmp_maybe_compiled(q, qd, aux, False)
             r = NodeRMP(f, M, G, B, Phi, L, V)
-        qdd = self._resolved(q, qd, aux, r, qdd, ok)
+        qdd = self._resolved(q, qd, aux, r.f, r.M, qdd, ok)
         G, B, Phi, L, V = r.monitored()
         return TreeOutput(qdd=qdd, f=r.f, M=r.M, G=G, B=B, Phi=Phi, V=V, L=L, nodes=nodes)
 
     def _resolved(
-        self, q: Tensor, qd: Tensor, aux: AuxDict | None, r: NodeRMP, qdd: Tensor | None, ok: Tensor | bool
+        self, q: Tensor, qd: Tensor, aux: AuxDict | None, f: Tensor, M: Tensor, qdd: Tensor | None, ok: Tensor | bool
     ) -> Tensor:
-        """q̈: the LU answer when it is good for every sample, else resolve's (pseudo-inverse where M is singular);
-        a non-finite answer raises NumericalError naming where it came from."""
-        if self.resolve_method == "solve" and qdd is not None and bool(ok):
+        """q̈: the LU answer when it is good for every sample, else resolve's of the root's (f, M) (pseudo-inverse
+        where M is singular); a non-finite answer raises NumericalError naming where it came from."""
+        if qdd is not None and self.resolve_method == "solve" and bool(ok):
             return qdd
-        qdd = resolve(r.f, r.M, self.resolve_method, self.resolve_events)
+        qdd = resolve(f, M, self.resolve_method, self.resolve_events)
         if self.check_finite and not bool(torch.isfinite(qdd).all()):
             raise NumericalError(self._diagnose(q, qd, self.aux_with_source(q, aux)))
         return qdd
@@ -376,7 +376,7 @@ class RMPTree(nn.Module):
             return self.forward(q, qd, aux).qdd
         aux = self._inputs(q, qd, aux)
         f, M, *_, qdd, ok = self._root_rmp_maybe_compiled(q, qd, aux, True)
-        return self._resolved(q, qd, aux, NodeRMP.lean(f, M), qdd, ok)
+        return self._resolved(q, qd, aux, f, M, qdd, ok)
 
     def describe(self) -> str:
         """The tree drawn as text: node, dimension, map, weight, rmp."""
