@@ -15,6 +15,7 @@ import logging
 import types
 import warnings
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
@@ -250,7 +251,7 @@ class RMPTree(nn.Module):
                     grad_w=None if e.grad_w is None else e.grad_w[s],
                     identity=e.identity,
                 )
-                rmp[n] = NodeRMP.of(None if v is None else v[s] for _, v in r.items())
+                rmp[n] = r.map(_row(s))
         rmp[self.root_name] = passes.root
         return {"state": state, "edge": edges, "rmp": rmp}
 
@@ -400,6 +401,11 @@ class RMPTree(nn.Module):
 
         walk(self.root_name, "")
         return "\n".join(lines)
+
+
+def _row(s: int) -> Callable[[Tensor], Tensor]:
+    """Row ``s`` of a group's ``(G, B, ...)`` quantity: member s's."""
+    return lambda t: t[s]
 
 
 def _compile_failure(error: BaseException) -> str:
