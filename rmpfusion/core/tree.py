@@ -108,6 +108,7 @@ class RMPTree(nn.Module):
         self._compile_args: tuple[bool | None, dict[str, Any]] | None = None  # (dynamic, options) once compiled
         self._dtype_cache: tuple | None = None  # (dtype,) once known; see _dtype
         self.aux_source: AuxSource | None = None  # makes declared aux from the caller's inputs; see read_aux_through
+        self.compile_failure: str | None = None  # why torch.compile could not compile the tree, once it fell back
 
     @property
     def plan(self) -> Plan:
@@ -292,7 +293,16 @@ class RMPTree(nn.Module):
             opts.setdefault("guard_filter_fn", torch.compiler.skip_guard_on_all_nn_modules_unsafe)
         self._compile_args = (dynamic, opts)
         self._compiled = None
+        self.compile_failure = None
         return self
+
+    @property
+    def evaluation_mode(self) -> str:
+        """How the tree evaluates: "compiled" (through torch.compile), "eager" (not asked to compile), or "eager
+        (<why>)" where torch.compile could not compile it and the tree fell back (``CompileFallbackWarning``)."""
+        if self._compile_args is not None:
+            return "compiled"
+        return "eager" if self.compile_failure is None else f"eager ({self.compile_failure})"
 
     def _compiled_fn(self):
         if self._compiled is None:
@@ -337,6 +347,7 @@ class RMPTree(nn.Module):
             )
         else:
             self.uncompile()
+            self.compile_failure = f"torch.compile cannot compile it: {reason}"
             warnings.warn(
                 CompileFallbackWarning(
                     f"torch.compile cannot compile this tree ({reason}); it now runs eagerly, with the same numbers"
