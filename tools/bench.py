@@ -1081,7 +1081,7 @@ def section_rollout(compile_: bool) -> None:
 
     fns = {"eager": lambda: rollout(tree)}
     if compile_:
-        fast = copy.deepcopy(tree).compile(fixed_structure=True)
+        fast = copy.deepcopy(tree).compile(fixed_structure=True, vectorize=False)  # as recorded runs compile it
         t0 = time.perf_counter()
         rollout(fast)
         compile_s = time.perf_counter() - t0

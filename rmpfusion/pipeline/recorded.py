@@ -408,7 +408,9 @@ def compiled_if_it_pays(exp: Experiment, what: str, tree: RMPTree | None, work: 
         if exp.run.eval.compile == "auto":
             return f"eval.compile=auto: {work:,} row-steps, fewer than the {COMPILE_FROM_ROW_STEPS:,} a compile repays"
         return "eval.compile is false"
-    tree.compile(fixed_structure=True)
+    # a batch of ~100 rows gains nothing from SIMD loops, and compiles in half the time without them (the arm's tree
+    # at 100 starts: 45 s against 95 s, calls 0.24x and 0.20x the eager time; docs/results/performance.md)
+    tree.compile(fixed_structure=True, vectorize=False)
     exp.say.say(COMPILING.format(what=what))
     return None
 
