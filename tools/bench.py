@@ -457,7 +457,7 @@ def _compiled_time(tree, args, policy: bool = False) -> tuple[float, float]:
     """(seconds to compile, seconds a call) of the tree compiled for its batch size with a fixed structure (a
     controller's tree), without SIMD loops for a single state."""
     call = (lambda: tree.policy(*args)) if policy else (lambda: tree(*args))
-    tree.compile(dynamic=False, fixed_structure=True, vectorize=args[0].shape[0] > 1)
+    tree.compile(fixed_structure=True, vectorize=args[0].shape[0] > 1)  # dynamic=None: see _controller
     t0 = time.perf_counter()
     call()
     compile_s = time.perf_counter() - t0
@@ -468,8 +468,10 @@ def _compiled_time(tree, args, policy: bool = False) -> tuple[float, float]:
 
 def _controller(tree, q: torch.Tensor, qd: torch.Tensor) -> float:
     """``tree`` compiled as a controller's (fixed structure, one state, no SIMD loops) and called once: the seconds
-    that first call took (the compile)."""
-    tree.compile(dynamic=False, fixed_structure=True, vectorize=False)
+    that first call took (the compile). ``dynamic`` is left None: the first compile is static for the batch it meets
+    either way, and dynamic=False patches dynamo's config around every call (0.44x against 0.37x RMPflow's numpy,
+    side by side)."""
+    tree.compile(fixed_structure=True, vectorize=False)
     t0 = time.perf_counter()
     with torch.inference_mode():
         tree.policy(q, qd)
@@ -585,7 +587,7 @@ import sys, time, torch
 torch.set_num_threads(1)
 from tools import bench
 tree, q, qd, aux = bench.franka_states(*bench.LATENCY_STATES)
-tree.compile(dynamic=False, fixed_structure=True, vectorize=False)
+tree.compile(fixed_structure=True, vectorize=False)
 t0 = time.perf_counter()
 with torch.inference_mode():
     tree(q, qd, aux)

@@ -284,7 +284,10 @@ class RMPTree(nn.Module):
         ``vectorize=False`` is the single-state mode (B = 1, a controller): CPU code without SIMD loops (no lanes to
         fill; the compile takes about a third less time) called through inductor's C++ wrapper, which spends less
         Python per call but routes the matrix products through a generic shim that costs 2× at B = 4096
-        (``make bench``)."""
+        (``make bench``).
+
+        ``dynamic=False`` makes dynamo patch its config around every call (about a sixth of a compiled single-state
+        call); a caller that keeps its batch size leaves ``dynamic`` None, whose first compile is static too."""
         opts = dict(options or {})
         if not vectorize:
             opts.setdefault("cpp.vec_isa_ok", False)
