@@ -70,3 +70,15 @@ def test_the_rollout_row_s_starts_are_accepted_by_the_arm_and_its_step_runs():
         assert alive.all() and torch.isfinite(path[-1]).all()
     finally:
         env.close()
+
+
+def test_the_hand_fused_test_vector_is_the_tree_s_policy(gen):
+    """The reference section's floor computes the test-vector tree's q̈, here at random states (nothing timed)."""
+    import rmpfusion
+    from tests.trees import TEST_VECTOR_SPEC
+
+    tree = rmpfusion.build_tree(TEST_VECTOR_SPEC)
+    q = torch.tensor([2.0, -2.0]) + 2 * torch.rand(8, 2, generator=gen)
+    qd = torch.randn(8, 2, generator=gen)
+    with torch.no_grad():
+        torch.testing.assert_close(bench.hand_fused_test_vector(q, qd), tree.policy(q, qd), rtol=1e-10, atol=1e-12)
