@@ -5,7 +5,7 @@ PY     := $(VENV)/bin/python
 # CPU machines get the CPU build of torch; a torch already importable in the venv (e.g. CUDA) is kept.
 TORCH_SPEC ?= torch==2.13.0
 
-.PHONY: install demo test test-all lint docs bench clean
+.PHONY: install demo test test-all lint docs bench bench-ratios clean
 
 $(VENV)/.installed: pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -34,8 +34,11 @@ docs: install  ## the documentation site, strictly: any warning (a broken link o
 	$(VENV)/bin/sphinx-build -W --keep-going -n -q -b html docs docs/_build/html
 	@echo "docs: docs/_build/html/index.html"
 
-bench: install
-	$(PY) -m tools.bench
+bench: install  ## the whole performance table; its ratios checked against, then stored as, this machine kind's baseline
+	$(PY) -m tools.bench --check --store-baseline
+
+bench-ratios: install  ## what CI prints: the test-vector tree beside RMPflow's numpy (about a minute), checked, not stored
+	$(PY) -m tools.bench --only reference --no-export --check
 
 clean:
 	rm -rf $(VENV) .pytest_cache docs/_build docs/reference

@@ -54,3 +54,31 @@ def test_every_franka_state_the_benchmark_times_is_inside_the_joint_limits_and_c
     assert (clearance > 0).all(), clearance.min()
     with torch.no_grad():
         assert torch.isfinite(tree(q, qd, aux).qdd).all()
+
+
+def test_the_rollout_row_s_starts_are_accepted_by_the_arm_and_its_step_runs():
+    """The rollout section's subject: experiment=recorded_arm's tree, its environment and 100 starts the
+    environment accepts; two integration steps of them run and stay finite (nothing timed)."""
+    from rmpfusion.envs.faults import IsolatingPolicy
+    from rmpfusion.envs.manipulator.kinematic import integrate
+
+    tree, env, q0, qd0, aux = bench.arm_evaluation_subject(bench.ROLLOUT["starts"])
+    try:
+        assert q0.shape[0] == bench.ROLLOUT["starts"] and env.recorded_starts(q0).all()
+        with torch.no_grad():
+            _, path, _, alive = integrate(env, IsolatingPolicy(tree), q0, qd0, aux, 2, 1, None, [None] * 100)
+        assert alive.all() and torch.isfinite(path[-1]).all()
+    finally:
+        env.close()
+
+
+def test_the_hand_fused_test_vector_is_the_tree_s_policy(gen):
+    """The reference section's floor computes the test-vector tree's q̈, here at random states (nothing timed)."""
+    import rmpfusion
+    from tests.trees import TEST_VECTOR_SPEC
+
+    tree = rmpfusion.build_tree(TEST_VECTOR_SPEC)
+    q = torch.tensor([2.0, -2.0]) + 2 * torch.rand(8, 2, generator=gen)
+    qd = torch.randn(8, 2, generator=gen)
+    with torch.no_grad():
+        torch.testing.assert_close(bench.hand_fused_test_vector(q, qd), tree.policy(q, qd), rtol=1e-10, atol=1e-12)

@@ -450,4 +450,4 @@ def test_eval_fast_turns_the_figures_off_on_recorded_demonstrations():
     chosen = compose_cfg(["experiment=lasa", "eval=fast"])
     default = compose_cfg(["experiment=lasa"])
     assert chosen.eval.figures is False and default.eval.figures is True
-    assert default.eval.unit_weights is False and default.eval.compile is False
+    assert default.eval.unit_weights is False and default.eval.compile == "auto"  # each tree where compiling pays

@@ -59,6 +59,35 @@ def test_compiled_tree_falls_back_to_the_pseudo_inverse_where_the_solve_fails():
     torch.testing.assert_close(out_c.qdd, torch.stack([-qd[:, 0], torch.zeros(3, dtype=torch.float64)], -1))
 
 
+def test_traced_solve_equals_lapacks_and_refuses_the_same_matrices(gen):
+    """The solve a compiler traces (the elimination written out in tensor operations) gives LAPACK's answer and
+    trusts exactly the samples LAPACK's LU is trusted on: random roots of 1 to 12 coordinates, rows that need a
+    pivot swap, singular and non-finite ones."""
+    from rmpfusion.core.algebra import TRACED_ELIMINATION_MAX_DIM, lu_solve
+
+    traced = torch.compile(lu_solve, backend="eager", fullgraph=True)  # traced by dynamo, run without inductor
+    for n in (1, 2, 3, 7, TRACED_ELIMINATION_MAX_DIM):
+        A = torch.randn(64, n, n, generator=gen)
+        M = A @ A.mT + 0.1 * torch.eye(n) + 0.5 * (A - A.mT)  # positive definite symmetric part, not symmetric
+        f = torch.randn(64, n, generator=gen)
+        (a, good), (a_ref, good_ref) = traced(M, f), lu_solve(M, f)
+        assert good.all() and good_ref.all()
+        torch.testing.assert_close(a, a_ref, rtol=1e-10, atol=1e-12)
+    M = torch.tensor(
+        [
+            [[0.0, 1.0], [1.0, 0.0]],  # invertible, a zero in the first pivot's place: rows swapped
+            [[1.0, 2.0], [2.0, 4.0]],  # singular
+            [[0.0, 0.0], [0.0, 0.0]],
+            [[1.0, float("nan")], [0.0, 1.0]],
+            [[1e-300, 0.0], [0.0, 1.0]],  # invertible, a pivot negligible beside the other
+        ]
+    )
+    f = torch.ones(5, 2)
+    (a, good), (a_ref, good_ref) = traced(M, f), lu_solve(M, f)
+    assert good.tolist() == good_ref.tolist() == [True, False, False, False, False]
+    torch.testing.assert_close(a[0], a_ref[0])
+
+
 def test_one_kinematics_pass_serves_every_control_point():
     """The Franka tree's 15 kinematic points form one group reading one pass of the chain; the group's position,
     Jacobian and J̇q̇ of every point equal that point's map evaluated on its own."""

@@ -35,9 +35,17 @@ def validated(overrides):
     return resolve_and_validate(compose_cfg(overrides))
 
 
-def test_a_tiny_lasa_run_end_to_end_then_resumed(tmp_path):
+def test_a_tiny_lasa_run_end_to_end_then_resumed(tmp_path, capsys):
     run = validated(TINY_LASA + ["data.shape=Sshape"])
-    m = run_experiment(run, tmp_path, progress=False)
+    m = run_experiment(run, tmp_path, progress=True)
+    said = capsys.readouterr().out.splitlines()
+    # the convergence check is a progress stage of its own, counted in its own records, then its collision check
+    check = [line for line in said if line.startswith("rollout tree: convergence check, from rest to ")]
+    assert check and check[-1].split("] ")[1].split()[1] == "100%"
+    for name in ("tree", "rmp"):  # smoke-sized: eval.compile=auto leaves both eager, and the run says why
+        assert m["evaluation"][name]["mode"].startswith("eager (eval.compile=auto: ")
+        assert any(line.startswith(f"{name}: evaluated eager (eval.compile=auto") for line in said)
+    assert set(m["timing"]) >= {"training_s", "evaluation_s", "figures_s", "total_s"}
     assert m["source"] == "recorded" and json.loads((tmp_path / "metrics.json").read_text())["name"] == "lasa_Sshape"
     used = [set(m["data"][s]["demonstrations"]) for s in ("train", "val", "test")]
     assert [len(u) for u in used] == [5, 1, 1] and len(set.union(*used)) == 7  # split by whole demonstration
@@ -63,6 +71,23 @@ def test_a_tiny_lasa_run_end_to_end_then_resumed(tmp_path):
     again = run_experiment(run, tmp_path, progress=False)
     assert all(again["data"][s]["reused"] for s in ("train", "val", "test"))
     assert again["learners"]["rmp"]["reproduction_test"] == rmp["reproduction_test"]
+
+
+@pytest.mark.slow
+def test_a_compiled_recorded_evaluation_equals_the_eager_one(tmp_path):
+    """eval.compile=true: the tree and the learner (every snapshot loaded into one compiled copy) roll out compiled,
+    batched over every start, with the eager evaluation's numbers; metrics.json says how each ran."""
+    out = {}
+    for compile_ in ("true", "false"):
+        run = validated(TINY_LASA + ["data.shape=Sshape", f"eval.compile={compile_}", "eval.figures=false"])
+        out[compile_] = run_experiment(run, tmp_path / compile_, progress=False)
+    fast, slow = out["true"], out["false"]
+    assert fast["evaluation"]["tree"]["mode"] == fast["evaluation"]["rmp"]["mode"] == "compiled"
+    assert slow["evaluation"]["rmp"]["mode"] == "eager (eval.compile is false)"
+    for a, b in ((fast["tree"], slow["tree"]), (fast["learners"]["rmp"], slow["learners"]["rmp"])):
+        assert a["reproduction_test"]["dtw"] == pytest.approx(b["reproduction_test"]["dtw"], rel=1e-9)
+        assert a["convergence"]["at_long_horizon"]["converged"] == b["convergence"]["at_long_horizon"]["converged"]
+        assert a["convergence"]["final_distance_max"] == pytest.approx(b["convergence"]["final_distance_max"], rel=1e-9)
 
 
 def via_point_demonstrations(n: int, seed: int) -> list[tuple[np.ndarray, np.ndarray]]:

@@ -77,7 +77,15 @@ def test_pullback_star_is_eq6_per_sample(gen):
         yd = (J @ xd[..., None])[..., 0]
         kids.append(
             (
-                Edge(J=J, c=torch.randn(B, n, generator=gen), yd=yd, w=w, grad_w=gw, identity=identity),
+                # J ≡ I on an identity edge, so its curvature c = J̇ẋ is 0 (pullback* relies on it)
+                Edge(
+                    J=J,
+                    c=torch.zeros(B, n) if identity else torch.randn(B, n, generator=gen),
+                    yd=yd,
+                    w=w,
+                    grad_w=gw,
+                    identity=identity,
+                ),
                 _random_node(B, n, gen),
             )
         )

@@ -3,17 +3,24 @@
 by side with its reference in the same process, so the ratios hold whatever else the machine is doing. Rows with
 a target say whether it is met.
 
-    python -m tools.bench                 # the whole table (~10 min on 2 cores, most of it torch.compile)
-    python -m tools.bench --only latency  # one section: latency, compile, scaling, sets, clouds, batched, train, cuda, robots, collisions, memory
-    python -m tools.bench --no-compile    # eager only
+    python -m tools.bench                   # the whole table (~15 min on 2 cores, most of it torch.compile)
+    python -m tools.bench --only reference  # one section: reference, latency, compile, scaling, sets, clouds, batched, train, rollout, cuda, robots, collisions, memory
+    python -m tools.bench --no-compile      # eager only (--no-export: no AOTInductor packages)
+    python -m tools.bench --check           # also compare the ratios with this machine kind's baseline: exit 1 if one
+                                            # rose beyond noise (make bench: --check --store-baseline)
+
+Every row with a ratio (a subject's time over its reference's, both timed in the same rounds) is what the baseline
+of tools/bench_baseline.json keeps per kind of machine (CPU model, cores, torch version): see
+tools/bench_baseline.py. CI runs ``--only reference --no-export --check``.
 
 Run it from the repository root as a module (``-m``): it reads the test-vector tree and the numpy RMPflow oracle
 from tests/ and the world demo's controller from tools/ (both packages of the checkout).
 
 Sections:
-  latency  B = 1, the control-loop case: the test-vector tree (RMPflow's two reference leaves) beside an
-           independent numpy transcription of RMPflow's reference code (its policy: f and M resolved); the
-           2d2level learner tree; the Franka expert tree (46 nodes), eager, compiled, and exported with
+  reference  B = 1, the control-loop case: the test-vector tree (RMPflow's two reference leaves) beside an
+           independent numpy transcription of RMPflow's reference code (its policy: f and M resolved), eager,
+           compiled as a controller's and exported with AOTInductor, all timed in the same rounds as the numpy.
+  latency  B = 1: the 2d2level learner tree; the Franka expert tree (46 nodes), eager, compiled, and exported with
            AOTInductor (rmpfusion-export --aoti).
   compile  the Franka tree's time to compile, in a fresh process with an empty inductor cache (a user's first).
   scaling  the Franka tree with 1, 10 and 100 obstacles (14 control points each), B = 1 and B = 1024: how the
@@ -23,6 +30,9 @@ Sections:
            step), the config-built tree against a hand-fused reference of the same math written below (all four
            weight MLPs stacked into batched matrix products, every map and leaf inlined). Both are checked to
            agree to 1e-9 before they are timed.
+  rollout  an evaluation rollout step of experiment=recorded_arm's tree for 100 starts at rest (the kinematic
+           simulator's step: the tree with its monitoring quantities, the integrator, goal tracking, records), eager
+           and compiled side by side (target: the compiled step ≤ 0.05 of the eager one).
   cuda     with a CUDA device only: 2d2level at B = 65,536 and the training step, on the GPU.
   robots   rmpfusion-fit-spheres on a 7-joint arm with meshes (the xArm7 of example-robot-data, else the iiwa of
            pybullet_data), as a user runs it: one fresh process, its wall time (target ≤ 60 s on two cores).
@@ -56,6 +66,8 @@ import torch
 import torch.nn.functional as F
 
 import rmpfusion
+from tools import bench_baseline as baseline
+from tools.bench_baseline import Ratio, side_by_side
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -87,20 +99,31 @@ ROWS: list[dict] = []
 
 
 def row(
-    section: str, what: str, value: str, reference: str = "", ratio: str = "", target: str = "", ok: bool | None = None
+    section: str,
+    what: str,
+    value: str,
+    reference: str = "",
+    ratio: str | Ratio = "",
+    target: str = "",
+    ok: bool | None = None,
+    key: str | None = None,
 ):
+    """One line of the table. A ``Ratio`` (the subject's time over its reference's) with a ``key`` is what the
+    baseline keeps and ``--check`` compares (``tools/bench_baseline.py``)."""
     r = {
         "section": section,
         "what": what,
         "value": value,
         "reference": reference,
-        "ratio": ratio,
+        "ratio": ratio.text() if isinstance(ratio, Ratio) else ratio,
         "target": target,
         "met": None if ok is None else bool(ok),
     }
+    if isinstance(ratio, Ratio) and key is not None:
+        r.update(key=f"{section}/{key}", ratio_value=ratio.value, spread=ratio.spread)
     ROWS.append(r)
     mark = "" if ok is None else ("  ok" if ok else "  MISSED")
-    print(f"  {what:<58} {value:>16} {reference:>22} {ratio:>8} {target:>14}{mark}", flush=True)
+    print(f"  {what:<58} {value:>16} {reference:>22} {r['ratio']:>8} {target:>14}{mark}", flush=True)
 
 
 # ---------------------------------------------------------------------------------------------- configs
@@ -415,7 +438,9 @@ def section_batched(compile_: bool) -> None:
     torch.set_num_threads(1)
 
 
-def _rmpflow_numpy_latency() -> float:
+def _rmpflow_numpy():
+    """RMPflow's reference code on the test vector as a call to time: its root policy (f, M and the resolve) at
+    q = (2.5, 0), q̇ = (−1, 0), the state the tree's rows are timed at."""
     import numpy as np
 
     from tests import rmpflow_reference as ref
@@ -425,14 +450,14 @@ def _rmpflow_numpy_latency() -> float:
         (ref.offset_map(np.array([-3.0, 3.0])), ref.goal_attractor),
     ]
     q, qd = np.array([2.5, 0.0]), np.array([-1.0, 0.0])
-    return median_time(lambda: ref.rmpflow_root(q, qd, children))
+    return lambda: ref.rmpflow_root(q, qd, children)
 
 
 def _compiled_time(tree, args, policy: bool = False) -> tuple[float, float]:
     """(seconds to compile, seconds a call) of the tree compiled for its batch size with a fixed structure (a
     controller's tree), without SIMD loops for a single state."""
     call = (lambda: tree.policy(*args)) if policy else (lambda: tree(*args))
-    tree.compile(dynamic=False, fixed_structure=True, vectorize=args[0].shape[0] > 1)
+    tree.compile(fixed_structure=True, vectorize=args[0].shape[0] > 1)  # dynamic=None: see _controller
     t0 = time.perf_counter()
     call()
     compile_s = time.perf_counter() - t0
@@ -441,40 +466,103 @@ def _compiled_time(tree, args, policy: bool = False) -> tuple[float, float]:
     return compile_s, t
 
 
-def section_latency(compile_: bool) -> None:
-    print("\nsingle-state latency (B = 1, the control loop)")
+def _controller(tree, q: torch.Tensor, qd: torch.Tensor) -> float:
+    """``tree`` compiled as a controller's (fixed structure, one state, no SIMD loops) and called once: the seconds
+    that first call took (the compile). ``dynamic`` is left None: the first compile is static for the batch it meets
+    either way, and dynamic=False patches dynamo's config around every call (0.44x against 0.37x RMPflow's numpy,
+    side by side)."""
+    tree.compile(fixed_structure=True, vectorize=False)
+    t0 = time.perf_counter()
+    with torch.inference_mode():
+        tree.policy(q, qd)
+    return time.perf_counter() - t0
+
+
+def hand_fused_test_vector(q: torch.Tensor, qd: torch.Tensor) -> torch.Tensor:
+    """The test-vector tree's policy written out by hand in torch, eagerly: RMPflow's collision barrier on the
+    normalised distance to the unit circle at the origin and its goal attractor at (−3, 3) with their default
+    numbers, pulled back and LU-solved, every constant folded and no check made. What torch's per-operation cost
+    allows the same math at one state (the tree adds its groups, its maps' Jacobians and the solve's pivot test);
+    checked against the tree before it is timed."""
+    r = torch.linalg.vector_norm(q, dim=-1, keepdim=True)  # the circle's centre is the origin, its radius 1
+    u = q / r
+    x, xd = r - 1.0, (u * qd).sum(-1, keepdim=True)
+    c = ((qd * qd).sum(-1, keepdim=True) - xd * xd) / r
+    inside = x < 0
+    xs = torch.where(inside, 1.0, x)
+    w = torch.where(inside, 1e10, torch.pow(xs, -4))
+    grad_w = torch.where(inside, 0.0, -4.0 * torch.pow(xs, -5))
+    braking = xd.clamp(max=0.0) * xd
+    g = w * (0.2 + braking)
+    m = (g + w * braking).clamp(-1e5, 1e5)
+    fx = (-(1e-5 * w + 0.5 * xd * xd * (0.2 + braking)) * grad_w).clamp(-1e10, 1e10)
+    f = (fx - m * c) * u
+    M = m[..., None] * (u[..., :, None] * u[..., None, :])
+    y = q - torch.tensor([-3.0, 3.0], dtype=q.dtype)
+    ry = torch.linalg.vector_norm(y, dim=-1, keepdim=True)
+    beta = torch.exp(ry * ry * -0.5)
+    wg = 9.0 * beta + 1.0
+    grad_phi = torch.where(ry > 0.005, wg * torch.tanh(ry) / ry, 0.0) * y
+    grad_wg = (-9.0 * beta) * y
+    xi = qd * (qd * grad_wg).sum(-1, keepdim=True) - 0.5 * (qd * qd).sum(-1, keepdim=True) * grad_wg
+    f = f - grad_phi - 2.0 * wg * qd - xi
+    M = M + wg[..., None] * torch.eye(2, dtype=q.dtype)
+    LU, pivots, _ = torch.linalg.lu_factor_ex(M)
+    return torch.linalg.lu_solve(LU, pivots, f.unsqueeze(-1)).squeeze(-1)
+
+
+#: whether the AOTInductor rows run (--no-export leaves them out: packaging takes about a minute each)
+AHEAD_OF_TIME = {"on": True}
+#: the test-vector rows: (key, what, target ratio to RMPflow's numpy or None)
+REFERENCE_ROWS = {
+    "eager policy": ("eager_policy", "test-vector tree, policy (q̈), eager", 2.0),
+    "eager everything": ("eager_all", "test-vector tree, q̈ and V, G, B, Φ, L, eager", None),
+    "hand-fused": ("hand_fused", "its policy hand-fused in torch, eager (the floor)", None),
+    "compiled policy": ("compiled_policy", "test-vector tree, policy, compiled", 0.5),
+}
+
+
+def section_reference(compile_: bool) -> None:
+    """The test-vector tree at one state beside RMPflow's numpy, every variant timed in the same rounds."""
+    print("\ntest-vector tree at one state (B = 1, the control loop) beside RMPflow's numpy, timed side by side")
     from tests.trees import TEST_VECTOR_SPEC
 
-    t_np = _rmpflow_numpy_latency()
-    tv = rmpfusion.build_tree(TEST_VECTOR_SPEC)
     q = torch.tensor([[2.5, 0.0]], dtype=torch.float64)
     qd = torch.tensor([[-1.0, 0.0]], dtype=torch.float64)
-    ref = f"RMPflow numpy {_fmt_time(t_np)}"
-    with torch.inference_mode():
-        t = median_time(lambda: tv.policy(q, qd))
-        row(
-            "latency", "test-vector tree, policy (q̈), eager", _fmt_time(t), ref, f"{t / t_np:.2f}", "≤ 2", t / t_np <= 2
-        )
-        t = median_time(lambda: tv(q, qd))
-        row("latency", "test-vector tree, q̈ and V, G, B, Φ, L, eager", _fmt_time(t), ref, f"{t / t_np:.2f}")
-        if compile_:
-            ct, t = _compiled_time(tv, (q, qd), policy=True)
-            row(
-                "latency",
-                f"test-vector tree, policy, compiled ({ct:.0f} s)",
-                _fmt_time(t),
-                ref,
-                f"{t / t_np:.2f}",
-                "≤ 0.5",
-                t / t_np <= 0.5,
-            )
+    eager, fast = rmpfusion.build_tree(TEST_VECTOR_SPEC), rmpfusion.build_tree(TEST_VECTOR_SPEC)
+    with torch.no_grad():
+        err = (hand_fused_test_vector(q, qd) - eager.policy(q, qd)).abs().max().item()
+    if err > 1e-12:
+        raise SystemExit(f"the hand-fused test vector disagrees with the tree by {err:.2e}: fix it before timing")
+    fns = {
+        "numpy": _rmpflow_numpy(),
+        "eager policy": lambda: eager.policy(q, qd),
+        "eager everything": lambda: eager(q, qd),
+        "hand-fused": lambda: hand_fused_test_vector(q, qd),
+    }
+    compile_s = None
     if compile_:
+        compile_s = _controller(fast, q, qd)
+        fns["compiled policy"] = lambda: fast.policy(q, qd)
+    with torch.inference_mode():
+        times = side_by_side(fns)
+    reference = f"RMPflow numpy {_fmt_time(statistics.median(times['numpy']))}"
+    for name, (key, what, target) in REFERENCE_ROWS.items():
+        if name not in times:
+            continue
+        r = Ratio.of(times[name], times["numpy"])
+        label = f"{what} ({compile_s:.0f} s)" if name == "compiled policy" else what
+        met = {} if target is None else {"target": f"≤ {target:g}", "ok": r.value <= target}
+        row("reference", label, _fmt_time(statistics.median(times[name])), reference, r, key=key, **met)
+    if compile_ and AHEAD_OF_TIME["on"]:
         g = torch.Generator().manual_seed(0)
-        q2, qd2 = (
-            torch.tensor([[2.5, 0.0], [1.0, -1.5]], dtype=torch.float64),
-            torch.randn(2, 2, generator=g, dtype=torch.float64),
-        )
-        _exported_latency("test-vector tree", tv, q2, qd2, {}, reference=t_np)
+        q2 = torch.tensor([[2.5, 0.0], [1.0, -1.5]], dtype=torch.float64)
+        qd2 = torch.randn(2, 2, generator=g, dtype=torch.float64)
+        _exported_latency("test-vector tree", eager, q2, qd2, {}, reference=_rmpflow_numpy(), key="aoti_policy")
+
+
+def section_latency(compile_: bool) -> None:
+    print("\nsingle-state latency (B = 1, the control loop): the 2d2level learner and the Franka expert (46 nodes)")
     learner, env = learner_2d2level()
     args = env.sample(n_envs=1, n_per_env=1, seed=3)
     fr, fq, fqd, faux = franka_states(*LATENCY_STATES)
@@ -493,16 +581,16 @@ def section_latency(compile_: bool) -> None:
                     {"target": f"≤ {_fmt_time(compiled_target)}", "ok": t <= compiled_target} if compiled_target else {}
                 )
                 row("latency", f"{name}, compiled ({ct:.0f} s)", _fmt_time(t), **target)
-    if compile_:
+    if compile_ and AHEAD_OF_TIME["on"]:
         fr, fq, fqd, faux = franka_states(*EXPORT_STATES)
         _exported_latency("Franka expert tree", fr, fq, fqd, faux)
 
 
 def _exported_latency(
-    name: str, tree, q2, qd2, aux2: dict, reference: float | None = None, target: float | None = None
+    name: str, tree, q2, qd2, aux2: dict, reference: Callable[[], object] | None = None, key: str | None = None
 ) -> None:
     """The tree exported and compiled ahead of time (what rmpfusion-export --aoti writes), traced on the two
-    states (q2, qd2, aux2) and timed at B = 1 on the first, beside ``reference`` (seconds) when given."""
+    states (q2, qd2, aux2) and timed at B = 1 on the first, side by side with ``reference`` (a call) when given."""
     import tempfile
 
     from rmpfusion.core.export import export_tree
@@ -519,13 +607,18 @@ def _exported_latency(
     x = (q2[:1], qd2[:1], *(aux[n] for n in names))
     with torch.inference_mode():
         err = (runner(*x) - tree(q2[:1], qd2[:1], aux).qdd).abs().max().item()
-        t = median_time(lambda: runner(*x))
+        fns = {"package": lambda: runner(*x), **({"reference": reference} if reference is not None else {})}
+        times = side_by_side(fns)
     compared = {}
     if reference is not None:
-        compared = {"reference": f"RMPflow numpy {_fmt_time(reference)}", "ratio": f"{t / reference:.2f}"}
-    if target is not None:
-        compared.update(target=f"≤ {target}", ok=t / reference <= target)
-    row("latency", f"{name}, AOTInductor package ({ct:.0f} s, |Δq̈| {err:.0e})", _fmt_time(t), **compared)
+        compared = {
+            "reference": f"RMPflow numpy {_fmt_time(statistics.median(times['reference']))}",
+            "ratio": Ratio.of(times["package"], times["reference"]),
+            "key": key,
+        }
+    section = "reference" if reference is not None else "latency"
+    what = f"{name}, AOTInductor package ({ct:.0f} s, |Δq̈| {err:.0e})"
+    row(section, what, _fmt_time(statistics.median(times["package"])), **compared)
 
 
 COMPILE_CHILD = """
@@ -533,7 +626,7 @@ import sys, time, torch
 torch.set_num_threads(1)
 from tools import bench
 tree, q, qd, aux = bench.franka_states(*bench.LATENCY_STATES)
-tree.compile(dynamic=False, fixed_structure=True, vectorize=False)
+tree.compile(fixed_structure=True, vectorize=False)
 t0 = time.perf_counter()
 with torch.inference_mode():
     tree(q, qd, aux)
@@ -984,9 +1077,72 @@ def section_collisions(compile_: bool) -> None:
     )
 
 
+#: the rollout row: starts at rest, and integration steps in each timed call
+ROLLOUT = {"starts": 100, "steps": 10}
+
+
+def arm_evaluation_subject(starts: int, seed: int = 0):
+    """(tree, env, q0, q̇0, aux): the tree experiment=recorded_arm evaluates first (the Panda's arm_reach tree with
+    every weight 1, its learned map at its initial weights), its kinematic environment (250 Hz), and ``starts``
+    states at rest in the middle half of the joint ranges that the environment accepts as starts (inside the limits,
+    clear of the cylinder and the table), each reaching for another's configuration (a recording's goal and
+    posture)."""
+    from rmpfusion.pipeline.construct import build_expert, make_env
+    from rmpfusion.pipeline.validate import typed
+
+    run = typed(compose("recorded_arm"))
+    env = make_env(run)
+    tree = build_expert(run, env.aux_dims())
+    lo, hi = tree.maps["ee"].chain.joint_limits()
+    g = torch.Generator().manual_seed(seed)
+    q = lo + (hi - lo) * (0.25 + 0.5 * torch.rand(4 * starts, len(lo), generator=g, dtype=torch.float64))
+    q = q[env.recorded_starts(q)][:starts]
+    if q.shape[0] < starts:
+        raise RuntimeError(f"only {q.shape[0]} of {4 * starts} drawn configurations are starts the arm accepts")
+    return tree, env, q, torch.zeros_like(q), env.recorded_aux(q.roll(1, 0))
+
+
+def section_rollout(compile_: bool) -> None:
+    """An evaluation rollout step as recorded runs take it: the kinematic simulator's integration step (the tree's
+    evaluation with V and B for the monitor, semi-implicit Euler, the goal tracker, the records) for every start at
+    once, eager and through the compiled tree, timed side by side; the collision check after the records is the
+    collisions section's."""
+    import copy
+
+    from rmpfusion.envs.faults import IsolatingPolicy
+    from rmpfusion.envs.manipulator.kinematic import integrate
+
+    n, steps = ROLLOUT["starts"], ROLLOUT["steps"]
+    print(f"\nevaluation rollout step, experiment=recorded_arm's tree (every weight 1), {n} starts at 250 Hz")
+    tree, env, q0, qd0, aux = arm_evaluation_subject(n)
+
+    def rollout(t):
+        with torch.no_grad():
+            integrate(env, IsolatingPolicy(t), q0, qd0, aux, steps, 1, None, [None] * n)
+
+    fns = {"eager": lambda: rollout(tree)}
+    if compile_:
+        fast = copy.deepcopy(tree).compile(fixed_structure=True, vectorize=False)  # as recorded runs compile it
+        t0 = time.perf_counter()
+        rollout(fast)
+        compile_s = time.perf_counter() - t0
+        fns["compiled"] = lambda: rollout(fast)
+    times = side_by_side(fns, rounds=5, min_time=2.0, warmup=1)
+    eager = statistics.median(times["eager"]) / steps
+    row("rollout", f"eager step, {n} starts", _fmt_time(eager))
+    if compile_:
+        r = Ratio.of(times["compiled"], times["eager"])
+        what = f"compiled step, {n} starts ({compile_s:.0f} s to compile) / eager"
+        step = _fmt_time(statistics.median(times["compiled"]) / steps)
+        row("rollout", what, step, f"eager {_fmt_time(eager)}", r, "≤ 0.05", r.value <= 0.05, key="compiled_step")
+    env.close()
+
+
 SECTIONS = {
     "batched": section_batched,
     "train": section_train,
+    "reference": section_reference,
+    "rollout": section_rollout,
     "latency": section_latency,
     "compile": section_compile,
     "scaling": section_scaling,
@@ -999,15 +1155,58 @@ SECTIONS = {
 }
 
 
-def main(argv=None) -> int:
+def _arguments(argv) -> argparse.Namespace:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--only", choices=[*SECTIONS, "memory"], action="append")
     ap.add_argument("--no-compile", action="store_true", help="skip the torch.compile rows")
+    ap.add_argument("--no-export", action="store_true", help="skip the AOTInductor rows (a minute of packaging each)")
     ap.add_argument("--json", type=Path, help="also write the rows here")
     ap.add_argument("--collision-steps", type=int, default=COLLISIONS["steps"], help="the collision section's steps")
     ap.add_argument("--markdown", type=Path, help="also write the table as markdown here (the README's table)")
-    args = ap.parse_args(argv)
+    ap.add_argument(
+        "--check",
+        action="store_true",
+        help="compare the ratios with this machine kind's baseline; exit 1 if one rose beyond noise",
+    )
+    ap.add_argument(
+        "--store-baseline", action="store_true", help="write this run's ratios as this machine kind's baseline"
+    )
+    ap.add_argument("--baseline", type=Path, default=baseline.BASELINE, help="the baseline file (default: %(default)s)")
+    return ap.parse_args(argv)
+
+
+def _markdown(path: Path) -> None:
+    lines = ["| section | what | value | reference | ratio | target | met |", "|---|---|---|---|---|---|---|"]
+    for r in ROWS:
+        met = "" if r["met"] is None else ("yes" if r["met"] else "**no**")
+        lines.append(
+            f"| {r['section']} | {r['what']} | {r['value']} | {r['reference']} | {r['ratio']} | {r['target']} | {met} |"
+        )
+    path.write_text("\n".join(lines) + "\n")
+
+
+def _baseline(args: argparse.Namespace, info: dict) -> int:
+    """``--check`` and ``--store-baseline`` after the table: 1 if a ratio regressed (then nothing is stored)."""
+    kind = baseline.machine_kind()
+    if args.check:
+        lines, regressed = baseline.check(ROWS, baseline.load(args.baseline), kind)
+        print(f"\nratios against the baseline of {kind} ({args.baseline.name}):")
+        print("\n".join(lines))
+        if regressed:
+            print(f"{len(regressed)} ratio(s) regressed beyond noise: {', '.join(regressed)}")
+            if args.store_baseline:
+                print("the baseline is not replaced by a run that regressed")
+            return 1
+    if args.store_baseline:
+        n = baseline.store(ROWS, args.baseline, kind, info)
+        print(f"stored {n} ratio(s) as the baseline of {kind} in {args.baseline}")
+    return 0
+
+
+def main(argv=None) -> int:
+    args = _arguments(argv)
     COLLISIONS["steps"] = args.collision_steps
+    AHEAD_OF_TIME["on"] = not args.no_export
     torch.set_num_threads(1)
     info = {
         "torch": torch.__version__,
@@ -1015,14 +1214,10 @@ def main(argv=None) -> int:
         "python": platform.python_version(),
         "machine": f"{platform.machine()} {platform.processor() or ''}".strip(),
         "cpus": os.cpu_count(),
+        "cpu": baseline.cpu_model(),
         "threads": "1 unless a row says otherwise",
         "platform": platform.platform(),
     }
-    try:
-        cpuinfo = Path("/proc/cpuinfo").read_text().splitlines()
-        info["cpu"] = next(line.split(":", 1)[1].strip() for line in cpuinfo if line.startswith("model name"))
-    except (OSError, StopIteration):
-        pass
     print("rmpfusion benchmark  " + "  ".join(f"{k}={v}" for k, v in info.items()))
     print(f"  {'what':<58} {'value':>16} {'reference':>22} {'ratio':>8} {'target':>14}")
     for name in args.only or [*SECTIONS, "memory"]:
@@ -1033,19 +1228,13 @@ def main(argv=None) -> int:
     if args.json:
         args.json.write_text(json.dumps({"info": info, "rows": ROWS}, indent=1))
     if args.markdown:
-        lines = ["| section | what | value | reference | ratio | target | met |", "|---|---|---|---|---|---|---|"]
-        for r in ROWS:
-            met = "" if r["met"] is None else ("yes" if r["met"] else "**no**")
-            lines.append(
-                f"| {r['section']} | {r['what']} | {r['value']} | {r['reference']} | {r['ratio']} | {r['target']} | {met} |"
-            )
-        args.markdown.write_text("\n".join(lines) + "\n")
+        _markdown(args.markdown)
     missed = [r["what"] for r in ROWS if r["met"] is False]
     print(
         f"\n{len([r for r in ROWS if r['met']])} targets met, {len(missed)} missed"
         + (": " + "; ".join(missed) if missed else "")
     )
-    return 0
+    return _baseline(args, info)
 
 
 if __name__ == "__main__":

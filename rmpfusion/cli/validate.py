@@ -70,9 +70,9 @@ def summary(run, env, expert, learners) -> str:
             (
                 f"eval: rollouts from the held-out demonstrations' starts and {d.starts} starts at rest, "
                 f"{d.horizon_factor:g} times the longest demonstration (the starts at rest on to "
-                f"{max(d.horizon_factor, d.convergence_horizon_factor):g} times); figures {'on' if run.eval.figures else 'off'} "
-                "(eval.compile and eval.unit_weights are for expert data: the tree with every weight 1 is always the "
-                "reference here)"
+                f"{max(d.horizon_factor, d.convergence_horizon_factor):g} times); {_compiled_or_eager(run.eval.compile)}; "
+                f"figures {'on' if run.eval.figures else 'off'} (eval.unit_weights is for expert data: the tree with "
+                "every weight 1 is always the reference here)"
             ),
         ]
     else:
@@ -90,6 +90,12 @@ def summary(run, env, expert, learners) -> str:
         "OK: the configuration is valid and builds; nothing was run.",
     ]
     return "\n".join(lines)
+
+
+def _compiled_or_eager(compile_: bool | str) -> str:
+    if compile_ == "auto":
+        return "each tree compiled where its rollouts repay it (eval.compile=auto)"
+    return "trees compiled" if compile_ else "trees eager"
 
 
 @hydra_app

@@ -7,7 +7,7 @@ the curvature term c = J̇ẋ is (B, n). Scalars (Phi, L, V, weights) are (B,).
 from __future__ import annotations
 
 import warnings
-from collections.abc import Iterable, Iterator, MutableMapping
+from collections.abc import Callable, Iterable, Iterator, MutableMapping
 from dataclasses import dataclass, fields
 from typing import NamedTuple
 
@@ -44,8 +44,19 @@ class NodeRMP:
         assert f is not None and M is not None, "every RMP carries f and M"
         return cls(f, M, *rest)
 
+    def values(self) -> tuple[Tensor | None, ...]:
+        """The fields in declaration order (f, M, G, B, Φ, L, V)."""
+        return (self.f, self.M, self.G, self.B, self.Phi, self.L, self.V)
+
     def items(self) -> Iterator[tuple[str, Tensor | None]]:
-        return ((f.name, getattr(self, f.name)) for f in fields(self))
+        return zip(FIELDS, self.values())
+
+    def map(self, fn: Callable[[Tensor], Tensor]) -> NodeRMP:
+        """``fn`` applied to every field the RMP carries (a lean RMP stays lean): how a group's RMP is indexed,
+        summed or given a member dimension field by field."""
+        if self.G is None:
+            return NodeRMP.lean(fn(self.f), fn(self.M))
+        return NodeRMP.of(None if v is None else fn(v) for v in self.values())
 
     def monitored(self) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
         """(G, B, Φ, L, V) of an RMP that carries them: every RMP but a lean one."""
@@ -54,6 +65,10 @@ class NodeRMP:
             "a lean RMP (NodeRMP.lean) has f and M only"
         )
         return G, B, Phi, L, V
+
+
+#: NodeRMP's fields in declaration order
+FIELDS = tuple(f.name for f in fields(NodeRMP))
 
 
 class Edge(NamedTuple):
@@ -74,8 +89,13 @@ def matvec(A: Tensor, v: Tensor) -> Tensor:
 
 
 def matmul_small(A: Tensor, Bm: Tensor) -> Tensor:
-    """A B per sample for small matrices, (…, n, k)·(…, k, m), as a broadcast product and sum (see ``matvec``)."""
-    return (A.unsqueeze(-1) * Bm.unsqueeze(-3)).sum(-2)
+    """A B per sample for the small matrices of a tree, (…, n, k)·(…, k, m): the library's batched product eagerly
+    (one call), a broadcast product and sum when traced for a compiler, which fuses it into its kernel instead of
+    calling the library for a few multiply-adds per sample (the Franka tree's 18 batched products took half of its
+    compiled call at B = 100, ``make bench``)."""
+    if torch.compiler.is_compiling():
+        return (A.unsqueeze(-1) * Bm.unsqueeze(-3)).sum(-2)
+    return A @ Bm
 
 
 def pushforward(J: Tensor, xd: Tensor) -> Tensor:
@@ -92,30 +112,40 @@ def _jt(J: Tensor, v: Tensor) -> Tensor:
 
 class _Pull:
     """Pulls a child's quantities back through one edge: vectors by w Jᵀv, matrices by w JᵀXJ, scalars by w s.
-    A 1-D child (distance spaces, the common case) scales its scalars and spreads them with one outer product
-    jjᵀ; an identity edge skips J."""
+    A 1-D child (distance spaces, the common case) has J = jᵀ, a row: its vectors pull back as v·j and its matrices
+    as X·jjᵀ, by broadcasting (the weight folded into j and jjᵀ once); an identity edge skips J."""
 
     def __init__(self, J: Tensor, w: Tensor | None, identity: bool):
         self.J, self.w, self.identity = J, w, identity
         self.one_d = J.shape[-2] == 1 and not identity
         if self.one_d:
-            self.j = J[..., 0, :]
-            self.jj = self.j.unsqueeze(-1) * self.j.unsqueeze(-2)
+            j, jj = J[..., 0, :], J.mT * J
+            self.j, self.jj = (j, jj) if w is None else (w[..., None] * j, w[..., None, None] * jj)
 
     def scalar(self, s: Tensor) -> Tensor:
         return s if self.w is None else self.w * s
 
     def vector(self, v: Tensor) -> Tensor:
         if self.one_d:
-            return self.scalar(v[..., 0])[..., None] * self.j
+            return v * self.j
         out = v if self.identity else _jt(self.J, v)
         return out if self.w is None else self.w[..., None] * out
 
     def matrix(self, X: Tensor) -> Tensor:
         if self.one_d:
-            return self.scalar(X[..., 0, 0])[..., None, None] * self.jj
-        out = X if self.identity else self.J.transpose(-1, -2) @ X @ self.J
+            return X * self.jj
+        out = X if self.identity else matmul_small(matmul_small(self.J.mT, X), self.J)
         return out if self.w is None else self.w[..., None, None] * out
+
+
+def _curvature_removed(f: Tensor, M: Tensor, c: Tensor, edge: Edge) -> Tensor:
+    """f − M c, the child's force less what the map's curvature accounts for; an identity edge's J is constant, so
+    its c = J̇ẋ is 0."""
+    if edge.identity:
+        return f
+    if c.shape[-1] == 1:
+        return f - M[..., 0] * c
+    return f - matvec(M, c)
 
 
 def edge_contribution(xd: Tensor, edge: Edge, child: NodeRMP) -> NodeRMP:
@@ -129,7 +159,7 @@ def edge_contribution(xd: Tensor, edge: Edge, child: NodeRMP) -> NodeRMP:
     """
     J, c, yd, w, gw, identity = edge
     pull = _Pull(J, w, identity)
-    f = pull.vector(child.f - matvec(child.M, c))
+    f = pull.vector(_curvature_removed(child.f, child.M, c, edge))
     M = pull.matrix(child.M)
     if child.G is None:
         return NodeRMP.lean(f, M)
@@ -179,15 +209,50 @@ class SingularInertiaWarning(RuntimeWarning):
     """
 
 
-def lu_solve(M: Tensor, f: Tensor) -> tuple[Tensor, Tensor]:
-    """M⁻¹f by an LU factorisation, and per sample whether it can be trusted: the factorisation succeeded, the
-    result is finite, and no pivot is negligible (|u_ii| > n·eps·max|u_jj|), so M is not singular up to rounding,
-    where an LU solve would return an arbitrary null-space component instead of failing."""
-    LU, piv, info = torch.linalg.lu_factor_ex(M)
+#: Up to this many coordinates, a traced solve (``torch.compile``, ``torch.export``) is written out in tensor
+#: operations (``_eliminated``) instead of calling LAPACK: a compiled graph fuses them into its kernel, while each
+#: LAPACK call leaves the graph through inductor's generic shim, which cost 26 of a 65 µs compiled call of a 2-D tree
+#: (``make bench``, latency). Larger roots call LAPACK traced too (an unrolled elimination grows as n²).
+TRACED_ELIMINATION_MAX_DIM = 12
+
+
+def _eliminated(M: Tensor, f: Tensor) -> tuple[Tensor, Tensor]:
+    """(M⁻¹f, |pivots|) by Gauss–Jordan elimination of [M | f] with LAPACK's partial pivoting (the row of largest
+    |a_ik|, i ≥ k, the first of equals), unrolled over the n columns: the same pivots as an LU factorisation, in
+    tensor operations only, so that a compiler fuses the solve with the rest of the tree."""
+    n = M.shape[-1]
+    A = torch.cat([M, f.unsqueeze(-1)], -1)  # (..., n, n + 1)
+    rows = torch.arange(n, device=M.device)
+    pivots = []
+    for k in range(n):
+        p = k + A[..., k:, k].abs().argmax(-1)  # (...,): the pivot's row
+        row_p = A.gather(-2, p[..., None, None].expand(*p.shape, 1, n + 1))  # (..., 1, n + 1)
+        row_k = A[..., k : k + 1, :]
+        at_k = (rows == k)[:, None]
+        A = torch.where(at_k, row_p, torch.where((rows == p[..., None])[..., None], row_k, A))  # rows k, p swapped
+        pivots.append(row_p[..., 0, k])
+        unit = row_p / row_p[..., k : k + 1]
+        A = torch.where(at_k, unit, A - A[..., :, k : k + 1] * unit)
+    return A[..., n], torch.stack(pivots, -1).abs()
+
+
+def _factorised(M: Tensor, f: Tensor) -> tuple[Tensor, Tensor]:
+    """(M⁻¹f, |pivots|) by LAPACK's LU factorisation and solve (an exact zero pivot, LAPACK's info > 0, is a zero
+    among the pivots, which the pivot test refuses)."""
+    LU, piv, _ = torch.linalg.lu_factor_ex(M)
     a = torch.linalg.lu_solve(LU, piv, f.unsqueeze(-1)).squeeze(-1)
-    pivots = LU.diagonal(dim1=-2, dim2=-1).abs()
-    tiny = M.shape[-1] * torch.finfo(M.dtype).eps * pivots.amax(-1)
-    good = (info == 0) & torch.isfinite(a).all(-1) & (pivots.amin(-1) > tiny)
+    return a, LU.diagonal(dim1=-2, dim2=-1).abs()
+
+
+def lu_solve(M: Tensor, f: Tensor) -> tuple[Tensor, Tensor]:
+    """M⁻¹f by LU with partial pivoting, and per sample whether it can be trusted: the result is finite and no
+    pivot is negligible (|u_ii| > n·eps·max|u_jj|), so M is not singular up to rounding, where an LU solve would
+    return an arbitrary null-space component instead of failing. Eagerly LAPACK's; traced for a compiler, the same
+    elimination written out (``TRACED_ELIMINATION_MAX_DIM``)."""
+    traced = torch.compiler.is_compiling() and M.shape[-1] <= TRACED_ELIMINATION_MAX_DIM
+    a, pivots = _eliminated(M, f) if traced else _factorised(M, f)
+    smallest, largest = torch.aminmax(pivots, dim=-1)
+    good = torch.isfinite(a).all(-1) & (smallest > M.shape[-1] * torch.finfo(M.dtype).eps * largest)
     return a, good
 
 

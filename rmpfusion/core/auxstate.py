@@ -72,6 +72,10 @@ class AuxParam(nn.Module):
             raise KeyError(f"aux state '{self.name}' is required by this tree but was not passed")
         return aux[self.name]
 
+    #: read in every evaluation of its map and never hooked: a call is its ``forward``, without nn.Module's call
+    #: machinery (which costs more than the read itself)
+    __call__ = forward
+
     def renamed(self, name: str) -> AuxParam:
         """The same parameter reading the aux entry ``name`` (a shared weight bound to one edge's entries)."""
         if self.name is None:
@@ -132,3 +136,5 @@ class StackedAux(nn.Module):
         if self.consts is not None:
             rows = torch.cat([rows, self.consts.unsqueeze(1).expand(-1, rows.shape[1], -1).to(rows)])
         return rows if self.index is None else rows.index_select(0, self.index)
+
+    __call__ = forward  # as AuxParam's

@@ -12,7 +12,7 @@ from torch import Tensor, nn
 
 from . import autodiff
 from .algebra import NodeRMP, matvec
-from .learnable import install_numbers
+from .learnable import Number, assign_number, install_numbers
 from .stacking import Stackable
 
 
@@ -40,6 +40,11 @@ class LeafRMP(Stackable, nn.Module):
         super().__init_subclass__(**kwargs)
         install_numbers(cls, cls.__dict__.get("stack_fields"))
 
+    def __setattr__(self, name: str, value) -> None:
+        if isinstance(getattr(type(self), name, None), Number) and assign_number(self, name, value):
+            return
+        super().__setattr__(name, value)
+
     def __init__(self, dim: int):
         super().__init__()
         if self.dim is not None and dim != self.dim:
@@ -52,7 +57,7 @@ class LeafRMP(Stackable, nn.Module):
     def force(self, y: Tensor, yd: Tensor) -> NodeRMP:
         """Only the natural form (f, M) (``NodeRMP.lean``): what a tree's policy needs when nothing asks for the
         leaf's L, V. A leaf whose potential is costly overrides it to skip that."""
-        r = self(y, yd)
+        r = self.forward(y, yd)  # the tree's leaves take no hooks: no nn.Module call machinery
         return NodeRMP.lean(r.f, r.M)
 
 

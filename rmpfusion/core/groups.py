@@ -16,7 +16,7 @@ Where a group's inputs come from is a ``Rows``: rows of one earlier group, or of
 from __future__ import annotations
 
 from collections.abc import Callable, Hashable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Generic, Protocol, TypeVar
 
 import torch
@@ -35,12 +35,16 @@ M = TypeVar("M", bound=nn.Module)
 S = TypeVar("S", bound=Stackable)
 
 
+def _member_dim(t: Tensor) -> Tensor:
+    return t.unsqueeze(0)
+
+
 def _unsqueezed(out: Any) -> Any:
     """Outputs of one module as a group of one: a leading member dimension of 1 on every tensor."""
     if isinstance(out, Tensor):
         return out.unsqueeze(0)
     if isinstance(out, NodeRMP):
-        return NodeRMP.of(None if v is None else v.unsqueeze(0) for _, v in out.items())  # a lean one stays lean
+        return out.map(_member_dim)  # a lean one stays lean
     if isinstance(out, tuple):
         return tuple(_unsqueezed(o) for o in out)
     return out
@@ -79,6 +83,12 @@ def stacked(modules: Sequence[S], like: Tensor) -> Alone[S] | S | nn.Module:
     if len(modules) == 1:
         return modules[0]
     return type(modules[0]).stacked(modules, like)
+
+
+def direct(fn: Callable) -> Callable:
+    """What a group calls: a module's ``forward`` itself (the tree's own modules take no hooks, and nn.Module's call
+    machinery costs more than a map's arithmetic on one state), any other callable as it is."""
+    return fn.forward if isinstance(fn, nn.Module) else fn
 
 
 def stacked_leaves(leaves: Sequence[LeafRMP], like: Tensor) -> LeafGroup:
@@ -125,16 +135,21 @@ class Rows:
             return t[self.span[0] : self.span[1]]
         return t.index_select(0, self.index)
 
-    def scatter_sum(self, t: Tensor) -> tuple[int, Tensor]:
-        """The members' ``(G, B, ...)`` terms summed into the rows they were gathered from (one source), as
-        (first row, the summed rows from there on)."""
+    @property
+    def first(self) -> int:
+        """The first row of the source that the members' summed terms (``summed``) begin at."""
+        return self.span[0] if self.span is not None and self.size != 1 else 0
+
+    def summed(self, t: Tensor) -> Tensor:
+        """The members' ``(G, B, ...)`` terms summed into the rows they were gathered from (one source), from row
+        ``first`` on."""
         if self.size == 1:
-            return 0, (t if t.shape[0] == 1 else t.sum(0, keepdim=True))
+            return t if t.shape[0] == 1 else t.sum(0, keepdim=True)
         if self.span is not None:
             first, stop = self.span
-            return first, (t if t.shape[0] == stop - first else t.reshape(stop - first, -1, *t.shape[1:]).sum(1))
+            return t if t.shape[0] == stop - first else t.reshape(stop - first, -1, *t.shape[1:]).sum(1)
         index = torch.as_tensor(self.index, device=t.device).expand(t.shape[0])
-        return 0, t.new_zeros(self.size, *t.shape[1:]).index_add(0, index, t)
+        return t.new_zeros(self.size, *t.shape[1:]).index_add(0, index, t)
 
 
 def _span(rows: list[int]) -> tuple[int, int] | None:
@@ -198,12 +213,12 @@ class WeightGroup:
 class Plan:
     groups: list[Group]  # depth by depth: parents' groups before their children's
     weights: list[WeightGroup]
+    #: No weight varies with the configuration: no h_i asks for a child's L and G, so a policy that is not monitored
+    #: needs only f and M from every leaf (decided once, from ``groups``: a policy asks at every call).
+    lean: bool = field(init=False)
 
-    @property
-    def lean(self) -> bool:
-        """No weight varies with the configuration: no h_i asks for a child's L and G, so a policy that is not
-        monitored needs only f and M from every leaf."""
-        return all(g.weights is None or g.constant_weights for g in self.groups)
+    def __post_init__(self) -> None:
+        self.lean = all(g.weights is None or g.constant_weights for g in self.groups)
 
 
 def _key(module: Any, node: str) -> Hashable:
@@ -248,7 +263,7 @@ def plan(
             Group(
                 nodes=run,
                 parent=parent,
-                map=stacked([maps[n] for n in run], like),
+                map=direct(stacked([maps[n] for n in run], like)),
                 leaf=None if children[run[0]] else stacked_leaves([rmps[n] for n in run], like),
                 identity=bool(maps[run[0]].identity_jacobian),
                 weights=Rows.of([at[n] for n in run], wsizes, device) if weighted else None,
@@ -266,7 +281,7 @@ def _weight_groups(layout: TreeLayout, weights: Mapping[str, BoundWeight], where
     for members in buckets.values():
         for run in _by_shared_function(members, weights):
             inputs = Rows.of([where[layout.parents[n]] for n in run], sizes, like.device)
-            out.append(WeightGroup(edges=run, inputs=inputs, fn=stacked([weights[n] for n in run], like)))
+            out.append(WeightGroup(edges=run, inputs=inputs, fn=direct(stacked([weights[n] for n in run], like))))
     return out
 
 

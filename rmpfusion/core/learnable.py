@@ -84,7 +84,12 @@ class Number:
     """A module attribute that holds a number: a constant as given, or a ``LearnedFloat`` turned into the learned
     parameter ``<name>_raw`` and read back through its ``Range``. Installed on a leaf class for each of its
     ``stack_fields`` (``core/gds.py::LeafRMP``), so ``self.gain = params.gain`` and every read of ``self.gain`` work
-    alike for constants and learned numbers."""
+    alike for constants and learned numbers.
+
+    A constant lives in the instance's ``__dict__`` and is read from there at plain attribute speed (a leaf's math
+    reads its numbers at every evaluation, and a descriptor's Python ``__get__`` on each read cost more than the
+    arithmetic of a single state): only a learned number, which has no entry there, is computed here. Assignments
+    go through ``assign_number``, which the leaf's ``__setattr__`` calls."""
 
     def __init__(self, name: str):
         self.name = name
@@ -95,19 +100,27 @@ class Number:
         rng = obj.__dict__.get("_learned_ranges", {}).get(self.name)
         if rng is not None:
             return rng.value(getattr(obj, f"{self.name}_raw"))
-        if self.name in obj.__dict__:
-            return obj.__dict__[self.name]
         return nn.Module.__getattr__(obj, self.name)  # not a plain number: a parameter, buffer or submodule
 
-    def __set__(self, obj: Any, value: Any) -> None:
-        if isinstance(value, LearnedFloat):
-            rng = Range(value.lower, value.upper)
-            raw = torch.tensor(rng.raw(float(value)), dtype=torch.float64)
-            obj.register_parameter(f"{self.name}_raw", nn.Parameter(raw))
-            obj.__dict__["_learned_ranges"] = {**obj.__dict__.get("_learned_ranges", {}), self.name: rng}
-            obj.__dict__.pop(self.name, None)
-            return
-        obj.__dict__[self.name] = value
+
+def assign_number(obj: nn.Module, name: str, value: Any) -> bool:
+    """``obj.<name> = value`` for a ``Number`` attribute: a ``LearnedFloat`` becomes the parameter ``<name>_raw``
+    (True: assigned here); anything else is for ``nn.Module.__setattr__`` to store (False), except over a number
+    that is already learned, which is refused by name."""
+    learned = obj.__dict__.get("_learned_ranges", {})
+    if isinstance(value, LearnedFloat):
+        rng = Range(value.lower, value.upper)
+        raw = torch.tensor(rng.raw(float(value)), dtype=torch.float64)
+        obj.register_parameter(f"{name}_raw", nn.Parameter(raw))
+        obj.__dict__["_learned_ranges"] = {**learned, name: rng}
+        obj.__dict__.pop(name, None)
+        return True
+    if name in learned:
+        raise AttributeError(
+            f"{type(obj).__name__}.{name} is learned (from the parameter {name}_raw); set that parameter, or build "
+            "the module with a constant"
+        )
+    return False
 
 
 def install_numbers(cls: type, names: tuple[str, ...] | None) -> None:

@@ -95,7 +95,7 @@ def pullback(plan: Plan, x, xd, edges, lean: bool = False) -> Passes:
     """Every group's RMP, deepest groups first: a leaf group's from its leaf, an inner group's from the summed
     terms of its child groups; then the root's. ``lean``: f and M only (``Plan.lean`` trees, unmonitored)."""
     terms: dict[int, list[tuple[int, NodeRMP]]] = {}  # per group (and the root): its members' children's terms
-    rmps: dict[int, NodeRMP] = {}
+    rmps: list[NodeRMP] = [None] * len(plan.groups)  # type: ignore[list-item]  # every slot is filled below
     for i in reversed(range(len(plan.groups))):
         g = plan.groups[i]
         if g.leaf is None:
@@ -104,24 +104,25 @@ def pullback(plan: Plan, x, xd, edges, lean: bool = False) -> Passes:
             rmp = g.leaf.force(x[i], xd[i]) if lean else g.leaf(x[i], xd[i])
         rmps[i] = rmp
         term = edge_contribution(g.parent.gather(xd), edges[i], rmp)
-        first, f = g.parent.scatter_sum(term.f)
-        summed = NodeRMP.of(
-            [f, *(None if v is None else g.parent.scatter_sum(v)[1] for k, v in term.items() if k != "f")]
-        )
-        terms.setdefault(g.parent.sources[0], []).append((first, summed))
+        terms.setdefault(g.parent.sources[0], []).append((g.parent.first, term.map(g.parent.summed)))
     if ROOT not in terms:
         raise ValueError("the tree has no nodes below its root: pullback* needs at least one child")
     states = [(x[i], xd[i]) for i in range(len(plan.groups))]
-    root = NodeRMP.of(None if v is None else v[0] for _, v in _gathered(terms[ROOT], 1).items())
-    return Passes(states=states, edges=edges, rmps=[rmps[i] for i in range(len(plan.groups))], root=root)
+    root = _gathered(terms[ROOT], 1).map(_first_row)
+    return Passes(states=states, edges=edges, rmps=rmps, root=root)
+
+
+def _first_row(t: Tensor) -> Tensor:
+    return t[0]
 
 
 def _gathered(pieces: list[tuple[int, NodeRMP]], size: int) -> NodeRMP:
     """A group's RMP from its members' children's terms (``pieces``: each covering rows from its first on)."""
-    fields: dict[str, Tensor | None] = {}
-    for k, v in pieces[0][1].items():
-        fields[k] = None if v is None else assemble([(first, getattr(r, k)) for first, r in pieces], size)
-    return NodeRMP.of(fields.values())
+    if len(pieces) == 1 and pieces[0][0] == 0 and pieces[0][1].f.shape[0] == size:
+        return pieces[0][1]  # one child group covering every row: its terms are the group's
+    starts = [first for first, _ in pieces]
+    columns = zip(*(r.values() for _, r in pieces))  # field by field, every piece's
+    return NodeRMP.of(None if vs[0] is None else assemble(list(zip(starts, vs)), size) for vs in columns)
 
 
 def evaluate(plan: Plan, q: Tensor, qd: Tensor, aux: Mapping[str, Tensor] | None, lean: bool = False) -> Passes:

@@ -24,7 +24,8 @@ class TaskMap(Stackable, nn.Module):
 
     in_dim: int
     out_dim: int
-    identity_jacobian: bool = False  # J = I always (identity, offset): pullback* then skips its products with J
+    #: J = I always (identity, offset), so J̇ẋ = 0 too: pullback* then skips its products with J and the curvature term
+    identity_jacobian: bool = False
     # What the output is when it is more than coordinates of a space, e.g. "moving_offset": an offset to a goal
     # followed by the goal's velocity. A leaf reads such an output only if it declares the same (LeafRMP.coordinates),
     # and a leaf that declares one reads nothing else; the tree builder checks both.

@@ -15,6 +15,7 @@ import logging
 import types
 import warnings
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
@@ -107,6 +108,7 @@ class RMPTree(nn.Module):
         self._compile_args: tuple[bool | None, dict[str, Any]] | None = None  # (dynamic, options) once compiled
         self._dtype_cache: tuple | None = None  # (dtype,) once known; see _dtype
         self.aux_source: AuxSource | None = None  # makes declared aux from the caller's inputs; see read_aux_through
+        self.compile_failure: str | None = None  # why torch.compile could not compile the tree, once it fell back
 
     @property
     def plan(self) -> Plan:
@@ -200,7 +202,7 @@ class RMPTree(nn.Module):
         else:
             f, M, G, B, Phi, L, V, qdd, ok = self._root_rmp_maybe_compiled(q, qd, aux, False)
             r = NodeRMP(f, M, G, B, Phi, L, V)
-        qdd = self._resolved(q, qd, aux, r, qdd, ok)
+        qdd = self._resolved(q, qd, aux, r.f, r.M, qdd, ok)
         G, B, Phi, L, V = r.monitored()
         return TreeOutput(qdd=qdd, f=r.f, M=r.M, G=G, B=B, Phi=Phi, V=V, L=L, nodes=nodes)
 
@@ -217,13 +219,13 @@ class RMPTree(nn.Module):
         return torch.linalg.solve(out.B, out.f.unsqueeze(-1)).squeeze(-1)
 
     def _resolved(
-        self, q: Tensor, qd: Tensor, aux: AuxDict | None, r: NodeRMP, qdd: Tensor | None, ok: Tensor | bool
+        self, q: Tensor, qd: Tensor, aux: AuxDict | None, f: Tensor, M: Tensor, qdd: Tensor | None, ok: Tensor | bool
     ) -> Tensor:
-        """q̈: the LU answer when it is good for every sample, else resolve's (pseudo-inverse where M is singular);
-        a non-finite answer raises NumericalError naming where it came from."""
-        if self.resolve_method == "solve" and qdd is not None and bool(ok):
+        """q̈: the LU answer when it is good for every sample, else resolve's of the root's (f, M) (pseudo-inverse
+        where M is singular); a non-finite answer raises NumericalError naming where it came from."""
+        if qdd is not None and self.resolve_method == "solve" and bool(ok):
             return qdd
-        qdd = resolve(r.f, r.M, self.resolve_method, self.resolve_events)
+        qdd = resolve(f, M, self.resolve_method, self.resolve_events)
         if self.check_finite and not bool(torch.isfinite(qdd).all()):
             raise NumericalError(self._diagnose(q, qd, self.aux_with_source(q, aux)))
         return qdd
@@ -262,7 +264,7 @@ class RMPTree(nn.Module):
                     grad_w=None if e.grad_w is None else e.grad_w[s],
                     identity=e.identity,
                 )
-                rmp[n] = NodeRMP.of(None if v is None else v[s] for _, v in r.items())
+                rmp[n] = r.map(_row(s))
         rmp[self.root_name] = passes.root
         return {"state": state, "edge": edges, "rmp": rmp}
 
@@ -294,7 +296,10 @@ class RMPTree(nn.Module):
         ``vectorize=False`` is the single-state mode (B = 1, a controller): CPU code without SIMD loops (no lanes to
         fill; the compile takes about a third less time) called through inductor's C++ wrapper, which spends less
         Python per call but routes the matrix products through a generic shim that costs 2× at B = 4096
-        (``make bench``)."""
+        (``make bench``).
+
+        ``dynamic=False`` makes dynamo patch its config around every call (about a sixth of a compiled single-state
+        call); a caller that keeps its batch size leaves ``dynamic`` None, whose first compile is static too."""
         opts = dict(options or {})
         if not vectorize:
             opts.setdefault("cpp.vec_isa_ok", False)
@@ -303,7 +308,16 @@ class RMPTree(nn.Module):
             opts.setdefault("guard_filter_fn", torch.compiler.skip_guard_on_all_nn_modules_unsafe)
         self._compile_args = (dynamic, opts)
         self._compiled = None
+        self.compile_failure = None
         return self
+
+    @property
+    def evaluation_mode(self) -> str:
+        """How the tree evaluates: "compiled" (through torch.compile), "eager" (not asked to compile), or "eager
+        (<why>)" where torch.compile could not compile it and the tree fell back (``CompileFallbackWarning``)."""
+        if self._compile_args is not None:
+            return "compiled"
+        return "eager" if self.compile_failure is None else f"eager ({self.compile_failure})"
 
     def _compiled_fn(self):
         if self._compiled is None:
@@ -348,6 +362,7 @@ class RMPTree(nn.Module):
             )
         else:
             self.uncompile()
+            self.compile_failure = f"torch.compile cannot compile it: {reason}"
             warnings.warn(
                 CompileFallbackWarning(
                     f"torch.compile cannot compile this tree ({reason}); it now runs eagerly, with the same numbers"
@@ -388,7 +403,7 @@ class RMPTree(nn.Module):
             return self.forward(q, qd, aux).qdd
         aux = self._inputs(q, qd, aux)
         f, M, *_, qdd, ok = self._root_rmp_maybe_compiled(q, qd, aux, True)
-        return self._resolved(q, qd, aux, NodeRMP.lean(f, M), qdd, ok)
+        return self._resolved(q, qd, aux, f, M, qdd, ok)
 
     def describe(self) -> str:
         """The tree drawn as text: node, dimension, map, weight, rmp."""
@@ -412,6 +427,11 @@ class RMPTree(nn.Module):
 
         walk(self.root_name, "")
         return "\n".join(lines)
+
+
+def _row(s: int) -> Callable[[Tensor], Tensor]:
+    """Row ``s`` of a group's ``(G, B, ...)`` quantity: member s's."""
+    return lambda t: t[s]
 
 
 def _compile_failure(error: BaseException) -> str:

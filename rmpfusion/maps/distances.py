@@ -17,13 +17,13 @@ from ..examples import AuxInput, Example
 from ..registry import TASK_MAPS, Params, numbers_repr
 
 
-def _radial(d: Tensor, dd: Tensor, scale: Tensor | float):
-    """For r = |d|: (r, ∂r/∂d, d²r[ḋ, ḋ]) with d the (projected) offset and ḋ its velocity."""
-    r = d.norm(dim=-1, keepdim=True)
+def _radial(d: Tensor, dd: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """For r = |d|: (r, u = ∂r/∂d, ṙ = u·ḋ, d²r[ḋ, ḋ]) with d the (projected) offset and ḋ its velocity."""
+    r = torch.linalg.vector_norm(d, dim=-1, keepdim=True)
     u = d / r
     ud = (u * dd).sum(-1, keepdim=True)
-    c = ((dd * dd).sum(-1, keepdim=True) - ud**2) / r
-    return r, u / scale, c / scale
+    c = ((dd * dd).sum(-1, keepdim=True) - ud * ud) / r
+    return r, u, ud, c
 
 
 def _values(v: Any) -> list[float] | None:
@@ -91,10 +91,10 @@ class SphereDistance(TaskMap):
 
     def forward(self, x, xd, aux=None):
         R = self.radius(aux)
-        scale = R if self.normalized else 1.0
-        r, j, c = _radial(x - self.center(aux), xd, scale)
-        y = r / R - 1.0 if self.normalized else r - R
-        return y, (j * xd).sum(-1, keepdim=True), j.unsqueeze(-2), c
+        r, u, ud, c = _radial(x - self.center(aux), xd)
+        if self.normalized:  # y = r/R − 1: every derivative of r over R
+            return r / R - 1.0, ud / R, (u / R).unsqueeze(-2), c / R
+        return r - R, ud, u.unsqueeze(-2), c
 
     def extra_repr(self) -> str:
         return numbers_repr({"in_dim": self.in_dim, "out_dim": self.out_dim, "normalized": self.normalized})
@@ -147,9 +147,9 @@ class CylinderDistance(TaskMap):
 
     def forward(self, x, xd, aux=None):
         P = self.P  # symmetric: P v = vᵀ P
-        r, j, c = _radial(matvec(P, x - self.center(aux)), matvec(P, xd), 1.0)
-        j = matvec(P, j)  # chain through the projection
-        return r - self.radius(aux), (j * xd).sum(-1, keepdim=True), j.unsqueeze(-2), c
+        r, u, ud, c = _radial(matvec(P, x - self.center(aux)), matvec(P, xd))
+        j = matvec(P, u)  # chain through the projection: j·ẋ = u·Pẋ = ṙ
+        return r - self.radius(aux), ud, j.unsqueeze(-2), c
 
     def extra_repr(self) -> str:
         return numbers_repr({"in_dim": self.in_dim, "out_dim": self.out_dim, "projection": self.P})

@@ -16,7 +16,7 @@ import torch
 from pydantic import Field
 from torch import Tensor, nn
 
-from ..core.algebra import matvec
+from ..core.algebra import matmul_small, matvec
 from ..core.taskmap import TaskMap
 from ..examples import Example, StateSampler
 from ..registry import TASK_MAPS, Params, numbers_repr
@@ -273,7 +273,7 @@ class Chain(nn.Module):
         local, slide = self._local(q)
         world = [_as(self.mount, q).expand(*q.shape[:-1], 4, 4)]
         for parent, joint in zip(self._parent, local.unbind(-3)):
-            world.append(world[parent] @ joint)
+            world.append(matmul_small(world[parent], joint))
         T = torch.stack(world, -3)
         children = T[..., 1:, :, :]
         Z = (children[..., :3, :3] * self._constants(q)["axis_local"][..., None, :]).sum(-1)

@@ -170,10 +170,10 @@ class LinkSphereDistance(TaskMap):
         p, pd, Jp, cp = self.centres(x, xd)  # (2G, B, ...): the a centres, then the b centres
         G = p.shape[0] // 2
         d, dd = p[:G] - p[G:], pd[:G] - pd[G:]
-        r, n, curv = _radial(d, dd, 1.0)
+        r, n, rate, curv = _radial(d, dd)
         J = (n.unsqueeze(-1) * (Jp[:G] - Jp[G:])).sum(-2, keepdim=True)  # nᵀ(J_a − J_b), (G, B, 1, m)
         c = (n * (cp[:G] - cp[G:])).sum(-1, keepdim=True) + curv
-        out = (r - spread(self.radii, 1), (n * dd).sum(-1, keepdim=True), J, c)
+        out = (r - spread(self.radii, 1), rate, J, c)
         return tuple(t.squeeze(0) for t in out) if alone else out
 
     def psi(self, x, aux):

@@ -201,7 +201,7 @@ class SphereObstacle(ObstacleDistance):
         self.radius = self._param(params.radius, "radius", 1)
 
     def measure(self, p, v, aux):
-        r, g, c = _radial(p, v, 1.0)
+        r, g, _, c = _radial(p, v)
         return r - self.radius(aux), g, c
 
     def distance(self, p, aux):
@@ -249,7 +249,7 @@ class CapsuleObstacle(ObstacleDistance):
         middle = z.abs() < h  # beside the segment: the nearest point moves along it with the obstacle's frame
         q = p - z.clamp(-h, h) * a
         qd = v - torch.where(middle, _dot(v, a), torch.zeros_like(z)) * a
-        r, g, c = _radial(q, qd, 1.0)
+        r, g, _, c = _radial(q, qd)
         return r - self.radius(aux), g, c
 
 
@@ -292,7 +292,7 @@ class CylinderObstacle(ObstacleDistance):
         a = self.axis(aux)
         z = _dot(p, a)
         side = p - z * a
-        rho, u, c_rho = _radial(side, v - _dot(v, a) * a, 1.0)  # distance from the axis, its gradient and curvature
+        rho, u, _, c_rho = _radial(side, v - _dot(v, a) * a)  # distance from the axis, its gradient and curvature
         dr, dz, sz = rho - self.radius(aux), z.abs() - self.half_height(aux), torch.sign(z)
         rim = (dr > 0) & (dz > 0)
         rim_d = torch.sqrt(dr.clamp(min=0) ** 2 + dz.clamp(min=0) ** 2).clamp(min=1e-300)

@@ -187,10 +187,12 @@ class EvalConfig(_Frozen):
     lyapunov_rtol: float = Field(1e-6, ge=0)
     lyapunov_atol: float = Field(1e-9, ge=0)
     figures: bool = True
-    compile: bool = Field(
+    compile: bool | Literal["auto"] = Field(
         False,
         description="roll out through torch.compile'd trees (same numbers, faster after a one-off compile per tree); "
-        "expert data only: recorded demonstrations' few rollouts run eagerly",
+        "auto: on recorded demonstrations, each tree whose rollouts repay a compile (pipeline/experiment.py::compiles); "
+        "a tree torch.compile cannot compile runs eagerly, said in the log (and, on recorded demonstrations, in "
+        "metrics.json's evaluation)",
     )
     unit_weights: bool = Field(
         False,

@@ -25,7 +25,7 @@ from ..learn.objectives import dataset_loss
 from .certificates import certificate
 from .collect import Splits, expert_diverged
 from .construct import build_unit_weights
-from .experiment import COMPILING, Experiment, clean
+from .experiment import COMPILING, Experiment, clean, compiles
 from .fit import Fitted
 from .recorded import RecordedEval, evaluate_recorded, evaluation_batch
 
@@ -225,7 +225,7 @@ def evaluate_fitted(exp: Experiment, name: str, fitted: Fitted, splits: Splits, 
     model = fitted.model
     dtype = next(model.parameters()).dtype
     model.to(torch.float64)
-    if exp.run.eval.compile:
+    if compiles(exp.run.eval):
         model.compile()
         exp.say.say(COMPILING.format(what=f"learner {name} for evaluation"))
     ev = _SnapshotEvaluator(exp, name, splits, expert)

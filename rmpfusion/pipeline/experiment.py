@@ -110,6 +110,21 @@ def learner_seed(seed: int, name: str) -> int:
     return (seed * 1_000_003 + zlib.crc32(name.encode())) % (2**63 - 1)
 
 
+#: ``eval.compile: auto`` compiles a tree whose rollouts in a recorded evaluation come to at least this many row-steps
+#: (rows of the batch × integration steps, over every snapshot it is loaded with): on LASA Angle the tree's 164,000
+#: took as long eagerly as compiled, compile included, and its learner's 214,000 half as long compiled (the arm's
+#: 1.2 million per policy far more); docs/results/performance.md, "Recorded runs". Smoke-sized runs stay eager.
+COMPILE_FROM_ROW_STEPS = 200_000
+
+
+def compiles(ev: EvalConfig, row_steps: int | None = None) -> bool:
+    """Whether a tree is rolled out compiled: ``eval.compile``, where ``auto`` compiles when the rollouts it serves
+    come to ``COMPILE_FROM_ROW_STEPS`` row-steps (``row_steps`` None: an expert's evaluation, always compiled)."""
+    if ev.compile == "auto":
+        return row_steps is None or row_steps >= COMPILE_FROM_ROW_STEPS
+    return ev.compile
+
+
 def prepare(run: RunConfig, run_dir: Path, say: Progress, log: Log | None = None) -> Experiment:
     """The environment and the expert tree of a validated config, compiled when ``eval.compile`` asks."""
     run = typed(run)
@@ -129,8 +144,8 @@ def prepare(run: RunConfig, run_dir: Path, say: Progress, log: Log | None = None
             )
         env.to(device)
     expert = build_expert(run, env.aux_dims()).to(device)
-    if run.eval.compile:
-        expert.compile()
+    if compiles(run.eval) and not isinstance(run.data, RecordedDataConfig):  # recorded: decided at the evaluation
+        expert.compile(fixed_structure=True)  # the expert never changes in a run: no checks of its modules per call
         say.say(COMPILING.format(what="the expert's tree"))
     return Experiment(run=run, dir=run_dir, env=env, expert=expert, say=say, log=log)
 

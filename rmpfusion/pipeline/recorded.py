@@ -23,6 +23,7 @@ measures learned dynamical systems (Khansari-Zadeh & Billard 2011; Rana et al. 2
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import time
 from collections.abc import Callable, Mapping
@@ -41,12 +42,11 @@ from ..evaluate.lyapunov import lyapunov_monotone
 from ..evaluate.reproduction import dtw_distance, overshoot, swept_error_area
 from ..evaluate.rest_forces import rest_forces
 from ..files import atomic_write_json
-from ..learn.loop import load_snapshot
 from ..plots.recorded import View, recorded_figures
 from ..recordings.signals import States
 from .certificates import certificate
 from .collect import Splits, recorded_splits, recording_env  # noqa: F401  (recorded_splits: where tools and tests find it)
-from .experiment import Experiment, clean
+from .experiment import COMPILE_FROM_ROW_STEPS, COMPILING, Experiment, clean, compiles
 from .fit import Fitted
 
 #: the reference policy's name: the configured tree with every weight 1, nothing learned
@@ -273,7 +273,9 @@ LONG_RECORDS = 2000
 
 def long_horizon_outcomes(exp: Experiment, policy: Callable, batch: Batch, ro: Rollout, label: str) -> dict:
     """The starts at rest continued from where ``ro`` left them to ``batch.long_horizon``, then each told converged,
-    at rest away from the goal or still moving there (``evaluate/convergence.py``)."""
+    at rest away from the goal or still moving there (``evaluate/convergence.py``). The whole batch goes on (the
+    held-out demonstrations' rows too, whose continuation is not read), so a compiled policy meets the batch size it
+    was compiled for instead of compiling again; the continuation is the convergence check's own progress stage."""
     d, g, dt = exp.recorded_data, batch.grid, exp.env.dt
     assert ro.goal_distance is not None, "an environment for recorded demonstrations measures the distance to the goal"
     times, dist, q_end = ro.times, ro.goal_distance[:, g], ro.q[-1, g]
@@ -281,19 +283,20 @@ def long_horizon_outcomes(exp: Experiment, policy: Callable, batch: Batch, ro: R
     if steps > 0 and g.stop > g.start:
         every = max(1, steps // LONG_RECORDS)
         steps = every * -(-steps // every)  # the last record at the horizon's end
+        check = f"convergence check, from rest to {batch.horizon + steps * dt:.4g} s"
         more = exp.env.rollout(
             told_only_the_scene(policy, batch.hidden),
-            ro.q[-1, g],
-            ro.qd[-1, g],
-            {k: v[g] for k, v in batch.aux.items()},
+            ro.q[-1],
+            ro.qd[-1],
+            batch.aux,
             steps * dt,
             every * dt,
-            progress=exp.say.bar(f"rollout {label} from rest, to {batch.horizon + steps * dt:.4g} s"),
+            progress=exp.say.bar(f"rollout {label}").stage(check),
         )
         times = torch.cat([times, times[-1] + more.times[1:].to(times)])
         assert more.goal_distance is not None
-        dist = torch.cat([dist, more.goal_distance[1:].to(dist)])
-        q_end = more.q[-1]
+        dist = torch.cat([dist, more.goal_distance[1:, g].to(dist)])
+        q_end = more.q[-1, g]
     return convergence_outcomes(times, q_end, dist, d.tolerance, d.at_rest_rate)
 
 
@@ -400,35 +403,88 @@ def premises(exp: Experiment, label: str, tree: RMPTree) -> dict:
     return report.as_dict()
 
 
+def row_steps(batch: Batch, dt: float, policies: int, long: int) -> int:
+    """Rows × integration steps of ``policies`` evaluations on ``batch``, ``long`` of them on to the long horizon:
+    the work a compile of their tree is repaid by (``experiment.compiles``)."""
+    steps = round(batch.horizon / dt)
+    more = round(((batch.long_horizon or batch.horizon) - batch.horizon) / dt)
+    return batch.q0.shape[0] * (policies * steps + long * more)
+
+
+def compiled_if_it_pays(exp: Experiment, what: str, tree: RMPTree | None, work: int) -> str | None:
+    """``tree`` set to compile (once; its structure does not change in the evaluation) when ``eval.compile`` says so
+    for ``work`` row-steps; None then, else why it stays eager."""
+    if tree is None:
+        return "not a tree"
+    if not compiles(exp.run.eval, work):
+        if exp.run.eval.compile == "auto":
+            return f"eval.compile=auto: {work:,} row-steps, fewer than the {COMPILE_FROM_ROW_STEPS:,} a compile repays"
+        return "eval.compile is false"
+    # a batch of ~100 rows gains nothing from SIMD loops, and compiles in half the time without them (the arm's tree
+    # at 100 starts: 45 s against 95 s, calls 0.24x and 0.20x the eager time; docs/results/performance.md)
+    tree.compile(fixed_structure=True, vectorize=False)
+    exp.say.say(COMPILING.format(what=what))
+    return None
+
+
+def evaluated_as(exp: Experiment, label: str, tree: RMPTree | None, seconds: float, eager: str | None) -> dict:
+    """How ``label``'s rollouts evaluated it (compiled, or eagerly and why: ``eager``, or the compile's failure) and
+    how long they took, said in the log: an entry of metrics.json's ``evaluation``."""
+    mode = f"eager ({eager})" if eager is not None else ("eager" if tree is None else tree.evaluation_mode)
+    exp.say.say(f"{label}: evaluated {mode}, {seconds:.0f} s of rollouts (metrics.json: evaluation.{label})")
+    return {"mode": mode, "seconds": seconds}
+
+
+def _evaluate_learner(exp: Experiment, name: str, f: Fitted, batch: Batch) -> tuple[dict, Rollout, dict]:
+    """One learner at every snapshot (the final one on to the long horizon), in one float64 copy whose tree
+    compiles once where it pays (every snapshot's weights are loaded into it; parameters are the compiled tree's
+    inputs, so no snapshot compiles again): its results, its final rollout and how it was evaluated."""
+    model = f.model.to(torch.float64)
+    evaluated = copy.deepcopy(model)
+    its = sorted(f.result.snapshots)
+    final_it = exp.run.train.iterations
+    work = row_steps(batch, exp.env.dt, len(its) + (final_it not in its), 1)
+    eager = compiled_if_it_pays(exp, f"learner {name}'s tree for evaluation", evaluated.tree, work)
+    t0, snaps = time.time(), {}
+    for it in its:
+        evaluated.load_state_dict(dict(f.result.snapshots[it]))
+        last = it == final_it  # only the final policy goes on to the long horizon
+        snaps[str(it)], ro = evaluate_policy(exp, f"{name}-{it}", evaluated.policy, batch, evaluated.tree, last)
+    final = snaps.get(str(final_it))
+    if final is None:
+        evaluated.load_state_dict(model.state_dict())
+        final, ro = evaluate_policy(exp, name, evaluated.policy, batch, evaluated.tree)
+    how = evaluated_as(exp, name, evaluated.tree, time.time() - t0, eager)
+    if model.tree is not None:
+        final["certificate"] = certificate(model, ro, batch.policy_aux(), every=certified_every(ro))
+        final["premises"] = premises(exp, name, model.tree)
+    if learned := model.learned_numbers():
+        final["learned_leaf_parameters"] = learned
+    out = {
+        **final,
+        "snapshots": snaps,
+        "train_seconds": f.seconds,
+        "final_train_loss": f.result.curve[-1][1] if f.result.curve else None,
+    }
+    return out, ro, how
+
+
 def evaluate_recorded(exp: Experiment, fitted: dict, batch: Batch) -> RecordedEval:
-    """The configured tree (every weight 1) and every learner at every training snapshot; the results and the
-    final rollout of each policy (for the figures)."""
-    res: dict[str, Any] = {"learners": {}}
+    """The configured tree (every weight 1) and every learner at every training snapshot; the results, the final
+    rollout of each policy (for the figures) and how each was evaluated (``evaluation``: compiled or eager, seconds)."""
+    started = time.time()
+    res: dict[str, Any] = {"learners": {}, "evaluation": {}}
     rollouts: dict[str, Rollout] = {}
+    work = row_steps(batch, exp.env.dt, 1, 1)
+    eager = compiled_if_it_pays(exp, "the tree with every weight 1", exp.expert, work)
     res[TREE], rollouts[f"{TREE} (every weight 1)"] = evaluate_policy(exp, TREE, exp.expert_at(), batch, exp.expert)
+    res["evaluation"][TREE] = evaluated_as(exp, TREE, exp.expert, time.time() - started, eager)
     res[TREE]["premises"] = premises(exp, TREE, exp.expert)
     for name, f in fitted.items():
-        model = f.model.to(torch.float64)
-        snaps = {}
-        for it in sorted(f.result.snapshots):
-            snap = load_snapshot(model, f.result.snapshots[it]).to(torch.float64)
-            last = it == exp.run.train.iterations  # only the final policy goes on to the long horizon
-            snaps[str(it)], ro = evaluate_policy(exp, f"{name}-{it}", snap.policy, batch, snap.tree, last)
-        final = snaps.get(str(exp.run.train.iterations))
-        if final is None:
-            final, ro = evaluate_policy(exp, name, model.policy, batch, model.tree)
+        res["learners"][name], ro, res["evaluation"][name] = _evaluate_learner(exp, name, f, batch)
         rollouts[f"{name} after {exp.run.train.iterations} iterations"] = ro
-        if model.tree is not None:
-            final["certificate"] = certificate(model, ro, batch.policy_aux(), every=certified_every(ro))
-            final["premises"] = premises(exp, name, model.tree)
-        if learned := model.learned_numbers():
-            final["learned_leaf_parameters"] = learned
-        res["learners"][name] = {
-            **final,
-            "snapshots": snaps,
-            "train_seconds": f.seconds,
-            "final_train_loss": f.result.curve[-1][1] if f.result.curve else None,
-        }
+    exp.timing["training_s"] = sum(f.seconds for f in fitted.values())
+    exp.timing["evaluation_s"] = time.time() - started
     return RecordedEval(res, rollouts, batch)
 
 
@@ -470,9 +526,12 @@ def report_recorded(
         }
     )
     if exp.run.eval.figures:
+        t0 = time.time()
         trees = {name: f.model.tree for name, f in fitted.items() if f.model.tree is not None}
         metrics["figures"] = recorded_figures(
             exp.dir / "figures", evaluated.rollouts, evaluated.batch, splits.demos, _arm_views(exp.env), trees
         )
+        metrics["timing"]["figures_s"] = time.time() - t0
+    metrics["timing"]["total_s"] = time.time() - started  # the figures included
     atomic_write_json(exp.dir / "metrics.json", metrics)
     return metrics

@@ -48,25 +48,31 @@ class RMPflowCollisionAvoidance(LeafRMP):
         super().__init__(dim)
         self.epsilon, self.alpha, self.eta = params.epsilon, params.alpha, params.eta
 
-    def forward(self, y: Tensor, yd: Tensor) -> NodeRMP:
+    def _natural(self, y: Tensor, yd: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
+        """(f, M, w, G = w·u, ẋ) on per-sample scalars: RMPflow's natural form and what B, Φ, L, V are made of."""
         x, xd = y[..., 0], yd[..., 0]
         inside = x < 0
-        xs = torch.where(inside, torch.ones_like(x), x)  # keeps the unused branch finite
-        w = torch.where(inside, torch.full_like(x, 1e10), xs**-4)
-        grad_w = torch.where(inside, torch.zeros_like(x), -4.0 * xs**-5)
-        neg = torch.clamp(xd, max=0.0)
-        u = self.epsilon + neg * xd
+        xs = torch.where(inside, 1.0, x)  # keeps the unused branch finite
+        w = torch.where(inside, 1e10, torch.pow(xs, -4))
+        grad_w = torch.where(inside, 0.0, -4.0 * torch.pow(xs, -5))
+        braking = torch.clamp(xd, max=0.0) * xd  # min(0, ẋ)·ẋ
+        u = self.epsilon + braking
         g = w * u
-        grad_u = 2.0 * neg
-        grad_Phi = self.alpha * w * grad_w
-        xi = 0.5 * xd**2 * u * grad_w
-        M = (g + 0.5 * xd * w * grad_u).clamp(-1e5, 1e5)
-        Bx = self.eta * g * xd
-        f = (-grad_Phi - xi - Bx).clamp(-1e10, 1e10)
-        Phi = 0.5 * self.alpha * w**2
-        K = 0.5 * xd**2 * g
+        M = (g + w * braking).clamp(-1e5, 1e5)  # G + ½ẋ·w·∂u/∂ẋ with ∂u/∂ẋ = 2 min(0, ẋ)
+        # −∇Φ − ξ − ηGẋ with ∇Φ = αw∇w and ξ = ½ẋ²u∇w
+        f = (-(self.alpha * w + 0.5 * xd * xd * u) * grad_w - self.eta * g * xd).clamp(-1e10, 1e10)
+        return f, M, w, g, xd
+
+    def forward(self, y: Tensor, yd: Tensor) -> NodeRMP:
+        f, M, w, g, xd = self._natural(y, yd)
+        Phi = 0.5 * self.alpha * w * w
+        K = 0.5 * xd * xd * g
         as_mat = lambda s: s[..., None, None]
         return NodeRMP(f=f[..., None], M=as_mat(M), G=as_mat(g), B=as_mat(self.eta * g), Phi=Phi, L=K - Phi, V=K + Phi)
+
+    def force(self, y: Tensor, yd: Tensor) -> NodeRMP:
+        f, M, *_ = self._natural(y, yd)
+        return NodeRMP.lean(f[..., None], M[..., None, None])  # no Φ, K: only for L and V
 
     def extra_repr(self) -> str:
         return numbers_repr({"dim": self.dim, "epsilon": self.epsilon, "alpha": self.alpha, "eta": self.eta})
@@ -113,16 +119,16 @@ class RMPflowGoalAttractor(LeafRMP):
 
     def _natural(self, y: Tensor, yd: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
         """(f, M = G, w, |ẏ|², |y|): everything but the potential."""
-        r = y.norm(dim=-1)
-        beta = torch.exp(-(r**2) / (2 * self.sigma**2))
+        r = torch.linalg.vector_norm(y, dim=-1)
+        beta = torch.exp(r * r * (-0.5 / self.sigma**2))
         w = (self.w_u - self.w_l) * beta + self.w_l
         far = r > self.tol
-        r_safe = torch.where(far, r, torch.ones_like(r))
         s = torch.tanh(self.alpha * r)
-        grad_Phi = torch.where(far[..., None], (self.gain * w * s / r_safe)[..., None] * y, torch.zeros_like(y))
-        grad_w = -(beta * (self.w_u - self.w_l) / self.sigma**2)[..., None] * y
+        # ∇Φ = gain·w·tanh(α|y|)·y/|y|, 0 within tol of the goal (where |y| may vanish)
+        grad_Phi = torch.where(far, self.gain * w * s / torch.where(far, r, 1.0), 0.0)[..., None] * y
+        grad_w = (beta * (-(self.w_u - self.w_l) / self.sigma**2))[..., None] * y
         yd2 = (yd * yd).sum(-1)
-        xi = yd * (yd * grad_w).sum(-1, keepdim=True) - 0.5 * yd2[..., None] * grad_w
+        xi = yd * (yd * grad_w).sum(-1, keepdim=True) - (0.5 * yd2)[..., None] * grad_w
         f = -grad_Phi - (self.eta * w)[..., None] * yd - xi
         G = w[..., None, None] * torch.eye(y.shape[-1], dtype=y.dtype, device=y.device)
         return f, G, w, yd2, r

@@ -34,15 +34,16 @@ def rollout_kinematic(
     sample b's path has been checked for collisions."""
     policy = IsolatingPolicy(policy)  # a sample whose evaluation raises gets NaN, the others go on
     errors: list[str | None] = [None] * q0.shape[0]
-    rec, path, goal_hit, alive = _integrate(env, policy, q0, qd0, aux, n_steps, every, monitor, errors)
+    rec, path, goal_hit, alive = integrate(env, policy, q0, qd0, aux, n_steps, every, monitor, errors)
     death = rec.death_index(alive, errors, n_steps, every)
     min_clear, first_hit = check_collisions(env, torch.stack(path), aux, n_steps, death, errors, checked)
     return finish(env, "kinematic", rec, aux, min_clear, first_hit, goal_hit, errors)
 
 
-def _integrate(env: ManipulatorTask, policy: IsolatingPolicy, q0, qd0, aux, n_steps, every, monitor, errors):
-    """The torch integration: (records, q at every integration step, goal tracker, alive). Semi-implicit Euler
-    evaluates the policy once a step (the recorded evaluation drives the step); RK4 reuses it at record steps."""
+def integrate(env: ManipulatorTask, policy: IsolatingPolicy, q0, qd0, aux, n_steps, every, monitor, errors):
+    """The torch integration, before the collision check: (records, q at every integration step, goal tracker,
+    alive). Semi-implicit Euler evaluates the policy once a step (the recorded evaluation drives the step); RK4
+    reuses it at record steps. What ``tools/bench.py``'s rollout row times a step of."""
     dt, B, p = env.dt, q0.shape[0], env.params
     q, qd = q0.clone(), qd0.clone()
     alive = torch.ones(B, dtype=torch.bool)
