@@ -63,7 +63,7 @@ def test_a_tiny_lasa_run_end_to_end_then_resumed(tmp_path, capsys):
         )
         assert o["converged"] + o["at_rest_away"] + o["still_moving"] + o["ended_early"] == o["starts"]
     assert "at_long_horizon" not in rmp["snapshots"]["0"]["convergence"]  # only the final policy goes on
-    assert set(rmp["learned_leaf_parameters"]) == {"attractor.gain", "attractor.alpha"}  # the damping stays fixed
+    assert set(rmp["learned_leaf_parameters"]) == {"attractor.gain"}  # the softness and the damping stay fixed
     assert m["objective"] == rmp["reproduction_val"]["dtw"]  # a sweep chooses on validation
     assert (tmp_path / "figures" / "rollouts.png").stat().st_size > 0
     assert m["figures"]["latent_rmp"].endswith("latent_rmp.png")  # the learned map's latent space
