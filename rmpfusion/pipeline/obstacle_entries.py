@@ -185,12 +185,13 @@ def world_fix(env: LearnsFromRecordings) -> str:
 
 def entries_message(env: LearnsFromRecordings, found: EntriesFound) -> str:
     """The refusal: every confirmed entry (the first ``NAMED``), what was measured, and the fixes."""
-    confirmed = found.confirmed
+    confirmed, entering = found.confirmed, len(found.entering)
     named = "; ".join(e.line() for e in confirmed[:NAMED])
     more = f"; and {len(confirmed) - NAMED} more" if len(confirmed) > NAMED else ""
     return (
-        f"{len(found.entering)} of {found.recordings} recordings enter an obstacle of the run's world "
-        f"({len(confirmed)} entries; measured by {found.measure}): {named}{more}. Learning from them would teach the "
+        f"{entering} of {found.recordings} recordings {'enters' if entering == 1 else 'enter'} an obstacle of the "
+        f"run's world ({len(confirmed)} {'entry' if len(confirmed) == 1 else 'entries'}; measured by "
+        f"{found.measure}): {named}{more}. Learning from them would teach the "
         f"tree to pass through the obstacle. {world_fix(env).capitalize()}; or leave those recordings out "
         "(data.obstacle_entries=drop), or learn from them anyway (data.obstacle_entries=warn)"
     )
@@ -205,9 +206,11 @@ def summary_line(found: EntriesFound, policy: str) -> str:
     else:
         head = f"none of the {n} recordings enters an obstacle of the run's world"
     if possible:
+        deepest = max(possible, key=lambda e: e.depth)
         head += (
-            f"; the robot's spheres alone enter in {len({e.recording for e in possible})} (the links' meshes clear "
-            "by the simulator: not refused)"
+            f"; the robot's spheres alone enter in {len({e.recording for e in possible})} (the deepest "
+            f"{deepest.depth:.3f} m, {deepest.point} in {deepest.obstacle}; the links' meshes clear by the "
+            "simulator: not refused)"
         )
     return head
 
