@@ -2142,7 +2142,7 @@ def _three_shipped_takes(path: Path, takes: tuple[str, ...] = ("demo00", "demo01
     "'env.scene.obstacles=[{type: sphere, center: [0.379, 0.321, 0.59], radius: 0.03}]' (three shipped recordings; "
     "the ball where demo03's hand is 0.8 s in)",
     _ONE_LINE.format(code=2),
-    shows="error: invalid configuration: 1 problem(s)\n  - data: 1 of 3 recordings enters an obstacle of the run's "
+    shows="error: invalid configuration: 1 problem(s)\n  - data.obstacle_entries: 1 of 3 recordings enters an obstacle of the run's "
     "world (1 entry; measured by the robot's spheres, which contain its links' meshes, against the scene's distance "
     "maps; the simulator's closest points on the meshes confirm each entry): <dir>/three.csv [demo=demo03]: from "
     "<num> to <num> s, deepest at <num> s (file time <num> s): cp14 (control sphere on panda_hand) <num> m inside "

@@ -223,8 +223,16 @@ def collect(exp: Experiment, splits: tuple[str, ...] | None = None) -> Splits:
 EVALUATION_ONLY = frozenset(
     {"cache_dir", "starts", "enlarge", "horizon_factor", "convergence_horizon_factor", "at_rest_rate", "tolerance"}
 )
-#: data keys that decide which demonstrations a split holds, which its members already say
-CHOOSES_MEMBERS = frozenset({"obstacle_entries"})
+
+
+def _dataset_settings(d) -> dict:
+    """The data settings a split's dataset depends on. ``obstacle_entries`` counts only where it drops recordings:
+    the members are indices into the recordings kept, which refuse and warn keep alike (and every run made before
+    the key existed kept them too)."""
+    out = {k: v for k, v in flat_dump(d).items() if k not in EVALUATION_ONLY}
+    if out.get("obstacle_entries") != "drop":
+        out.pop("obstacle_entries", None)
+    return out
 
 
 def _cache_key(exp: Experiment, files: str, split: str, members: tuple[int, ...]) -> str:
@@ -232,7 +240,7 @@ def _cache_key(exp: Experiment, files: str, split: str, members: tuple[int, ...]
     d = exp.run.data
     key = {
         "files": files,
-        "data": {k: v for k, v in flat_dump(d).items() if k not in EVALUATION_ONLY | CHOOSES_MEMBERS},
+        "data": _dataset_settings(d),
         "dt": exp.env.dt,
         "env": exp.run.env.model_dump(mode="json"),  # the aux state (an arm's goal, obstacles) depends on it
         "split": split,
