@@ -110,7 +110,9 @@ def test_a_panda_session_comes_apart_into_its_24_demonstrations(tmp_path):
     write_session(tmp_path / "session.csv", t, q)
     keys = ["experiment=recorded_arm", f"data.files=[{tmp_path / 'session.csv'}]", "data.demo_column=null"]
     cut = [*keys, "data.cut_at_rest=1.0"]
-    with pytest.raises(ConfigError, match=r"data\.obstacle_entries: 23 of 47 recordings enter an obstacle of the run's world"):
+    with pytest.raises(
+        ConfigError, match=r"data\.obstacle_entries: 23 of 47 recordings enter an obstacle of the run's world"
+    ):
         resolve_and_validate(compose_cfg(cut))
     every_motion = resolve_and_validate(compose_cfg([*cut, "data.obstacle_entries=warn"]))
     assert len(read_recordings(every_motion.data)) == 47
