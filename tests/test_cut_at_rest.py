@@ -103,13 +103,19 @@ def write_session(path, t: np.ndarray, q: np.ndarray) -> None:
 def test_a_panda_session_comes_apart_into_its_24_demonstrations(tmp_path):
     """The shipped recordings (a planner's, 1 mrad of noise, irregular stamps) logged as one teaching session
     (tests/sessions.py: held 2 s, returned to the next start in 3 s, held 2 s) and written as one CSV. Cut at rests
-    of 1 s it is 47 motions, demonstrations and returns in turn; keeping the odd ones, each piece holds exactly one
-    demonstration's samples, all of them, and the run validates with the 24."""
+    of 1 s it is 47 motions, demonstrations and returns in turn; the 23 returns, straight through the joint space,
+    pass through the experiment's cylinder, which validation refuses; keeping the odd ones, each piece holds exactly
+    one demonstration's samples, all of them, and the run validates with the 24."""
     t, q, owner = panda_session()
     write_session(tmp_path / "session.csv", t, q)
     keys = ["experiment=recorded_arm", f"data.files=[{tmp_path / 'session.csv'}]", "data.demo_column=null"]
     cut = [*keys, "data.cut_at_rest=1.0"]
-    assert len(read_recordings(resolve_and_validate(compose_cfg(cut)).data)) == 47
+    with pytest.raises(
+        ConfigError, match=r"data\.obstacle_entries: 23 of 47 recordings enter an obstacle of the run's world"
+    ):
+        resolve_and_validate(compose_cfg(cut))
+    every_motion = resolve_and_validate(compose_cfg([*cut, "data.obstacle_entries=warn"]))
+    assert len(read_recordings(every_motion.data)) == 47
     run = resolve_and_validate(compose_cfg([*cut, "data.keep_motions=odd"]))
     assert "cut at every rest of 1 s or more: 24 demonstrations" in summary(run, *build_all(run))  # rmpfusion-validate
     pieces = read_recordings(run.data)

@@ -110,6 +110,38 @@ def test_maps_dampers_and_barriers_break_premises_1_4_and_5():
     assert "the leaf 'collision_avoidance' on node 'obstacle' (a potential)" in report.line()
 
 
+@pytest.mark.parametrize("kind", ["collision_avoidance", "joint_limit"])
+def test_a_barrier_without_a_potential_gain_keeps_premise_5_and_one_with_any_does_not(kind):
+    """Φ = ½·α·w(x)²: α fixed at 0 leaves a barrier of metric and damping only (premise 5 holds); a fixed α > 0,
+    however small, or a learned α (whatever its current value: it lives in (0, ∞)) is a potential."""
+    barrier = {"parent": "x", "map": {"type": "sphere_distance", "center": [1.0, 1.0], "radius": 0.2}}
+    cases = [
+        (0.0, True),
+        (1e-12, False),
+        ({"learn": True, "init": 1e-3}, False),
+    ]
+    for alpha, holds in cases:
+        spec = plane_tree(obstacle={**barrier, "rmp": {"type": kind, "alpha": alpha}})
+        tree = build_tree(spec)
+        leaf = tree.rmps["obstacle"]
+        assert leaf.potential_kind == ("none" if holds else "other"), alpha
+        report = check_premises(tree)
+        assert report.holds is holds, alpha
+        if not holds:
+            assert report.broken == [5] and f"the leaf '{kind}' on node 'obstacle' (a potential)" in report.line()
+
+
+def test_the_arm_tree_with_metric_only_barriers_breaks_premise_5_only_by_its_second_attractor():
+    """experiment=recorded_arm with every obstacle and joint-limit barrier's α at 0 (no shipped config's α is 0):
+    premise 5 is left broken by its two attractors alone (the posture's, found first, and the end effector's)."""
+    run = resolve_and_validate(
+        compose_cfg(["experiment=recorded_arm", "tree.obstacle_rmp.alpha=0.0", "tree.joint_limit_rmp.alpha=0.0"])
+    )
+    _, expert, _ = build_all(run)
+    five = check_premises(expert).premises[4]
+    assert five.number == 5 and five.broken_by == ["the leaf 'goal_attractor' on node 'attractor' (another attractor)"]
+
+
 #: the lasa study's both_radial variant: the attractor's weight a radial profile about the latent origin
 RADIAL_LASA = [
     "lasa_variant=cloned",

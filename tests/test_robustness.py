@@ -2128,6 +2128,55 @@ def _joint_jump(tmp_path, monkeypatch):
     )
 
 
+def _three_shipped_takes(path: Path, takes: tuple[str, ...] = ("demo00", "demo01", "demo03")) -> Path:
+    """Three of the Panda's shipped recordings, copied row by row into one CSV."""
+    lines = (ROOT / "rmpfusion" / "recordings" / "files" / "panda_via_points.csv").read_text().splitlines()
+    path.write_text("\n".join([lines[0], *(line for line in lines[1:] if line.split(",")[0] in takes)]) + "\n")
+    return path
+
+
+@row(
+    "recorded-obstacle-entry",
+    "a recording that passes through an obstacle of the run's world (the user's world is not the experiment's)",
+    "rmpfusion-validate experiment=recorded_arm data.files=[<dir>/three.csv] data.val=1 data.test=1 "
+    "'env.scene.obstacles=[{type: sphere, center: [0.379, 0.321, 0.59], radius: 0.03}]' (three shipped recordings; "
+    "the ball where demo03's hand is 0.8 s in)",
+    _ONE_LINE.format(code=2),
+    shows="error: invalid configuration: 1 problem(s)\n  - data.obstacle_entries: 1 of 3 recordings enters an obstacle of the run's "
+    "world (1 entry; measured by the robot's spheres, which contain its links' meshes, against the scene's distance "
+    "maps; the simulator's closest points on the meshes confirm each entry): <dir>/three.csv [demo=demo03]: from "
+    "<num> to <num> s, deepest at <num> s (file time <num> s): cp14 (control sphere on panda_hand) <num> m inside "
+    "obstacle1 (sphere); the links' meshes <num> m deep by the simulator. Learning from them would teach the tree to "
+    "pass through the obstacle. If your world is not the run's scene, state it in one line: env.scene.obstacles=[] "
+    "(no obstacles) or scene=<your scene file> (docs/guides/scenes.md); or leave those recordings out "
+    "(data.obstacle_entries=drop), or learn from them anyway (data.obstacle_entries=warn)",
+)
+def _obstacle_entry(tmp_path, monkeypatch):
+    three = _three_shipped_takes(tmp_path / "three.csv")
+    ball = "env.scene.obstacles=[{type: sphere, center: [0.379, 0.321, 0.59], radius: 0.03}]"
+    return _validate_recorded_arm(tmp_path, monkeypatch, f"data.files=[{three}]", "data.val=1", "data.test=1", ball)
+
+
+@row(
+    "recorded-some-joints-named",
+    "an arm's CSV naming some of the robot's joints but not all (a log of six of the seven joints, and the gripper)",
+    "rmpfusion-validate experiment=recorded_arm data.files=[<dir>/six.csv] data.demo_column=null (t, "
+    "panda_joint1 … panda_joint6, panda_finger_joint1)",
+    _ONE_LINE.format(code=2),
+    shows="error: invalid configuration: 1 problem(s)\n  - data: <dir>/six.csv, row 1: the header names some of the "
+    "robot's joints but not panda_joint7; it has panda_joint1, panda_joint2, panda_joint3, panda_joint4, "
+    "panda_joint5, panda_joint6, panda_finger_joint1. Name each joint's column as the robot file does "
+    f"({_PANDA}), or list the columns to read, in the robot's joint order, in data.columns",
+)
+def _some_joints_named(tmp_path, monkeypatch):
+    header = ",".join(["t", *(f"panda_joint{k}" for k in range(1, 7)), "panda_finger_joint1"])
+    rows = [",".join([f"{0.01 * i:.2f}", *["0.1"] * 6, "0.04"]) for i in range(40)]
+    (tmp_path / "six.csv").write_text("\n".join([header, *rows]) + "\n")
+    return _validate_recorded_arm(
+        tmp_path, monkeypatch, f"data.files=[{tmp_path / 'six.csv'}]", "data.demo_column=null"
+    )
+
+
 def _nan_weight_checkpoint(tmp_path) -> Path:
     """final.pt of a tiny run re-written (valid format and checksum) with one NaN in a weight network."""
     from rmpfusion.learn.checkpoints import save_checkpoint

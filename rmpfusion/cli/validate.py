@@ -10,11 +10,12 @@ from omegaconf import DictConfig
 
 from ..assembly.premises import check_premises
 from ..assembly.spec import weight_label
-from ..envs.protocol import JointSpace
+from ..envs.protocol import JointSpace, LearnsFromRecordings
 from ..evaluate.weights import learned_edges
 from ..pipeline.construct import build_all
+from ..pipeline.obstacle_entries import find_entries, summary_line
 from ..pipeline.validate import resolve_and_validate
-from ..recordings.source import read_recordings, source_files
+from ..recordings.source import ignored_line, on_grid_for, read_recordings, source_files
 from ._common import discard_unclaimed, hydra_app, hydra_run_dir, user_errors_exit
 
 
@@ -22,6 +23,20 @@ def _cut(d, env) -> str:
     """What cutting at rests made of the files: how many demonstrations (read again: they are small)."""
     joints = env.robot_description.joints if isinstance(env, JointSpace) else None
     return f", cut at every rest of {d.cut_at_rest:g} s or more: {len(read_recordings(d, joints))} demonstrations"
+
+
+def _read_lines(run, env) -> list[str]:
+    """What reading the recordings found besides the demonstrations (read again: they are small): the columns left
+    out, and the recordings that enter an obstacle of the run's world (validation refused them already unless
+    ``data.obstacle_entries`` lets them through)."""
+    d = run.data
+    robot = env.robot_description if isinstance(env, JointSpace) else None
+    recordings = read_recordings(d, robot.joints if robot is not None else None)
+    lines = [f"data: {line}"] if (line := ignored_line(recordings)) is not None else []
+    states = on_grid_for(recordings, d, env.dt, env.dim, run.env.type, robot, env.aux_dims())
+    if isinstance(env, LearnsFromRecordings):
+        lines.append(f"obstacle entries: {summary_line(find_entries(env, states), d.obstacle_entries)}")
+    return lines
 
 
 def summary(run, env, expert, learners) -> str:
@@ -75,6 +90,7 @@ def summary(run, env, expert, learners) -> str:
                 "every weight 1 is always the reference here)"
             ),
         ]
+        data_lines += _read_lines(run, env)
     else:
         data_lines = [
             (

@@ -7,6 +7,8 @@ M = G + Ξ_G,   f = −∇Φ − B ẏ − ξ_G,   L = ½ ẏᵀGẏ − Φ,   V
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 import torch
 from torch import Tensor, nn
 
@@ -24,10 +26,17 @@ class LeafRMP(Stackable, nn.Module):
 
     dim: int | None = None  # None: any dimension
     coordinates: str | None = None  # the map output it reads when not plain coordinates (TaskMap.coordinates)
-    #: Its potential Φ, for the premise check of docs/math.md §12 (``assembly/premises.py``): "none" (Φ = 0),
-    #: "attractor" (radially unbounded, its only minimum at the origin of its space, for any numbers: premise 2),
-    #: "other" (a barrier's, a moving goal's, ...) or "unknown" (undeclared, or not a GDS: the check assumes the worst).
-    potential_kind: str = "unknown"
+    #: The potential every leaf of the class has (what ``potential_kind`` says unless a leaf's numbers decide it).
+    class_potential_kind: ClassVar[str] = "unknown"
+
+    @property
+    def potential_kind(self) -> str:
+        """Its potential Φ, for the premise check of docs/math.md §12 (``assembly/premises.py``): "none" (Φ = 0),
+        "attractor" (radially unbounded, its only minimum at the origin of its space, for any numbers: premise 2),
+        "other" (a barrier's, a moving goal's, ...) or "unknown" (undeclared, or not a GDS: the check assumes the
+        worst). The class's ``class_potential_kind``; a leaf whose potential vanishes for some fixed numbers (a
+        barrier whose potential gain is fixed at 0) says so for itself."""
+        return self.class_potential_kind
 
     def damps(self) -> bool:
         """Whether its damping B is positive definite on its whole space with its numbers as they are (premise 4

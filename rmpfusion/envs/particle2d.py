@@ -32,7 +32,11 @@ from .common import (
     time_grid,
 )
 from .demonstrations import Dataset, collect
+from .protocol import ObstacleDepths
 from .rollout import Rollout
+
+#: what the plane's obstacle depths measure, said beside every entry reported
+PLANE_MEASURE = "the distance from the position to each disc's edge (below 0: inside it)"
 
 #: The settings that say where environments and starts are drawn: the ones ``test_sampling`` may change.
 SAMPLER_SETTINGS = (
@@ -211,6 +215,25 @@ class Particle2D(ComputesOnDevice, SeededSampling):
     def recorded_starts(self, candidates: Tensor) -> Tensor:
         """Any point of the obstacle-free plane may start at rest."""
         return torch.ones(len(candidates), dtype=torch.bool)
+
+    def recorded_depths(self, q: Tensor, aux: Mapping[str, Tensor]) -> ObstacleDepths:
+        """How positions ``q`` (M, 2) of recordings lie against the discs their aux rows place: the plane's
+        recordings carry no obstacles unless their files give them (``data.aux_columns`` naming obstacle{k}_center
+        and obstacle{k}_radius), so only the discs the rows hold are measured, by the exact distance from the
+        position to each disc's edge (the particle is a point: its collision is this distance below 0)."""
+        discs = [
+            k for k in range(1, self.n_obstacles + 1) if f"obstacle{k}_center" in aux and f"obstacle{k}_radius" in aux
+        ]
+        names = tuple(f"obstacle{k} (disc)" for k in discs)
+        q = q.to(self.dtype)
+        if not discs:
+            none = torch.zeros(len(q), dtype=torch.long)
+            inf = torch.full((len(q),), float("inf"), dtype=self.dtype)
+            return ObstacleDepths(inf, none, none, ("the position",), names, PLANE_MEASURE)
+        c = torch.stack([aux[f"obstacle{k}_center"].to(q) for k in discs], 1)
+        r = torch.stack([aux[f"obstacle{k}_radius"].to(q).reshape(-1) for k in discs], 1)
+        best, which = ((q[:, None, :] - c).norm(dim=-1) - r).min(dim=-1)
+        return ObstacleDepths(best, torch.zeros_like(which), which, ("the position",), names, PLANE_MEASURE)
 
     def obstacles(self, aux: Mapping[str, Tensor]) -> tuple[Tensor, Tensor]:
         """Centres (B, K, 2) and radii (B, K) stacked from the aux dict."""

@@ -223,6 +223,26 @@ class DifferentiableTask(Protocol):
         ...
 
 
+@dataclass(frozen=True)
+class ObstacleDepths:
+    """How configurations lie against the obstacles of their world, point by point: what is asked of a recording
+    before anything learns from it (a demonstration that passes through an obstacle teaches the tree to go through
+    it). For each configuration: the smallest clearance (m, < 0 inside) of any of the environment's points from any
+    obstacle (``measure`` says what it is), which point and which obstacle give it, and, where the measure is a
+    bound that may find an entry the body does not make (an arm's spheres contain its links' meshes), the
+    simulator's own clearance of the configurations the measure finds inside."""
+
+    clearance: Tensor  # (M,) m; +inf where the world has no obstacle
+    point: Tensor  # (M,) long: index into ``points``
+    obstacle: Tensor  # (M,) long: index into ``obstacles``
+    points: tuple[str, ...]  # what each point is (a control point, a link's sphere, the position)
+    obstacles: tuple[str, ...]  # what each obstacle is (the scene's obstacle k and its shape, the ground)
+    measure: str  # what the clearance measures, said where it is reported
+    #: (M,) the simulator's clearance (m, ≤ 0: the body touches or enters) where ``clearance`` < 0, NaN elsewhere;
+    #: None where the measure is the body itself (the plane's point)
+    confirmed: Tensor | None = None
+
+
 @runtime_checkable
 class LearnsFromRecordings(Protocol):
     """An environment that learns from recorded demonstrations (``data.source: recorded``). It exists because a
@@ -237,6 +257,10 @@ class LearnsFromRecordings(Protocol):
     def recorded_starts(self, candidates: Tensor) -> Tensor:
         """(n,) bool: which configurations ``candidates`` (n, d) may start a rollout at rest (inside the limits,
         clear of the obstacles)."""
+        ...
+
+    def recorded_depths(self, q: Tensor, aux: Mapping[str, Tensor]) -> ObstacleDepths:
+        """How configurations ``q`` (M, d) of recordings lie against the obstacles their aux rows (M, ·) place."""
         ...
 
 

@@ -19,10 +19,11 @@ from ..recordings import recorded_dataset, split_of
 from ..recordings.formats import flat_dump
 from ..recordings.recording import RecordingError
 from ..recordings.signals import States
-from ..recordings.source import content_hash, on_grid_for, read_recordings
+from ..recordings.source import content_hash, ignored_columns, ignored_line, on_grid_for, read_recordings
 from ..scenes.crossing import summarize
 from .config import RunConfig
 from .experiment import Experiment
+from .obstacle_entries import apply_policy
 
 #: Each split's generator seed is the run's seed plus its offset: three disjoint draws of environments and starts.
 SPLIT_SEED_OFFSET = {"train": 0, "test": 1_000_003, "val": 2_000_003}
@@ -52,6 +53,9 @@ class Splits:
     #: evaluation's starts and horizon are made from them); None for the expert's rollouts
     demos: dict[str, list[States]] | None = None
     every_demo: list[States] | None = None
+    #: recorded demonstrations: what reading them found beside the splits (columns left out, obstacle entries and
+    #: what ``data.obstacle_entries`` did with them), recorded in metrics.json's data section; None otherwise
+    recordings: dict | None = None
 
     @property
     def train(self) -> Dataset:
@@ -221,12 +225,22 @@ EVALUATION_ONLY = frozenset(
 )
 
 
+def _dataset_settings(d) -> dict:
+    """The data settings a split's dataset depends on. ``obstacle_entries`` counts only where it drops recordings:
+    the members are indices into the recordings kept, which refuse and warn keep alike (and every run made before
+    the key existed kept them too)."""
+    out = {k: v for k, v in flat_dump(d).items() if k not in EVALUATION_ONLY}
+    if out.get("obstacle_entries") != "drop":
+        out.pop("obstacle_entries", None)
+    return out
+
+
 def _cache_key(exp: Experiment, files: str, split: str, members: tuple[int, ...]) -> str:
     """What determines a split's dataset: the files' content hash, the data settings, the step and its members."""
     d = exp.run.data
     key = {
         "files": files,
-        "data": {k: v for k, v in flat_dump(d).items() if k not in EVALUATION_ONLY},
+        "data": _dataset_settings(d),
         "dt": exp.env.dt,
         "env": exp.run.env.model_dump(mode="json"),  # the aux state (an arm's goal, obstacles) depends on it
         "split": split,
@@ -269,10 +283,19 @@ def recorded_splits(exp: Experiment) -> tuple[Splits, dict[str, list[States]], l
     """The run's splits as datasets, the demonstrations of each split on the step grid, and all of them."""
     d = exp.recorded_data
     t0 = time.time()
-    recording_env(exp)
+    env = recording_env(exp)
     robot = exp.env.robot_description if isinstance(exp.env, JointSpace) else None
     recordings = read_recordings(d, robot.joints if robot is not None else None)
     states = on_grid_for(recordings, d, exp.env.dt, exp.env.dim, exp.run.env.type, robot, exp.env.aux_dims())
+    states, found, warnings = apply_policy(env, states, d.obstacle_entries)
+    if (line := ignored_line(recordings)) is not None:
+        exp.say.say(f"data: {line}")
+    for w in warnings:
+        exp.say.say(f"warning: {w}")
+    read = {
+        "ignored_columns": ignored_columns(recordings),
+        "obstacle_entries": found.as_dict(d.obstacle_entries, found.entering if d.obstacle_entries == "drop" else []),
+    }
     split = split_of(d, len(states), exp.run.seed)
     parts = {"train": split.train, "test": split.test, **({"val": split.val} if split.val else {})}
     files = content_hash(d)
@@ -284,5 +307,5 @@ def recorded_splits(exp: Experiment) -> tuple[Splits, dict[str, list[States]], l
             f"{' (reused)' if info['reused'] else ''}"
         )
     exp.timing["data_s"] = time.time() - t0
-    splits = Splits({k: ds for k, (ds, _) in made.items()}, {k: info for k, (_, info) in made.items()})
+    splits = Splits({k: ds for k, (ds, _) in made.items()}, {k: info for k, (_, info) in made.items()}, recordings=read)
     return splits, {k: [states[i] for i in m] for k, m in parts.items()}, states

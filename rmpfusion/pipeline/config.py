@@ -147,6 +147,7 @@ RECORDED_DATA_ADDED = {
     "keep_motions": "all",
     "rest_speed": None,
     "aux_topics": None,
+    "obstacle_entries": "refuse",  # no stored run was checked: one rerun now is, as a new run is
 }
 
 

@@ -520,7 +520,10 @@ def report_recorded(
             "name": exp.run.name,
             "seed": exp.run.seed,
             "source": "recorded",
-            "data": {k: {kk: vv for kk, vv in v.items() if kk != "path"} for k, v in splits.info.items()},
+            "data": {
+                **{k: {kk: vv for kk, vv in v.items() if kk != "path"} for k, v in splits.info.items()},
+                "recordings": splits.recordings,
+            },
             **results,
             "timing": {**exp.timing, "total_s": time.time() - started},
         }

@@ -28,7 +28,7 @@ from ..assembly.generated import expand_tree
 from ..assembly.spec import check_typed, validate_tree_spec
 from ..assembly.weighting import own_weights, weights_by_name
 from ..core.auxstate import AuxOrValue
-from ..envs.protocol import JointSpace
+from ..envs.protocol import JointSpace, LearnsFromRecordings
 from ..recordings.recording import Recording, RecordingError
 from ..recordings.source import on_grid_for, read_recordings
 from ..recordings.splits import split_of
@@ -36,6 +36,7 @@ from ..registry import ENVS, LEAF_RMPS, TASK_MAPS, TRAIN_METHODS, WEIGHTS, Regis
 from .config import RunConfig, run_config_model
 from .construct import build_expert, build_learners
 from .migrate import renamed_issues, retired_issues
+from .obstacle_entries import ObstacleEntryError, apply_policy
 
 #: Weight-spec keys whose string values (or lists of strings) name aux state.
 _AUX_LIST_KEYS = ("aux",)
@@ -173,9 +174,11 @@ def _method_issues(run: RunConfig, env: Any, recordings: list[Recording] | None)
 
 def _recordings_checked(run: RunConfig, env: Any) -> tuple[list[Recording] | None, list[Issue]]:
     """Recorded demonstrations read now (they are small), so a bad file is said before anything runs: the
-    reader's message names the file, row and column; a dimension unlike the environment's is said too, and
-    joint-space recordings are checked against the robot file (joint count, names, limits). Returns the recordings
-    (None for a run on the expert's demonstrations, or one whose files cannot be read) and the problems."""
+    reader's message names the file, row and column; a dimension unlike the environment's is said too,
+    joint-space recordings are checked against the robot file (joint count, names, limits), and recordings that
+    enter an obstacle of the run's world are refused unless ``data.obstacle_entries`` says otherwise (said beside a
+    split the recordings cannot make, both being problems to fix). Returns the recordings (None for a run on the
+    expert's demonstrations, or one whose files cannot be read) and the problems."""
     if run.data.source != "recorded":
         return None, []
     robot = env.robot_description if isinstance(env, JointSpace) else None
@@ -183,12 +186,18 @@ def _recordings_checked(run: RunConfig, env: Any) -> tuple[list[Recording] | Non
         recordings = read_recordings(run.data, robot.joints if robot is not None else None)
     except RecordingError as e:
         return None, [Issue("data", str(e))]
+    issues = []
     try:
-        on_grid_for(recordings, run.data, env.dt, env.dim, run.env.type, robot, env.aux_dims())
-        split_of(run.data, len(recordings), run.seed)
+        states = on_grid_for(recordings, run.data, env.dt, env.dim, run.env.type, robot, env.aux_dims())
+        if isinstance(env, LearnsFromRecordings):  # else the collect stage refuses the environment, naming it
+            try:
+                states = apply_policy(env, states, run.data.obstacle_entries)[0]
+            except ObstacleEntryError as e:  # refused, not dropped: every recording still counts for the split
+                issues.append(Issue("data.obstacle_entries", str(e)))
+        split_of(run.data, len(states), run.seed)
     except RecordingError as e:
-        return recordings, [Issue("data", str(e))]
-    return recordings, []
+        issues.append(Issue("data", str(e)))
+    return recordings, issues
 
 
 def _expert_issues(run: RunConfig) -> list[Issue]:

@@ -85,6 +85,13 @@ class RecordedDataConfig(Params):
         "rolled out with the scene's values, as if where they stood had not been recorded (the baseline that does "
         "not know)",
     )
+    obstacle_entries: Literal["refuse", "warn", "drop"] = Field(
+        "refuse",
+        description="recordings that enter an obstacle of the run's world (an arm's links, confirmed by the "
+        "simulator where its spheres say so; the plane's position in a disc its aux columns place): refuse to "
+        "train, naming each recording, when, which point and how deep; warn and learn from them; or drop them "
+        "before the split. A recording made in another world: state yours (env.scene.obstacles=[], scene=...)",
+    )
     every: int = Field(1, ge=1, le=1000, description="keep every this-many grid samples for training")
     split: Literal["holdout", "leave_one_out", "all"] = Field(
         "holdout",
@@ -389,7 +396,8 @@ class CsvData(_TimedData):
     columns: list[str] | None = Field(
         None,
         description="the columns read as coordinates, in order; default every column but time, demonstration id, "
-        "derivatives and aux",
+        "derivatives and aux, or on an arm the columns named as the robot's joints (in its order), every other "
+        "column ignored and listed (a gripper's fingers, a second clock)",
     )
     time_column: str = Field("t", description="the time column")
     demo_column: str | None = Field(None, description="a column naming each row's demonstration")
@@ -513,7 +521,8 @@ def read_lasa_block(d: LasaData, path: Path, joints: Sequence[str] | None) -> li
 @RECORDING_FORMATS.register("csv", params=CsvData)
 def read_csv_block(d: CsvData, path: Path, joints: Sequence[str] | None) -> list[Recording]:
     """A CSV file's demonstrations: a time column and the coordinates, a demonstration id column when it holds
-    several (``rmpfusion.recordings.read_csv``)."""
+    several (``rmpfusion.recordings.read_csv``); for an arm (``joints``: the robot's, in its order) without
+    ``data.columns``, the columns named as its joints, any other column ignored and listed."""
     return read_csv(
         path,
         columns=d.columns,
@@ -524,6 +533,7 @@ def read_csv_block(d: CsvData, path: Path, joints: Sequence[str] | None) -> list
         aux_columns=d.aux_columns,
         units=d.units,
         time_units=d.time_units,
+        joints=joints,
     )
 
 

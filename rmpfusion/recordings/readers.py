@@ -155,6 +155,25 @@ def _coordinate_columns(header: list[str], used: set, source: str, header_row: i
     return [h for h in header if h not in used]
 
 
+def _joint_columns(
+    candidates: list[str], joints: Sequence[str] | None, source: str, header_row: int
+) -> tuple[list[str], list[str]]:
+    """(coordinates, ignored columns) of a header whose coordinates were not listed (``data.columns`` null): where
+    it names the robot's joints (``joints``, in the robot file's order), those joints in that order, every other
+    column ignored (a gripper's fingers, a wall clock, a logger's counters: what a lab's log holds beside the arm);
+    otherwise every candidate column, none ignored (the robot check then says what the columns should be named)."""
+    if not joints or not any(j in candidates for j in joints):
+        return candidates, []
+    missing = [j for j in joints if j not in candidates]
+    if missing:
+        raise RecordingError(
+            f"{where(source, header_row)}: the header names some of the robot's joints but not "
+            f"{', '.join(missing)}; it has {', '.join(candidates)}. Name each joint's column as the robot file does "
+            f"({', '.join(joints)}), or list the columns to read, in the robot's joint order, in data.columns"
+        )
+    return list(joints), [c for c in candidates if c not in joints]
+
+
 def _clock_times(
     body: list[list[str]], rows: list[int], at: int, source: str, column: str, time_units: str
 ) -> np.ndarray | None:
@@ -209,7 +228,8 @@ def _check_header(
     if demo_column and demo_column not in header:
         raise RecordingError(
             f"{where(source, header_row)}: the header has no column {demo_column!r} (data.demo_column); it has "
-            f"{', '.join(header)}"
+            f"{', '.join(header)}; name the column telling the demonstrations apart, or set data.demo_column=null "
+            "if each file holds one demonstration"
         )
 
 
@@ -239,11 +259,13 @@ def read_csv(
     units: str = "m",
     acceleration_columns: Sequence[str] | None = None,
     time_units: str = "s",
+    joints: Sequence[str] | None = None,
 ) -> list[Recording]:
     """Demonstrations from a CSV file whose header names ``time_column`` and the coordinates.
 
     ``columns``: the coordinates, in order (default: every column that is not time, a demonstration id, a
-    derivative or an aux column). ``demo_column``: a column whose value says which demonstration a row belongs to
+    derivative or an aux column; where ``joints``, a robot's joints, are named in the header, those joints in the
+    robot's order, and the other columns are ignored and listed in each recording's ``ignored``). ``demo_column``: a column whose value says which demonstration a row belongs to
     (rows of one demonstration need not be adjacent). ``velocity_columns`` / ``acceleration_columns``: the file's
     own derivatives, one column per coordinate. ``aux_columns``: aux name -> its columns, read from the
     demonstration's first row (it must be constant over the demonstration). The delimiter (comma, semicolon or
@@ -257,7 +279,11 @@ def read_csv(
     used_aux = [c for cs in aux_columns.values() for c in cs]
     used = {time_column, demo_column, *derivatives, *used_aux}
     guessed = columns is None
-    columns = list(columns) if columns is not None else _coordinate_columns(header, used, source, table.header_row)
+    ignored: list[str] = []
+    if columns is None:
+        candidates = _coordinate_columns(header, used, source, table.header_row)
+        columns, ignored = _joint_columns(candidates, joints, source, table.header_row)
+    columns = list(columns)
     _check_header(header, source, table.header_row, time_column, demo_column, [*columns, *derivatives, *used_aux])
     index = {h: k for k, h in enumerate(header)}
     groups = _rows_by_demonstration(body, len(header), index[demo_column] if demo_column else None, source)
@@ -294,6 +320,7 @@ def read_csv(
                 source=label,
                 columns=tuple(columns),
                 rows=np.asarray(rows) + 2,
+                ignored=tuple(ignored),
             )
         except TimeOrderError as e:
             raise TimeOrderError(f"{e}{'' if demo_column else MANY_DEMOS_HINT}") from None

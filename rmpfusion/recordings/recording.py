@@ -55,6 +55,9 @@ class Recording:
     rows: np.ndarray | None = None
     #: what a row is called in messages: a file's row, a bag's message
     row_unit: str = "row"
+    #: the file's columns read as none of these (not the robot's joints: a gripper's fingers, a second clock), which
+    #: a run lists so that nothing is left out without a word
+    ignored: tuple[str, ...] = ()
 
     def __post_init__(self):
         self.t = np.asarray(self.t, dtype=np.float64)

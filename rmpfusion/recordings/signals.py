@@ -26,8 +26,8 @@ from .recording import Recording, RecordingError
 
 @dataclass
 class States:
-    """One demonstration on a uniform grid: times ``t`` (T,), positions, velocities, accelerations (T, d), the
-    goal (d,) it comes to rest at, and where it came from."""
+    """One demonstration on a uniform grid: times ``t`` (T,) from 0, positions, velocities, accelerations (T, d),
+    the goal (d,) it comes to rest at, and where it came from."""
 
     t: np.ndarray
     q: np.ndarray
@@ -36,6 +36,8 @@ class States:
     goal: np.ndarray
     source: str
     aux: dict
+    #: the time of the first sample kept on the recording's own clock (s): where a report points a user in the file
+    start_time: float = 0.0
 
 
 def resample(t: np.ndarray, x: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
@@ -135,4 +137,5 @@ def to_states(
         goal=np.asarray(goal, np.float64),
         source=rec.source,
         aux=dict(rec.aux),
+        start_time=float(t[first]),
     )

@@ -83,6 +83,29 @@ def read_recordings(d: Any, joints: Sequence[str] | None = None) -> list[Recordi
     return out
 
 
+def ignored_columns(recordings: Sequence[Recording]) -> dict[str, int]:
+    """Each column the readers left out (a CSV's columns beside an arm's joints: a gripper's fingers, a second
+    clock) and in how many of ``recordings``: what a run says and records, so no column is dropped unseen."""
+    out: dict[str, int] = {}
+    for rec in recordings:
+        for column in rec.ignored:
+            out[column] = out.get(column, 0) + 1
+    return out
+
+
+def ignored_line(recordings: Sequence[Recording]) -> str | None:
+    """The line saying which columns were not read (None when every column was)."""
+    ignored = ignored_columns(recordings)
+    if not ignored:
+        return None
+    read = ", ".join(recordings[0].columns)
+    return (
+        f"read the columns {read}, named as the robot's joints; ignored the other columns "
+        f"{', '.join(ignored)} (in {max(ignored.values())} of {len(recordings)} recordings; data.columns lists the "
+        "columns to read)"
+    )
+
+
 #: a demonstration longer than this (s) is taken for time stamps in another unit than data.time_units says
 LONGEST_DEMONSTRATION = 600.0
 

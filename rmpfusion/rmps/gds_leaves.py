@@ -16,6 +16,7 @@ from pydantic import Field, model_validator
 from torch import Tensor
 
 from ..core.gds import GDS, positive
+from ..core.learnable import learned_ranges
 from ..core.stacking import spread
 from ..examples import Example
 from ..registry import LEAF_RMPS, numbers_repr
@@ -113,7 +114,7 @@ class GoalAttractor(RadialMetricAttractor):
     damping B = η·w·I.
     """
 
-    potential_kind = "attractor"  # gain, α > 0: log cosh(α|y|) grows without bound, its only minimum at y = 0
+    class_potential_kind = "attractor"  # gain, α > 0: log cosh(α|y|) grows without bound, its only minimum at y = 0
 
     class Params(LeafParams):
         gain: float = Field(1.0, gt=0)
@@ -159,7 +160,17 @@ class Barrier1D(GDS):
     """
 
     dim = 1
-    potential_kind = "other"  # a barrier: its force can balance an attractor's (docs/math.md §12, premise 5)
+    class_potential_kind = "other"  # a barrier: its force can balance an attractor's (docs/math.md §12, premise 5)
+
+    @property
+    def potential_kind(self) -> str:
+        """ "none" when the potential gain α is fixed at 0: Φ = ½·α·w(x)² vanishes and the barrier is one of metric
+        and damping only (its velocity-gated metric still grows without bound toward the obstacle, but no force of
+        it can balance an attractor's at rest: premise 5 of docs/math.md §12 holds). A learned α lives in (0, ∞),
+        so it has a potential whatever its current value; so has a fixed α > 0."""
+        if "alpha" in learned_ranges(self) or float(self.alpha) != 0.0:
+            return self.class_potential_kind
+        return "none"
 
     class Params(LeafParams):
         r_w: float = Field(1.0, gt=0, description="support radius: no effect beyond this distance")
@@ -301,7 +312,7 @@ class JointLimitBarrier(Barrier1D):
 class Damper(GDS):
     """G = w·I, B = η·w·I, Φ = 0: damps motion in its space."""
 
-    potential_kind = "none"
+    class_potential_kind = "none"
 
     def damps(self) -> bool:
         """B = η·w·I: positive definite when η > 0 (an identity metric's η is 0)."""

@@ -31,7 +31,7 @@ class MovingGoalAttractor(GDS):
     Φ = gain·log cosh(α|e|)/α − η·w·ġᵀe (module docstring)."""
 
     coordinates = "moving_offset"  # the tree builder puts it under a moving_offset map only
-    potential_kind = "other"  # its Φ has the goal's velocity in it: not one fixed minimum
+    class_potential_kind = "other"  # its Φ has the goal's velocity in it: not one fixed minimum
 
     class Params(registry.Params):  # registry.Params: this class takes its base's name
         gain: float = Field(1.0, gt=0, description="potential gain: the pull towards the goal is at most gain")

@@ -26,7 +26,7 @@ class OrientationAttractor(RadialMetricAttractor):
     The metric rises from w_l to w_u within σ of the target (|e| = 2 sin(θ/2) ≈ θ).
     """
 
-    potential_kind = "other"  # on directions: bounded, not radially unbounded (premise 2)
+    class_potential_kind = "other"  # on directions: bounded, not radially unbounded (premise 2)
 
     class Params(LeafParams):
         gain: float = Field(1.0, gt=0, description="potential gain: the pull on an axis is gain·sin θ")

@@ -71,7 +71,7 @@ class VelocityLimit(GDS):
     """Keeps |ẏ_i| below ``limit`` (per coordinate, or one for all): G = diag(w·φ(r_i)), B = η·G, Φ = 0 (module
     docstring); on ``velocity_scaled_joints`` with limit 1 it caps every joint at its URDF velocity limit."""
 
-    potential_kind = "none"
+    class_potential_kind = "none"
 
     limit: Tensor  # buffers, per coordinate: the limit L_i,
     band: Tensor  # and the width of its band, (1 − onset)·L_i

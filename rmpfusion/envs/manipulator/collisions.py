@@ -30,6 +30,7 @@ at most ``CLEARANCE_TOLERANCE`` above them.
 
 from __future__ import annotations
 
+import hashlib
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -43,6 +44,7 @@ from ...robots import URDFRobot
 from ...robots.geometry import collision_meshes, links_with_geometry
 from ...scenes.distance import distances
 from ...sims import SimulationError
+from ..protocol import ObstacleDepths
 from .task import ManipulatorTask
 from .worlds import sample_aux
 
@@ -350,3 +352,144 @@ def replay_collisions(
         if checked is not None:
             checked(b)
     return min_clear, first_hit
+
+
+# ------------------------------------------------------------------ recordings that enter an obstacle
+#: what the arm's obstacle depths measure, said beside every entry reported
+SPHERE_MEASURE = (
+    "the robot's spheres, which contain its links' meshes, against the scene's distance maps; the simulator's "
+    "closest points on the meshes confirm each entry"
+)
+
+
+def sphere_names(robot: URDFRobot) -> tuple[str, ...]:
+    """What each cover sphere is, in ``cover_spheres`` order: a control point by the tree's node name (``cp3``)
+    and its link, or the sphere around a link without control points."""
+    cover, n_control = cover_spheres(robot), len(robot.params.control_points)
+    return tuple(
+        f"cp{s + 1} (control sphere on {link})" if s < n_control else f"{link} (the sphere around its mesh)"
+        for s, link in enumerate(cover.links)
+    )
+
+
+def obstacle_names(env: ManipulatorTask) -> tuple[str, ...]:
+    """The scene's obstacles as reports name them (``obstacle1 (cylinder)``), then the ground."""
+    return (*(f"obstacle{k} ({o.type})" for k, o in enumerate(env.scene.obstacles, start=1)), "the ground")
+
+
+def _sphere_depth_matrix(env: ManipulatorTask, q: Tensor, aux: Mapping[str, Tensor]) -> Tensor:
+    """(M, S, K + 1) clearance of every cover sphere at configurations ``q`` (M, dof) from each of the K obstacles
+    of aux rows ``aux`` and, for the spheres of links that can reach it, from the ground (+inf where none)."""
+    cover = cover_spheres(env.robot)
+    radii = cover.radii.to(q)
+    centres = _centres(env.robot, cover, q)
+    M, S = centres.shape[:2]
+    K = len(env.scene.obstacles)
+    out = torch.full((M, S, K + 1), float("inf"), dtype=q.dtype)
+    if K:
+        rows = {k: v.to(q).repeat_interleave(S, 0) for k, v in aux.items()}
+        out[..., :K] = distances(env.scene, rows, centres.reshape(-1, 3)).reshape(M, S, K) - radii[:, None]
+    if env.scene.ground is None:
+        return out  # the simulator is not asked which links reach the ground: no world is opened
+    grounded = torch.tensor([link in env.checker().ground_reach for link in cover.links], dtype=torch.bool)
+    if bool(grounded.any()):
+        height = centres[:, grounded, 2] - float(env.scene.ground.height)
+        out[:, grounded, K] = height - radii[grounded]
+    return out
+
+
+def _nearest_spheres(
+    env: ManipulatorTask, q: Tensor, aux: Mapping[str, Tensor], rows: Tensor
+) -> tuple[Tensor, Tensor, Tensor]:
+    """(clearance, sphere, obstacle) of the configurations ``q[rows]``: the cover sphere nearest an obstacle (or the
+    ground, obstacle index K), and its clearance."""
+    clearance = torch.empty(len(rows), dtype=q.dtype)
+    sphere = torch.empty(len(rows), dtype=torch.long)
+    obstacle = torch.empty(len(rows), dtype=torch.long)
+    for lo in range(0, len(rows), CHUNK):
+        at = rows[lo : lo + CHUNK]
+        depth = _sphere_depth_matrix(env, q[at], {k: v[at] for k, v in aux.items()})
+        best, which = depth.reshape(len(at), -1).min(-1)
+        n = len(at)
+        clearance[lo : lo + n], sphere[lo : lo + n], obstacle[lo : lo + n] = (
+            best,
+            which // depth.shape[-1],
+            which % depth.shape[-1],
+        )
+    return clearance, sphere, obstacle
+
+
+#: the depths of the last few recordings measured in this process, by their contents and the environment's settings:
+#: validation, its summary and the collect stage ask the same question of the same recordings
+_DEPTHS: dict[str, ObstacleDepths] = {}
+DEPTHS_KEPT = 8
+
+
+def _depths_key(env: ManipulatorTask, q: Tensor, aux: Mapping[str, Tensor]) -> str:
+    h = hashlib.sha256(env.params.model_dump_json().encode())
+    for name, v in (("q", q), *sorted(aux.items())):
+        h.update(name.encode())
+        h.update(v.detach().to(torch.float64).cpu().contiguous().numpy().tobytes())
+    return h.hexdigest()
+
+
+def obstacle_depths(env: ManipulatorTask, q: Tensor, aux: Mapping[str, Tensor]) -> ObstacleDepths:
+    """``measured_depths`` of ``q`` and ``aux``, measured once per process for the same recordings and settings."""
+    key = _depths_key(env, q, aux)
+    if key not in _DEPTHS:
+        if len(_DEPTHS) >= DEPTHS_KEPT:
+            _DEPTHS.pop(next(iter(_DEPTHS)))
+        _DEPTHS[key] = measured_depths(env, q, aux)
+    return _DEPTHS[key]
+
+
+def measured_depths(env: ManipulatorTask, q: Tensor, aux: Mapping[str, Tensor]) -> ObstacleDepths:
+    """``envs.protocol.ObstacleDepths`` of configurations ``q`` (M, dof) in the worlds of aux rows ``aux``: per
+    configuration the cover sphere nearest an obstacle (or the ground) and its clearance, and the simulator's
+    clearance of the configurations where that is below 0 (only there: the spheres contain the meshes, so a
+    configuration whose spheres are clear cannot collide).
+
+    The spheres are measured at every ``STRIDE``-th configuration; any other one in the same world is within
+    Σᵢ ρᵢ·|Δqᵢ| of the one measured before it (``joint_reach``: no sphere moves further), so only those whose bound
+    is not above 0 are measured too. Where the clearance is not below 0, it is that bound or the measure."""
+    q = q.to(env.dtype)
+    M = q.shape[0]
+    anchor = torch.arange(M) // STRIDE * STRIDE
+    clearance = torch.full((M,), float("inf"), dtype=env.dtype)
+    point = torch.zeros(M, dtype=torch.long)
+    obstacle = torch.zeros(M, dtype=torch.long)
+    rho = joint_reach(env.robot)
+    ask = torch.ones(M, dtype=torch.bool) if rho is None else anchor == torch.arange(M)
+    clearance[ask], point[ask], obstacle[ask] = _nearest_spheres(env, q, aux, ask.nonzero().flatten())
+    if not bool(ask.all()):
+        assert rho is not None  # every row is asked without the continuity bound
+        same_world = torch.ones(M, dtype=torch.bool)
+        for v in aux.values():
+            same_world &= (v == v[anchor]).reshape(M, -1).all(-1)
+        bound = clearance[anchor] - (q - q[anchor]).abs() @ rho.to(q)
+        rest = (~ask & ((bound <= 0) | ~same_world)).nonzero().flatten()
+        clearance[rest], point[rest], obstacle[rest] = _nearest_spheres(env, q, aux, rest)
+        bounded = ~ask & (bound > 0) & same_world
+        clearance[bounded] = bound[bounded]
+    confirmed = torch.full((M,), float("nan"), dtype=env.dtype)
+    inside = (clearance < 0).nonzero().flatten()
+    confirmed[inside] = _simulator_clearances(env, q, aux, inside.tolist())
+    return ObstacleDepths(
+        clearance, point, obstacle, sphere_names(env.robot), obstacle_names(env), SPHERE_MEASURE, confirmed
+    )
+
+
+def _simulator_clearances(env: ManipulatorTask, q: Tensor, aux: Mapping[str, Tensor], rows: list[int]) -> Tensor:
+    """The simulator's clearance of the configurations ``q[rows]`` in the worlds of their aux rows (≤ 0: the links'
+    meshes touch or enter an obstacle or the ground; capped at ``clearance_query``). A recording's samples share
+    one world, which is built once for each run of rows holding the same aux state."""
+    world, built = env.checker(), None
+    out = []
+    for b in rows:
+        here = sample_aux(aux, b)
+        if built is None or any(not np.array_equal(here[k], built[k]) for k in here):
+            world.set_env(env.scene, here)
+            built = here
+        world.reset(q[b].detach().cpu().numpy())
+        out.append(world.clearance(env.params.clearance_query))
+    return torch.tensor(out, dtype=env.dtype)

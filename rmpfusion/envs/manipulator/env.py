@@ -26,10 +26,11 @@ from ..common import (
     time_grid,
 )
 from ..demonstrations import Dataset
-from ..protocol import RenderSettings
+from ..protocol import ObstacleDepths, RenderSettings
 from ..rollout import Rollout
 from . import demonstrations as demos
 from . import render as rendering
+from .collisions import obstacle_depths
 from .kinematic import rollout_kinematic
 from .layout import Clearances, Derived, derive
 from .metrics import RATIO_METRICS, task_metrics
@@ -256,6 +257,12 @@ class Manipulator(ComputesOnDevice, SeededSampling):
             margin = self.start_margin(q[inside], self.recorded_aux(q[inside]))
             ok[inside] = margin >= 0
         return ok
+
+    def recorded_depths(self, q: Tensor, aux: Mapping[str, Tensor]) -> ObstacleDepths:
+        """How configurations ``q`` (M, dof) of recordings lie against the obstacles and the ground of their worlds
+        (aux rows ``aux``): the robot's spheres nearest them, confirmed by the simulator where they are inside
+        (``collisions.obstacle_depths``)."""
+        return obstacle_depths(self, q, aux)
 
     def sample_initial_states(
         self, envs_aux: Mapping[str, Tensor], n_per_env: int, generator: torch.Generator | None = None
