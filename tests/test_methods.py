@@ -569,7 +569,14 @@ def test_a_sweep_over_a_method_s_setting_runs_every_job_with_that_method(tmp_pat
 
 
 # ------------------------------------------------------------------------------------------------ smoke presets
-SMOKE = {"bc": "tiny", "dagger": "dagger_smoke", "apg": "apg_smoke", "pg": "pg_smoke", "match": "match_smoke", "field": "field_smoke"}
+SMOKE = {
+    "bc": "tiny",
+    "dagger": "dagger_smoke",
+    "apg": "apg_smoke",
+    "pg": "pg_smoke",
+    "match": "match_smoke",
+    "field": "field_smoke",
+}
 
 
 def test_every_registered_method_has_a_smoke_preset_that_validates_with_tiny_data():

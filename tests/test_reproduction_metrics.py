@@ -68,6 +68,8 @@ def test_overshoot_is_how_far_a_path_swings_back_out_after_having_been_closer():
     assert overshoot(np.linalg.norm(approach, axis=-1)) == 0.0
     passing = np.stack([1.0 - 1.5 * t, 0.02 * np.ones_like(t)], -1)  # passes 2 cm beside it, ends 0.5 beyond
     d = np.linalg.norm(passing, axis=-1)
-    assert overshoot(d) == pytest.approx(math.hypot(0.5, 0.02) - 0.02, abs=1e-3)  # out to the end from the closest sample
+    assert overshoot(d) == pytest.approx(
+        math.hypot(0.5, 0.02) - 0.02, abs=1e-3
+    )  # out to the end from the closest sample
     wiggle = np.array([3.0, 2.0, 2.5, 1.0, 1.2, 0.0])
     assert overshoot(wiggle) == pytest.approx(0.5)  # the larger of the two rises over the running minimum
