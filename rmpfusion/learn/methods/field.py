@@ -36,10 +36,15 @@ class FieldParams(TrainParams):
     """The loss between field and recorded velocities, and the points per step."""
 
     method: Literal["field"] = Field("field", description="the TRAIN_METHODS entry these settings are for")
-    loss: Literal["mse", "smooth_l1"] = Field(
+    loss: Literal["mse", "smooth_l1", "relative"] = Field(
         "mse",
-        description="mse: squared relative error; smooth_l1: Huber's (quadratic below 1, linear above), the loss "
-        "Euclideanizing flows train with",
+        description="mse: the squared error in units of the mean recorded speed; smooth_l1: Huber's (quadratic below "
+        "1, linear above), the loss Euclideanizing flows train with; relative: each point's squared error in units of "
+        "its own recorded speed (at least speed_floor of the mean), so the slow approach to the goal weighs as much "
+        "as the fast middle",
+    )
+    speed_floor: float = Field(
+        0.1, gt=0, le=1, description="loss=relative: the least speed an error is divided by, as a fraction of the mean"
     )
     batch_size: int | None = Field(
         None, ge=1, description="training points per step, drawn uniformly with replacement; null: all of them"
@@ -57,11 +62,14 @@ class FieldParams(TrainParams):
         return f"{super().describe()}; the first-order field fitted to recorded velocities ({self.loss}, {batch})"
 
 
-def field_loss(model: Learner, ds: Dataset, rows: Tensor | None, speed: float, loss: str) -> Tensor:
+def field_loss(
+    model: Learner, ds: Dataset, rows: Tensor | None, speed: float, loss: str, speed_floor: float = 0.1
+) -> Tensor:
     """The error of ``model``'s field against the recorded velocities of ``ds`` at ``rows`` (all when None), in units
-    of ``speed``."""
+    of ``speed`` (``relative``: of each point's own speed, at least ``speed_floor``·``speed``)."""
     q, qd, aux = (ds.q, ds.qd, ds.aux) if rows is None else ds.select(rows)[:3]
-    err = (model.first_order_field(q, aux) - qd) / speed
+    unit = qd.norm(dim=-1, keepdim=True).clamp(min=speed_floor * speed) if loss == "relative" else speed
+    err = (model.first_order_field(q, aux) - qd) / unit
     if loss == "smooth_l1":
         return F.smooth_l1_loss(err, torch.zeros_like(err), reduction="sum") / err.shape[0]
     return (err * err).sum(-1).mean()
@@ -99,7 +107,7 @@ class FieldSteps(Steps):
         if p.batch_size is not None and p.batch_size < N:
             rows = rows[torch.randint(N, (p.batch_size,), generator=self.gen).to(rows.device)]
         self.opt.zero_grad(set_to_none=True)
-        loss = field_loss(self.model, self.data, rows, self.speed, p.loss)
+        loss = field_loss(self.model, self.data, rows, self.speed, p.loss, p.speed_floor)
         loss.backward()
         optimizer_step(self.model, self.opt, p)
         return float(loss.detach())
@@ -110,7 +118,9 @@ class FieldSteps(Steps):
             if ds is not None:
                 with torch.no_grad():
                     rows = fitted_rows(ds, self.params.settle)
-                    out[key] = float(field_loss(self.model, ds, rows, self.speed, self.params.loss))
+                    out[key] = float(
+                        field_loss(self.model, ds, rows, self.speed, self.params.loss, self.params.speed_floor)
+                    )
         return out
 
     def info(self) -> dict[str, Any]:
