@@ -551,6 +551,7 @@ def test_a_sweep_over_a_method_s_setting_runs_every_job_with_that_method(tmp_pat
         "train.batch_size=2",
         "train.log_every=1",
         "train.checkpoint_every=1",
+        "train.compile=false",  # APG's preset compiles its rollouts: minutes per job, nothing this test checks
         "train.lr=1e-3,3e-3",
         f"hydra.sweep.dir={tmp_path}",
     ]

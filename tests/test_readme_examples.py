@@ -129,6 +129,16 @@ FAILS = {"rmpfusion-validate expert.goal.type=rfb +tree.nodes.goal.rmp.gian=2 tr
 #: Appended to every command that runs the pipeline (rmpfusion-run, rmpfusion-study run): tiny data, 3 training
 #: steps, evaluation without figures or torch.compile, no wandb. The documented commands stay as written before them.
 TINY = [*TINY_RUN, "eval.compile=false"]
+#: Appended to a study's runs: TINY, and the sizes a run's own overrides set (Hydra applies every key override after
+#: every group choice, so a run's train.iterations=20000 would outlast train=tiny).
+TINY_STUDY = [
+    *TINY,
+    "train.iterations=3",
+    "train.snapshots=[0,3]",
+    "train.checkpoint_every=3",
+    "train.log_every=1",
+    "data.train_trajectories=2",
+]
 #: Appended to commands on recorded demonstrations (experiment=lasa): 3 training steps, 4 starts, rollouts as long
 #: as the longest demonstration, no figures (the data are the dataset's own: there is nothing to make tiny).
 TINY_RECORDED = [
@@ -267,7 +277,7 @@ def appended(cmd: str, out: Path) -> list[str]:
     if cmd.startswith(("rmpfusion-study table", "rmpfusion-study list")):
         return []  # reads results/ and the pages only
     if cmd.startswith("rmpfusion-study run"):  # the study's runs at tiny sizes, below pytest's tmp_path
-        return ["--out", str(out), *(TINY_RECORDED if " lasa" in cmd else TINY)]
+        return ["--out", str(out), *(TINY_RECORDED if " lasa" in cmd else TINY_STUDY)]
     if cmd.startswith("rmpfusion-run"):
         extra = list(TINY_RECORDED if "experiment=lasa" in cmd else TINY)
         if " -m " in f" {cmd} ":

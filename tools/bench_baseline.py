@@ -155,5 +155,26 @@ def store(rows: Iterable[Mapping], path: Path, kind: str, info: Mapping) -> int:
         "Ratios of make bench per kind of machine (tools/bench_baseline.py): each a subject's time over its "
         "reference's, timed side by side; python -m tools.bench --check compares a run with its machine kind's."
     )
-    path.write_text(json.dumps({"about": note, "machines": machines}, indent=1, sort_keys=True) + "\n")
+    partial = path.with_name(path.name + ".partial")  # written whole, then renamed: never a half-written baseline
+    partial.write_text(json.dumps({"about": note, "machines": machines}, indent=1, sort_keys=True) + "\n")
+    os.replace(partial, path)
     return written
+
+
+def main() -> None:
+    """``python -m tools.bench_baseline``: this machine's kind and the baseline stored for it (or which kinds are)."""
+    kind, machines = machine_kind(), load()
+    print(f"this machine: {kind}")
+    if kind not in machines:
+        stored = ", ".join(sorted(machines)) or "none"
+        print(f"no baseline stored for it in {BASELINE} (stored: {stored}); make bench stores one")
+        return
+    entry = machines[kind]
+    print(f"baseline of {entry.get('date')} (torch {entry.get('torch')}, python {entry.get('python')}):")
+    for key, r in sorted(entry["ratios"].items()):
+        spread = "" if r.get("spread") is None else f" ± {r['spread']:.0%}"
+        print(f"  {key}: {r['ratio']:.3g}{spread}  ({r['what']})")
+
+
+if __name__ == "__main__":
+    main()
