@@ -73,15 +73,21 @@ def test_a_tiny_lasa_run_end_to_end_then_resumed(tmp_path, capsys):
     assert again["learners"]["rmp"]["reproduction_test"] == rmp["reproduction_test"]
 
 
+@pytest.fixture(scope="module")
+def eager_sshape_run(tmp_path_factory):
+    """One finished tiny Sshape run, evaluated eagerly without figures: (its directory, its metrics). Shared by the
+    tests that compare another evaluation of the same run with it."""
+    out = tmp_path_factory.mktemp("eager_sshape")
+    run = validated(TINY_LASA + ["data.shape=Sshape", "eval.compile=false", "eval.figures=false"])
+    return out, run_experiment(run, out, progress=False)
+
+
 @pytest.mark.slow
-def test_a_compiled_recorded_evaluation_equals_the_eager_one(tmp_path):
+def test_a_compiled_recorded_evaluation_equals_the_eager_one(tmp_path, eager_sshape_run):
     """eval.compile=true: the tree and the learner (every snapshot loaded into one compiled copy) roll out compiled,
     batched over every start, with the eager evaluation's numbers; metrics.json says how each ran."""
-    out = {}
-    for compile_ in ("true", "false"):
-        run = validated(TINY_LASA + ["data.shape=Sshape", f"eval.compile={compile_}", "eval.figures=false"])
-        out[compile_] = run_experiment(run, tmp_path / compile_, progress=False)
-    fast, slow = out["true"], out["false"]
+    run = validated(TINY_LASA + ["data.shape=Sshape", "eval.compile=true", "eval.figures=false"])
+    fast, slow = run_experiment(run, tmp_path, progress=False), eager_sshape_run[1]
     assert fast["evaluation"]["tree"]["mode"] == fast["evaluation"]["rmp"]["mode"] == "compiled"
     assert slow["evaluation"]["rmp"]["mode"] == "eager (eval.compile is false)"
     for a, b in ((fast["tree"], slow["tree"]), (fast["learners"]["rmp"], slow["learners"]["rmp"])):
@@ -287,14 +293,13 @@ def test_the_latent_figure_finds_the_learned_map_and_only_it():
 
 
 @pytest.mark.slow
-def test_a_finished_run_re_evaluates_on_a_finer_step_without_training(tmp_path):
+def test_a_finished_run_re_evaluates_on_a_finer_step_without_training(eager_sshape_run):
     """tools/recorded_step_check.py: the trained learner of a finished run on its own step reproduces the run's own
     metrics (the same learner, demonstrations and starts), and on half the step integrates twice as finely."""
     from tools.recorded_step_check import check
 
-    run = validated(TINY_LASA + ["data.shape=Sshape"])
-    m = run_experiment(run, tmp_path, progress=False)
-    own, finer = check(tmp_path, 1.0), check(tmp_path, 2.0)
+    run_dir, m = eager_sshape_run
+    own, finer = check(run_dir, 1.0), check(run_dir, 2.0)
     rmp = m["learners"]["rmp"]
     assert own["test_dtw"] == pytest.approx(rmp["reproduction_test"]["dtw"], rel=1e-12)
     assert own["monotone"] == rmp["convergence"]["lyapunov_monotone_fraction"] == 1.0
