@@ -22,7 +22,7 @@ from rmpfusion.studies.compare import compare, metrics_path
 from rmpfusion.studies.launch import job_command_line
 from rmpfusion.studies.pages import marked_tables
 from rmpfusion.studies.spec import StudyError, load_study, study_names
-from rmpfusion.studies.store import PROVENANCE_KEYS, provenance, results_dir, stored_metrics
+from rmpfusion.studies.store import PROVENANCE_KEYS, provenance, provenance_header, results_dir, stored_metrics
 
 CONF = ROOT / "conf"
 STUDIES = {name: load_study(name, CONF) for name in study_names(CONF)}
@@ -191,7 +191,9 @@ def test_a_study_runs_stores_tables_and_checks_end_to_end(tmp_path):
 
     r = call("run", "smoke", "--store", "--out", str(tmp_path / "first"))
     assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-3000:]
-    made = yaml.safe_load((root / "results" / "smoke" / "runs.yaml").read_text())
+    provenance_text = (root / "results" / "smoke" / "runs.yaml").read_text()
+    assert provenance_text.startswith(provenance_header("smoke"))  # each write keeps the file's opening comment
+    made = yaml.safe_load(provenance_text)
     assert set(made) == {"tiny/seed0", "tiny/seed1"} and made["tiny/seed1"]["seed"] == 1
     assert made["tiny/seed1"]["command"].startswith("rmpfusion-run experiment=2d1level data=tiny")
     assert call("table", "smoke").returncode == 1  # the page still shows the old table

@@ -26,6 +26,8 @@ from pathlib import Path
 
 import torch
 
+from rmpfusion.files import atomic_write_bytes
+
 BASELINE = Path(__file__).resolve().parent / "bench_baseline.json"
 #: a ratio counts as regressed when it exceeds its baseline by more than this fraction, or by three times the
 #: rounds' combined spread when that is larger (a shared machine's noise between two runs)
@@ -155,9 +157,8 @@ def store(rows: Iterable[Mapping], path: Path, kind: str, info: Mapping) -> int:
         "Ratios of make bench per kind of machine (tools/bench_baseline.py): each a subject's time over its "
         "reference's, timed side by side; python -m tools.bench --check compares a run with its machine kind's."
     )
-    partial = path.with_name(path.name + ".partial")  # written whole, then renamed: never a half-written baseline
-    partial.write_text(json.dumps({"about": note, "machines": machines}, indent=1, sort_keys=True) + "\n")
-    os.replace(partial, path)
+    text = json.dumps({"about": note, "machines": machines}, indent=1, sort_keys=True) + "\n"
+    atomic_write_bytes(path, text.encode())  # written whole, then renamed: never a half-written baseline
     return written
 
 

@@ -39,6 +39,14 @@ def provenance(root: Path, study: str) -> dict[str, dict]:
     return yaml.safe_load(path.read_text(encoding="utf-8")) or {}
 
 
+def provenance_header(study: str) -> str:
+    """The comment that opens a study's runs.yaml (YAML drops comments on reading, so each write puts it back)."""
+    return (
+        f"# Every stored job of the study conf/study/{study}.yaml: the command as it ran, the commit, the date, the "
+        "machine,\n# the seed and the run's own timing.total_s.\n"
+    )
+
+
 def head_commit(root: Path) -> str:
     out = subprocess.run(["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True, check=False)
     return out.stdout.strip() if out.returncode == 0 else "unknown"
@@ -60,7 +68,9 @@ def store_job(root: Path, study: str, job: str, run_dir: Path, command: str, mac
         "seed": metrics.get("seed"),
         "wall_time_s": round(float(metrics.get("timing", {}).get("total_s", float("nan"))), 1),
     }
-    text = yaml.safe_dump(dict(sorted(record.items())), sort_keys=False, allow_unicode=True, width=120)
+    text = provenance_header(study) + yaml.safe_dump(
+        dict(sorted(record.items())), sort_keys=False, allow_unicode=True, width=120
+    )
     atomic_write_bytes(results_dir(root, study) / PROVENANCE, text.encode("utf-8"))
     return target
 
