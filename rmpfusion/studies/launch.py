@@ -41,6 +41,9 @@ def experiment_command(run: StudyRun, run_dir: Path, inputs: Mapping[str, str], 
         *axes,
         "logger=disabled",
         f"hydra.sweep.dir={run_dir}",
+        # a job's directory named by its number and name alone: a run's overrides can pass the file system's 255
+        # bytes in Hydra's default name, and job_dirs finds each job by its .hydra/overrides.yaml anyway
+        "hydra.sweep.subdir=${hydra.job.num}_${name}",
         *extra,
     ]
 
