@@ -3,6 +3,8 @@ field-fitting method (train.method=field) recovering a field it was shown."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import pytest
 import torch
 
@@ -131,3 +133,119 @@ def test_a_learner_without_a_field_is_refused_by_name():
     params = FieldParams(iterations=1, snapshots=[0, 1])
     with pytest.raises(ValueError, match="train.method=field fits a first-order field.*has none"):
         FieldFit(params).train(learner, MethodContext(data={"train": train}, seed=0))
+
+
+def _speed_over(learner, lo: torch.Tensor, hi: torch.Tensor, goal: torch.Tensor, n: int = 41) -> float:
+    """The field's largest speed over an n × n grid of the box [lo, hi]."""
+    axes = [torch.linspace(float(a), float(b), n, dtype=torch.float64) for a, b in zip(lo, hi)]
+    q = torch.stack(torch.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 2)
+    with torch.no_grad():
+        return float(learner.first_order_field(q, {"goal": goal.expand(len(q), -1)}).norm(dim=-1).max())
+
+
+def test_the_speed_bound_is_the_penalty_on_the_fields_excess_speed_at_points_in_the_enlarged_box():
+    """SpeedBound's penalty against its definition, computed here from the points it draws: the mean of
+    relu(|v|/limit − 1)² with limit = speed_limit × the fastest recorded speed, every point inside the training
+    positions' box grown by speed_box of its spread on each side... and zero for a field slower than the limit."""
+    from rmpfusion.learn.methods.field import SpeedBound, fitted_rows
+
+    learner = _student(gain=5.0)
+    q, aux = states(64, seed=3)
+    qd = 0.2 * torch.randn(64, 2, generator=torch.Generator().manual_seed(4), dtype=torch.float64)
+    ds = _dataset(q, qd, aux)
+    params = FieldParams(speed_limit=1.5, speed_box=0.5, speed_points=256, speed_weight=2.0)
+    bound = SpeedBound(ds, fitted_rows(ds, 0.0), params, torch.Generator().manual_seed(0))
+    points, point_aux = SpeedBound(ds, fitted_rows(ds, 0.0), params, torch.Generator().manual_seed(0)).draw()
+    spread = q.max(0).values - q.min(0).values
+    assert (points >= q.min(0).values - 0.25 * spread).all() and (points <= q.max(0).values + 0.25 * spread).all()
+    assert all(any(torch.equal(g, h) for h in aux["goal"]) for g in point_aux["goal"][:8])
+    limit = 1.5 * float(qd.norm(dim=-1).max())
+    speed = learner.first_order_field(points, point_aux).norm(dim=-1)
+    expected = 2.0 * (torch.relu(speed / limit - 1) ** 2).mean()
+    assert float(expected.detach()) > 0, "the test's field must exceed the limit somewhere"
+    torch.testing.assert_close(bound.penalty(learner), expected)
+    slow = SpeedBound(_dataset(q, 1e3 * qd, aux), fitted_rows(ds, 0.0), params, torch.Generator().manual_seed(0))
+    assert float(slow.penalty(learner)) == 0.0
+
+
+def _student(gain: float, seed: int = 6, layers: int = 2, init_std: float | None = None):
+    """A learner on flow_spec's tree, its attractor's gain learned from ``gain``, its map drawn with ``init_std``."""
+    entry = LEARNERS.get("rmp")
+    torch.manual_seed(seed)
+    spec = flow_spec(layers=layers)
+    if init_std is not None:
+        spec["nodes"]["latent"]["map"]["init_std"] = init_std
+    leaves = {"attractor": {"gain": {"learn": True, "init": gain}}}
+    return entry.obj.from_params(entry.validate({"edges": [], "leaves": leaves}), spec, {"goal": 2}, 2).double()
+
+
+def test_a_field_fitted_with_a_speed_limit_is_brought_down_to_it_away_from_the_recordings():
+    """Velocities recorded in a small patch, the student's map drawn steep (init_std 2: its field ten times the
+    fastest recorded speed over the box around the patch before training): fitted with speed_limit=1.5 its field
+    over that box ends within 1.5 times the limit (it is 10 times before), and its error on the patch's held-out
+    points stays within 1.5 times that of the same fit without the bound (0.39 against 0.29 here)."""
+    teacher = flow_tree(5, layers=2)
+    gen = torch.Generator().manual_seed(7)
+    q = torch.tensor([1.0, 1.0], dtype=torch.float64) + 0.2 * torch.rand(256, 2, generator=gen, dtype=torch.float64)
+    goal = torch.zeros(1, 2, dtype=torch.float64)
+    aux = {"goal": goal.expand(256, -1).clone()}
+    with torch.no_grad():
+        qd = teacher.overdamped_field(q, aux)
+    train = _dataset(q[:192], qd[:192], {"goal": aux["goal"][:192]})
+    val = _dataset(q[192:], qd[192:], {"goal": aux["goal"][192:]})
+    fastest, speed = float(train.qd.norm(dim=-1).max()), float(train.qd.norm(dim=-1).mean())
+    lo, hi = (
+        q.min(0).values - 0.2,
+        q.max(0).values + 0.2,
+    )  # the box speed_box=2 draws from: sides three times the patch's
+    fits = {}
+    for limit in (None, 1.5):
+        learner = _student(gain=3.0, layers=4, init_std=2.0)
+        before = _speed_over(learner, lo, hi, goal) / fastest
+        params = FieldParams(
+            optimizer="adam",
+            lr=1e-2,
+            lr_schedule="cosine",
+            iterations=300,
+            snapshots=[0, 300],
+            speed_limit=limit,
+            speed_box=2.0,
+            speed_weight=10.0,
+        )
+        FieldFit(params).train(learner, MethodContext(data={"train": train}, seed=0))
+        fits[limit] = float(field_loss(learner, val, None, speed, "mse").detach())
+    after = _speed_over(learner, lo, hi, goal) / fastest
+    assert before > 5.0, f"the test needs a field fast away from the patch: {before:.2f}× the fastest"
+    assert after <= 1.5 * 1.5, f"{after:.2f}× the fastest recorded speed, over the limit of 1.5"
+    assert fits[1.5] <= 1.5 * fits[None], f"the bound costs the fit on the patch too much: {fits}"
+
+
+def test_where_the_damping_is_singular_the_field_is_nan_and_the_speed_bound_leaves_the_row_out():
+    """A root damping that vanishes at some rows (a map that flattens space there, to working precision) has no
+    field: those rows are NaN, the others are −B_r⁻¹∇Φ_r as before, and the speed penalty and its gradient stay
+    finite."""
+    from rmpfusion.learn.methods.field import SpeedBound, fitted_rows
+
+    learner = _student(gain=5.0)
+    q, aux = states(8, seed=3)
+    reference = learner.first_order_field(q, aux)
+    tree = learner.tree
+    real_forward = type(tree).forward
+
+    def flattened(self, x, xd, a=None):
+        out = real_forward(self, x, xd, a)
+        B = out.B.clone()
+        B[::2] = 0.0  # every other row: no damping at all
+        return dataclasses.replace(out, B=B)
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(type(tree), "forward", flattened)
+        v = learner.first_order_field(q, aux)
+        assert v[::2].isnan().all() and v[1::2].isfinite().all()
+        torch.testing.assert_close(v[1::2], reference[1::2])
+        ds = _dataset(q, 1e-3 * torch.ones_like(q), aux)
+        params = FieldParams(speed_limit=1.0, speed_points=64)
+        penalty = SpeedBound(ds, fitted_rows(ds, 0.0), params, torch.Generator().manual_seed(0)).penalty(learner)
+        penalty.backward()
+    assert penalty.isfinite() and float(penalty) > 0
+    assert all(p.grad is None or p.grad.isfinite().all() for p in learner.parameters())

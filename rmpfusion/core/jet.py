@@ -95,6 +95,11 @@ def silu3(z: Tensor) -> tuple[Tensor, Tensor, Tensor]:
     return z * s, s * (1 + z * (1 - s)), s * (1 - s) * (2 + z * (1 - 2 * s))
 
 
+def sin3(z: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    s = torch.sin(z)
+    return s, torch.cos(z), -s
+
+
 def exp3(z: Tensor) -> tuple[Tensor, Tensor, Tensor]:
     e = torch.exp(z)
     return e, e, e

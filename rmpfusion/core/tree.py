@@ -214,9 +214,15 @@ class RMPTree(nn.Module):
         (the weights' gradients included, docs/math.md §12), so one evaluation at rest gives it. Learning this field
         from recorded velocities fits the tree the way first-order learners are fitted (Euclideanizing flows: through
         a learned diffeomorphism with damping B it is the natural gradient descent −(JᵀBJ)⁻¹Jᵀ∇Φ), while the tree
-        stays the second-order GDS it is, with Theorem 2 and its other leaves. Differentiable in the parameters."""
+        stays the second-order GDS it is, with Theorem 2 and its other leaves. Differentiable in the parameters.
+        NaN in the rows where B_r is singular to working precision (a map that flattens space there): no field is
+        defined, and callers that sample far from the data (train.speed_limit) leave those rows out."""
         out = self(q, torch.zeros_like(q), aux)
-        return torch.linalg.solve(out.B, out.f.unsqueeze(-1)).squeeze(-1)
+        defined = torch.linalg.lu_factor_ex(out.B.detach()).info == 0
+        eye = torch.eye(out.B.shape[-1], dtype=out.B.dtype, device=out.B.device)
+        B = torch.where(defined[..., None, None], out.B, eye)  # no gradient flows through a singular solve
+        v = torch.linalg.solve(B, out.f.unsqueeze(-1)).squeeze(-1)
+        return torch.where(defined[..., None], v, torch.nan)
 
     def _resolved(
         self, q: Tensor, qd: Tensor, aux: AuxDict | None, f: Tensor, M: Tensor, qdd: Tensor | None, ok: Tensor | bool

@@ -6,8 +6,12 @@ x_b ↦ x_b ⊙ exp(s(x_a)) + t(x_a), with s, t small networks of smooth activat
 ℝⁿ onto ℝⁿ for any parameters (for fixed x_a it is an affine bijection of x_b, and exp(s) > 0), smooth, with a
 smooth inverse, so ψ is a diffeomorphism onto ℝⁿ by construction: an attractor at ψ(goal) in y has ψ⁻¹ of its
 single equilibrium as the only equilibrium in x (docs/math.md, "Learned task maps"). ``s`` is bounded by
-``scale_bound``·tanh so no layer stretches a direction by more than exp(scale_bound). y, J and J̇ẋ come out of
-one pass of a second-order jet (``core/jet.py``); the tests hold them to the autodiff of ``TaskMap``.
+``scale_bound``·tanh so no layer stretches a direction by more than exp(scale_bound). With ``features: m`` the
+networks read m random Fourier features sin(W x_a + b) of the kept coordinates instead of x_a itself (W ~ N(0, 1/σ²)
+and b ~ U(0, 2π) drawn once and kept fixed: Rahimi and Recht, "Random features for large-scale kernel machines"),
+the coupling networks of Euclideanizing flows (Rana et al. 2020): detail on the scale σ that a small tanh network
+only reaches after long training. y, J and J̇ẋ come out of one pass of a second-order jet (``core/jet.py``); the
+tests hold them to the autodiff of ``TaskMap``.
 
 ``normalize``: y = (x − shift) / scale with constants: the leaves' gains are tuned for coordinates of order one,
 so demonstrations in other scales (a handwriting tablet's centimetres, a tabletop's decimetres) are brought to
@@ -25,7 +29,7 @@ from pydantic import Field, field_validator
 from torch import Tensor, nn
 
 from ..core.auxstate import CONSTANT_DTYPE, AuxOrValue, AuxParam, constant
-from ..core.jet import SMOOTH, Jet, exp3, tanh3
+from ..core.jet import SMOOTH, Jet, exp3, sin3, tanh3
 from ..core.taskmap import TaskMap
 from ..examples import AuxInput, Example
 from ..registry import TASK_MAPS, Params, numbers_repr
@@ -38,6 +42,26 @@ def coupling_masks(dim: int, layers: int) -> list[Tensor]:
     return [first if k % 2 == 0 else ~first for k in range(layers)]
 
 
+class RandomFeatures(nn.Module):
+    """sin(W a + b) with W (m, k) ~ N(0, 1/σ²) and b ~ U(0, 2π) fixed at construction: m random Fourier features of a
+    k-vector, whose inner products approximate a Gaussian kernel of width σ. Buffers, so a checkpoint keeps them."""
+
+    weight: Tensor
+    bias: Tensor
+
+    def __init__(self, inputs: int, count: int, scale: float):
+        super().__init__()
+        self.count = count
+        self.register_buffer("weight", torch.randn(count, inputs, dtype=CONSTANT_DTYPE) / scale)
+        self.register_buffer("bias", 2 * torch.pi * torch.rand(count, dtype=CONSTANT_DTYPE))
+
+    def forward(self, a: Jet) -> Jet:
+        return a.affine(self.weight, self.bias).pointwise(sin3)
+
+    def extra_repr(self) -> str:
+        return numbers_repr({"inputs": self.weight.shape[1], "count": self.count})
+
+
 class Coupling(nn.Module):
     """x_b ↦ x_b ⊙ exp(s(x_a)) + t(x_a) on the coordinates ``~keep``, x_a = x[keep] unchanged; evaluated on a
     ``Jet`` (``core/jet.py``), so y, J and J̇ẋ come out of one pass."""
@@ -46,12 +70,20 @@ class Coupling(nn.Module):
     moved: Tensor  # those transformed,
     order: Tensor  # and where [kept, moved] go back to
 
-    def __init__(self, keep: Tensor, hidden: tuple[int, ...], activation: str, scale_bound: float):
+    def __init__(
+        self,
+        keep: Tensor,
+        hidden: tuple[int, ...],
+        activation: str,
+        scale_bound: float,
+        features: RandomFeatures | None = None,
+    ):
         super().__init__()
         self.register_buffer("kept", keep.nonzero().flatten(), persistent=False)
         self.register_buffer("moved", (~keep).nonzero().flatten(), persistent=False)
         self.register_buffer("order", torch.cat([self.kept, self.moved]).argsort(), persistent=False)
-        widths = (len(self.kept), *hidden)
+        self.features = features
+        widths = (len(self.kept) if features is None else features.count, *hidden)
         self.hidden = nn.ModuleList(nn.Linear(a, b, dtype=CONSTANT_DTYPE) for a, b in itertools.pairwise(widths))
         self.head = nn.Linear(widths[-1], 2 * len(self.moved), dtype=CONSTANT_DTYPE)
         self.activation = SMOOTH[activation]
@@ -64,7 +96,7 @@ class Coupling(nn.Module):
 
     def scale_shift(self, a: Jet) -> tuple[Jet, Jet]:
         """(s, t) of the kept coordinates: the log-scale and the shift of the moved ones."""
-        h = a
+        h = a if self.features is None else self.features(a)
         for layer in self.hidden:
             assert isinstance(layer, nn.Linear)
             h = h.affine(layer.weight, layer.bias).pointwise(self.activation)
@@ -105,6 +137,7 @@ class Coupling(nn.Module):
             3,
             scale=2.0,
         ),
+        Example({"layers": 4, "hidden": [8], "features": 16, "feature_scale": 0.5, "init_std": 0.3}, 2, scale=2.0),
     ],
 )
 class Diffeomorphism(TaskMap):
@@ -122,6 +155,14 @@ class Diffeomorphism(TaskMap):
         )
         scale_bound: float = Field(2.0, gt=0, description="|log-scale| of a layer stays below this (stretch ≤ e^bound)")
         origin: AuxOrValue | None = Field(None, description="the point mapped to 0 (a goal); null: ψ itself")
+        features: int | None = Field(
+            None,
+            ge=1,
+            description="random Fourier features the layers' networks read (null: the kept coordinates themselves)",
+        )
+        feature_scale: float = Field(
+            1.0, gt=0, description="σ of the features: the length scale, in the map's input units, they resolve"
+        )
         init_std: float = Field(
             0.1,
             ge=0,
@@ -145,7 +186,7 @@ class Diffeomorphism(TaskMap):
             )
         self.out_dim = in_dim
         couplings = [
-            Coupling(keep, tuple(params.hidden), params.activation, params.scale_bound)
+            Coupling(keep, tuple(params.hidden), params.activation, params.scale_bound, self._features(keep, params))
             for keep in coupling_masks(in_dim, params.layers)
         ]
         self.layers = nn.ModuleList(couplings)
@@ -158,6 +199,13 @@ class Diffeomorphism(TaskMap):
             for layer in couplings:
                 nn.init.normal_(layer.head.weight, std=params.init_std)
                 nn.init.normal_(layer.head.bias, std=params.init_std)
+
+    @staticmethod
+    def _features(keep: Tensor, params: Params) -> RandomFeatures | None:
+        """Each layer's own random features of its kept coordinates, or none."""
+        if params.features is None:
+            return None
+        return RandomFeatures(int(keep.sum()), params.features, params.feature_scale)
 
     def flow(self, x: Jet) -> Jet:
         """ψ on a jet: the coupling layers in order."""

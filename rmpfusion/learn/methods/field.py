@@ -13,6 +13,13 @@ constrained (an obstacle's) act beside it.
 Errors are divided by the training velocities' mean speed, so the loss reads as a squared (or smooth-L1) relative
 error whatever the units; ``batch_size: null`` takes every training point at each step (full batch, the
 literature's usual choice for a few thousand points).
+
+The recordings constrain the field only where they pass. Elsewhere a fitted map may stretch space steeply, and its
+field then moves many times faster than any demonstration did (measured on LASA's Khamesh: 56 times, over the box of
+starts the convergence check uses), which flings a second-order rollout far out and past what a fixed step can
+integrate. ``speed_limit`` bounds it where it matters: at points drawn each step over the training positions' box,
+enlarged by ``speed_box``, the part of the field's speed above ``speed_limit`` times the fastest recorded one is
+penalised.
 """
 
 from __future__ import annotations
@@ -57,9 +64,24 @@ class FieldParams(TrainParams):
         "its field within a few 1/η",
     )
 
+    speed_limit: float | None = Field(
+        None,
+        gt=0,
+        description="the field's speed over the enlarged box of training positions is penalised above this many "
+        "times the fastest recorded speed (null: unbounded; the recordings constrain the field only where they pass)",
+    )
+    speed_box: float = Field(
+        1.0, ge=0, description="speed_limit: the box's sides are 1 + speed_box times the training positions' spread"
+    )
+    speed_points: int = Field(1024, ge=1, description="speed_limit: points drawn in the box at each step")
+    speed_weight: float = Field(1.0, gt=0, description="speed_limit: the penalty's weight beside the fit's loss")
+
     def describe(self) -> str:
         batch = "full batch" if self.batch_size is None else f"batch={self.batch_size}"
-        return f"{super().describe()}; the first-order field fitted to recorded velocities ({self.loss}, {batch})"
+        bound = "" if self.speed_limit is None else f", speed ≤ {self.speed_limit:g}× the fastest recorded"
+        return (
+            f"{super().describe()}; the first-order field fitted to recorded velocities ({self.loss}, {batch}{bound})"
+        )
 
 
 def field_loss(
@@ -73,6 +95,35 @@ def field_loss(
     if loss == "smooth_l1":
         return F.smooth_l1_loss(err, torch.zeros_like(err), reduction="sum") / err.shape[0]
     return (err * err).sum(-1).mean()
+
+
+class SpeedBound:
+    """The penalty on the field's speed above ``limit`` times the fastest recorded one, at points drawn uniformly
+    in the training positions' box (its sides 1 + ``box`` times their spread), each with the aux of a training
+    row drawn with it (its goal, its obstacles)."""
+
+    def __init__(self, ds: Dataset, rows: Tensor, params: FieldParams, gen: torch.Generator):
+        assert params.speed_limit is not None, "a speed bound needs train.speed_limit"
+        q = ds.q[rows]
+        lo, hi = q.min(0).values, q.max(0).values
+        pad = 0.5 * params.speed_box * (hi - lo)
+        self.lo, self.size = lo - pad, (hi - lo) + 2 * pad
+        self.limit = params.speed_limit * float(ds.qd[rows].norm(dim=-1).max().clamp(min=1e-12))
+        self.ds, self.rows, self.params, self.gen = ds, rows, params, gen
+
+    def draw(self) -> tuple[Tensor, dict[str, Tensor]]:
+        """Points in the box, and the aux of training rows to go with them."""
+        n = self.params.speed_points
+        u = torch.rand(n, self.lo.shape[0], generator=self.gen, dtype=self.lo.dtype).to(self.lo.device)
+        pick = self.rows[torch.randint(len(self.rows), (n,), generator=self.gen).to(self.rows.device)]
+        return self.lo + u * self.size, self.ds.select(pick)[2]
+
+    def penalty(self, model: Learner) -> Tensor:
+        q, aux = self.draw()
+        speed = model.first_order_field(q, aux).norm(dim=-1)
+        defined = speed.isfinite()  # the field is undefined where the damping is singular to working precision
+        excess = torch.relu(speed[defined] / self.limit - 1)
+        return self.params.speed_weight * (excess * excess).sum() / len(speed)
 
 
 def fitted_rows(ds: Dataset, settle: float) -> Tensor:
@@ -100,6 +151,7 @@ class FieldSteps(Steps):
                 "lower it"
             )
         self.speed = float(self.data.qd[self.rows].norm(dim=-1).mean().clamp(min=1e-12))
+        self.bound = None if params.speed_limit is None else SpeedBound(self.data, self.rows, params, gen)
 
     def step(self, it: int) -> float:
         p, N = self.params, len(self.rows)
@@ -108,7 +160,8 @@ class FieldSteps(Steps):
             rows = rows[torch.randint(N, (p.batch_size,), generator=self.gen).to(rows.device)]
         self.opt.zero_grad(set_to_none=True)
         loss = field_loss(self.model, self.data, rows, self.speed, p.loss, p.speed_floor)
-        loss.backward()
+        total = loss if self.bound is None else loss + self.bound.penalty(self.model)
+        total.backward()
         optimizer_step(self.model, self.opt, p)
         return float(loss.detach())
 
@@ -124,7 +177,8 @@ class FieldSteps(Steps):
         return out
 
     def info(self) -> dict[str, Any]:
-        return {"expert_queries": 0, "training_points": len(self.rows), "speed_unit": self.speed}
+        bound = {} if self.bound is None else {"speed_bound": self.bound.limit}
+        return {"expert_queries": 0, "training_points": len(self.rows), "speed_unit": self.speed, **bound}
 
 
 @TRAIN_METHODS.register("field")
