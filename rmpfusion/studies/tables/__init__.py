@@ -8,7 +8,19 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-from . import apg, camera, dagger, expert_design, lasa, lasa_methods, leaves, paper_2d, recorded_arm, task
+from . import (
+    apg,
+    camera,
+    dagger,
+    expert_design,
+    lasa,
+    lasa_methods,
+    leaves,
+    paper_2d,
+    recorded_arm,
+    task,
+    unseen_obstacle,
+)
 
 TableKind = Callable[[dict[str, dict]], str]
 
@@ -26,4 +38,5 @@ TABLE_KINDS: dict[str, TableKind] = {
     "lasa_methods": lasa_methods.table,
     "recorded_arm": recorded_arm.table,
     "camera": camera.table,
+    "unseen_obstacle": unseen_obstacle.table,
 }
