@@ -25,9 +25,11 @@ from __future__ import annotations
 
 import argparse
 import copy
+import json
 import subprocess
 import sys
 import tempfile
+import time
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -176,6 +178,9 @@ def trained_learner(exp, ckpt: dict, learner: str):
 
 
 def run(run_dir: Path, out: Path, fraction: float, radius: float, learner: str = "rmp") -> dict:
+    """The disc on ``run_dir``'s test demonstration, both trees measured; metrics.json and the figure into ``out``.
+    Its timing adds this measurement's seconds to the run's own (training and evaluation)."""
+    started = time.perf_counter()
     ckpt = load_checkpoint(run_dir / "checkpoints" / learner / "final.pt")
     config = upgrade_run_config(ckpt["config"])
     config = {**config, "env": {**config["env"], "n_obstacles": 1}}  # the plane counts collisions with the disc
@@ -208,8 +213,10 @@ def run(run_dir: Path, out: Path, fraction: float, radius: float, learner: str =
         horizons,
         radius + support,
     )
+    run_s = float(json.loads((run_dir / "metrics.json").read_text())["timing"]["total_s"])
     metrics = {
         "run": str(run_dir),
+        "seed": config["seed"],
         "demonstration": demo.source,
         "disc": {"center": disc[0][0].tolist(), "radius": radius, "fraction_along_path": fraction},
         "barrier": BARRIER,
@@ -218,6 +225,8 @@ def run(run_dir: Path, out: Path, fraction: float, radius: float, learner: str =
     }
     out.mkdir(parents=True, exist_ok=True)
     metrics["figure"] = str(figure(out, every, demo, disc, found["paths"], round(horizons[0] / exp.env.dt) + 1))
+    measure_s = time.perf_counter() - started
+    metrics["timing"] = {"run_s": run_s, "measure_s": measure_s, "total_s": run_s + measure_s}
     atomic_write_json(out / "metrics.json", metrics)
     return metrics
 
