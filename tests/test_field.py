@@ -86,12 +86,8 @@ def _dataset(q: torch.Tensor, qd: torch.Tensor, aux: dict) -> Dataset:
 def test_field_fitting_recovers_a_teachers_field_on_held_out_points():
     """Velocities made by one random tree's field are fitted by another tree of the same structure, from another
     random start and a third of the teacher's gain: the relative error on points it never saw falls twenty-fold."""
-    teacher, student = flow_tree(5, layers=2), LEARNERS.get("rmp")
-    torch.manual_seed(6)
-    leaves = {"attractor": {"gain": {"learn": True, "init": 1.0}}}  # the teacher's is 3
-    learner = student.obj.from_params(
-        student.validate({"edges": [], "leaves": leaves}), flow_spec(layers=2), {"goal": 2}, 2
-    ).double()
+    teacher = flow_tree(5, layers=2)
+    learner = _student(gain=1.0)  # the teacher's gain is 3
     q, aux = states(256, seed=7)
     with torch.no_grad():
         qd = teacher.overdamped_field(q, aux)

@@ -218,7 +218,7 @@ class RMPTree(nn.Module):
         NaN in the rows where B_r is singular to working precision (a map that flattens space there): no field is
         defined, and callers that sample far from the data (train.speed_limit) leave those rows out."""
         out = self(q, torch.zeros_like(q), aux)
-        defined = torch.linalg.lu_factor_ex(out.B.detach()).info == 0
+        _, defined = lu_solve(out.B.detach(), out.f.detach())  # the test resolve trusts a solve by
         eye = torch.eye(out.B.shape[-1], dtype=out.B.dtype, device=out.B.device)
         B = torch.where(defined[..., None, None], out.B, eye)  # no gradient flows through a singular solve
         v = torch.linalg.solve(B, out.f.unsqueeze(-1)).squeeze(-1)
