@@ -16,31 +16,20 @@ from __future__ import annotations
 
 import argparse
 import sys
-import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from rmpfusion.learn.checkpoints import load_checkpoint
-from rmpfusion.pipeline.config import upgrade_run_config
-from rmpfusion.pipeline.experiment import prepare
-from rmpfusion.pipeline.fit import learners
-from rmpfusion.pipeline.progress import Progress
-from rmpfusion.pipeline.recorded import recorded_splits, start_box
-from rmpfusion.pipeline.validate import parse_run_config
+from rmpfusion.pipeline.finished import finished_run
+from rmpfusion.pipeline.recorded import start_box
 
 
 def field_speeds(run_dir: Path, learner: str, points: int) -> dict[str, float]:
     """The run's learner's field speeds over a points × points grid of its box of starts (2-D runs)."""
-    ckpt = load_checkpoint(run_dir / "checkpoints" / learner / "final.pt")
-    with tempfile.TemporaryDirectory() as scratch:
-        exp = prepare(parse_run_config(upgrade_run_config(ckpt["config"])), Path(scratch), Progress(False))
-        model = learners(exp)[learner]
-        model.load_state_dict(ckpt["model"])
-        model = model.to(torch.float64)
-        _, _, every = recorded_splits(exp)
+    with finished_run(run_dir, learner) as f:
+        exp, model, every = f.exp, f.model, f.every
     lo, hi = start_box(every, exp.recorded_data.enlarge)
     if len(lo) != 2:
         raise SystemExit(f"{run_dir}: a {len(lo)}-dimensional run; this grid is for 2-D demonstrations")

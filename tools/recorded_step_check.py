@@ -16,20 +16,12 @@ from __future__ import annotations
 
 import argparse
 import sys
-import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 
-import torch
-
 from rmpfusion.evaluate.lyapunov import max_relative_increase
-from rmpfusion.learn.checkpoints import load_checkpoint
-from rmpfusion.pipeline.config import upgrade_run_config
-from rmpfusion.pipeline.experiment import prepare
-from rmpfusion.pipeline.fit import learners
-from rmpfusion.pipeline.progress import Progress
-from rmpfusion.pipeline.recorded import evaluate_policy, evaluation_batch, recorded_splits
-from rmpfusion.pipeline.validate import parse_run_config
+from rmpfusion.pipeline.finished import finished_run
+from rmpfusion.pipeline.recorded import evaluate_policy, evaluation_batch
 
 #: a rise of V_r between records larger than this fraction of V_r's size fails the monotone check (its rtol)
 RISE = 1e-6
@@ -47,15 +39,10 @@ def with_step_divided(config: dict, factor: float) -> dict:
 
 def check(run_dir: Path, factor: float, learner: str = "rmp") -> dict:
     """The final ``learner`` of the run in ``run_dir`` evaluated on the run's step divided by ``factor``."""
-    ckpt = load_checkpoint(run_dir / "checkpoints" / learner / "final.pt")
-    run = parse_run_config(with_step_divided(upgrade_run_config(ckpt["config"]), factor))
-    with tempfile.TemporaryDirectory() as scratch:  # the split datasets on the new grid go here, not into the run
-        exp = prepare(run, Path(scratch), Progress(False))
-        model = learners(exp)[learner]
-        model.load_state_dict(ckpt["model"])
-        model = model.to(torch.float64)
-        _, demos, every = recorded_splits(exp)
-        batch = evaluation_batch(exp, demos, every)
+    # the split datasets on the new grid go into the scratch directory, not into the run
+    with finished_run(run_dir, learner, lambda config: with_step_divided(config, factor)) as f:
+        exp, model = f.exp, f.model
+        batch = evaluation_batch(exp, f.demos, f.every)
         res, ro = evaluate_policy(exp, f"{learner} at dt/{factor:g}", model.policy, batch, model.tree)
     rise = max_relative_increase(ro.V[:, batch.grid])
     failing = rise[rise > RISE]

@@ -28,7 +28,6 @@ import copy
 import json
 import subprocess
 import sys
-import tempfile
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -39,13 +38,8 @@ from matplotlib.patches import Circle
 
 from rmpfusion.evaluate.reproduction import dtw_distance, pairwise_distances
 from rmpfusion.files import atomic_write_json
-from rmpfusion.learn.checkpoints import load_checkpoint
-from rmpfusion.pipeline.config import upgrade_run_config
-from rmpfusion.pipeline.experiment import prepare
-from rmpfusion.pipeline.fit import learners
-from rmpfusion.pipeline.progress import Progress
-from rmpfusion.pipeline.recorded import convergence_starts, recorded_splits
-from rmpfusion.pipeline.validate import parse_run_config
+from rmpfusion.pipeline.finished import finished_run
+from rmpfusion.pipeline.recorded import convergence_starts
 from rmpfusion.plots.figures import save_figure, subplots
 
 #: the obstacle's leaf: RMPflow's barrier, in the tree's normalised units (``normalize`` of conf/tree/lasa_flow.yaml:
@@ -169,27 +163,25 @@ def figure(out: Path, demos, demo, disc, paths, horizon_steps: int) -> Path:
     return save_figure(fig, out / "unseen_obstacle.png")
 
 
-def trained_learner(exp, ckpt: dict, learner: str):
-    """The run's learner with the checkpoint's weights; the disc's leaf (when the config has it) keeps its own."""
-    model = learners(exp)[learner]
-    missing = model.load_state_dict(ckpt["model"], strict=False).missing_keys
-    assert all("unseen_obstacle" in k for k in missing), f"the checkpoint does not fit the learner: {missing}"
-    return model.to(torch.float64)
+def counting_the_disc(config: dict) -> dict:
+    """The run config whose plane counts collisions with one disc (aux obstacle1_center, obstacle1_radius)."""
+    return {**config, "env": {**config["env"], "n_obstacles": 1}}
+
+
+def with_the_disc(config: dict) -> dict:
+    """The run config counting the disc, its tree with the disc's leaf."""
+    config = counting_the_disc(config)
+    return {**config, "tree": with_disc(config["tree"], BARRIER)}
 
 
 def run(run_dir: Path, out: Path, fraction: float, radius: float, learner: str = "rmp") -> dict:
     """The disc on ``run_dir``'s test demonstration, both trees measured; metrics.json and the figure into ``out``.
     Its timing adds this measurement's seconds to the run's own (training and evaluation)."""
     started = time.perf_counter()
-    ckpt = load_checkpoint(run_dir / "checkpoints" / learner / "final.pt")
-    config = upgrade_run_config(ckpt["config"])
-    config = {**config, "env": {**config["env"], "n_obstacles": 1}}  # the plane counts collisions with the disc
-    with_leaf = {**config, "tree": with_disc(config["tree"], BARRIER)}
-    with tempfile.TemporaryDirectory() as scratch:
-        exp = prepare(parse_run_config(config), Path(scratch), Progress(False))
-        trained = trained_learner(exp, ckpt, learner).tree
-        tree = trained_learner(prepare(parse_run_config(with_leaf), Path(scratch), Progress(False)), ckpt, learner).tree
-        _, demos, every = recorded_splits(exp)
+    with finished_run(run_dir, learner, counting_the_disc) as plain:
+        exp, demos, every, trained = plain.exp, plain.demos, plain.every, plain.model.tree
+    with finished_run(run_dir, learner, with_the_disc, new_nodes=("unseen_obstacle",)) as disc_run:
+        tree = disc_run.model.tree
     if not demos.get("test"):
         raise SystemExit(
             f"{run_dir}: the run holds no test demonstration to put the disc on (data.split=all?); train with a "
@@ -199,7 +191,9 @@ def run(run_dir: Path, out: Path, fraction: float, radius: float, learner: str =
     goal = torch.as_tensor(demo.goal)[None]
     disc = (torch.as_tensor(on_path(demo.q, fraction))[None], torch.tensor([[radius]], dtype=torch.float64))
     grid = torch.as_tensor(convergence_starts(exp.env, every, exp.recorded_data, exp.run.seed))
-    support = BARRIER["r_w"] * normalising_scale(config["tree"])  # the barrier's reach from the disc, in metres
+    support = BARRIER["r_w"] * normalising_scale(
+        exp.run.tree.model_dump()
+    )  # the barrier's reach from the disc, in metres
     starts = grid[(grid - disc[0]).norm(dim=-1) > radius + support]
     longest = max(float(s.t[-1]) for s in every)
     horizons = [exp.env.dt * round(f * longest / exp.env.dt) for f in (3.0, 10.0)]
@@ -216,7 +210,7 @@ def run(run_dir: Path, out: Path, fraction: float, radius: float, learner: str =
     run_s = float(json.loads((run_dir / "metrics.json").read_text())["timing"]["total_s"])
     metrics = {
         "run": str(run_dir),
-        "seed": config["seed"],
+        "seed": exp.run.seed,
         "demonstration": demo.source,
         "disc": {"center": disc[0][0].tolist(), "radius": radius, "fraction_along_path": fraction},
         "barrier": BARRIER,
